@@ -1,0 +1,1 @@
+"""Universal Robots arms through the unmodified ur_rtde library."""

@@ -1,0 +1,1 @@
+"""Wire-faithful fake devices (SCIP scanner, UR controller) and the world they share."""

@@ -1,0 +1,1 @@
+"""The ``lasercal`` command line."""

@@ -1,0 +1,32 @@
+"""Helpers shared by the CLI commands: one console, JSON output, option parsing."""
+
+from __future__ import annotations
+
+import json
+import sys
+from typing import Any
+
+from rich.console import Console
+
+from lasercal_hw.errors import ConfigError
+
+console = Console(stderr=False, highlight=False)
+err_console = Console(stderr=True, highlight=False)
+
+
+def print_json(document: Any) -> None:
+    """Write one JSON document to standard output (nothing else goes there with --json)."""
+    sys.stdout.write(json.dumps(document, indent=2, sort_keys=False, allow_nan=False) + "\n")
+    sys.stdout.flush()
+
+
+def parse_vector(text: str, length: int, option: str) -> list[float]:
+    """Parse ``"x,y,z"`` into floats, with an error naming the option on failure."""
+    parts = [p for p in text.replace(" ", "").split(",") if p]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError as exc:
+        raise ConfigError(f"{option} must be {length} comma-separated numbers, got {text!r}") from exc
+    if len(values) != length:
+        raise ConfigError(f"{option} must have {length} numbers, got {len(values)} in {text!r}")
+    return values

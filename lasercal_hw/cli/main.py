@@ -1,0 +1,64 @@
+"""Entry point of the ``lasercal`` command: registers the sub-commands and maps errors
+to exit codes with a one-line message (``--debug`` shows the traceback)."""
+
+from __future__ import annotations
+
+import logging
+import sys
+import traceback
+
+import typer
+from rich.markup import escape
+
+from lasercal_hw import __version__
+from lasercal_hw.cli.common import err_console
+from lasercal_hw.errors import ExitCode, LasercalError
+
+app = typer.Typer(
+    name="lasercal",
+    help="Calibrate a 2D laser scanner against a UR robot with a thin rod or a drill.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+_debug = {"enabled": False}
+
+
+def _version_callback(value: bool) -> None:
+    if value:
+        typer.echo(f"lasercal {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    debug: bool = typer.Option(False, "--debug", help="Show tracebacks and debug logs."),
+    version: bool = typer.Option(
+        False, "--version", callback=_version_callback, is_eager=True, help="Print the version."
+    ),
+) -> None:
+    """lasercal: scanner-to-robot calibration."""
+    _debug["enabled"] = debug
+    logging.basicConfig(
+        level=logging.DEBUG if debug else logging.WARNING,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+
+
+def main() -> None:
+    """Run the CLI; expected failures become one line on stderr and an exit code."""
+    try:
+        app()
+    except LasercalError as exc:
+        if _debug["enabled"]:
+            traceback.print_exc()
+        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", soft_wrap=True)
+        sys.exit(int(exc.exit_code))
+    except KeyboardInterrupt:
+        err_console.print("interrupted")
+        sys.exit(int(ExitCode.INTERRUPTED))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Calibration waypoint generators and named presets."""
