@@ -135,8 +135,9 @@ class AcquisitionConfig(_Strict):
     """How scans are gathered at each waypoint."""
 
     min_scan_fraction: float = Field(0.5, gt=0.0, le=1.0)
+    max_missed_scans: int = Field(4, ge=0)
     max_attempts: int = Field(3, ge=1, le=10)
-    scan_timeout_s: float = Field(2.0, gt=0.0, le=60.0)
+    scan_timeout_s: float = Field(5.0, gt=0.0, le=60.0)
 
 
 class BackgroundConfig(_Strict):

@@ -1,11 +1,10 @@
-"""Gathering the scans of one dwell: only scans taken after the arm settled count.
+"""Gathering the scans of one dwell: only scans acquired after the arm settled count.
 
-A scan's moment of acquisition comes from the scanner's own clock, not from when the
-host happened to read it (a scan read after a move may have been taken during it). The
-device clock is mapped onto the host clock by the smallest ``host - device`` difference
-seen so far: transport latency is never negative, so that minimum is the tightest offset
-estimate, and if the two clocks drift apart it errs towards calling a scan earlier than
-it was, which only ever excludes a scan, never admits one taken while moving.
+When a scan was acquired comes from its device-time stamp (``LaserScan.device_time_s``:
+the scanner's own clock mapped onto the host's ``time.time()`` by the driver), never from
+when the host happened to read it: a scan read just after a move may have been taken
+during it. Missing sequence numbers inside a window mean the stream had a gap (a
+reconnect or lost blocks), which the caller treats as a reason to repeat the dwell.
 """
 
 from __future__ import annotations
@@ -17,39 +16,26 @@ from lasercal_hw.devices import Scanner
 from lasercal_hw.models import LaserScan
 
 
-class DeviceClock:
-    """Maps scanner device time (s) onto the host clock the sequencer uses."""
-
-    def __init__(self) -> None:
-        self._offset_s: float | None = None
-
-    def observe(self, scan: LaserScan) -> None:
-        """Tighten the offset estimate with one more scan."""
-        offset_s = scan.host_time_s - scan.device_time_s
-        if self._offset_s is None or offset_s < self._offset_s:
-            self._offset_s = offset_s
-
-    def host_time_of(self, scan: LaserScan) -> float:
-        """When the scan was acquired, on the host clock (observe the scan first)."""
-        if self._offset_s is None:
-            self.observe(scan)
-        assert self._offset_s is not None
-        return scan.device_time_s + self._offset_s
-
-
 @dataclass(frozen=True)
 class DwellCapture:
-    """The scans of one dwell and what was seen while gathering them."""
+    """The scans of one window and what was seen while gathering them."""
 
     scans: list[LaserScan]
     discarded_before_start: int
     window_start_host_s: float
     window_end_host_s: float
 
+    @property
+    def missed_scans(self) -> int:
+        """Scans the stream skipped between the first and the last kept scan."""
+        if len(self.scans) < 2:
+            return 0
+        span = self.scans[-1].sequence - self.scans[0].sequence + 1
+        return max(span - len(self.scans), 0)
+
 
 def collect_window(
     scanner: Scanner,
-    clock: DeviceClock,
     *,
     start_host_s: float,
     duration_s: float,
@@ -59,8 +45,8 @@ def collect_window(
     """Scans acquired in ``[start_host_s, start_host_s + duration_s)``.
 
     Every scan read is handed to ``on_scan`` (for the recording), including the stale ones
-    from before the window and the first one after it, which ends the wait. Raises the
-    scanner's ``DeviceTimeoutError``/``TransportError`` when the stream stalls.
+    from before the window and the first one after it, which ends the wait. The scanner's
+    ``DeviceTimeoutError``/``TransportError`` propagate when the stream stalls.
     """
     end_host_s = start_host_s + duration_s
     kept: list[LaserScan] = []
@@ -68,11 +54,9 @@ def collect_window(
     while True:
         scan = scanner.next_scan(scan_timeout_s)
         on_scan(scan)
-        clock.observe(scan)
-        acquired_s = clock.host_time_of(scan)
-        if acquired_s >= end_host_s:
+        if scan.device_time_s >= end_host_s:
             break
-        if acquired_s < start_host_s:
+        if scan.device_time_s < start_host_s:
             discarded += 1
             continue
         kept.append(scan)
@@ -81,7 +65,6 @@ def collect_window(
 
 def collect_count(
     scanner: Scanner,
-    clock: DeviceClock,
     *,
     start_host_s: float,
     count: int,
@@ -91,15 +74,11 @@ def collect_count(
     """The first ``count`` scans acquired at or after ``start_host_s``."""
     kept: list[LaserScan] = []
     discarded = 0
-    last_s = start_host_s
     while len(kept) < count:
         scan = scanner.next_scan(scan_timeout_s)
         on_scan(scan)
-        clock.observe(scan)
-        acquired_s = clock.host_time_of(scan)
-        if acquired_s < start_host_s:
+        if scan.device_time_s < start_host_s:
             discarded += 1
             continue
         kept.append(scan)
-        last_s = acquired_s
-    return DwellCapture(kept, discarded, start_host_s, last_s)
+    return DwellCapture(kept, discarded, start_host_s, kept[-1].device_time_s)

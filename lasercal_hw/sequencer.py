@@ -19,7 +19,7 @@ import numpy as np
 
 from lasercal_hw.config import JobConfig
 from lasercal_hw.devices import Robot, Scanner
-from lasercal_hw.dwell import DeviceClock, DwellCapture, collect_count, collect_window
+from lasercal_hw.dwell import DwellCapture, collect_count, collect_window
 from lasercal_hw.errors import (
     DeviceError,
     InterruptedRunError,
@@ -78,7 +78,6 @@ class WaypointMeasurement:
     tcp_pose: FloatArray
     averaged: AveragedScan
     centre: RodCentre
-    scan_sequences: tuple[int, ...]
 
     def observation(self) -> Observation:
         """The solver's view of this waypoint."""
@@ -124,6 +123,7 @@ class ResumeState:
 
     measurements: list[WaypointMeasurement] = field(default_factory=list)
     skipped: list[SkippedWaypoint] = field(default_factory=list)
+    background: AveragedScan | None = None
 
     @property
     def finished_indices(self) -> set[int]:
@@ -228,8 +228,7 @@ class Sequencer:
         self._on_progress = on_progress
         self._resume = resume or ResumeState()
         self._clock = clock
-        self._device_clock = DeviceClock()
-        self._background: AveragedScan | None = None
+        self._background: AveragedScan | None = self._resume.background
         self._measurements: list[WaypointMeasurement] = list(self._resume.measurements)
         self._skipped: list[SkippedWaypoint] = list(self._resume.skipped)
         self._timings = Timings()
@@ -245,25 +244,27 @@ class Sequencer:
         try:
             outcome = self._run()
         except (KeyboardInterrupt, InterruptedRunError) as exc:
-            self._halt("interrupted", str(exc) or type(exc).__name__)
+            self._halt("interrupted", str(exc) or "operator interrupt")
             raise InterruptedRunError(
                 f"run interrupted{self._where()}: the arm was stopped and the recording kept; "
                 "continue later with --resume"
             ) from None
         except ProtectiveStopError as exc:
-            self._event("protective_stop", waypoint=self._current, message=str(exc))
+            # The controller already stopped the arm; no command is sent to it any more.
+            self._event("abort", cause="protective_stop", index=self._current, message=str(exc))
             raise ProtectiveStopError(
                 f"protective stop{self._where()}: {exc}. The run is aborted and will not resume by "
                 "itself: find the cause, clear the stop on the teach pendant, then continue with --resume"
             ) from exc
         except BaseException as exc:
-            self._halt("abort", f"{type(exc).__name__}: {exc}")
+            self._halt("error", f"{type(exc).__name__}: {exc}")
             raise
         finally:
             self._stop_streaming()
         outcome.timings.wall_s = self._clock() - started_s
         self._event(
-            "timings",
+            "run_end",
+            passed=outcome.verdict.passed,
             wall_s=outcome.timings.wall_s,
             motion_s=outcome.timings.motion_s,
             dwell_s=outcome.timings.dwell_s,
@@ -286,10 +287,11 @@ class Sequencer:
             robot=report.robot,
             scanner=report.scanner,
             waypoints=count,
-            resumed_done=sorted(self._resume.finished_indices),
+            already_done=sorted(self._resume.finished_indices),
         )
         self._scanner.start_streaming()
-        self._capture_background(retract, retract_q)
+        if self._background is None:
+            self._capture_background(retract, retract_q)
         for index in range(count):
             if index in self._resume.finished_indices:
                 continue
@@ -303,19 +305,26 @@ class Sequencer:
         self._move(pose, q_rad)
         settled_s = self._settle()
         count = self._job.background.scans
-        self._progress("background", f"averaging {count} background scans")
+        self._progress("background", f"averaging {count} background scans (rod out of the plane)")
         dwell_started_s = self._clock()
-        capture = collect_count(
-            self._scanner,
-            self._device_clock,
-            start_host_s=settled_s + self._job.settle.margin_s,
-            count=count,
-            scan_timeout_s=self._job.acquisition.scan_timeout_s,
-            on_scan=self._recorder.write_scan,
-        )
-        self._timings.dwell_s += self._clock() - dwell_started_s
+        try:
+            capture = collect_count(
+                self._scanner,
+                start_host_s=settled_s + self._job.settle.margin_s,
+                count=count,
+                scan_timeout_s=self._job.acquisition.scan_timeout_s,
+                on_scan=self._recorder.write_scan,
+            )
+        finally:
+            self._timings.dwell_s += self._clock() - dwell_started_s
         self._background = average_scans(capture.scans)
-        self._event("background", scans=len(capture.scans), sequences=[s.sequence for s in capture.scans])
+        self._event(
+            "background",
+            tcp_pose=pose,
+            scans=len(capture.scans),
+            window_start_s=capture.window_start_host_s,
+            window_end_s=capture.window_end_host_s,
+        )
 
     def _measure_waypoint(self, index: int) -> None:
         attempts = self._job.acquisition.max_attempts
@@ -327,8 +336,8 @@ class Sequencer:
             except _Retry as retry:
                 last = retry
                 logger.warning("waypoint %d attempt %d: %s", index, attempt, retry.reason)
-                self._event("waypoint_retry", waypoint=index, attempt=attempt, reason=retry.reason)
-                self._progress("retry", f"waypoint {index}: {retry.reason}; repeating", waypoint=index)
+                self._event("waypoint_retry", index=index, attempt=attempt, reason=retry.reason)
+                self._progress("retry", f"waypoint {index + 1}: {retry.reason}; repeating", waypoint=index)
         assert last is not None
         if last.scanner_fault:
             raise DeviceError(
@@ -344,23 +353,21 @@ class Sequencer:
         settled_s = self._settle()
         tcp_start = self._read_tcp(settled_s)
         self._progress("dwell", f"dwelling {self._job.dwell_s:g} s at waypoint {index + 1}", waypoint=index)
-        capture = self._dwell(index, attempt, settled_s)
+        capture = self._dwell(index, attempt, settled_s, tcp_start)
         tcp_end = self._read_tcp(self._clock())
         drift_mm = 1000.0 * float(np.linalg.norm(tcp_end[:3] - tcp_start[:3]))
         self._event(
             "dwell_end",
-            waypoint=index,
+            index=index,
             attempt=attempt,
+            tcp_pose=tcp_end,
             scans=len(capture.scans),
             discarded=capture.discarded_before_start,
+            missed=capture.missed_scans,
             dropped_total=self._scanner.dropped_scans(),
             drift_mm=drift_mm,
         )
-        if drift_mm > self._job.settle.max_drift_mm:
-            raise _Retry(f"the arm moved {drift_mm:.2f} mm during the dwell", scanner_fault=False)
-        expected = self._job.dwell_s / self._scanner.geometry().scan_period_s
-        if len(capture.scans) < self._job.acquisition.min_scan_fraction * expected:
-            raise _Retry(f"only {len(capture.scans)} of ~{expected:.0f} scans arrived", scanner_fault=True)
+        self._check_capture(capture, drift_mm)
         averaged = average_scans(capture.scans)
         try:
             centre = find_rod_centre(
@@ -372,19 +379,18 @@ class Sequencer:
         except RodNotFoundError as exc:
             self._skip(index, str(exc))
             return
-        measurement = WaypointMeasurement(
-            index, tcp_start, averaged, centre, tuple(s.sequence for s in capture.scans)
-        )
-        self._measurements.append(measurement)
+        self._measurements.append(WaypointMeasurement(index, tcp_start, averaged, centre))
         u, v = (float(c) for c in centre.centre_uv_m)
         self._event(
-            "waypoint_done",
-            waypoint=index,
+            "observation",
+            index=index,
             tcp_pose=tcp_start,
             centre_uv_m=[u, v],
             covariance_uv_m2=centre.covariance_uv_m2,
             quality=centre.quality,
-            scan_sequences=list(measurement.scan_sequences),
+            scans=len(capture.scans),
+            window_start_s=capture.window_start_host_s,
+            window_end_s=capture.window_end_host_s,
         )
         self._progress(
             "centre",
@@ -394,21 +400,33 @@ class Sequencer:
             centre_uv_m=(u, v),
         )
 
-    def _dwell(self, index: int, attempt: int, settled_s: float) -> DwellCapture:
+    def _check_capture(self, capture: DwellCapture, drift_mm: float) -> None:
+        """Raise ``_Retry`` when the dwell's scans cannot be trusted."""
+        if capture.missed_scans > self._job.acquisition.max_missed_scans:
+            raise _Retry(
+                f"the scanner stream had a gap ({capture.missed_scans} scans missed, e.g. a reconnect)",
+                scanner_fault=True,
+            )
+        expected = self._job.dwell_s / self._scanner.geometry().scan_period_s
+        if len(capture.scans) < self._job.acquisition.min_scan_fraction * expected:
+            raise _Retry(f"only {len(capture.scans)} of ~{expected:.0f} scans arrived", scanner_fault=True)
+        if drift_mm > self._job.settle.max_drift_mm:
+            raise _Retry(f"the arm moved {drift_mm:.2f} mm during the dwell", scanner_fault=False)
+
+    def _dwell(self, index: int, attempt: int, settled_s: float, tcp_pose: FloatArray) -> DwellCapture:
         start_s = settled_s + self._job.settle.margin_s
-        self._event("dwell_start", waypoint=index, attempt=attempt, window_start_s=start_s)
+        self._event("dwell_start", index=index, attempt=attempt, tcp_pose=tcp_pose, window_start_s=start_s)
         dwell_started_s = self._clock()
         try:
             return collect_window(
                 self._scanner,
-                self._device_clock,
                 start_host_s=start_s,
                 duration_s=self._job.dwell_s,
                 scan_timeout_s=self._job.acquisition.scan_timeout_s,
                 on_scan=self._recorder.write_scan,
             )
         except TransportError as exc:
-            self._event("scanner_fault", waypoint=index, attempt=attempt, message=str(exc))
+            self._event("fault", device="scanner", index=index, attempt=attempt, message=str(exc))
             raise _Retry(f"scanner stream failed: {exc}", scanner_fault=True) from exc
         finally:
             self._timings.dwell_s += self._clock() - dwell_started_s
@@ -461,7 +479,7 @@ class Sequencer:
                     expected_uv_m=predicted.expected_uv_m,
                 )
             except RodNotFoundError as exc:
-                self._event("refine_kept_first_pass", waypoint=m.index, reason=str(exc))
+                self._event("refine_kept_first_pass", index=m.index, reason=str(exc))
                 observations.append(m.observation())
                 continue
             changed += 1
@@ -513,15 +531,15 @@ class Sequencer:
 
     def _skip(self, index: int, reason: str) -> None:
         self._skipped.append(SkippedWaypoint(index, reason))
-        self._event("waypoint_skipped", waypoint=index, reason=reason)
+        self._event("waypoint_skipped", index=index, reason=reason)
         self._progress("skip", f"waypoint {index + 1} skipped: {reason}", waypoint=index)
 
-    def _halt(self, kind: str, reason: str) -> None:
+    def _halt(self, cause: str, message: str) -> None:
         try:
             self._robot.stop()
         except LasercalError as exc:
             logger.error("could not stop the robot: %s", exc)
-        self._event(kind, waypoint=self._current, reason=reason)
+        self._event("abort", cause=cause, index=self._current, message=message)
 
     def _stop_streaming(self) -> None:
         try:

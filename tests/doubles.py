@@ -3,7 +3,7 @@
 Nothing here is product code. The robot "moves" by advancing the shared clock by the
 motion's duration and remembers its path, so the scanner can ray-cast the rod where the
 robot held it when each scan was acquired (scans taken during a move see a moving rod).
-The scanner reports a device clock with its own offset, as a real one does.
+Scans carry their acquisition time (``device_time_s``) and a later read time.
 """
 
 from __future__ import annotations
@@ -157,7 +157,6 @@ class SimScanner:
     rod: RodLine
     T_base_laser: FloatArray = field(default_factory=lambda: PAPER_T_BASE_LASER.copy())
     noise_m: float = 0.002
-    device_offset_s: float = -990.0
     latency_s: float = 0.004
     queue_scans: int = 80
     fail_reads_at: set[int] = field(default_factory=set)
@@ -216,7 +215,7 @@ class SimScanner:
             ranges_m=raw / 1000.0,
             raw_ranges_mm=raw,
             intensities=None,
-            device_time_s=acquired_s + self.device_offset_s,
+            device_time_s=acquired_s,
             host_time_s=acquired_s + self.latency_s,
         )
 
