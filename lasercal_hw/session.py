@@ -1,0 +1,278 @@
+"""Read a ``session.mcap`` back into the values the live run saw, bit for bit.
+
+A file whose writer was killed has no summary or footer and may end inside a record:
+``read_session`` reads every complete record, drops the incomplete tail and reports it
+with ``SessionRecording.truncated``. Layout: ``lasercal_hw.session_format``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import EndOfFile, McapError
+from mcap.opcode import Opcode
+from mcap.records import Channel, McapRecord, Message, Schema
+from mcap.stream_reader import MAGIC_SIZE, StreamReader
+from mcap_ros2.decoder import DecoderFactory
+
+from lasercal_hw.errors import ConfigError
+from lasercal_hw.models import FloatArray, LaserScan
+from lasercal_hw.session_format import (
+    TOPIC_EVENT,
+    TOPIC_JOINT_STATES_EXACT,
+    TOPIC_META,
+    TOPIC_SCAN,
+    TOPIC_SCAN_INFO,
+    TOPIC_TCP_POSE_EXACT,
+    EventKind,
+    decode_float64_array,
+    geometry_from_dict,
+    ranges_m_from_raw_mm,
+    ros_ranges_to_raw_mm,
+)
+
+logger = logging.getLogger(__name__)
+
+_MAGIC = b"\x89MCAP0\r\n"
+_RECORD_HEADER = struct.Struct("<BQ")
+
+
+class McapRecords:
+    """The complete records of an MCAP file in file order, tolerant of a killed writer.
+
+    ``truncated`` is True when the file has no footer (the writer did not close it) or ends
+    in an incomplete or corrupt record; ``truncation_reason`` says which.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        try:
+            data = self.path.read_bytes()
+        except FileNotFoundError as exc:
+            raise ConfigError(f"session file {self.path} not found") from exc
+        except OSError as exc:
+            raise ConfigError(f"cannot read session file {self.path}: {exc.strerror}") from exc
+        if len(data) < MAGIC_SIZE and _MAGIC.startswith(data):
+            data = b""
+        elif not data.startswith(_MAGIC):
+            raise ConfigError(f"{self.path} is not an MCAP file (wrong magic bytes); pass a session.mcap")
+        end, self.truncation_reason = _complete_prefix(data)
+        self.truncated = self.truncation_reason is not None
+        self._data = data[:end]
+
+    def __iter__(self) -> Iterator[McapRecord]:
+        if not self._data:
+            return
+        reader = StreamReader(io.BytesIO(self._data), validate_crcs=True)
+        try:
+            yield from reader.records
+        except (McapError, ValueError, struct.error) as exc:
+            # EndOfFile (an McapError) is the normal end of an unclosed file's complete part.
+            if self.truncation_reason is None or not isinstance(exc, EndOfFile):
+                self.truncated = True
+                self.truncation_reason = f"unreadable record: {exc or type(exc).__name__}"
+
+
+def _complete_prefix(data: bytes) -> tuple[int, str | None]:
+    """Length of the part of ``data`` made of whole records, and why the rest is missing
+    (None for a properly closed file)."""
+    if not data:
+        return 0, "the file is empty (writer killed before the header was written)"
+    offset = MAGIC_SIZE
+    while True:
+        if offset + _RECORD_HEADER.size > len(data):
+            return offset, "no footer: the writer did not close the file"
+        opcode, length = _RECORD_HEADER.unpack_from(data, offset)
+        if opcode == 0:
+            return offset, f"zero bytes at offset {offset} (unfinished write)"
+        end = offset + _RECORD_HEADER.size + length
+        if end > len(data):
+            return offset, f"incomplete record at offset {offset} (writer killed mid-write)"
+        if opcode == Opcode.FOOTER:
+            if data[end : end + MAGIC_SIZE] != _MAGIC:
+                return end, "footer without the closing magic bytes"
+            return end + MAGIC_SIZE, None
+        offset = end
+
+
+@dataclass(frozen=True)
+class TimedPose:
+    """A TCP pose (UR vector, base frame) at a host time."""
+
+    host_time_s: float
+    pose: FloatArray
+
+
+@dataclass(frozen=True)
+class TimedJoints:
+    """Joint positions (rad) at a host time."""
+
+    host_time_s: float
+    q_rad: FloatArray
+
+
+@dataclass(frozen=True)
+class DwellWindow:
+    """One waypoint's dwell: when it started and ended and where the TCP was.
+
+    ``tcp_pose`` is the pose recorded with ``dwell_start`` (or with ``dwell_end`` when the
+    start carried none); ``end_s`` is None when the run stopped during the dwell.
+    """
+
+    index: int
+    start_s: float | None
+    end_s: float | None
+    tcp_pose: FloatArray | None
+    tcp_pose_end: FloatArray | None
+
+    @property
+    def complete(self) -> bool:
+        """True when both the start and the end of the dwell were recorded."""
+        return self.start_s is not None and self.end_s is not None
+
+
+@dataclass
+class SessionRecording:
+    """Everything a ``session.mcap`` holds, as the product's value types."""
+
+    path: Path
+    metas: list[dict[str, Any]] = field(default_factory=list)
+    scans: list[LaserScan] = field(default_factory=list)
+    tcp_poses: list[TimedPose] = field(default_factory=list)
+    joint_states: list[TimedJoints] = field(default_factory=list)
+    events: list[dict[str, Any]] = field(default_factory=list)
+    truncated: bool = False
+    truncation_reason: str | None = None
+
+    @property
+    def meta(self) -> dict[str, Any]:
+        """All ``/lasercal/meta`` documents merged in order (later keys win)."""
+        merged: dict[str, Any] = {}
+        for document in self.metas:
+            merged.update(document)
+        return merged
+
+    def events_of(self, kind: str) -> list[dict[str, Any]]:
+        """Events of one kind, in recording order."""
+        return [event for event in self.events if event.get("kind") == kind]
+
+    def dwell_windows(self) -> list[DwellWindow]:
+        """One window per waypoint index, sorted by index.
+
+        When a waypoint was dwelt at more than once (a resumed run redoing it), the last
+        complete dwell wins; a dwell that never ended counts only if none completed.
+        """
+        best: dict[int, DwellWindow] = {}
+        open_windows: dict[int, DwellWindow] = {}
+        for event in self.events:
+            kind = event.get("kind")
+            if kind not in (EventKind.DWELL_START, EventKind.DWELL_END):
+                continue
+            index = int(event["index"])
+            pose = _pose_or_none(event.get("tcp_pose"))
+            if kind == EventKind.DWELL_START:
+                window = DwellWindow(index, event["host_time_s"], None, pose, None)
+                open_windows[index] = window
+                if index not in best or not best[index].complete:
+                    best[index] = window
+            else:
+                started = open_windows.pop(index, None)
+                start_s = started.start_s if started else None
+                start_pose = started.tcp_pose if started else None
+                best[index] = DwellWindow(
+                    index, start_s, event["host_time_s"], start_pose if start_pose is not None else pose, pose
+                )
+        return [best[index] for index in sorted(best)]
+
+    def scans_between(self, start_s: float, end_s: float) -> list[LaserScan]:
+        """Scans whose host time lies in ``[start_s, end_s]``."""
+        return [scan for scan in self.scans if start_s <= scan.host_time_s <= end_s]
+
+
+def _pose_or_none(values: Any) -> FloatArray | None:
+    return None if values is None else np.asarray(values, dtype=np.float64)
+
+
+def read_session(path: str | Path, *, include_scans: bool = True) -> SessionRecording:
+    """Read a session recording; a file cut short by a crash gives what is complete and
+    ``truncated=True``. ``include_scans=False`` skips decoding scans (faster)."""
+    records = McapRecords(path)
+    recording = SessionRecording(path=Path(path))
+    decoders = DecoderFactory()
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, tuple[str, Schema | None]] = {}
+    pending_scan: tuple[int, Any] | None = None
+    for record in records:
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = (record.topic, schemas.get(record.schema_id))
+        elif isinstance(record, Message) and record.channel_id in channels:
+            topic, schema = channels[record.channel_id]
+            if topic == TOPIC_SCAN and include_scans:
+                decoder = decoders.decoder_for("cdr", schema)
+                if decoder is not None:
+                    pending_scan = (record.sequence, decoder(record.data))
+            elif topic == TOPIC_SCAN_INFO and include_scans:
+                if pending_scan is not None and pending_scan[0] == record.sequence:
+                    recording.scans.append(_scan_from(_json(record), pending_scan[1]))
+                else:
+                    logger.warning("%s: scan %d has no LaserScan message; skipped", path, record.sequence)
+                pending_scan = None
+            elif topic == TOPIC_TCP_POSE_EXACT:
+                document = _json(record)
+                recording.tcp_poses.append(
+                    TimedPose(document["host_time_s"], np.asarray(document["pose"], dtype=np.float64))
+                )
+            elif topic == TOPIC_JOINT_STATES_EXACT:
+                document = _json(record)
+                recording.joint_states.append(
+                    TimedJoints(document["host_time_s"], np.asarray(document["q_rad"], dtype=np.float64))
+                )
+            elif topic == TOPIC_EVENT:
+                recording.events.append(_json(record))
+            elif topic == TOPIC_META:
+                recording.metas.append(_json(record))
+    recording.truncated = records.truncated
+    recording.truncation_reason = records.truncation_reason
+    if recording.truncated:
+        logger.warning("%s is truncated (%s); read what is complete", path, records.truncation_reason)
+    return recording
+
+
+def _json(record: Message) -> Any:
+    return json.loads(record.data)
+
+
+def _scan_from(info: dict[str, Any], message: Any) -> LaserScan:
+    geometry = geometry_from_dict(info["geometry"])
+    if "raw_ranges_mm" in info:
+        raw_mm = np.asarray(info["raw_ranges_mm"], dtype=np.int64)
+    else:
+        raw_mm = ros_ranges_to_raw_mm(message.ranges)
+    intensities = None
+    if "intensities" in info:
+        intensities = np.asarray(info["intensities"], dtype=np.int64)
+    elif info.get("has_intensities", False):
+        intensities = np.asarray(message.intensities, dtype=np.float32).astype(np.int64)
+    if "ranges_m_f64le_b64" in info:
+        ranges_m = decode_float64_array(info["ranges_m_f64le_b64"])
+    else:
+        ranges_m = ranges_m_from_raw_mm(raw_mm, geometry)
+    return LaserScan(
+        sequence=info["sequence"],
+        geometry=geometry,
+        ranges_m=ranges_m,
+        raw_ranges_mm=raw_mm,
+        intensities=intensities,
+        device_time_s=info["device_time_s"],
+        host_time_s=info["host_time_s"],
+    )
