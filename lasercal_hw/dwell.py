@@ -10,6 +10,7 @@ reconnect or lost blocks), which the caller treats as a reason to repeat the dwe
 from __future__ import annotations
 
 from collections.abc import Callable
+from itertools import pairwise
 from dataclasses import dataclass
 
 from lasercal_hw.devices import Scanner
@@ -24,14 +25,12 @@ class DwellCapture:
     discarded_before_start: int
     window_start_host_s: float
     window_end_host_s: float
+    missed_scans: int = 0
 
-    @property
-    def missed_scans(self) -> int:
-        """Scans the stream skipped between the first and the last kept scan."""
-        if len(self.scans) < 2:
-            return 0
-        span = self.scans[-1].sequence - self.scans[0].sequence + 1
-        return max(span - len(self.scans), 0)
+
+def _missed(sequences: list[int]) -> int:
+    """Sequence numbers skipped in an ascending run (scans the stream never delivered)."""
+    return sum(max(b - a - 1, 0) for a, b in pairwise(sequences))
 
 
 def collect_window(
@@ -45,7 +44,8 @@ def collect_window(
     """Scans acquired in ``[start_host_s, start_host_s + duration_s)``.
 
     Every scan read is handed to ``on_scan`` (for the recording), including the stale ones
-    from before the window and the first one after it, which ends the wait. The scanner's
+    from before the window and the first one after it, which ends the wait. Scans missing
+    from the first kept one to that last one are counted as missed. The scanner's
     ``DeviceTimeoutError``/``TransportError`` propagate when the stream stalls.
     """
     end_host_s = start_host_s + duration_s
@@ -55,12 +55,12 @@ def collect_window(
         scan = scanner.next_scan(scan_timeout_s)
         on_scan(scan)
         if scan.device_time_s >= end_host_s:
-            break
+            missed = _missed([s.sequence for s in kept] + [scan.sequence]) if kept else 0
+            return DwellCapture(kept, discarded, start_host_s, end_host_s, missed)
         if scan.device_time_s < start_host_s:
             discarded += 1
             continue
         kept.append(scan)
-    return DwellCapture(kept, discarded, start_host_s, end_host_s)
 
 
 def collect_count(
@@ -81,4 +81,5 @@ def collect_count(
             discarded += 1
             continue
         kept.append(scan)
-    return DwellCapture(kept, discarded, start_host_s, kept[-1].device_time_s)
+    missed = _missed([s.sequence for s in kept])
+    return DwellCapture(kept, discarded, start_host_s, kept[-1].device_time_s, missed)

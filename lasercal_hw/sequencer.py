@@ -195,7 +195,7 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
-class _Retry(Exception):
+class _RetryError(Exception):
     """One attempt at a waypoint failed in a way that repeating it may fix."""
 
     def __init__(self, reason: str, scanner_fault: bool) -> None:
@@ -302,38 +302,48 @@ class Sequencer:
 
     def _capture_background(self, pose: FloatArray, q_rad: FloatArray) -> None:
         self._progress("background", "moving to the retract pose for the background")
-        self._move(pose, q_rad)
-        settled_s = self._settle()
-        count = self._job.background.scans
-        self._progress("background", f"averaging {count} background scans (rod out of the plane)")
-        dwell_started_s = self._clock()
-        try:
-            capture = collect_count(
-                self._scanner,
-                start_host_s=settled_s + self._job.settle.margin_s,
-                count=count,
-                scan_timeout_s=self._job.acquisition.scan_timeout_s,
-                on_scan=self._recorder.write_scan,
+        attempts = self._job.acquisition.max_attempts
+        for attempt in range(1, attempts + 1):
+            self._move(pose, q_rad)
+            settled_s = self._settle()
+            count = self._job.background.scans
+            self._progress("background", f"averaging {count} background scans (rod out of the plane)")
+            dwell_started_s = self._clock()
+            try:
+                capture = collect_count(
+                    self._scanner,
+                    start_host_s=settled_s + self._job.settle.margin_s,
+                    count=count,
+                    scan_timeout_s=self._job.acquisition.scan_timeout_s,
+                    on_scan=self._recorder.write_scan,
+                )
+            except TransportError as exc:
+                self._event("fault", device="scanner", index=None, attempt=attempt, message=str(exc))
+                if attempt == attempts:
+                    raise DeviceError(
+                        f"background: the scanner failed {attempts} times ({exc}); check its cable and power"
+                    ) from exc
+                continue
+            finally:
+                self._timings.dwell_s += self._clock() - dwell_started_s
+            self._background = average_scans(capture.scans)
+            self._event(
+                "background",
+                tcp_pose=pose,
+                scans=len(capture.scans),
+                window_start_s=capture.window_start_host_s,
+                window_end_s=capture.window_end_host_s,
             )
-        finally:
-            self._timings.dwell_s += self._clock() - dwell_started_s
-        self._background = average_scans(capture.scans)
-        self._event(
-            "background",
-            tcp_pose=pose,
-            scans=len(capture.scans),
-            window_start_s=capture.window_start_host_s,
-            window_end_s=capture.window_end_host_s,
-        )
+            return
 
     def _measure_waypoint(self, index: int) -> None:
         attempts = self._job.acquisition.max_attempts
-        last: _Retry | None = None
+        last: _RetryError | None = None
         for attempt in range(1, attempts + 1):
             try:
                 self._attempt_waypoint(index, attempt)
                 return
-            except _Retry as retry:
+            except _RetryError as retry:
                 last = retry
                 logger.warning("waypoint %d attempt %d: %s", index, attempt, retry.reason)
                 self._event("waypoint_retry", index=index, attempt=attempt, reason=retry.reason)
@@ -401,17 +411,18 @@ class Sequencer:
         )
 
     def _check_capture(self, capture: DwellCapture, drift_mm: float) -> None:
-        """Raise ``_Retry`` when the dwell's scans cannot be trusted."""
+        """Raise ``_RetryError`` when the dwell's scans cannot be trusted."""
         if capture.missed_scans > self._job.acquisition.max_missed_scans:
-            raise _Retry(
+            raise _RetryError(
                 f"the scanner stream had a gap ({capture.missed_scans} scans missed, e.g. a reconnect)",
                 scanner_fault=True,
             )
         expected = self._job.dwell_s / self._scanner.geometry().scan_period_s
         if len(capture.scans) < self._job.acquisition.min_scan_fraction * expected:
-            raise _Retry(f"only {len(capture.scans)} of ~{expected:.0f} scans arrived", scanner_fault=True)
+            arrived = len(capture.scans)
+            raise _RetryError(f"only {arrived} of ~{expected:.0f} scans arrived", scanner_fault=True)
         if drift_mm > self._job.settle.max_drift_mm:
-            raise _Retry(f"the arm moved {drift_mm:.2f} mm during the dwell", scanner_fault=False)
+            raise _RetryError(f"the arm moved {drift_mm:.2f} mm during the dwell", scanner_fault=False)
 
     def _dwell(self, index: int, attempt: int, settled_s: float, tcp_pose: FloatArray) -> DwellCapture:
         start_s = settled_s + self._job.settle.margin_s
@@ -427,7 +438,7 @@ class Sequencer:
             )
         except TransportError as exc:
             self._event("fault", device="scanner", index=index, attempt=attempt, message=str(exc))
-            raise _Retry(f"scanner stream failed: {exc}", scanner_fault=True) from exc
+            raise _RetryError(f"scanner stream failed: {exc}", scanner_fault=True) from exc
         finally:
             self._timings.dwell_s += self._clock() - dwell_started_s
 
@@ -519,7 +530,8 @@ class Sequencer:
     def _read_tcp(self, host_time_s: float) -> FloatArray:
         pose = np.asarray(self._robot.tcp_pose(), dtype=float)
         self._recorder.write_tcp_pose(host_time_s, pose)
-        self._recorder.write_joint_state(host_time_s, np.asarray(self._robot.joint_positions_rad(), dtype=float))
+        q_rad = np.asarray(self._robot.joint_positions_rad(), dtype=float)
+        self._recorder.write_joint_state(host_time_s, q_rad)
         return pose
 
     def _nominal_expected_uv(self, tcp_pose: FloatArray) -> FloatArray | None:

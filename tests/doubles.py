@@ -160,6 +160,7 @@ class SimScanner:
     latency_s: float = 0.004
     queue_scans: int = 80
     fail_reads_at: set[int] = field(default_factory=set)
+    gap_at_reads: set[int] = field(default_factory=set)
     seed: int = 1
     reads: int = 0
     streaming: bool = False
@@ -198,6 +199,9 @@ class SimScanner:
             self.clock.advance_to(self.clock() + timeout_s)
             raise DeviceTimeoutError("no scan within the timeout (simulated drop)")
         period = UTM_GEOMETRY.scan_period_s
+        if self.reads in self.gap_at_reads:  # a reconnect: half a second of scans never arrives
+            self._next_k += 20
+            self.clock.advance_to(self._next_k * period)
         newest_k = int(np.floor((self.clock() - self.latency_s) / period))
         oldest_kept = newest_k - self.queue_scans + 1
         if self._next_k < oldest_kept:
@@ -270,7 +274,7 @@ def semicircle_waypoints(count: int = 12) -> FloatArray:
     for k in range(count):
         radius_m = 0.55 if k % 2 == 0 else 0.7
         angle = np.radians(-60 + 80 * k / max(count - 1, 1))
-        xyz = [radius_m * np.cos(angle), radius_m * np.sin(angle), 0.33 + 0.05 * (k % 3)]
+        xyz = [radius_m * np.cos(angle), radius_m * np.sin(angle), 0.29 + 0.04 * (k % 3)]
         tilt_x, tilt_y = rng.uniform(-0.25, 0.25, 2)
         poses.append(rod_down_pose(xyz, tilt_x, tilt_y))
     return np.array(poses)
