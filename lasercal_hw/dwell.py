@@ -10,8 +10,8 @@ reconnect or lost blocks), which the caller treats as a reason to repeat the dwe
 from __future__ import annotations
 
 from collections.abc import Callable
-from itertools import pairwise
 from dataclasses import dataclass
+from itertools import pairwise
 
 from lasercal_hw.devices import Scanner
 from lasercal_hw.models import LaserScan

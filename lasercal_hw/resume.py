@@ -47,7 +47,7 @@ def _window_scans(scans: list[LaserScan], start_s: float, end_s: float) -> list[
 
 def _average_or_none(scans: list[LaserScan], expected: int, what: str) -> AveragedScan | None:
     if len(scans) != expected or not scans:
-        logger.warning("%s: %d scans recorded where %d were used; measuring it again", what, len(scans), expected)
+        logger.warning("%s: %d scans recorded, %d were used; measuring again", what, len(scans), expected)
         return None
     return average_scans(scans)
 

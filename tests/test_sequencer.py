@@ -246,7 +246,8 @@ def test_preflight_refuses_a_robot_not_in_remote_control() -> None:
 
 def test_nominal_pose_predicts_where_to_look() -> None:
     yaw, pitch, roll = np.degrees(matrix_to_euler_zyx(PAPER_T_BASE_LASER[:3, :3]))
-    job = fast_job(scanner={"nominal": {"translation_m": [0.32, 0.48, 0.21], "euler_zyx_deg": [yaw, pitch, roll]}})
+    nominal = {"translation_m": [0.32, 0.48, 0.21], "euler_zyx_deg": [yaw, pitch, roll]}
+    job = fast_job(scanner={"nominal": nominal})
     clock, robot, scanner = make_cell(job)
     outcome = Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(10), clock=clock).run()
     assert len(outcome.measurements) == 10
