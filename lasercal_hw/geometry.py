@@ -139,8 +139,9 @@ def matrix_to_euler_zyx(rotation: ArrayLike) -> FloatArray:
     At gimbal lock (``|pitch| = pi/2``) roll is set to zero and yaw takes the whole angle.
     """
     m = np.asarray(rotation, dtype=float)
-    pitch = np.arcsin(np.clip(-m[..., 2, 0], -1.0, 1.0))
     cos_pitch = np.hypot(m[..., 0, 0], m[..., 1, 0])
+    # atan2, not arcsin: arcsin loses half the digits near pitch = +-pi/2 (1e-8 at 1e-8 rad).
+    pitch = np.arctan2(-m[..., 2, 0], cos_pitch)
     locked = cos_pitch < 1e-9
     yaw = np.where(locked, np.arctan2(-m[..., 0, 1], m[..., 1, 1]), np.arctan2(m[..., 1, 0], m[..., 0, 0]))
     roll = np.where(locked, 0.0, np.arctan2(m[..., 2, 1], m[..., 2, 2]))
