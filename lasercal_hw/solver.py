@@ -344,10 +344,10 @@ def _check_observability(
     singular = np.sqrt(np.clip(eigenvalues, 0.0, None))[::-1]
     vectors = vectors[:, ::-1]
     ratio = float(singular[-1] / singular[0]) if singular[0] > 0 else 0.0
-    weakest = _describe_direction(vectors[:, -1])
+    weakest = _describe_direction(vectors[:, -1], lever_m, translation)
     notes = [
         f"weakly observable ({singular[k] / singular[0]:.1e} of the strongest): "
-        f"{_describe_direction(vectors[:, k])}"
+        f"{_describe_direction(vectors[:, k], lever_m, translation)}"
         for k in range(6)
         if singular[0] > 0 and singular[k] / singular[0] < opts.weak_condition_ratio
     ]
@@ -366,16 +366,22 @@ def _check_observability(
     return fisher, observability
 
 
-def _describe_direction(vector: FloatArray) -> str:
-    """Name a (scaled) parameter direction (dt, lever * e) in words."""
-    trans, rot = vector[:3], vector[3:]
-    t_norm, r_norm = np.linalg.norm(trans), np.linalg.norm(rot)
-    parts = []
-    if t_norm >= 0.3:
-        parts.append(f"translation along base {_fmt(trans / t_norm)}")
-    if r_norm >= 0.3:
-        parts.append(f"rotation about base {_fmt(rot / r_norm)}")
-    return " coupled with ".join(parts)
+def _describe_direction(vector: FloatArray, lever_m: float, translation: FloatArray) -> str:
+    """Name a parameter direction (dt, lever * e) in words: a translation, or a rotation
+    about a base-frame axis through a point (the scanner turning about that axis)."""
+    trans, rot = vector[:3], vector[3:] / lever_m
+    if np.linalg.norm(vector[3:]) < 0.3:
+        return f"translation along base {_fmt(trans / np.linalg.norm(trans))}"
+    # A whole-body rotation e about an axis through c moves the scanner origin by e x (t - c).
+    axis = rot / np.linalg.norm(rot)
+    moment = np.cross(rot, translation) - trans
+    foot = np.cross(moment, rot) / (rot @ rot)
+    point = foot + ((translation - foot) @ axis) * axis
+    text = f"rotation about base axis {_fmt(axis)} through ({', '.join(f'{v:.2f}' for v in point)}) m"
+    slide = (trans @ axis) / np.linalg.norm(rot)
+    if abs(slide) > 0.1 * lever_m:
+        text += f" with {abs(slide):.2f} m/rad translation along it"
+    return text
 
 
 def _advice(vector: FloatArray, rotation: FloatArray, directions: FloatArray) -> str:

@@ -66,22 +66,19 @@ def _print_result(result: CalibrationResult) -> None:
         matrix.add_row(*(f"{v:+.6f}" for v in row))
     console.print(matrix)
     table = Table(title="Pose of the scanner in the base frame")
-    for name in ("quantity", "x", "y", "z", "std (x, y, z)", "CRB (x, y, z)"):
-        table.add_column(name, justify="right" if name != "quantity" else "left")
-    table.add_row(
-        "translation (mm)",
-        *(f"{v * 1e3:.2f}" for v in result.translation_m),
-        _triple(result.std_translation_mm),
-        _triple(result.crb_translation_mm),
-    )
-    table.add_row("rotation about base axes (deg)", "", "", "", _triple(result.std_rotation_deg),
-                  _triple(result.crb_rotation_deg))
-    table.add_row(
-        "ZYX yaw, pitch, roll (deg)",
-        *(f"{v:.4f}" for v in result.euler_zyx_deg),
-        _triple(result.std_euler_zyx_deg),
-        _triple(result.crb_euler_zyx_deg),
-    )
+    for name in ("parameter", "value", "std", "CRB"):
+        table.add_column(name, justify="left" if name == "parameter" else "right")
+    for axis, value, std, crb in zip(
+        "xyz", result.translation_m, result.std_translation_mm, result.crb_translation_mm, strict=True
+    ):
+        table.add_row(f"t_{axis} (mm)", f"{value * 1e3:.2f}", f"{std:.3f}", f"{crb:.3f}")
+    for name, value, std, crb in zip(
+        ("yaw", "pitch", "roll"), result.euler_zyx_deg, result.std_euler_zyx_deg, result.crb_euler_zyx_deg,
+        strict=True,
+    ):
+        table.add_row(f"{name} (deg, ZYX)", f"{value:.4f}", f"{std:.4f}", f"{crb:.4f}")
+    for axis, std, crb in zip("xyz", result.std_rotation_deg, result.crb_rotation_deg, strict=True):
+        table.add_row(f"rotation about base {axis} (deg)", "", f"{std:.4f}", f"{crb:.4f}")
     console.print(table)
     console.print(
         f"RMS residual {result.rms_residual_mm:.2f} mm, reduced chi-square {result.reduced_chi_square:.2f}, "
@@ -97,7 +94,3 @@ def _print_result(result: CalibrationResult) -> None:
         for o in result.outliers:
             outliers.add_row(str(o.index), f"{o.residual_mm:.1f}", o.reason)
         console.print(outliers)
-
-
-def _triple(values: list[float]) -> str:
-    return ", ".join(f"{v:.3f}" for v in values)
