@@ -120,7 +120,9 @@ def crb_covariance(truth: FloatArray, poses: FloatArray, rod: RodLine, protocol:
     """CRB (6, 6) of (t [mm], roll, pitch, yaw [deg]) for these waypoints and noise model."""
     origins, directions = rod_lines_in_base(poses, rod)
     covariance = np.broadcast_to(np.eye(2) * protocol.laser_noise_m**2, (len(poses), 2, 2))
-    fisher = fisher_information(truth[:3, :3], truth[:3, 3], origins, directions, covariance, protocol.robot_noise_m)
+    fisher = fisher_information(
+        truth[:3, :3], truth[:3, 3], origins, directions, covariance, protocol.robot_noise_m
+    )
     crb = np.linalg.inv(fisher)
     yaw, pitch, _ = matrix_to_euler_zyx(truth[:3, :3])
     to_euler = np.linalg.inv(euler_zyx_axes(yaw, pitch))[::-1]  # rows: roll, pitch, yaw

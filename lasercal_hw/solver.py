@@ -75,7 +75,9 @@ class SolverOptions(BaseModel):
     max_outlier_fraction: float = Field(0.3, ge=0.0, lt=1.0)
     default_sigma_uv_m: float = Field(0.005, gt=0, description="centre noise when none is given")
     robot_sigma_m: float = Field(0.0005, ge=0, description="robot TCP position noise per axis")
-    min_incidence_deg: float = Field(5.0, ge=0, lt=90, description="rod-to-plane angle below which a waypoint is unusable")
+    min_incidence_deg: float = Field(
+        5.0, ge=0, lt=90, description="rod-to-plane angle below which a waypoint is unusable"
+    )
     parallel_tolerance_deg: float = Field(0.5, ge=0, description="all rod axes within this are 'parallel'")
     min_condition_ratio: float = Field(1e-6, gt=0, description="refuse below this singular-value ratio")
     weak_condition_ratio: float = Field(1e-2, gt=0, description="note directions below this ratio")
@@ -151,7 +153,9 @@ def _arrays(observations: Sequence[Observation], rod: RodLine, opts: SolverOptio
         dtype=float,
     )
     if poses.shape != (n, 6) or centres.shape != (n, 2) or covariance.shape != (n, 2, 2):
-        raise ConfigError("each observation needs a 6-element TCP pose, a 2-element centre and a 2x2 covariance")
+        raise ConfigError(
+            "each observation needs a 6-element TCP pose, a 2-element centre and a 2x2 covariance"
+        )
     finite = np.isfinite(poses).all(axis=1) & np.isfinite(centres).all(axis=1)
     finite &= np.isfinite(covariance).all(axis=(1, 2))
     if not finite.all():
@@ -267,7 +271,8 @@ def _refine(
         if key not in cache:
             cache.clear()
             rotation = rotvec_to_matrix(x[3:]) @ rotation0
-            residual, jac, _ = residuals_and_jacobian(rotation, translation0 + x[:3], origins, directions, centres)
+            translation = translation0 + x[:3]
+            residual, jac, _ = residuals_and_jacobian(rotation, translation, origins, directions, centres)
             jac[:, :, 3:] = jac[:, :, 3:] @ left_jacobian_so3(x[3:])
             cache[key] = whiten(white, residual, jac)
         return cache[key]
@@ -286,9 +291,13 @@ def _refine(
     return rotvec_to_matrix(fit.x[3:]) @ rotation0, translation0 + fit.x[:3], int(fit.nfev)
 
 
-def _whitened_squared(rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions) -> FloatArray:
+def _whitened_squared(
+    rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions
+) -> FloatArray:
     """Squared Mahalanobis length of every waypoint's residual (N,)."""
-    residual, _, shift = residuals_and_jacobian(rotation, translation, data.origins, data.directions, data.centres)
+    residual, _, shift = residuals_and_jacobian(
+        rotation, translation, data.origins, data.directions, data.centres
+    )
     white = whitening(effective_covariance(data.covariance, shift, opts.robot_sigma_m))
     whitened = np.einsum("nij,nj->ni", white, residual)
     return np.nan_to_num((whitened**2).sum(axis=1), nan=np.inf)
@@ -325,7 +334,9 @@ def _check_observability(
 ) -> tuple[FloatArray, Observability]:
     """Fisher information of the used waypoints; refuse if a direction is not observable."""
     origins, directions = data.origins[used], data.directions[used]
-    fisher = fisher_information(rotation, translation, origins, directions, data.covariance[used], opts.robot_sigma_m)
+    fisher = fisher_information(
+        rotation, translation, origins, directions, data.covariance[used], opts.robot_sigma_m
+    )
     crossing, _, _ = plane_crossing(rotation, translation, origins, directions)
     lever_m = max(0.1, float(np.sqrt(np.mean(np.sum(crossing**2, axis=1)))))
     scale = np.array([1.0, 1.0, 1.0, 1.0 / lever_m, 1.0 / lever_m, 1.0 / lever_m])
@@ -333,9 +344,10 @@ def _check_observability(
     singular = np.sqrt(np.clip(eigenvalues, 0.0, None))[::-1]
     vectors = vectors[:, ::-1]
     ratio = float(singular[-1] / singular[0]) if singular[0] > 0 else 0.0
-    weakest = _describe_direction(vectors[:, -1])
+    weakest = _describe_direction(vectors[:, -1], lever_m, translation)
     notes = [
-        f"weakly observable ({singular[k] / singular[0]:.1e} of the strongest): {_describe_direction(vectors[:, k])}"
+        f"weakly observable ({singular[k] / singular[0]:.1e} of the strongest): "
+        f"{_describe_direction(vectors[:, k], lever_m, translation)}"
         for k in range(6)
         if singular[0] > 0 and singular[k] / singular[0] < opts.weak_condition_ratio
     ]
@@ -354,16 +366,22 @@ def _check_observability(
     return fisher, observability
 
 
-def _describe_direction(vector: FloatArray) -> str:
-    """Name a (scaled) parameter direction (dt, lever * e) in words."""
-    trans, rot = vector[:3], vector[3:]
-    t_norm, r_norm = np.linalg.norm(trans), np.linalg.norm(rot)
-    parts = []
-    if t_norm >= 0.3:
-        parts.append(f"translation along base {_fmt(trans / t_norm)}")
-    if r_norm >= 0.3:
-        parts.append(f"rotation about base {_fmt(rot / r_norm)}")
-    return " coupled with ".join(parts)
+def _describe_direction(vector: FloatArray, lever_m: float, translation: FloatArray) -> str:
+    """Name a parameter direction (dt, lever * e) in words: a translation, or a rotation
+    about a base-frame axis through a point (the scanner turning about that axis)."""
+    trans, rot = vector[:3], vector[3:] / lever_m
+    if np.linalg.norm(vector[3:]) < 0.3:
+        return f"translation along base {_fmt(trans / np.linalg.norm(trans))}"
+    # A whole-body rotation e about an axis through c moves the scanner origin by e x (t - c).
+    axis = rot / np.linalg.norm(rot)
+    moment = np.cross(rot, translation) - trans
+    foot = np.cross(moment, rot) / (rot @ rot)
+    point = foot + ((translation - foot) @ axis) * axis
+    text = f"rotation about base axis {_fmt(axis)} through ({', '.join(f'{v:.2f}' for v in point)}) m"
+    slide = (trans @ axis) / np.linalg.norm(rot)
+    if abs(slide) > 0.1 * lever_m:
+        text += f" with {abs(slide):.2f} m/rad translation along it"
+    return text
 
 
 def _advice(vector: FloatArray, rotation: FloatArray, directions: FloatArray) -> str:

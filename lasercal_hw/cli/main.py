@@ -50,6 +50,12 @@ from lasercal_hw.cli.fake import fake_app  # noqa: E402
 
 app.add_typer(fake_app, name="fake")
 
+from lasercal_hw.cli.simulate import simulate_command  # noqa: E402
+from lasercal_hw.cli.solve import solve_command  # noqa: E402
+
+app.command("simulate")(simulate_command)
+app.command("solve")(solve_command)
+
 
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
