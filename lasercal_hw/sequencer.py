@@ -145,6 +145,7 @@ class RunOutcome:
     verdict: Verdict
     timings: Timings
     resumed_from: int
+    background: AveragedScan | None
 
 
 @dataclass(frozen=True)
@@ -216,9 +217,12 @@ class Sequencer:
         waypoints: FloatArray,
         *,
         on_progress: ProgressCallback | None = None,
+        before_motion: Callable[[PreflightReport], None] | None = None,
         resume: ResumeState | None = None,
         clock: Callable[[], float] = time.time,
     ) -> None:
+        """``before_motion`` is called once preflight passed and before the first motion
+        (the CLI asks the operator there; raising from it aborts with nothing moved)."""
         self._robot = robot
         self._scanner = scanner
         self._recorder = recorder
@@ -226,6 +230,7 @@ class Sequencer:
         self._waypoints = np.asarray(waypoints, dtype=float).reshape(-1, 6)
         self._rod = job.rod.rod_line()
         self._on_progress = on_progress
+        self._before_motion = before_motion
         self._resume = resume or ResumeState()
         self._clock = clock
         self._background: AveragedScan | None = self._resume.background
@@ -244,9 +249,10 @@ class Sequencer:
         try:
             outcome = self._run()
         except (KeyboardInterrupt, InterruptedRunError) as exc:
-            self._halt("interrupted", str(exc) or "operator interrupt")
+            reason = str(exc) or "Ctrl-C"
+            self._halt("interrupted", reason)
             raise InterruptedRunError(
-                f"run interrupted{self._where()}: the arm was stopped and the recording kept; "
+                f"run interrupted{self._where()} ({reason}): the arm was stopped and the recording kept; "
                 "continue later with --resume"
             ) from None
         except ProtectiveStopError as exc:
@@ -289,6 +295,8 @@ class Sequencer:
             waypoints=count,
             already_done=sorted(self._resume.finished_indices),
         )
+        if self._before_motion is not None:
+            self._before_motion(report)
         self._scanner.start_streaming()
         if self._background is None:
             self._capture_background(retract, retract_q)
@@ -472,6 +480,7 @@ class Sequencer:
             verdict=verdict,
             timings=self._timings,
             resumed_from=len(self._resume.measurements) + len(self._resume.skipped),
+            background=self._background,
         )
 
     def _reextract(

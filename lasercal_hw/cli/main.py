@@ -56,6 +56,10 @@ from lasercal_hw.cli.solve import solve_command  # noqa: E402
 app.command("simulate")(simulate_command)
 app.command("solve")(solve_command)
 
+from lasercal_hw.cli.run import run_command  # noqa: E402
+
+app.command("run")(run_command)
+
 
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""

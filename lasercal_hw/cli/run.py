@@ -1,0 +1,319 @@
+"""``lasercal run``: calibrate the scanner against the robot, live (or against a fake cell
+with ``--dry-run``), and write the results."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import time
+from collections.abc import Callable, Iterator
+from datetime import UTC, datetime
+from pathlib import Path
+from types import FrameType
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, SpinnerColumn, TextColumn
+from rich.progress import Progress as RichProgress
+
+from lasercal_hw import __version__
+from lasercal_hw.cli.common import console, err_console, print_json
+from lasercal_hw.cli.solve import _print_result as print_result
+from lasercal_hw.config import JobConfig, load_job, with_overrides
+from lasercal_hw.devices import Robot, Scanner
+from lasercal_hw.dry_run import FakeCellProcess
+from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
+from lasercal_hw.models import FloatArray
+from lasercal_hw.preflight import PreflightReport
+from lasercal_hw.recorder import SessionRecorder
+from lasercal_hw.resume import META_JOB, META_WAYPOINTS, recorded_job, resume_state
+from lasercal_hw.run_outputs import SESSION_FILE, transform_error, write_outputs
+from lasercal_hw.sequencer import Progress, ResumeState, RunOutcome, Sequencer
+from lasercal_hw.session import read_session
+from lasercal_hw.waypoints import job_waypoints
+
+OVERHEAD_TARGET = 0.10
+
+
+class ProgressView:
+    """Renders the sequencer's progress events live (a bar plus one line per waypoint)."""
+
+    def __init__(self, target: Console) -> None:
+        self._progress = RichProgress(
+            SpinnerColumn(),
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[status]}"),
+            console=target,
+        )
+        self._task = self._progress.add_task("starting", total=None, status="")
+
+    def __enter__(self) -> ProgressView:
+        self._progress.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self._progress.stop()
+
+    def __call__(self, event: Progress) -> None:
+        """Show one progress event."""
+        status = []
+        if event.scans_averaged is not None:
+            status.append(f"{event.scans_averaged} scans")
+        if event.time_left_s is not None and event.waypoint_count:
+            status.append(f"~{event.time_left_s:.0f} s left")
+        self._progress.update(
+            self._task,
+            description=escape(event.message),
+            total=event.waypoint_count or None,
+            completed=event.completed,
+            status=", ".join(status),
+        )
+        if event.stage in ("centre", "skip", "retry"):
+            colour = {"centre": "green", "skip": "yellow", "retry": "yellow"}[event.stage]
+            self._progress.console.print(f"[{colour}]{escape(event.message)}[/]")
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """Turn SIGTERM into KeyboardInterrupt so it stops the arm like Ctrl-C does."""
+
+    def interrupt(signum: int, frame: FrameType | None) -> None:
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _require_confirmation_possible(yes: bool, dry_run: bool) -> None:
+    if yes or dry_run or sys.stdin.isatty():
+        return
+    raise ConfigError(
+        "refusing to move the robot without confirmation: standard input is not a terminal, so "
+        "nobody can answer the prompt; check the cell and pass --yes to run unattended"
+    )
+
+
+def _confirm(
+    job: JobConfig, waypoints: FloatArray, host: str, dry_run: bool, ui: Console
+) -> Callable[[PreflightReport], None]:
+    def ask(report: PreflightReport) -> None:
+        if dry_run:
+            return
+        motion = job.motion
+        ui.print(
+            f"About to move the {report.robot.model} at {host} (serial {report.robot.serial_number}) through "
+            f"{len(waypoints)} waypoints, {motion.move} moves capped at {motion.speed_m_s} m/s and "
+            f"{motion.accel_m_s2} m/s^2, dwelling {job.dwell_s:g} s each. Keep clear of the arm."
+        )
+        if not typer.confirm("Start the motion?", default=False, err=True):
+            raise InterruptedRunError("the operator declined at the confirmation prompt; nothing moved")
+
+    return ask
+
+
+def _connect(job: JobConfig, stack: contextlib.ExitStack) -> tuple[Robot, Scanner]:
+    from drivers.ur.client import MotionLimits, URRobot
+
+    from drivers.hokuyo.client import HokuyoScanner
+
+    assert job.robot.host is not None
+    limits = MotionLimits(
+        max_speed_m_s=job.motion.speed_m_s,
+        max_accel_m_s2=job.motion.accel_m_s2,
+        max_joint_speed_rad_s=job.motion.joint_speed_rad_s,
+        max_joint_accel_rad_s2=job.motion.joint_accel_rad_s2,
+    )
+    robot = URRobot.connect(job.robot.host, limits=limits)
+    stack.callback(robot.close)
+    scanner = HokuyoScanner.open(job.scanner.url, timeout_s=job.scanner.timeout_s)
+    stack.callback(scanner.close)
+    return robot, scanner
+
+
+def _default_out_dir() -> Path:
+    return Path("lasercal-out") / datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+
+
+def _prepare_out_dir(out_dir: Path) -> Path:
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}") from exc
+    if (out_dir / SESSION_FILE).exists():
+        raise ConfigError(f"{out_dir / SESSION_FILE} already exists; choose another --out or use --resume")
+    return out_dir
+
+
+def _print_summary(outcome: RunOutcome, files: dict[str, Path], truth_error: dict[str, float] | None) -> None:
+    print_result(outcome.result)
+    console.print(f"[dim]{escape(outcome.refinement)}[/]")
+    for skipped in outcome.skipped:
+        console.print(f"[yellow]waypoint {skipped.index} skipped:[/] {escape(skipped.reason)}")
+    for check in outcome.verdict.checks:
+        colour = "green" if check.passed else "red"
+        console.print(f"[{colour}]{escape(check.describe())}[/]")
+    timings = outcome.timings
+    console.print(
+        f"time: wall {timings.wall_s:.1f} s, motion {timings.motion_s:.1f} s, dwell {timings.dwell_s:.1f} s; "
+        f"overhead {100 * timings.overhead_fraction:.1f} % of motion+dwell "
+        f"(target under {100 * OVERHEAD_TARGET:.0f} %)"
+    )
+    if truth_error is not None:
+        console.print(
+            f"dry run: error against the fake cell's ground truth {truth_error['translation_mm']:.2f} mm, "
+            f"{truth_error['rotation_deg']:.3f} deg"
+        )
+    for name, path in files.items():
+        console.print(f"  {name}: {escape(str(path))}")
+    verdict = "[bold green]PASSED[/]" if outcome.verdict.passed else "[bold red]QUALITY GATE FAILED[/]"
+    console.print(f"verdict: {verdict}")
+
+
+def _json_document(
+    outcome: RunOutcome, files: dict[str, Path], truth: FloatArray | None, dry_run: bool
+) -> dict[str, Any]:
+    result = outcome.result
+    document: dict[str, Any] = {
+        "passed": outcome.verdict.passed,
+        "verdict": outcome.verdict.as_dict(),
+        "T_base_laser": result.T_base_laser,
+        "translation_m": result.translation_m,
+        "euler_zyx_deg": result.euler_zyx_deg,
+        "quaternion_xyzw": result.quaternion_xyzw,
+        "std_translation_mm": result.std_translation_mm,
+        "std_rotation_deg": result.std_rotation_deg,
+        "rms_residual_mm": result.rms_residual_mm,
+        "observations": len(outcome.observations),
+        "skipped": [{"index": s.index, "reason": s.reason} for s in outcome.skipped],
+        "refinement": outcome.refinement,
+        "timings": {
+            "wall_s": outcome.timings.wall_s,
+            "motion_s": outcome.timings.motion_s,
+            "dwell_s": outcome.timings.dwell_s,
+            "overhead_fraction": outcome.timings.overhead_fraction,
+        },
+        "outputs": {name: str(path) for name, path in files.items()},
+        "dry_run": dry_run,
+    }
+    if truth is not None:
+        document["ground_truth"] = {
+            "T_base_laser": np.asarray(truth).tolist(),
+            "error": transform_error(result.matrix(), truth),
+        }
+    return document
+
+
+RobotOption = Annotated[str | None, typer.Option("--robot", help="Robot controller host, e.g. 192.168.1.10.")]
+ScannerOption = Annotated[
+    str | None, typer.Option("--scanner", help="Scanner URL (default scip+tcp://192.168.0.10:10940).")
+]
+ConfigOption = Annotated[Path | None, typer.Option("--config", help="Job file (TOML); defaults without it.")]
+DwellOption = Annotated[float | None, typer.Option("--dwell", help="Dwell per waypoint in s (default 3).")]
+YesOption = Annotated[bool, typer.Option("--yes", "-y", help="Do not ask before moving the robot.")]
+JsonOption = Annotated[bool, typer.Option("--json", help="One JSON document on stdout; progress on stderr.")]
+OutOption = Annotated[Path | None, typer.Option("--out", help="Output folder (default ./lasercal-out/<time>).")]
+DryRunOption = Annotated[
+    bool, typer.Option("--dry-run", help="Run against a fake cell started on a free loopback address.")
+]
+ResumeOption = Annotated[Path | None, typer.Option("--resume", help="Continue an interrupted session.mcap.")]
+SceneOption = Annotated[Path | None, typer.Option("--scene", help="Scene file for the --dry-run fake cell.")]
+
+
+def run_command(
+    robot: RobotOption = None,
+    scanner: ScannerOption = None,
+    config: ConfigOption = None,
+    dwell: DwellOption = None,
+    yes: YesOption = False,
+    as_json: JsonOption = False,
+    out: OutOption = None,
+    dry_run: DryRunOption = False,
+    resume: ResumeOption = None,
+    scene: SceneOption = None,
+) -> None:
+    """Run a calibration: preflight, background, waypoints, solve, quality gates, outputs.
+
+    Exit codes: 0 passed, 1 a quality gate failed (results still written), 2 bad
+    configuration, 3 device error (including a protective stop), 4 calibration impossible
+    (degenerate data), 130 interrupted (the arm is stopped; continue with --resume).
+    """
+    if scene is not None and not dry_run:
+        raise ConfigError("--scene only applies to --dry-run")
+    _require_confirmation_possible(yes, dry_run)
+    ui = err_console if as_json else console
+    overrides: dict[str, Any] = {"robot.host": robot, "scanner.url": scanner}
+    if resume is not None:
+        if config is not None or dwell is not None or out is not None:
+            raise ConfigError("--resume continues the recorded job: leave out --config, --dwell and --out")
+        previous = read_session(resume)
+        job, waypoints = recorded_job(previous)
+        job = with_overrides(job, overrides)
+        out_dir = resume.parent
+        state: ResumeState | None = resume_state(previous)
+    else:
+        job = with_overrides(load_job(config), overrides | {"dwell_s": dwell, "output.dir": out})
+        waypoints = job_waypoints(job)
+        out_dir = _prepare_out_dir(job.output.dir or _default_out_dir())
+        state = None
+
+    truth: FloatArray | None = None
+    with _sigterm_as_interrupt(), contextlib.ExitStack() as stack:
+        if dry_run:
+            ui.print("starting a fake cell for the dry run ...")
+            cell = stack.enter_context(FakeCellProcess(scene=scene))
+            truth = cell.ground_truth
+            job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": cell.scanner_url})
+            ui.print(f"fake cell on {cell.address}: robot {cell.robot_host}, scanner {cell.scanner_url}")
+        if job.robot.host is None:
+            raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
+        robot_device, scanner_device = _connect(job, stack)
+        meta = {
+            META_JOB: job.model_dump(mode="json"),
+            META_WAYPOINTS: np.asarray(waypoints).tolist(),
+            "software_version": __version__,
+            "dry_run": dry_run,
+            "started_utc": datetime.now(UTC).isoformat(),
+        }
+        if truth is not None:
+            meta["ground_truth_T_base_laser"] = truth.tolist()
+        session_path = out_dir / SESSION_FILE
+        if resume is not None:
+            recorder = SessionRecorder.resume(resume, meta)
+        else:
+            recorder = SessionRecorder(session_path, meta)
+        stack.callback(recorder.close)
+        view = stack.enter_context(ProgressView(ui))
+        started_s = time.monotonic()
+        outcome = Sequencer(
+            robot_device,
+            scanner_device,
+            recorder,
+            job,
+            waypoints,
+            on_progress=view,
+            before_motion=_confirm(job, waypoints, job.robot.host, dry_run, ui),
+            resume=state,
+        ).run()
+        files = {"session": session_path} | write_outputs(
+            out_dir, outcome, job, ground_truth=truth, title=f"lasercal {'dry run' if dry_run else 'run'}"
+        )
+        ui.print(f"finished in {time.monotonic() - started_s:.1f} s")
+
+    if as_json:
+        print_json(_json_document(outcome, files, truth, dry_run))
+    else:
+        error = transform_error(outcome.result.matrix(), truth) if truth is not None else None
+        _print_summary(outcome, files, error)
+    if not outcome.verdict.passed:
+        failures = "; ".join(outcome.verdict.failures())
+        err_console.print(f"[bold red]quality gate failed:[/] {escape(failures)}")
+        raise typer.Exit(int(ExitCode.QUALITY_GATE_FAILED))
