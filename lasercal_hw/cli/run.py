@@ -219,8 +219,8 @@ ScannerOption = Annotated[
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Job file (TOML); defaults without it.")]
 DwellOption = Annotated[float | None, typer.Option("--dwell", help="Dwell per waypoint in s (default 3).")]
 YesOption = Annotated[bool, typer.Option("--yes", "-y", help="Do not ask before moving the robot.")]
-JsonOption = Annotated[bool, typer.Option("--json", help="One JSON document on stdout; progress on stderr.")]
-OutOption = Annotated[Path | None, typer.Option("--out", help="Output folder (default ./lasercal-out/<time>).")]
+JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON document (progress on stderr).")]
+OutOption = Annotated[Path | None, typer.Option("--out", help="Output folder (./lasercal-out/<time>).")]
 DryRunOption = Annotated[
     bool, typer.Option("--dry-run", help="Run against a fake cell started on a free loopback address.")
 ]
