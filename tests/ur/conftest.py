@@ -1,0 +1,48 @@
+"""Fake-robot fixtures: each fake is a child process on its own loopback address."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator, Sequence
+
+import pytest
+
+from fakes.ur_controller.process import FakeRobotProcess
+from lasercal_hw.errors import TransportError
+
+# Addresses 127.0.0.<first>..: spread by process id so parallel pytest runs rarely meet,
+# and skip addresses whose ports are taken (the fake exits with "cannot listen").
+_BASE = 20 + (os.getpid() % 40) * 5
+_next = [0]
+
+StartFake = Callable[..., FakeRobotProcess]
+
+
+def _start(extra_args: Sequence[str]) -> FakeRobotProcess:
+    last_error: Exception | None = None
+    for _ in range(30):
+        octet = 20 + (_BASE - 20 + _next[0]) % 230
+        _next[0] += 1
+        fake = FakeRobotProcess(f"127.0.0.{octet}", list(extra_args))
+        try:
+            return fake.start()
+        except TransportError as exc:
+            if "cannot listen" not in str(exc):
+                raise
+            last_error = exc
+    raise RuntimeError(f"no free loopback address for a fake robot: {last_error}")
+
+
+@pytest.fixture
+def start_fake() -> Iterator[StartFake]:
+    """``start_fake(*args)`` starts a fake robot (CLI options as args); all are killed at teardown."""
+    started: list[FakeRobotProcess] = []
+
+    def start(*extra_args: str) -> FakeRobotProcess:
+        fake = _start(extra_args)
+        started.append(fake)
+        return fake
+
+    yield start
+    for fake in started:
+        fake.close()

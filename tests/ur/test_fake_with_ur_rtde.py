@@ -1,0 +1,166 @@
+"""The unmodified ur_rtde 1.6.5 client against the fake controller (each fake in its own
+process on its own loopback address)."""
+
+from __future__ import annotations
+
+import time
+
+import dashboard_client
+import numpy as np
+import pytest
+import rtde_control
+import rtde_receive
+
+from fakes.ur5_kinematics import forward_kinematics
+from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
+from lasercal_hw.geometry import matrix_to_pose, pose_to_matrix
+from tests.ur.conftest import StartFake
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
+
+VERSIONS = ["5.11", "3.15"]
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_receive_and_dashboard_report_the_start_pose(start_fake: StartFake, version: str) -> None:
+    fake = start_fake("--version", version)
+    dash = dashboard_client.DashboardClient(fake.address)
+    dash.connect()
+    receive = rtde_receive.RTDEReceiveInterface(fake.address)
+    try:
+        assert dash.robotmode() == "Robotmode: RUNNING"
+        assert dash.safetystatus() == "Safetystatus: NORMAL"
+        assert dash.polyscopeVersion().startswith(version)
+        expected = matrix_to_pose(forward_kinematics(np.array(DEFAULT_START_Q_RAD)))
+        assert np.allclose(receive.getActualTCPPose(), expected, atol=1e-9)
+        assert np.allclose(receive.getActualQ(), DEFAULT_START_Q_RAD)
+        first = receive.getTimestamp()
+        time.sleep(0.05)
+        assert receive.getTimestamp() > first
+        assert receive.getSafetyStatusBits() == 1 and receive.getRobotMode() == 7
+    finally:
+        receive.disconnect()
+        dash.disconnect()
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_sync_movel_and_movej_reach_their_targets(start_fake: StartFake, version: str) -> None:
+    fake = start_fake("--version", version)
+    receive = rtde_receive.RTDEReceiveInterface(fake.address)
+    control = rtde_control.RTDEControlInterface(fake.address)
+    try:
+        target = receive.getActualTCPPose()
+        target[0] += 0.04
+        target[2] -= 0.03
+        assert control.moveL(target, 0.25, 1.2)
+        assert np.allclose(receive.getActualTCPPose(), target, atol=1e-6)
+        q_target = receive.getActualQ()
+        q_target[0] += 0.2
+        q_target[5] -= 0.3
+        assert control.moveJ(q_target, 1.05, 1.4)
+        assert np.allclose(receive.getActualQ(), q_target, atol=1e-9)
+    finally:
+        control.stopScript()
+        control.disconnect()
+        receive.disconnect()
+
+
+def test_async_movel_stopped_halfway(start_fake: StartFake) -> None:
+    fake = start_fake()
+    receive = rtde_receive.RTDEReceiveInterface(fake.address)
+    control = rtde_control.RTDEControlInterface(fake.address)
+    try:
+        start = np.array(receive.getActualTCPPose())
+        target = start.copy()
+        target[1] += 0.3
+        assert control.moveL(target.tolist(), 0.2, 1.0, True)
+        assert control.getAsyncOperationProgress() == 0  # running, single move
+        time.sleep(0.6)
+        control.stopL(2.0)
+        assert control.getAsyncOperationProgress() < 0
+        stopped = np.array(receive.getActualTCPPose())
+        assert start[1] + 0.02 < stopped[1] < target[1] - 0.02
+        time.sleep(0.05)
+        assert np.allclose(receive.getActualTCPPose(), stopped)  # at rest
+        assert np.allclose(receive.getActualQd(), 0.0)
+    finally:
+        control.stopScript()
+        control.disconnect()
+        receive.disconnect()
+
+
+def test_inverse_kinematics_and_safety_limits(start_fake: StartFake) -> None:
+    fake = start_fake()
+    control = rtde_control.RTDEControlInterface(fake.address)
+    try:
+        q = np.array([0.3, -1.2, 1.4, -1.8, -1.5, 0.4])
+        pose = matrix_to_pose(forward_kinematics(q)).tolist()
+        solution = control.getInverseKinematics(pose, q.tolist())
+        assert np.allclose(solution, q, atol=1e-8)
+        default = control.getInverseKinematics(pose)
+        assert np.allclose(pose_to_matrix(pose), forward_kinematics(np.array(default)), atol=1e-8)
+        assert control.isPoseWithinSafetyLimits(pose)
+        assert control.getInverseKinematicsHasSolution(pose)
+        far = [2.0, 0.0, 0.3, 0.0, 3.14, 0.0]
+        assert not control.isPoseWithinSafetyLimits(far)
+        assert not control.getInverseKinematicsHasSolution(far)
+        assert control.isProgramRunning()
+    finally:
+        control.stopScript()
+        control.disconnect()
+
+
+def test_second_and_third_connection_after_disconnect(start_fake: StartFake) -> None:
+    fake = start_fake()
+    for attempt in range(3):
+        control = rtde_control.RTDEControlInterface(fake.address)
+        assert control.isProgramRunning()
+        q = np.array(DEFAULT_START_Q_RAD)
+        q[0] = 0.05 * (attempt + 1)
+        assert control.moveJ(q.tolist(), 1.0, 2.0)
+        if attempt == 0:
+            control.disconnect()  # leaves the control script running: next ctor kills it
+        else:
+            control.stopScript()
+            assert not control.isProgramRunning()
+            control.disconnect()
+
+
+def test_second_control_interface_while_connected_is_refused(start_fake: StartFake) -> None:
+    fake = start_fake()
+    control = rtde_control.RTDEControlInterface(fake.address)
+    try:
+        with pytest.raises(RuntimeError, match="already in use"):
+            rtde_control.RTDEControlInterface(fake.address)
+    finally:
+        control.stopScript()
+        control.disconnect()
+
+
+def test_local_control_refuses_the_control_interface(start_fake: StartFake) -> None:
+    fake = start_fake("--local-control")
+    with pytest.raises(RuntimeError, match="remote control"):
+        rtde_control.RTDEControlInterface(fake.address)
+
+
+def test_several_fakes_side_by_side(start_fake: StartFake) -> None:
+    fakes = [start_fake() for _ in range(3)]
+    assert len({fake.address for fake in fakes}) == 3
+    controls = [rtde_control.RTDEControlInterface(fake.address) for fake in fakes]
+    receives = [rtde_receive.RTDEReceiveInterface(fake.address) for fake in fakes]
+    try:
+        for k, control in enumerate(controls):
+            q = np.array(DEFAULT_START_Q_RAD)
+            q[0] = 0.1 * (k + 1)
+            assert control.moveJ(q.tolist(), 1.05, 1.4, True)
+        time.sleep(0.05)
+        for k, (control, receive) in enumerate(zip(controls, receives, strict=True)):
+            while control.getAsyncOperationProgress() >= 0:
+                time.sleep(0.01)
+            assert receive.getActualQ()[0] == pytest.approx(0.1 * (k + 1))
+    finally:
+        for control in controls:
+            control.stopScript()
+            control.disconnect()
+        for receive in receives:
+            receive.disconnect()
