@@ -86,3 +86,18 @@ def ray_rectangle(
     b = (rel @ v) / float(v @ v)
     inside = finite & (a >= 0.0) & (a <= 1.0) & (b >= 0.0) & (b <= 1.0)
     return np.where(inside, t, np.inf)
+
+
+def beams_near_sphere(angles_rad: FloatArray, centre_m: FloatArray, radius_m: float) -> FloatArray:
+    """Indices of in-plane beams (rays from the origin in z = 0 at ``angles_rad``) that can
+    pass within ``radius_m`` of ``centre_m``: a cheap cull before exact intersection."""
+    cx, cy, cz = (float(v) for v in centre_m)
+    if abs(cz) >= radius_m:
+        return np.zeros(0, dtype=np.int64)
+    radius_in_plane = float(np.sqrt(radius_m**2 - cz**2))
+    distance = float(np.hypot(cx, cy))
+    if distance <= radius_in_plane:
+        return np.arange(angles_rad.size)
+    half_width = float(np.arcsin(radius_in_plane / distance))
+    offset = np.abs((angles_rad - np.arctan2(cy, cx) + np.pi) % (2.0 * np.pi) - np.pi)
+    return np.flatnonzero(offset <= half_width + 1e-12)
