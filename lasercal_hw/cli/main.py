@@ -46,6 +46,11 @@ def _root(
     )
 
 
+from lasercal_hw.cli.session import session_app  # noqa: E402
+
+app.add_typer(session_app, name="session")
+
+
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
     try:
