@@ -244,3 +244,20 @@ def test_scan_type_is_the_product_scan(tmp_path):
     _record(path, [make_scan(1)])
     assert isinstance(read_session(path).scans[0], LaserScan)
     assert read_session(path, include_scans=False).scans == []
+
+
+def test_fast_scan_decoder_matches_the_reference_decoder(tmp_path):
+    from lasercal_hw.session import _laser_scan_arrays
+
+    path = tmp_path / "session.mcap"
+    _record(path, [make_scan(1), make_scan(2, intensities=False)])
+    with open(path, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        decoded = list(reader.iter_decoded_messages(topics=[TOPIC_SCAN]))
+    assert len(decoded) == 2
+    for _, _, message, reference in decoded:
+        ranges, intensities = _laser_scan_arrays(message.data)
+        assert ranges.tolist() == list(reference.ranges)
+        assert intensities.tolist() == list(reference.intensities)
+        assert _laser_scan_arrays(message.data[:-1]) is None  # not the expected layout
+        assert _laser_scan_arrays(b"\x00\x03" + message.data[2:]) is None  # not plain CDR
