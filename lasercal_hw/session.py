@@ -126,6 +126,7 @@ class DwellWindow:
 
     ``tcp_pose`` is the pose recorded with ``dwell_start`` (or with ``dwell_end`` when the
     start carried none); ``end_s`` is None when the run stopped during the dwell.
+    ``scan_sequences`` are the scans the live run averaged, when ``dwell_end`` listed them.
     """
 
     index: int
@@ -133,6 +134,7 @@ class DwellWindow:
     end_s: float | None
     tcp_pose: FloatArray | None
     tcp_pose_end: FloatArray | None
+    scan_sequences: tuple[int, ...] | None = None
 
     @property
     def complete(self) -> bool:
@@ -188,14 +190,36 @@ class SessionRecording:
                 started = open_windows.pop(index, None)
                 start_s = started.start_s if started else None
                 start_pose = started.tcp_pose if started else None
+                sequences = event.get("scan_sequences")
                 best[index] = DwellWindow(
-                    index, start_s, event["host_time_s"], start_pose if start_pose is not None else pose, pose
+                    index,
+                    start_s,
+                    event["host_time_s"],
+                    start_pose if start_pose is not None else pose,
+                    pose,
+                    None if sequences is None else tuple(int(k) for k in sequences),
                 )
         return [best[index] for index in sorted(best)]
 
     def scans_between(self, start_s: float, end_s: float) -> list[LaserScan]:
         """Scans whose host time lies in ``[start_s, end_s]``."""
         return [scan for scan in self.scans if start_s <= scan.host_time_s <= end_s]
+
+    def dwell_scans(self, window: DwellWindow) -> list[LaserScan]:
+        """The scans of a dwell: exactly those the live run averaged when ``dwell_end``
+        listed their ``scan_sequences`` (so a replay averages the same scans), otherwise
+        those recorded between the dwell's start and end. Empty for an incomplete dwell."""
+        if window.scan_sequences is not None:
+            # Sequence numbers restart with the scanner: take the latest one up to the end.
+            wanted = set(window.scan_sequences)
+            chosen: dict[int, LaserScan] = {}
+            for scan in self.scans:
+                if scan.sequence in wanted and (window.end_s is None or scan.host_time_s <= window.end_s):
+                    chosen[scan.sequence] = scan
+            return [chosen[k] for k in window.scan_sequences if k in chosen]
+        if not window.complete:
+            return []
+        return self.scans_between(window.start_s, window.end_s)
 
 
 def _pose_or_none(values: Any) -> FloatArray | None:

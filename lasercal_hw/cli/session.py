@@ -22,9 +22,7 @@ def _summary(recording: SessionRecording) -> dict[str, Any]:
     times = [scan.host_time_s for scan in recording.scans]
     windows = []
     for window in recording.dwell_windows():
-        scans = 0
-        if window.complete:
-            scans = len(recording.scans_between(window.start_s, window.end_s))
+        scans = len(recording.dwell_scans(window))
         windows.append({
             "index": window.index,
             "start_s": window.start_s,
