@@ -140,7 +140,7 @@ class SessionRecorder:
         staging = path.with_name(path.name + ".resume-tmp")
         recorder = cls(staging, None, overwrite=True)
         try:
-            copied = recorder._copy_messages_from(backup)
+            copied = recorder.copy_from(backup)
             recorder.previous = previous
             recorder.write_event(
                 time.time() if host_time_s is None else host_time_s,
@@ -250,6 +250,37 @@ class SessionRecorder:
         document = {"kind": str(kind), "host_time_s": float(host_time_s), **fields}
         self._write_json(TOPIC_EVENT, host_time_s, document, sync=True)
 
+    def copy_from(self, source: str | Path) -> int:
+        """Copy every complete message (and metadata) of the recording ``source`` byte for
+        byte, keeping topics, schemas and times; returns the number of messages copied."""
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, int] = {}
+        copied = 0
+        with self._lock:
+            for record in McapRecords(source):
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    schema = schemas.get(record.schema_id)
+                    if schema is None:
+                        continue
+                    channels[record.id] = self._channel(
+                        record.topic, record.message_encoding, schema.name, schema.encoding, schema.data
+                    )
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    self._writer.add_message(
+                        channels[record.channel_id],
+                        log_time=record.log_time,
+                        data=record.data,
+                        publish_time=record.publish_time,
+                        sequence=record.sequence,
+                    )
+                    copied += 1
+                elif isinstance(record, Metadata) and record.name != _METADATA_NAME:
+                    self._writer.add_metadata(record.name, record.metadata)
+            self._sync(durable=True)
+        return copied
+
     def flush(self) -> None:
         """Push everything written so far to the disk (fsync)."""
         with self._lock:
@@ -344,35 +375,12 @@ class SessionRecorder:
         if durable:
             os.fsync(self._file.fileno())
 
-    def _copy_messages_from(self, source: Path) -> int:
-        """Copy every complete message (and metadata) of ``source`` byte for byte."""
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, int] = {}
-        copied = 0
-        with self._lock:
-            for record in McapRecords(source):
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    schema = schemas.get(record.schema_id)
-                    if schema is None:
-                        continue
-                    channels[record.id] = self._channel(
-                        record.topic, record.message_encoding, schema.name, schema.encoding, schema.data
-                    )
-                elif isinstance(record, Message) and record.channel_id in channels:
-                    self._writer.add_message(
-                        channels[record.channel_id],
-                        log_time=record.log_time,
-                        data=record.data,
-                        publish_time=record.publish_time,
-                        sequence=record.sequence,
-                    )
-                    copied += 1
-                elif isinstance(record, Metadata) and record.name != _METADATA_NAME:
-                    self._writer.add_metadata(record.name, record.metadata)
-            self._sync(durable=True)
-        return copied
+
+def repair_session(source: str | Path, target: str | Path) -> int:
+    """Write the complete part of a (possibly crashed) recording ``source`` as a closed,
+    indexed file ``target`` that every MCAP tool opens; returns the messages copied."""
+    with SessionRecorder(target, None) as recorder:
+        return recorder.copy_from(source)
 
 
 def _free_backup_path(path: Path) -> Path:

@@ -22,6 +22,7 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, McapRecord, Message, Schema
 from mcap.stream_reader import MAGIC_SIZE, StreamReader
 from mcap_ros2.decoder import DecoderFactory
+from numpy.typing import NDArray
 
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, LaserScan
@@ -125,6 +126,7 @@ class DwellWindow:
 
     ``tcp_pose`` is the pose recorded with ``dwell_start`` (or with ``dwell_end`` when the
     start carried none); ``end_s`` is None when the run stopped during the dwell.
+    ``scan_sequences`` are the scans the live run averaged, when ``dwell_end`` listed them.
     """
 
     index: int
@@ -132,6 +134,7 @@ class DwellWindow:
     end_s: float | None
     tcp_pose: FloatArray | None
     tcp_pose_end: FloatArray | None
+    scan_sequences: tuple[int, ...] | None = None
 
     @property
     def complete(self) -> bool:
@@ -187,14 +190,36 @@ class SessionRecording:
                 started = open_windows.pop(index, None)
                 start_s = started.start_s if started else None
                 start_pose = started.tcp_pose if started else None
+                sequences = event.get("scan_sequences")
                 best[index] = DwellWindow(
-                    index, start_s, event["host_time_s"], start_pose if start_pose is not None else pose, pose
+                    index,
+                    start_s,
+                    event["host_time_s"],
+                    start_pose if start_pose is not None else pose,
+                    pose,
+                    None if sequences is None else tuple(int(k) for k in sequences),
                 )
         return [best[index] for index in sorted(best)]
 
     def scans_between(self, start_s: float, end_s: float) -> list[LaserScan]:
         """Scans whose host time lies in ``[start_s, end_s]``."""
         return [scan for scan in self.scans if start_s <= scan.host_time_s <= end_s]
+
+    def dwell_scans(self, window: DwellWindow) -> list[LaserScan]:
+        """The scans of a dwell: exactly those the live run averaged when ``dwell_end``
+        listed their ``scan_sequences`` (so a replay averages the same scans), otherwise
+        those recorded between the dwell's start and end. Empty for an incomplete dwell."""
+        if window.scan_sequences is not None:
+            # Sequence numbers restart with the scanner: take the latest one up to the end.
+            wanted = set(window.scan_sequences)
+            chosen: dict[int, LaserScan] = {}
+            for scan in self.scans:
+                if scan.sequence in wanted and (window.end_s is None or scan.host_time_s <= window.end_s):
+                    chosen[scan.sequence] = scan
+            return [chosen[k] for k in window.scan_sequences if k in chosen]
+        if not window.complete:
+            return []
+        return self.scans_between(window.start_s, window.end_s)
 
 
 def _pose_or_none(values: Any) -> FloatArray | None:
@@ -218,9 +243,13 @@ def read_session(path: str | Path, *, include_scans: bool = True) -> SessionReco
         elif isinstance(record, Message) and record.channel_id in channels:
             topic, schema = channels[record.channel_id]
             if topic == TOPIC_SCAN and include_scans:
-                decoder = decoders.decoder_for("cdr", schema)
-                if decoder is not None:
-                    pending_scan = (record.sequence, decoder(record.data))
+                arrays = _laser_scan_arrays(record.data)
+                if arrays is None:
+                    decoder = decoders.decoder_for("cdr", schema)
+                    message = decoder(record.data) if decoder is not None else None
+                    arrays = None if message is None else (message.ranges, message.intensities)
+                if arrays is not None:
+                    pending_scan = (record.sequence, arrays)
             elif topic == TOPIC_SCAN_INFO and include_scans:
                 if pending_scan is not None and pending_scan[0] == record.sequence:
                     recording.scans.append(_scan_from(_json(record), pending_scan[1]))
@@ -248,21 +277,46 @@ def read_session(path: str | Path, *, include_scans: bool = True) -> SessionReco
     return recording
 
 
+def _laser_scan_arrays(data: bytes) -> tuple[NDArray[np.float32], NDArray[np.float32]] | None:
+    """``ranges`` and ``intensities`` of a plain-CDR ``sensor_msgs/msg/LaserScan`` read
+    with numpy (mcap_ros2's decoder reads them one float at a time, 5x slower); None when
+    the bytes are not the layout expected, and the caller falls back to that decoder."""
+    if len(data) < 16 or data[0] != 0 or data[1] not in (0, 1):
+        return None
+    order = "<" if data[1] == 1 else ">"
+    uint32 = struct.Struct(order + "I")
+    frame_id_end = 16 + uint32.unpack_from(data, 12)[0]  # after stamp and the string length
+    offset = 4 + -(-(frame_id_end - 4) // 4) * 4 + 7 * 4  # align 4, skip seven float32 fields
+    arrays = []
+    for _ in range(2):
+        if offset + 4 > len(data):
+            return None
+        count = uint32.unpack_from(data, offset)[0]
+        offset += 4
+        if offset + 4 * count > len(data):
+            return None
+        arrays.append(np.frombuffer(data, dtype=order + "f4", count=count, offset=offset))
+        offset += 4 * count
+    if offset != len(data):
+        return None
+    return arrays[0], arrays[1]
+
+
 def _json(record: Message) -> Any:
     return json.loads(record.data)
 
 
-def _scan_from(info: dict[str, Any], message: Any) -> LaserScan:
+def _scan_from(info: dict[str, Any], arrays: tuple[Any, Any]) -> LaserScan:
     geometry = geometry_from_dict(info["geometry"])
     if "raw_ranges_mm" in info:
         raw_mm = np.asarray(info["raw_ranges_mm"], dtype=np.int64)
     else:
-        raw_mm = ros_ranges_to_raw_mm(message.ranges)
+        raw_mm = ros_ranges_to_raw_mm(arrays[0])
     intensities = None
     if "intensities" in info:
         intensities = np.asarray(info["intensities"], dtype=np.int64)
     elif info.get("has_intensities", False):
-        intensities = np.asarray(message.intensities, dtype=np.float32).astype(np.int64)
+        intensities = np.asarray(arrays[1], dtype=np.float32).astype(np.int64)
     if "ranges_m_f64le_b64" in info:
         ranges_m = decode_float64_array(info["ranges_m_f64le_b64"])
     else:

@@ -244,3 +244,42 @@ def test_scan_type_is_the_product_scan(tmp_path):
     _record(path, [make_scan(1)])
     assert isinstance(read_session(path).scans[0], LaserScan)
     assert read_session(path, include_scans=False).scans == []
+
+
+def test_fast_scan_decoder_matches_the_reference_decoder(tmp_path):
+    from lasercal_hw.session import _laser_scan_arrays
+
+    path = tmp_path / "session.mcap"
+    _record(path, [make_scan(1), make_scan(2, intensities=False)])
+    with open(path, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        decoded = list(reader.iter_decoded_messages(topics=[TOPIC_SCAN]))
+    assert len(decoded) == 2
+    for _, _, message, reference in decoded:
+        ranges, intensities = _laser_scan_arrays(message.data)
+        assert ranges.tolist() == list(reference.ranges)
+        assert intensities.tolist() == list(reference.intensities)
+        assert _laser_scan_arrays(message.data[:-1]) is None  # not the expected layout
+        assert _laser_scan_arrays(b"\x00\x03" + message.data[2:]) is None  # not plain CDR
+
+
+def test_dwell_scans_are_the_ones_the_live_run_listed(tmp_path):
+    """With scan_sequences in dwell_end a replay averages exactly the live run's scans, even
+    when the scanner restarted its sequence numbers; without them, the time window rules."""
+    path = tmp_path / "session.mcap"
+    t = START_TIME_S
+    with SessionRecorder(path, {}) as recorder:
+        for i in range(10):  # first connection: sequences 0..9
+            recorder.write_scan(dataclasses.replace(make_scan(i), host_time_s=t + i))
+        recorder.write_event(t + 2.5, "dwell_start", index=0)
+        recorder.write_event(t + 6.5, "dwell_end", index=0)
+        for i in range(10):  # reconnected: sequences 0..9 again, 100 s later
+            recorder.write_scan(dataclasses.replace(make_scan(i), host_time_s=t + 100 + i))
+        recorder.write_event(t + 101.5, "dwell_start", index=1)
+        recorder.write_event(t + 108.5, "dwell_end", index=1, scan_sequences=[2, 3, 5])
+    recording = read_session(path)
+    first, second = recording.dwell_windows()
+    assert first.scan_sequences is None
+    assert [s.host_time_s - t for s in recording.dwell_scans(first)] == [3, 4, 5, 6]
+    assert second.scan_sequences == (2, 3, 5)
+    assert [s.host_time_s - t for s in recording.dwell_scans(second)] == [102, 103, 105]

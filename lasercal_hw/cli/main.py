@@ -60,6 +60,10 @@ from lasercal_hw.cli.run import run_command  # noqa: E402
 
 app.command("run")(run_command)
 
+from lasercal_hw.cli.session import session_app  # noqa: E402
+
+app.add_typer(session_app, name="session")
+
 
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
