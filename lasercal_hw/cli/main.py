@@ -46,6 +46,11 @@ def _root(
     )
 
 
+from lasercal_hw.cli.scanner import scanner_app  # noqa: E402
+
+app.add_typer(scanner_app, name="scanner")
+
+
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
     try:
