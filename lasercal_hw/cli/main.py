@@ -46,6 +46,11 @@ def _root(
     )
 
 
+from lasercal_hw.cli.fake import fake_app  # noqa: E402
+
+app.add_typer(fake_app, name="fake")
+
+
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
     try:
