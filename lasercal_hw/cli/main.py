@@ -50,6 +50,10 @@ from lasercal_hw.cli.scanner import scanner_app  # noqa: E402
 
 app.add_typer(scanner_app, name="scanner")
 
+from lasercal_hw.cli.fake import fake_app  # noqa: E402
+
+app.add_typer(fake_app, name="fake")
+
 
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
