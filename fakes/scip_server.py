@@ -44,8 +44,8 @@ logger = logging.getLogger(__name__)
 
 DEFAULT_PORT = 10940
 """The UTM-30LX-EW's TCP port."""
-OUTPUT_LIMIT_BYTES = 1 << 20
-"""Unsent bytes kept per link (about 4 s of ME stream); newer messages are dropped
+OUTPUT_LIMIT_BYTES = 1 << 16
+"""Unsent bytes kept per link (about ten ME scans, like a tty buffer); newer messages are dropped
 beyond it (a sensor does not wait for a host that does not read)."""
 MAX_CATCH_UP_SCANS = 4
 """After a longer stall the missed revolutions are skipped, not sent in a burst."""

@@ -198,7 +198,7 @@ class HokuyoScanner:
                     logger.info("%s: scanner was in time-adjust mode; sending TM2", self.url)
                     transport.write(b"TM2\nQT\n")
         if drained:
-            logger.info("%s: drained %d stale bytes after QT", self.url, drained)
+            logger.debug("%s: drained %d bytes after QT", self.url, drained)
         self._framer.reset()
         self._pending.clear()
 
@@ -526,6 +526,8 @@ class HokuyoScanner:
     def _reader_main(self) -> None:
         last_data = time.monotonic()
         watchdog_s = max(1.0, 20 * self.parameters().scan_period_s)
+        while self._pending:  # scans that arrived together with the acknowledgement
+            self._dispatch(self._pending.popleft(), time.time())
         while not self._stop_reader.is_set():
             try:
                 data = self._current_transport().read_some(READER_POLL_S)

@@ -46,6 +46,11 @@ def _root(
     )
 
 
+
+from lasercal_hw.cli.scanner import scanner_app  # noqa: E402
+
+app.add_typer(scanner_app, name="scanner")
+
 from lasercal_hw.cli.fake import fake_app  # noqa: E402
 
 app.add_typer(fake_app, name="fake")
@@ -63,6 +68,7 @@ app.command("run")(run_command)
 from lasercal_hw.cli.session import session_app  # noqa: E402
 
 app.add_typer(session_app, name="session")
+
 
 
 def main() -> None:
