@@ -506,7 +506,8 @@ class ResponseFramer:
     Buffers input and cuts at the first LF LF (scip2.md 2.4). A chunk whose first two
     lines are not a plausible echo + valid status line is resynchronised: lines are
     discarded until a valid echo + status pair; chunks without one are dropped whole.
-    Discarded input is counted in ``discarded_bytes``. The buffer is bounded by
+    Discarded input is counted in ``discarded_bytes``; ``discarded_chunks`` counts the
+    LF-LF-terminated chunks dropped whole (no message in them). The buffer is bounded by
     ``max_buffer_bytes`` so a stream without terminators cannot grow memory."""
 
     def __init__(self, max_buffer_bytes: int = 1 << 20) -> None:
@@ -564,12 +565,13 @@ class ResponseFramer:
         later = [i for i in pairs if i > pairs[0] + 2]
         start = later[-1] if later else pairs[0]
         if start:
-            self._discard(sum(len(line) + 1 for line in lines[:start]), "resynchronised")
+            self._discard(sum(len(line) + 1 for line in lines[:start]), "resynchronised", whole=False)
         return Response(lines[start], lines[start + 1][:2], tuple(lines[start + 2 :]))
 
-    def _discard(self, byte_count: int, reason: str) -> None:
+    def _discard(self, byte_count: int, reason: str, *, whole: bool = True) -> None:
         self.discarded_bytes += byte_count
-        self.discarded_chunks += 1
+        if whole:
+            self.discarded_chunks += 1
         logger.debug("discarded %d bytes: %s", byte_count, reason)
 
 

@@ -46,6 +46,10 @@ def _root(
     )
 
 
+from lasercal_hw.cli.scanner import scanner_app  # noqa: E402
+
+app.add_typer(scanner_app, name="scanner")
+
 from lasercal_hw.cli.fake import fake_app  # noqa: E402
 
 app.add_typer(fake_app, name="fake")
