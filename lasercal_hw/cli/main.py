@@ -24,12 +24,10 @@ app = typer.Typer(
 
 _debug = {"enabled": False}
 
-
 def _version_callback(value: bool) -> None:
     if value:
         typer.echo(f"lasercal {__version__}")
         raise typer.Exit()
-
 
 @app.callback()
 def _root(
@@ -44,8 +42,6 @@ def _root(
         level=logging.DEBUG if debug else logging.WARNING,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
-
-
 
 from lasercal_hw.cli.scanner import scanner_app  # noqa: E402
 
@@ -69,8 +65,6 @@ from lasercal_hw.cli.session import session_app  # noqa: E402
 
 app.add_typer(session_app, name="session")
 
-
-
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
     try:
@@ -83,7 +77,6 @@ def main() -> None:
     except KeyboardInterrupt:
         err_console.print("interrupted")
         sys.exit(int(ExitCode.INTERRUPTED))
-
 
 if __name__ == "__main__":
     main()
