@@ -312,7 +312,9 @@ class Sequencer:
         self._progress("background", "moving to the retract pose for the background")
         attempts = self._job.acquisition.max_attempts
         for attempt in range(1, attempts + 1):
-            self._move(pose, q_rad)
+            # The arm may start anywhere: reach the retract pose in joint space (the preflight
+            # solution nearest the current joints), which no singularity can stop.
+            self._move(pose, q_rad, joint=True)
             settled_s = self._settle()
             count = self._job.background.scans
             self._progress("background", f"averaging {count} background scans (rod out of the plane)")
@@ -515,12 +517,13 @@ class Sequencer:
 
     # -- motion and bookkeeping ---------------------------------------------------------
 
-    def _move(self, pose: FloatArray, q_rad: FloatArray) -> None:
+    def _move(self, pose: FloatArray, q_rad: FloatArray, *, joint: bool = False) -> None:
+        """Move to a pose: in joint space when asked (or configured), else on a TCP line."""
         motion = self._job.motion
         self._moves += 1
         started_s = self._clock()
         try:
-            if motion.move == "joint":
+            if joint or motion.move == "joint":
                 self._robot.move_joint(q_rad, motion.joint_speed_rad_s, motion.joint_accel_rad_s2)
             else:
                 self._robot.move_linear(pose, motion.speed_m_s, motion.accel_m_s2)
