@@ -30,12 +30,12 @@ from typing import Any
 
 import numpy as np
 
+from fakes.cell import READY_PREFIX
 from lasercal_hw.errors import DeviceTimeoutError, TransportError
 from lasercal_hw.models import FloatArray
 
 logger = logging.getLogger(__name__)
 
-READY_PREFIX = "fake cell ready:"
 CELL_PORTS = (29999, 30004, 30003, 10940)
 _ADDRESS_TRIES = 20
 
@@ -90,6 +90,12 @@ class FakeCellProcess:
         self.process: subprocess.Popen[str] | None = None
         self.info: dict[str, Any] = {}
         self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - lives until close()
+
+    @property
+    def pid(self) -> int:
+        """Process id of the running child."""
+        assert self.process is not None, "start() first"
+        return self.process.pid
 
     @property
     def robot_host(self) -> str:

@@ -275,7 +275,7 @@ def semicircle_waypoints(count: int = 12) -> FloatArray:
     for k in range(count):
         radius_m = 0.55 if k % 2 == 0 else 0.7
         angle = np.radians(-60 + 80 * k / max(count - 1, 1))
-        xyz = [radius_m * np.cos(angle), radius_m * np.sin(angle), 0.29 + 0.04 * (k % 3)]
-        tilt_x, tilt_y = rng.uniform(-0.25, 0.25, 2)
+        xyz = [radius_m * np.cos(angle), radius_m * np.sin(angle), 0.27 + 0.05 * (k % 3)]
+        tilt_x, tilt_y = rng.uniform(-0.4, 0.4, 2)
         poses.append(rod_down_pose(xyz, tilt_x, tilt_y))
     return np.array(poses)

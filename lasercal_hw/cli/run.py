@@ -20,6 +20,8 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, SpinnerColumn, TextColumn
 from rich.progress import Progress as RichProgress
 
+from drivers.hokuyo.client import HokuyoScanner
+from drivers.ur.client import MotionLimits, URRobot
 from lasercal_hw import __version__
 from lasercal_hw.cli.common import console, err_console, print_json
 from lasercal_hw.cli.solve import _print_result as print_result
@@ -121,10 +123,6 @@ def _confirm(
 
 
 def _connect(job: JobConfig, stack: contextlib.ExitStack) -> tuple[Robot, Scanner]:
-    from drivers.ur.client import MotionLimits, URRobot
-
-    from drivers.hokuyo.client import HokuyoScanner
-
     assert job.robot.host is not None
     limits = MotionLimits(
         max_speed_m_s=job.motion.speed_m_s,
@@ -179,7 +177,7 @@ def _print_summary(outcome: RunOutcome, files: dict[str, Path], truth_error: dic
 
 
 def _json_document(
-    outcome: RunOutcome, files: dict[str, Path], truth: FloatArray | None, dry_run: bool
+    outcome: RunOutcome, files: dict[str, Path], truth: FloatArray | None, cell: dict[str, Any] | None
 ) -> dict[str, Any]:
     result = outcome.result
     document: dict[str, Any] = {
@@ -202,8 +200,10 @@ def _json_document(
             "overhead_fraction": outcome.timings.overhead_fraction,
         },
         "outputs": {name: str(path) for name, path in files.items()},
-        "dry_run": dry_run,
+        "dry_run": cell is not None,
     }
+    if cell is not None:
+        document["fake_cell"] = cell
     if truth is not None:
         document["ground_truth"] = {
             "T_base_laser": np.asarray(truth).tolist(),
@@ -266,13 +266,15 @@ def run_command(
         state = None
 
     truth: FloatArray | None = None
+    cell_info: dict[str, Any] | None = None
     with _sigterm_as_interrupt(), contextlib.ExitStack() as stack:
         if dry_run:
             ui.print("starting a fake cell for the dry run ...")
             cell = stack.enter_context(FakeCellProcess(scene=scene))
             truth = cell.ground_truth
+            cell_info = {"address": cell.address, "pid": cell.pid}
             job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": cell.scanner_url})
-            ui.print(f"fake cell on {cell.address}: robot {cell.robot_host}, scanner {cell.scanner_url}")
+            ui.print(f"fake cell on {cell.address} (pid {cell.pid}): scanner {cell.scanner_url}")
         if job.robot.host is None:
             raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
         robot_device, scanner_device = _connect(job, stack)
@@ -309,7 +311,7 @@ def run_command(
         ui.print(f"finished in {time.monotonic() - started_s:.1f} s")
 
     if as_json:
-        print_json(_json_document(outcome, files, truth, dry_run))
+        print_json(_json_document(outcome, files, truth, cell_info))
     else:
         error = transform_error(outcome.result.matrix(), truth) if truth is not None else None
         _print_summary(outcome, files, error)

@@ -1,0 +1,142 @@
+"""``lasercal run --dry-run`` end to end: a fake cell child process, the real drivers,
+the whole procedure, and every exit path stopping the child."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lasercal_hw.dry_run import FakeCellProcess, free_loopback_address, ports_free
+from lasercal_hw.errors import ExitCode
+from lasercal_hw.session import read_session
+from tests.doubles import semicircle_waypoints
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
+
+WAYPOINTS = 8
+
+
+def write_job(folder: Path) -> Path:
+    np.savetxt(folder / "waypoints.csv", semicircle_waypoints(WAYPOINTS), delimiter=",",
+               header="x,y,z,rx,ry,rz", comments="")
+    job = folder / "job.toml"
+    job.write_text(
+        "dwell_s = 0.3\n"
+        "[trajectory]\nwaypoints_file = \"waypoints.csv\"\n"
+        "[background]\nscans = 10\n"
+        "[motion]\nspeed_m_s = 0.25\naccel_m_s2 = 1.0\n"
+        # 8 waypoints of a short test trajectory: gates sized for it, not for a real run.
+        "[quality]\nmax_std_translation_mm = 40.0\nmax_std_rotation_deg = 4.0\nmin_observations = 6\n"
+    )
+    return job
+
+
+def lasercal(*args: str) -> list[str]:
+    return [sys.executable, "-m", "lasercal_hw.cli.main", "run", *args]
+
+
+def process_gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+def test_free_address_is_random_loopback_with_free_ports() -> None:
+    address = free_loopback_address()
+    assert address.startswith("127.") and address != "127.0.0.1"
+    assert ports_free(address)
+
+
+def test_fake_cell_child_reports_truth_and_is_stopped() -> None:
+    with FakeCellProcess() as cell:
+        pid = cell.pid
+        assert cell.scanner_url == f"scip+tcp://{cell.address}:10940"
+        assert cell.robot_host == cell.address
+        assert np.allclose(cell.ground_truth[:3, 3], [0.30, 0.50, 0.20])
+        assert not ports_free(cell.address)
+    assert process_gone(pid)
+
+
+def test_dry_run_recovers_the_fake_cells_transform(tmp_path: Path) -> None:
+    job = write_job(tmp_path)
+    out = tmp_path / "out"
+    result = subprocess.run(
+        lasercal("--dry-run", "--json", "--config", str(job), "--out", str(out)),
+        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
+    )
+    assert result.returncode == ExitCode.OK, result.stderr[-3000:]
+    document = json.loads(result.stdout)
+    estimate = np.array(document["T_base_laser"])
+    truth = np.array(document["ground_truth"]["T_base_laser"])
+    assert estimate.shape == truth.shape == (4, 4)
+    assert np.allclose(truth[:3, 3], [0.30, 0.50, 0.20])
+    assert 1000 * np.linalg.norm(estimate[:3, 3] - truth[:3, 3]) < 40.0
+    assert document["ground_truth"]["error"]["rotation_deg"] < 4.0
+    assert document["observations"] == WAYPOINTS
+    assert process_gone(document["fake_cell"]["pid"])
+    for name in ("session.mcap", "observations.csv", "result.json", "report.png",
+                 "base_to_laser.urdf.xml", "static_transform_publisher.args"):
+        assert (out / name).stat().st_size > 0, name
+    recording = read_session(out / "session.mcap")
+    assert not recording.truncated
+    assert len(recording.events_of("observation")) == WAYPOINTS
+    assert recording.meta["dry_run"] is True
+    assert "--child-frame-id laser" in (out / "static_transform_publisher.args").read_text()
+
+
+def test_sigint_stops_the_run_and_resume_finishes_it(tmp_path: Path) -> None:
+    job = write_job(tmp_path)
+    out = tmp_path / "out"
+    process = subprocess.Popen(
+        lasercal("--dry-run", "--json", "--config", str(job), "--out", str(out)),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True, cwd=tmp_path,
+    )
+    cell_pid = None
+    lines = []
+    try:
+        assert process.stderr is not None
+        for line in process.stderr:
+            lines.append(line)
+            if match := re.search(r"\(pid (\d+)\)", line):
+                cell_pid = int(match.group(1))
+            if "waypoint 3: rod at" in line:
+                process.send_signal(signal.SIGINT)
+                break
+        _, rest = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    stderr = "".join(lines) + rest
+    assert process.returncode == ExitCode.INTERRUPTED, stderr[-3000:]
+    assert "interrupted" in stderr and "--resume" in stderr
+    assert cell_pid is not None and process_gone(cell_pid)
+    recording = read_session(out / "session.mcap")
+    done = [event["index"] for event in recording.events_of("observation")]
+    assert done[:3] == [0, 1, 2] and len(done) < WAYPOINTS
+    assert recording.events_of("abort")[-1]["cause"] == "interrupted"
+    assert not (out / "result.json").exists()
+
+    resumed = subprocess.run(
+        lasercal("--dry-run", "--json", "--resume", str(out / "session.mcap")),
+        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
+    )
+    assert resumed.returncode == ExitCode.OK, resumed.stderr[-3000:]
+    document = json.loads(resumed.stdout)
+    assert document["observations"] == WAYPOINTS
+    final = read_session(out / "session.mcap")
+    indices = sorted({event["index"] for event in final.events_of("observation")})
+    assert indices == list(range(WAYPOINTS))
+    revisited = [e["index"] for e in final.events_of("dwell_start")]
+    assert revisited.count(0) == 1, "a resumed run must not measure finished waypoints again"
+    assert json.loads((out / "result.json").read_text())["run"]["resumed_after_waypoints"] == len(done)
