@@ -49,6 +49,9 @@ def _root(
 from lasercal_hw.cli.fake import fake_app  # noqa: E402
 
 app.add_typer(fake_app, name="fake")
+from lasercal_hw.cli.robot import robot_app  # noqa: E402
+
+app.add_typer(robot_app, name="robot")
 
 
 def main() -> None:
