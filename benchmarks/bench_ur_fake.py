@@ -118,8 +118,9 @@ def main() -> None:
     with FakeRobotProcess(args.address) as fake:
         arrivals: list[list[float]] = [[], []]
         reference: list[float] = []
-        threads = [threading.Thread(target=stream_client, args=(args.address, args.frequency, args.duration, a))
-                   for a in arrivals]
+        threads = [threading.Thread(target=stream_client,
+                                    args=(args.address, args.frequency, args.duration, times))
+                   for times in arrivals]
         threads.append(threading.Thread(target=reference_sleep_loop,
                                         args=(args.frequency, args.duration, reference)))
         cpu_before, wall_before = cpu_seconds(fake.pid), time.perf_counter()
@@ -136,8 +137,8 @@ def main() -> None:
           f"p99 {ref_p99:.3f} ms")
     for k, times in enumerate(arrivals):
         rate, p50, p99 = jitter_ms(times, args.frequency)
-        print(f"client {k + 1}: {rate:.1f} Hz ({rate / args.frequency:.3f} x target), jitter p50 {p50:.3f} ms, "
-              f"p99 {p99:.3f} ms ({p99 / max(ref_p99, 1e-6):.2f} x reference p99)")
+        print(f"client {k + 1}: {rate:.1f} Hz ({rate / args.frequency:.3f} x target), "
+              f"jitter p50 {p50:.3f} ms, p99 {p99:.3f} ms ({p99 / max(ref_p99, 1e-6):.2f} x reference p99)")
     print(f"fake process CPU: {cpu_share * 100:.1f} % of one core")
 
 
