@@ -24,7 +24,13 @@ from typing import Any
 import numpy as np
 
 from drivers.ur.calls import ur_call
-from lasercal_hw.errors import ConfigError, DeviceTimeoutError, ProtectiveStopError, RobotError, TransportError
+from lasercal_hw.errors import (
+    ConfigError,
+    DeviceTimeoutError,
+    ProtectiveStopError,
+    RobotError,
+    TransportError,
+)
 from lasercal_hw.geometry import invert_transform, matrix_to_pose, pose_to_matrix, rotation_angle_rad
 from lasercal_hw.models import FloatArray, RobotIdentity, RobotState
 
@@ -125,6 +131,14 @@ def _read_exact(sock: socket.socket, count: int) -> bytes:
 
 def _after_colon(line: str) -> str:
     return line.split(":", 1)[1].strip() if ":" in line else line.strip()
+
+
+class _Disconnected:
+    """Stands in for the ur_rtde interfaces after ``close`` (so their sockets and threads
+    are freed): every use raises RobotError."""
+
+    def __getattr__(self, name: str) -> Any:
+        raise RobotError(f"cannot call {name}: the robot connection is closed; connect again")
 
 
 class URRobot:
@@ -260,7 +274,8 @@ class URRobot:
         position_error_m = float(np.linalg.norm(reached[:3, 3] - goal[:3, 3]))
         rotation_error_rad = float(rotation_angle_rad(reached[:3, :3].T @ goal[:3, :3]))
         if position_error_m > _POSITION_TOLERANCE_M or rotation_error_rad > _ROTATION_TOLERANCE_RAD:
-            raise RobotError(f"moveL ended {position_error_m * 1000:.2f} mm / {np.degrees(rotation_error_rad):.3f} "
+            raise RobotError(f"moveL ended {position_error_m * 1000:.2f} mm / "
+                             f"{np.degrees(rotation_error_rad):.3f} "
                              "deg away from its target")
 
     def move_joint(self, q_rad: FloatArray, speed_rad_s: float, accel_rad_s2: float) -> None:
@@ -348,7 +363,8 @@ class URRobot:
     def is_within_safety_limits(self, pose: FloatArray) -> bool:
         """True when the controller's safety limits allow the TCP pose."""
         target = np.asarray(pose, dtype=float).reshape(6).tolist()
-        return bool(ur_call("isPoseWithinSafetyLimits", lambda: self._control.isPoseWithinSafetyLimits(target),
+        control = self._control
+        return bool(ur_call("isPoseWithinSafetyLimits", lambda: control.isPoseWithinSafetyLimits(target),
                             timeout_s=_COMMAND_TIMEOUT_S, false_is_error=False))
 
     # -- shutdown ---------------------------------------------------------------------------------
@@ -369,6 +385,8 @@ class URRobot:
                 ur_call(what, step, timeout_s=_COMMAND_TIMEOUT_S, false_is_error=False)
             except (RobotError, DeviceTimeoutError) as exc:
                 logger.warning("while disconnecting from %s: %s", self.host, exc)
+        # Dropping the last reference destroys the C++ objects and frees their sockets.
+        self._control = self._receive = self._dashboard = _Disconnected()
 
     def __enter__(self) -> URRobot:
         return self

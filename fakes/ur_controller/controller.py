@@ -27,9 +27,9 @@ from fakes.ur5_kinematics import (
 )
 from fakes.ur_controller.control_script import ControlScript, ScriptRuntimeError
 from fakes.ur_controller.motion import JointPath, LinearPath, Motion, track_pose
+from fakes.ur_controller.rtde_protocol import REGISTER_COUNT
 from lasercal_hw.geometry import invert_transform, matrix_to_pose, pose_to_matrix
 from lasercal_hw.models import FloatArray
-from fakes.ur_controller.rtde_protocol import REGISTER_COUNT
 
 logger = logging.getLogger(__name__)
 
@@ -338,7 +338,8 @@ class FakeController:
         self._begin_move()
         target = np.asarray(q_rad, dtype=float)
         if not self._within_limits(target):
-            raise ScriptRuntimeError(f"movej: target {np.round(target, 4).tolist()} is outside the joint limits")
+            raise ScriptRuntimeError(f"movej: target {np.round(target, 4).tolist()} is outside the "
+                                     "joint limits")
         if speed <= 0.0 or accel <= 0.0:
             raise ScriptRuntimeError("movej: speed and acceleration must be positive")
         self._motion = Motion(JointPath(self._q, target), speed, accel)
@@ -347,7 +348,8 @@ class FakeController:
         self._begin_move()
         T_target = pose_to_matrix(pose)
         if self._ik(T_target, self._q) is None:
-            raise ScriptRuntimeError(f"movel: no inverse kinematics solution for {np.round(pose, 4).tolist()}")
+            raise ScriptRuntimeError("movel: no inverse kinematics solution for "
+                                     f"{np.round(pose, 4).tolist()}")
         if speed <= 0.0 or accel <= 0.0:
             raise ScriptRuntimeError("movel: speed and acceleration must be positive")
         self._motion = Motion(LinearPath(self._T_tcp, T_target, self._track), speed, accel)
@@ -456,9 +458,10 @@ class FakeController:
         faults = self.config.faults
         if faults.protective_stop_at_s is not None and self._time_s >= faults.protective_stop_at_s:
             self._fire_once("stop_at_s", lambda: self.protective_stop("injected at a given time"))
-        if (faults.protective_stop_at_move is not None and self._motion is not None
+        motion = self._motion
+        if (faults.protective_stop_at_move is not None and motion is not None
                 and self._move_index == faults.protective_stop_at_move
-                and self._motion.elapsed_s >= faults.protective_stop_fraction * self._motion.profile.duration_s):
+                and motion.elapsed_s >= faults.protective_stop_fraction * motion.profile.duration_s):
             self._fire_once("stop_at_move", lambda: self.protective_stop(
                 f"injected during move command {faults.protective_stop_at_move}"))
         if faults.freeze_at_s is not None and self._time_s >= faults.freeze_at_s:

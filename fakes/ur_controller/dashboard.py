@@ -33,7 +33,7 @@ class Dashboard:
 
     def _e_series_5_6(self) -> bool:
         major, minor = self.controller.config.version[:2]
-        return major == 5 and minor >= 6 or major > 5
+        return (major == 5 and minor >= 6) or major > 5
 
     def reply(self, command: str) -> tuple[str, bool]:
         """The reply line for one command, and whether to close the connection."""

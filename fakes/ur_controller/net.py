@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import logging
 import socket
@@ -22,7 +23,8 @@ def require_loopback(address: str) -> str:
     except ValueError as exc:
         raise ConfigError(f"fake robot address {address!r} is not an IP address; use 127.0.0.X") from exc
     if parsed.version != 4 or not parsed.is_loopback:
-        raise ConfigError(f"fake robot address {address} is not a loopback address; fakes bind only to 127.0.0.X")
+        raise ConfigError(f"fake robot address {address} is not a loopback address; "
+                          "fakes bind only to 127.0.0.X")
     return address
 
 
@@ -62,7 +64,8 @@ class TcpListener:
             client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             with self._clients_lock:
                 self._clients.add(client)
-            threading.Thread(target=self._serve, args=(client,), name=f"fake-ur-{self.name}", daemon=True).start()
+            threading.Thread(target=self._serve, args=(client,), name=f"fake-ur-{self.name}",
+                             daemon=True).start()
 
     def _serve(self, client: socket.socket) -> None:
         try:
@@ -81,17 +84,13 @@ class TcpListener:
         with self._clients_lock:
             clients = list(self._clients)
         for client in clients:
-            try:
+            with contextlib.suppress(OSError):
                 client.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
 
     def close(self) -> None:
         """Stop listening and drop every client."""
-        try:
+        with contextlib.suppress(OSError):
             self._server.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
         self._server.close()
         self.close_clients()
         if self._thread.is_alive():

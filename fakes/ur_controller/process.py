@@ -113,7 +113,7 @@ class FakeRobotProcess:
                      "--address", address, *extra_args]
         self.startup_timeout_s = startup_timeout_s
         self.process: subprocess.Popen[str] | None = None
-        self._stderr = tempfile.TemporaryFile(mode="w+")
+        self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115  (closed in close())
         self._stderr_text = ""
         self.ready_line = ""
 

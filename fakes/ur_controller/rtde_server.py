@@ -190,7 +190,8 @@ class RtdeServer:
         self._lock = threading.Lock()
         controller.add_tick_listener(self.on_cycle)
 
-    def claim_inputs(self, session: RtdeSession, names: list[str], types: list[str]) -> tuple[list[str], bool]:
+    def claim_inputs(self, session: RtdeSession, names: list[str],
+                     types: list[str]) -> tuple[list[str], bool]:
         """Claim input variables for a session; ``IN_USE`` for those another live
         connection owns (nothing is claimed then)."""
         with self._lock:

@@ -50,6 +50,9 @@ app.add_typer(scanner_app, name="scanner")
 from lasercal_hw.cli.fake import fake_app  # noqa: E402
 
 app.add_typer(fake_app, name="fake")
+from lasercal_hw.cli.robot import robot_app  # noqa: E402
+
+app.add_typer(robot_app, name="robot")
 
 from lasercal_hw.cli.simulate import simulate_command  # noqa: E402
 from lasercal_hw.cli.solve import solve_command  # noqa: E402

@@ -39,7 +39,8 @@ def test_linear_path_keeps_the_tcp_on_the_straight_line() -> None:
     T_goal = T_start.copy()
     T_goal[:3, 3] += [0.1, -0.05, -0.08]
     q = Q_HOME.copy()
-    motion = Motion(LinearPath(T_start, T_goal, lambda T, qp: track_pose(forward_kinematics, T, qp)), 0.25, 1.2)
+    path = LinearPath(T_start, T_goal, lambda T, qp: track_pose(forward_kinematics, T, qp))
+    motion = Motion(path, 0.25, 1.2)
     direction = (T_goal[:3, 3] - T_start[:3, 3]) / np.linalg.norm(T_goal[:3, 3] - T_start[:3, 3])
     while not motion.finished:
         q = motion.advance(0.002, q)

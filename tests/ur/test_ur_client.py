@@ -1,0 +1,183 @@
+"""URRobot (drivers/ur/client.py) against fake controllers in child processes."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from typing import Any, ClassVar
+
+import numpy as np
+import pytest
+
+from drivers.ur.client import MotionLimits, URRobot, _trapezoid_duration_s
+from fakes.ur5_kinematics import forward_kinematics
+from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
+from lasercal_hw.errors import ConfigError, ProtectiveStopError, RobotError, TransportError
+from lasercal_hw.geometry import matrix_to_pose
+from tests.ur.conftest import StartFake
+
+pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
+
+START_POSE = matrix_to_pose(forward_kinematics(np.array(DEFAULT_START_Q_RAD)))
+
+
+@pytest.mark.parametrize(("version", "has_serial"), [("5.11", True), ("3.15", False)])
+def test_connect_reports_identity_state_and_pose(start_fake: StartFake, version: str,
+                                                 has_serial: bool) -> None:
+    fake = start_fake("--version", version, "--tcp-offset", "0,0,0.1,0,0,0")
+    with URRobot.connect(fake.address) as robot:
+        identity = robot.identity()
+        assert identity.controller_version[:2] == tuple(int(v) for v in version.split("."))
+        assert (identity.serial_number == "20185500042") == has_serial
+        assert identity.software_version.startswith(version)
+        state = robot.state()
+        assert (state.robot_mode, state.safety_status) == ("RUNNING", "NORMAL")
+        assert state.program_running and state.remote_control
+        assert not state.protective_stop and not state.emergency_stop
+        assert np.allclose(robot.joint_positions_rad(), DEFAULT_START_Q_RAD)
+        assert np.allclose(robot.flange_pose(), START_POSE, atol=1e-9)
+        tcp = forward_kinematics(np.array(DEFAULT_START_Q_RAD), tcp_offset_pose=[0, 0, 0.1, 0, 0, 0])
+        assert np.allclose(robot.tcp_pose(), matrix_to_pose(tcp), atol=1e-9)
+
+
+def test_moves_reach_targets_and_limits_are_enforced(start_fake: StartFake) -> None:
+    fake = start_fake()
+    limits = MotionLimits(max_speed_m_s=0.3, max_accel_m_s2=2.0, max_joint_speed_rad_s=1.0,
+                          max_joint_accel_rad_s2=2.0)
+    with URRobot.connect(fake.address, limits) as robot:
+        target = START_POSE.copy()
+        target[:3] += [0.05, 0.02, -0.04]
+        robot.move_linear(target, 0.3, 2.0)
+        assert np.allclose(robot.tcp_pose(), target, atol=1e-6)
+        q = robot.joint_positions_rad() + np.array([0.2, 0.0, 0.0, 0.0, 0.0, -0.2])
+        robot.move_joint(q, 1.0, 2.0)
+        assert np.allclose(robot.joint_positions_rad(), q, atol=1e-9)
+        robot.wait_until_steady(1.0)
+        with pytest.raises(ConfigError, match=r"speed 0\.31 m/s"):
+            robot.move_linear(START_POSE, 0.31, 1.0)
+        with pytest.raises(ConfigError, match=r"acceleration 2\.5 rad/s"):
+            robot.move_joint(np.array(DEFAULT_START_Q_RAD), 0.5, 2.5)
+        assert np.allclose(robot.joint_positions_rad(), q, atol=1e-9)  # nothing moved
+
+
+def test_reachability_and_safety_checks(start_fake: StartFake) -> None:
+    fake = start_fake()
+    with URRobot.connect(fake.address) as robot:
+        q = np.array([0.3, -1.2, 1.4, -1.8, -1.5, 0.4])
+        pose = matrix_to_pose(forward_kinematics(q))
+        solution = robot.inverse_kinematics(pose)
+        assert solution is not None
+        assert np.allclose(matrix_to_pose(forward_kinematics(solution)), pose, atol=1e-8)
+        assert robot.is_within_safety_limits(pose)
+        unreachable = np.array([2.0, 0.0, 0.3, 0.0, 3.14, 0.0])
+        assert robot.inverse_kinematics(unreachable) is None
+        assert not robot.is_within_safety_limits(unreachable)
+        assert robot.state().program_running
+
+
+class _RecordingControl:
+    """Wraps the real RTDEControlInterface and records the motion commands sent."""
+
+    MOTION: ClassVar[set[str]] = {"moveL", "moveJ", "speedJ", "speedL", "servoJ", "servoL", "movePath"}
+
+    def __init__(self, control: Any) -> None:
+        self._control = control
+        self.motion_calls: list[str] = []
+
+    def __getattr__(self, name: str) -> Any:
+        attribute = getattr(self._control, name)
+        if name in self.MOTION:
+            self.motion_calls.append(name)
+        return attribute
+
+
+def test_protective_stop_mid_move_raises_at_once_and_never_resumes(start_fake: StartFake) -> None:
+    fake = start_fake("--protective-stop-at-move", "2", "--unlock-delay-s", "0")
+    with URRobot.connect(fake.address) as robot:
+        recorder = _RecordingControl(robot._control)
+        robot._control = recorder
+        first = START_POSE.copy()
+        first[2] -= 0.02
+        robot.move_linear(first, 0.25, 1.2)
+        target = first.copy()
+        target[0] += 0.2
+        speed, accel = 0.25, 1.2
+        duration_s = _trapezoid_duration_s(0.2, speed, accel)
+        started = time.monotonic()
+        with pytest.raises(ProtectiveStopError, match="protective stop"):
+            robot.move_linear(target, speed, accel)
+        late_s = time.monotonic() - (started + duration_s / 2.0)
+        assert late_s < 0.1, f"protective stop surfaced {late_s:.3f} s after it happened"
+        # The fake stops the arm halfway through the move's time, i.e. at half its length.
+        assert robot.tcp_pose()[0] == pytest.approx(first[0] + 0.1, abs=0.01)
+        assert robot.state().protective_stop
+        sent = list(recorder.motion_calls)
+        with pytest.raises(ProtectiveStopError, match="earlier on this connection"):
+            robot.move_linear(first, 0.25, 1.2)
+        with pytest.raises(ProtectiveStopError):
+            robot.move_joint(np.array(DEFAULT_START_Q_RAD), 0.5, 1.0)
+        assert recorder.motion_calls == sent == ["moveL", "moveL"]
+
+
+def test_connect_to_silent_address_fails_fast() -> None:
+    started = time.monotonic()
+    with pytest.raises(TransportError, match="cannot reach"):
+        URRobot.connect("127.0.0.254", timeout_s=1.0)
+    assert time.monotonic() - started < 5.0
+
+
+def test_local_control_is_reported_as_robot_error(start_fake: StartFake) -> None:
+    fake = start_fake("--local-control")
+    with pytest.raises(RobotError, match="remote control"):
+        URRobot.connect(fake.address)
+
+
+def _open_fds() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
+def _children() -> set[str]:
+    path = f"/proc/{os.getpid()}/task/{os.getpid()}/children"
+    with open(path) as handle:
+        return set(handle.read().split())
+
+
+@pytest.mark.slow
+def test_ten_moves_leave_no_socket_or_process_behind(start_fake: StartFake) -> None:
+    fake = start_fake()
+    children_before = _children()
+    fds_before = _open_fds()
+    threads_before = len(os.listdir("/proc/self/task"))
+    robot = URRobot.connect(fake.address)
+    for k in range(10):
+        q = np.array(DEFAULT_START_Q_RAD)
+        q[0] = 0.05 * ((k % 2) * 2 - 1)
+        robot.move_joint(q, 1.05, 1.4)
+    robot.close()
+    robot.close()  # safe twice
+    assert _open_fds() == fds_before
+    assert _children() == children_before
+    assert len(os.listdir("/proc/self/task")) <= threads_before
+    with pytest.raises(RobotError, match="closed"):
+        robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.0)
+
+
+def test_robot_info_cli_prints_the_pose(start_fake: StartFake) -> None:
+    fake = start_fake()
+    result = subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", "robot", "info", "--robot", fake.address, "--json"],
+        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
+    )
+    assert result.returncode == 0, result.stderr
+    import json
+    document = json.loads(result.stdout)
+    assert np.allclose(document["tcp_pose"], START_POSE, atol=1e-6)
+    assert document["identity"]["serial_number"] == "20185500042"
+    assert document["state"]["robot_mode"] == "RUNNING"
+    text = subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", "robot", "info", "--robot", fake.address],
+        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
+    )
+    assert text.returncode == 0 and "TCP pose" in text.stdout
