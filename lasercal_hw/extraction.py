@@ -231,7 +231,7 @@ def _candidate_segments(
     scored = []
     for beams in segments:
         fit = _size_mismatch(scan, beams, section, settings)
-        if fit is not None and _in_front(scan, beams, sigma, section, settings, background is not None):
+        if fit is not None and _in_front(scan, beams, sigma, background is not None):
             scored.append((fit, beams))
     scored.sort(key=lambda item: item[0])
     return [beams for _, beams in scored]
@@ -259,14 +259,7 @@ def _size_mismatch(
     return abs(width - 0.5 * (width_min + width_max)) / max(step, 1e-9)
 
 
-def _in_front(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    sigma: FloatArray,
-    section: _Section,
-    settings: ExtractionSettings,
-    by_background: bool,
-) -> bool:
+def _in_front(scan: AveragedScan, beams: NDArray[np.int64], sigma: FloatArray, by_background: bool) -> bool:
     """True unless a neighbour just outside the segment is nearer (the rod would be cut)."""
     if by_background:
         return True
