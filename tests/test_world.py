@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fakes.scene import Scene, load_scene, parse_scene
 from fakes.world import DROPOUT_CODE, NO_RETURN_CODE, TOO_NEAR_CODE, World, WorldRangeSource
@@ -322,3 +324,33 @@ robot_rotation_error_deg = 0.0
         finite = ranges[np.isfinite(ranges)]
         assert finite.size > 0
         assert np.all(finite < 1.0)  # edge beams keep the rod or return nothing
+
+
+_QUIET_WORLD = World(parse_scene(QUIET))
+_CLEAR = _QUIET_WORLD.scan_ranges_m(_tcp_for_rod_in_scanner(_QUIET_WORLD, [0.0, 0.0, 5.0], [0.0, 0.0, 1.0]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    range_m=st.floats(0.3, 1.5),
+    bearing_rad=st.floats(-1.9, 1.9),  # clear of the base column behind-right of the scanner
+    tilt_rad=st.floats(0.0, 1.1),
+    azimuth_rad=st.floats(-np.pi, np.pi),
+)
+def test_every_rod_hit_lies_on_the_rod_surface(
+    range_m: float, bearing_rad: float, tilt_rad: float, azimuth_rad: float
+) -> None:
+    world = _QUIET_WORLD
+    axis = np.array(
+        [np.sin(tilt_rad) * np.cos(azimuth_rad), np.sin(tilt_rad) * np.sin(azimuth_rad), np.cos(tilt_rad)]
+    )
+    centre = np.array([range_m * np.cos(bearing_rad), range_m * np.sin(bearing_rad), 0.0])
+    ranges = world.scan_ranges_m(_tcp_for_rod_in_scanner(world, centre, axis))
+    beams = _rod_beams(world, ranges, _CLEAR)
+    assert beams.size >= 2
+    angles = world.angles_rad[beams]
+    points = ranges[beams, None] * np.stack([np.cos(angles), np.sin(angles), np.zeros(beams.size)], -1)
+    rel = points - centre
+    radial = rel - (rel @ axis)[:, None] * axis
+    np.testing.assert_allclose(np.linalg.norm(radial, axis=1), world.rod.radius_m, atol=1e-9)
+    assert np.all(ranges[beams] < _CLEAR[beams])
