@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from lasercal_hw.errors import CalibrationError
+from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.scan_average import AveragedScan
 
@@ -140,10 +140,17 @@ def find_rod_centre(
     expected_uv_m: FloatArray | None = None,
     settings: ExtractionSettings | None = None,
 ) -> RodCentre:
-    """Find the rod's centre (u, v) in an averaged scan; raises ``RodNotFoundError``."""
+    """Find the rod's centre (u, v) in an averaged scan (scanner frame, metres).
+
+    ``background``: the same view without the rod, for segmentation against clutter;
+    ``axis_in_scanner``: the rod axis (unit 3-vector, scanner frame) to fit the tilted
+    cross-section; ``expected_uv_m``: where the rod should be, to pick among candidates.
+    Raises ``RodNotFoundError`` saying why when there is no usable rod in the scan, and
+    ``ConfigError`` for a non-positive radius or a zero axis.
+    """
     settings = settings or ExtractionSettings()
     if not radius_m > 0.0:
-        raise RodNotFoundError(f"rod radius must be positive, got {radius_m} m; set the rod radius")
+        raise ConfigError(f"rod radius must be positive, got {radius_m} m; set the rod radius")
     section = _Section(_unit_axis(axis_in_scanner), radius_m)
     if section.cos_tilt < settings.min_axis_cos_tilt:
         raise RodNotFoundError(
@@ -177,7 +184,7 @@ def _unit_axis(axis: FloatArray | None) -> FloatArray:
     a = np.asarray(axis, dtype=float)
     norm = float(np.linalg.norm(a))
     if a.shape != (3,) or not norm > 0.0:
-        raise RodNotFoundError(f"axis_in_scanner must be a non-zero 3-vector, got {axis!r}")
+        raise ConfigError(f"axis_in_scanner must be a non-zero 3-vector, got {axis!r}")
     a = a / norm
     return a if a[2] >= 0.0 else -a
 

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lasercal_hw.errors import CalibrationError
+from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.extraction import (
     ExtractionSettings,
     RodNotFoundError,
@@ -201,9 +201,9 @@ def test_a_segment_that_is_no_clean_arc_is_refused() -> None:
 
 def test_bad_inputs_are_clear_errors() -> None:
     scan = AveragedScan.from_ranges(rod_ranges([0.8, 0.1], 0.02), ANGLES)
-    with pytest.raises(RodNotFoundError, match="radius must be positive"):
+    with pytest.raises(ConfigError, match="radius must be positive"):
         find_rod_centre(scan, radius_m=0.0)
-    with pytest.raises(RodNotFoundError, match="non-zero 3-vector"):
+    with pytest.raises(ConfigError, match="non-zero 3-vector"):
         find_rod_centre(scan, radius_m=0.02, axis_in_scanner=np.zeros(3))
     with pytest.raises(RodNotFoundError, match="too elongated"):
         find_rod_centre(scan, radius_m=0.02, axis_in_scanner=np.array([1.0, 0.0, 0.05]))
