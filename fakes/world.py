@@ -324,40 +324,26 @@ def to_wire_mm(ranges_m: FloatArray, geometry: ScanGeometry) -> NDArray[np.int64
 
 
 class WorldRangeSource:
-    """Adapts a world to the fake scanner: ranges (and intensities) for a step window.
+    """Adapts a world to the fake scanner's ``RangeSource`` protocol (``fakes/scan_scene.py``).
 
     ``tcp_pose_at(time_s)`` returns the TCP pose (4x4, or a UR pose vector) the fake robot
-    reports at that time; both calls for one ``time_s`` come from the same scan.
+    reports at that time.  The noise of each scan is seeded by ``seed`` and the scan's
+    start time, so the same time always gives the same scan.
     """
 
-    def __init__(
-        self, world: World, tcp_pose_at: Callable[[float], FloatArray], seed: int | None = 0
-    ) -> None:
+    def __init__(self, world: World, tcp_pose_at: Callable[[float], FloatArray], seed: int = 0) -> None:
         self._world = world
         self._tcp_pose_at = tcp_pose_at
-        self._rng = np.random.default_rng(seed)
-        self._cache: tuple[float, NDArray[np.int64], NDArray[np.int64]] | None = None
+        self._seed = seed
 
-    def _scan(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        if self._cache is None or self._cache[0] != time_s:
-            pose = np.asarray(self._tcp_pose_at(time_s), dtype=float)
-            if pose.shape == (6,):
-                pose = make_transform(rotvec_to_matrix(pose[3:]), pose[:3])
-            ranges, intensities = self._world.scan_mm(pose, self._rng)
-            self._cache = (time_s, ranges, intensities)
-        return self._cache[1], self._cache[2]
-
-    def _window(self, values: NDArray[np.int64], step_first: int, step_last: int) -> NDArray[np.int64]:
-        first = self._world.geometry.first_step
-        return values[step_first - first : step_last - first + 1]
-
-    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        """Ranges (mm, error codes) of steps ``step_first..step_last`` of the scan at ``time_s``."""
-        return self._window(self._scan(time_s)[0], step_first, step_last)
-
-    def intensities(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        """Intensities of the same steps of the same scan."""
-        return self._window(self._scan(time_s)[1], step_first, step_last)
+    def ranges_mm(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Distances (mm, error codes below DMIN) and intensities of every step of the scan
+        starting at ``time_s``."""
+        pose = np.asarray(self._tcp_pose_at(time_s), dtype=float)
+        if pose.shape == (6,):
+            pose = make_transform(rotvec_to_matrix(pose[3:]), pose[:3])
+        rng = np.random.default_rng([self._seed, round(time_s * 1e6)])
+        return self._world.scan_mm(pose, rng)
 
 
 def _beam_dirs(angles_rad: FloatArray) -> FloatArray:

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from lasercal_hw.errors import CalibrationError
+from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.scan_average import AveragedScan
 
@@ -140,10 +140,17 @@ def find_rod_centre(
     expected_uv_m: FloatArray | None = None,
     settings: ExtractionSettings | None = None,
 ) -> RodCentre:
-    """Find the rod's centre (u, v) in an averaged scan; raises ``RodNotFoundError``."""
+    """Find the rod's centre (u, v) in an averaged scan (scanner frame, metres).
+
+    ``background``: the same view without the rod, for segmentation against clutter;
+    ``axis_in_scanner``: the rod axis (unit 3-vector, scanner frame) to fit the tilted
+    cross-section; ``expected_uv_m``: where the rod should be, to pick among candidates.
+    Raises ``RodNotFoundError`` saying why when there is no usable rod in the scan, and
+    ``ConfigError`` for a non-positive radius or a zero axis.
+    """
     settings = settings or ExtractionSettings()
     if not radius_m > 0.0:
-        raise RodNotFoundError(f"rod radius must be positive, got {radius_m} m; set the rod radius")
+        raise ConfigError(f"rod radius must be positive, got {radius_m} m; set the rod radius")
     section = _Section(_unit_axis(axis_in_scanner), radius_m)
     if section.cos_tilt < settings.min_axis_cos_tilt:
         raise RodNotFoundError(
@@ -157,11 +164,11 @@ def find_rod_centre(
         )
     sigma = _range_sigma(scan, settings)
     expected = None if expected_uv_m is None else np.asarray(expected_uv_m, dtype=float)
-    candidates = _candidate_segments(scan, sigma, section, background, settings)
+    candidates, notes = _candidate_segments(scan, sigma, section, background, settings)
     if expected is not None:
         candidates = _near_expected(scan, candidates, expected, section, settings)
     if not candidates:
-        raise RodNotFoundError(_diagnose(scan, section, background, expected, settings))
+        raise RodNotFoundError(_diagnose(scan, section, background, expected, settings, notes))
     reasons: list[str] = []
     for beams in candidates:
         try:
@@ -177,7 +184,7 @@ def _unit_axis(axis: FloatArray | None) -> FloatArray:
     a = np.asarray(axis, dtype=float)
     norm = float(np.linalg.norm(a))
     if a.shape != (3,) or not norm > 0.0:
-        raise RodNotFoundError(f"axis_in_scanner must be a non-zero 3-vector, got {axis!r}")
+        raise ConfigError(f"axis_in_scanner must be a non-zero 3-vector, got {axis!r}")
     a = a / norm
     return a if a[2] >= 0.0 else -a
 
@@ -207,8 +214,9 @@ def _candidate_segments(
     section: _Section,
     background: AveragedScan | None,
     settings: ExtractionSettings,
-) -> list[NDArray[np.int64]]:
-    """Beam index runs that could be the rod, best first (size match)."""
+) -> tuple[list[NDArray[np.int64]], list[str]]:
+    """Beam index runs that could be the rod, best first (size match), and why rod-sized
+    runs were refused (cut by the field of view, partly hidden)."""
     ranges = scan.ranges_m
     valid = np.isfinite(ranges)
     if background is None:
@@ -222,19 +230,50 @@ def _candidate_segments(
         bg_valid = np.isfinite(background.ranges_m)
         with np.errstate(invalid="ignore"):
             foreground = valid & (~bg_valid | (background.ranges_m - ranges > margin))
-    jumps = np.abs(np.diff(ranges)) > _jump_threshold_m(section, sigma, settings)
+    with np.errstate(invalid="ignore"):  # inf - inf where a caller passed inf for no return
+        jumps = np.abs(np.diff(ranges)) > _jump_threshold_m(section, sigma, settings)
     split = np.concatenate([[False], jumps])
     segments: list[NDArray[np.int64]] = []
     for run in _runs(foreground):
         cuts = np.flatnonzero(split[run[1:]]) + 1
         segments.extend(np.split(run, cuts))
-    scored = []
+    scored, notes = [], []
+    last_beam = ranges.size - 1
     for beams in segments:
+        if beams[0] == 0 or beams[-1] == last_beam:
+            if _size_mismatch(scan, beams, section, settings, partial=True) is not None:
+                problem = "is cut by the edge of the field of view; move the rod inward"
+                _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
+            continue
         fit = _size_mismatch(scan, beams, section, settings)
-        if fit is not None and _in_front(scan, beams, sigma, section, settings, background is not None):
-            scored.append((fit, beams))
+        if fit is None:
+            continue
+        if background is None and not _in_front(scan, beams, sigma):
+            problem = "is partly hidden behind a nearer object; clear the line of sight"
+            _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
+            continue
+        scored.append((fit, beams))
     scored.sort(key=lambda item: item[0])
-    return [beams for _, beams in scored]
+    return [beams for _, beams in scored], notes
+
+
+def _note_if_rod(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    beams: NDArray[np.int64],
+    section: _Section,
+    settings: ExtractionSettings,
+    notes: list[str],
+    problem: str,
+) -> None:
+    """Record why a refused segment was refused, if it really looks like (part of) a rod."""
+    if beams.size < settings.min_beams:
+        return
+    try:
+        _fit_segment(scan, sigma, beams, section, settings)
+    except RodNotFoundError:
+        return
+    notes.append(f"a rod at {float(np.min(scan.ranges_m[beams])):.2f} m {problem}")
 
 
 def _beam_step_rad(scan: AveragedScan) -> float:
@@ -242,9 +281,16 @@ def _beam_step_rad(scan: AveragedScan) -> float:
 
 
 def _size_mismatch(
-    scan: AveragedScan, beams: NDArray[np.int64], section: _Section, settings: ExtractionSettings
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    section: _Section,
+    settings: ExtractionSettings,
+    *,
+    partial: bool = False,
 ) -> float | None:
-    """How far the segment's angular width is from the rod's (in beams); None if implausible."""
+    """How far the segment's angular width is from the rod's (in beams); None if implausible.
+
+    ``partial`` accepts any width up to the rod's (a rod cut by the field of view)."""
     step = _beam_step_rad(scan)
     centre_range = float(np.min(scan.ranges_m[beams])) + section.radius_m
     if centre_range <= section.semi_major_m:
@@ -252,24 +298,15 @@ def _size_mismatch(
     width_min = 2.0 * np.arcsin(section.radius_m / centre_range)
     width_max = 2.0 * np.arcsin(min(1.0, section.semi_major_m / centre_range))
     width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]]))
-    low = settings.min_visible_fraction * width_min - 2.0 * step
+    low = 0.0 if partial else settings.min_visible_fraction * width_min - 2.0 * step
     high = width_max + 2.0 * step
     if not low <= width <= high:
         return None
     return abs(width - 0.5 * (width_min + width_max)) / max(step, 1e-9)
 
 
-def _in_front(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    sigma: FloatArray,
-    section: _Section,
-    settings: ExtractionSettings,
-    by_background: bool,
-) -> bool:
+def _in_front(scan: AveragedScan, beams: NDArray[np.int64], sigma: FloatArray) -> bool:
     """True unless a neighbour just outside the segment is nearer (the rod would be cut)."""
-    if by_background:
-        return True
     nearest = float(np.min(scan.ranges_m[beams]))
     for neighbour in (beams[0] - 1, beams[-1] + 1):
         if 0 <= neighbour < scan.ranges_m.size:
@@ -304,6 +341,7 @@ def _diagnose(
     background: AveragedScan | None,
     expected: FloatArray | None,
     settings: ExtractionSettings,
+    notes: list[str],
 ) -> str:
     """A sentence saying why no rod-like segment was found, and what to do."""
     valid = np.isfinite(scan.ranges_m)
@@ -331,15 +369,12 @@ def _diagnose(
                 f"no rod ({size}) near the expected position ({expected[0]:.3f}, {expected[1]:.3f}) m: "
                 f"the beam there returns {seen:.3f} m; check the waypoint and the rod mounting"
             )
-    edges = (0, scan.ranges_m.size - 1)
-    if any(valid[i] for i in edges) and background is None:
-        hint = "; if the rod is at the edge of the field of view, move it inward"
-    else:
-        hint = ""
+    if notes:
+        return "; ".join(notes)
     method = "background subtraction" if background is not None else "range discontinuities"
     return (
         f"no segment matching a rod of {size} found by {method} "
-        f"({int(valid.sum())} valid beams){hint}; check the rod radius, the rod's range "
+        f"({int(valid.sum())} valid beams); check the rod radius, the rod's range "
         "(beams are 0.25 deg apart) and, without a background scan, that nothing touches the rod"
     )
 

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lasercal_hw.errors import CalibrationError
+from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.extraction import (
     ExtractionSettings,
     RodNotFoundError,
@@ -201,12 +201,27 @@ def test_a_segment_that_is_no_clean_arc_is_refused() -> None:
 
 def test_bad_inputs_are_clear_errors() -> None:
     scan = AveragedScan.from_ranges(rod_ranges([0.8, 0.1], 0.02), ANGLES)
-    with pytest.raises(RodNotFoundError, match="radius must be positive"):
+    with pytest.raises(ConfigError, match="radius must be positive"):
         find_rod_centre(scan, radius_m=0.0)
-    with pytest.raises(RodNotFoundError, match="non-zero 3-vector"):
+    with pytest.raises(ConfigError, match="non-zero 3-vector"):
         find_rod_centre(scan, radius_m=0.02, axis_in_scanner=np.zeros(3))
     with pytest.raises(RodNotFoundError, match="too elongated"):
         find_rod_centre(scan, radius_m=0.02, axis_in_scanner=np.array([1.0, 0.0, 0.05]))
     short = AveragedScan.from_ranges(np.ones(10), ANGLES[:10])
     with pytest.raises(CalibrationError, match="same scanner settings"):
         find_rod_centre(scan, radius_m=0.02, background=short)
+
+
+def test_rod_cut_by_the_edge_of_the_field_of_view_is_reported() -> None:
+    bearing = np.radians(135.0)  # the last beam
+    truth = rod_ranges(_centre(0.5, bearing), 0.02, wall_behind_m=0.5)
+    with pytest.raises(RodNotFoundError, match="cut by the edge of the field of view"):
+        find_rod_centre(AveragedScan.from_ranges(truth, ANGLES), radius_m=0.02)
+
+
+def test_rod_partly_hidden_behind_a_nearer_object_is_reported() -> None:
+    rod = rod_ranges([1.0, 0.0], 0.02, wall_behind_m=0.5)
+    post = rod_ranges(_centre(0.5, np.radians(1.2)), 0.005)  # hides the rod's left third
+    truth = np.fmin(rod, np.where(np.isfinite(post), post, np.inf))  # inf: no return
+    with pytest.raises(RodNotFoundError, match="partly hidden behind a nearer object"):
+        find_rod_centre(AveragedScan.from_ranges(truth, ANGLES), radius_m=0.02)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fakes.scene import Scene, load_scene, parse_scene
 from fakes.world import DROPOUT_CODE, NO_RETURN_CODE, TOO_NEAR_CODE, World, WorldRangeSource
@@ -16,7 +18,8 @@ from lasercal_hw.geometry import (
     matrix_to_euler_zyx,
     matrix_to_pose,
 )
-from lasercal_hw.scan_average import AveragedScan
+from lasercal_hw.models import LaserScan
+from lasercal_hw.scan_average import AveragedScan, average_scans
 
 QUIET = """
 [noise]
@@ -228,36 +231,44 @@ def test_intensities_are_zero_without_return_and_fall_at_grazing_incidence() -> 
     assert intensities[540] > intensities[540 + 200] > 0
 
 
-def test_default_world_scan_gives_the_rod_centre_through_extraction() -> None:
+def _dwell(world: World, T_base_tcp: np.ndarray, rng: np.random.Generator, count: int) -> AveragedScan:
+    """What the sequencer does at a waypoint: wire values -> LaserScan -> robust average."""
+    scans = []
+    for k in range(count):
+        mm, intensities = world.scan_mm(T_base_tcp, rng)
+        ranges_m = np.where(mm >= 23, mm / 1000.0, np.nan)
+        scans.append(LaserScan(k, world.geometry, ranges_m, mm, intensities, 0.025 * k, 0.025 * k))
+    return average_scans(scans)
+
+
+def test_default_world_dwell_gives_the_rod_centre_through_extraction() -> None:
     world = World.from_scene()
     rng = np.random.default_rng(5)
-    T_laser_tcp = make_transform(euler_zyx_to_matrix(0.3, 0.2, -0.1), [0.7, 0.1, -0.15])
-    T = world.ground_truth_T_base_laser @ T_laser_tcp
-
-    def average(pose: np.ndarray) -> AveragedScan:
-        ranges = np.stack([world.scan_ranges_m(pose, rng) for _ in range(40)])
-        ranges = np.where(np.isfinite(ranges), ranges, np.nan)
-        with np.errstate(invalid="ignore"):
-            median = np.nanmedian(ranges, axis=0)
-        std = np.nanstd(ranges, axis=0) / np.sqrt(40)
-        return AveragedScan.from_ranges(median, world.angles_rad, std)
-    scan = average(T)
-    background = average(world.ground_truth_T_base_laser @ make_transform(np.eye(3), [0.0, 0.0, 3.0]))
+    T_base_laser = world.ground_truth_T_base_laser
+    T = T_base_laser @ make_transform(euler_zyx_to_matrix(0.3, 0.2, -0.1), [0.7, 0.1, -0.15])
+    scan = _dwell(world, T, rng, 120)
+    background = _dwell(world, T_base_laser @ make_transform(np.eye(3), [0.0, 0.0, 3.0]), rng, 120)
     start, axis = world.rod_shape_in_scanner(world.robot_error.true_pose(T))
     true_centre = start[:2] - start[2] / axis[2] * axis[:2]
     result = find_rod_centre(scan, radius_m=0.02, background=background, axis_in_scanner=axis)
-    assert np.linalg.norm(result.centre_uv_m - true_centre) < 2e-3
+    assert np.linalg.norm(result.centre_uv_m - true_centre) < 1.5e-3
+    assert result.quality.beams_used >= 8
 
 
-def test_range_source_slices_one_scan_per_time() -> None:
+def test_range_source_gives_one_repeatable_scan_per_time() -> None:
     world = World.from_scene()
-    pose = matrix_to_pose(world.ground_truth_T_base_laser @ make_transform(np.eye(3), [0.7, 0.0, -0.15]))
+    T = world.ground_truth_T_base_laser @ make_transform(np.eye(3), [0.7, 0.0, -0.15])
+    pose = matrix_to_pose(T)
     source = WorldRangeSource(world, lambda time_s: pose, seed=6)
-    full = source.ranges_mm(0, 1080, 0.0)
-    assert full.shape == (1081,)
-    np.testing.assert_array_equal(source.ranges_mm(100, 199, 0.0), full[100:200])
-    assert source.intensities(0, 1080, 0.0).shape == (1081,)
-    assert not np.array_equal(source.ranges_mm(0, 1080, 0.025), full)  # a new scan, new noise
+    ranges, intensities = source.ranges_mm(0.0)
+    assert ranges.shape == intensities.shape == (1081,)
+    assert ranges.dtype == intensities.dtype == np.int64
+    again, _ = source.ranges_mm(0.0)
+    np.testing.assert_array_equal(again, ranges)
+    assert not np.array_equal(source.ranges_mm(0.025)[0], ranges)  # a new scan, new noise
+    truth = world.scan_ranges_m(T)
+    valid = np.isfinite(truth) & (ranges >= 23)
+    assert np.median(np.abs(ranges[valid] / 1000.0 - truth[valid])) < 0.01
 
 
 @pytest.mark.parametrize(
@@ -313,3 +324,33 @@ robot_rotation_error_deg = 0.0
         finite = ranges[np.isfinite(ranges)]
         assert finite.size > 0
         assert np.all(finite < 1.0)  # edge beams keep the rod or return nothing
+
+
+_QUIET_WORLD = World(parse_scene(QUIET))
+_CLEAR = _QUIET_WORLD.scan_ranges_m(_tcp_for_rod_in_scanner(_QUIET_WORLD, [0.0, 0.0, 5.0], [0.0, 0.0, 1.0]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    range_m=st.floats(0.3, 1.5),
+    bearing_rad=st.floats(-1.9, 1.9),  # clear of the base column behind-right of the scanner
+    tilt_rad=st.floats(0.0, 1.1),
+    azimuth_rad=st.floats(-np.pi, np.pi),
+)
+def test_every_rod_hit_lies_on_the_rod_surface(
+    range_m: float, bearing_rad: float, tilt_rad: float, azimuth_rad: float
+) -> None:
+    world = _QUIET_WORLD
+    axis = np.array(
+        [np.sin(tilt_rad) * np.cos(azimuth_rad), np.sin(tilt_rad) * np.sin(azimuth_rad), np.cos(tilt_rad)]
+    )
+    centre = np.array([range_m * np.cos(bearing_rad), range_m * np.sin(bearing_rad), 0.0])
+    ranges = world.scan_ranges_m(_tcp_for_rod_in_scanner(world, centre, axis))
+    beams = _rod_beams(world, ranges, _CLEAR)
+    assert beams.size >= 2
+    angles = world.angles_rad[beams]
+    points = ranges[beams, None] * np.stack([np.cos(angles), np.sin(angles), np.zeros(beams.size)], -1)
+    rel = points - centre
+    radial = rel - (rel @ axis)[:, None] * axis
+    np.testing.assert_allclose(np.linalg.norm(radial, axis=1), world.rod.radius_m, atol=1e-9)
+    assert np.all(ranges[beams] < _CLEAR[beams])
