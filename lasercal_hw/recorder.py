@@ -257,6 +257,8 @@ class SessionRecorder:
         channels: dict[int, int] = {}
         copied = 0
         with self._lock:
+            if self._closed:
+                raise RuntimeError(f"session recorder for {self.path} is closed")
             for record in McapRecords(source):
                 if isinstance(record, Schema):
                     schemas[record.id] = record

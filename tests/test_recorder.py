@@ -283,3 +283,30 @@ def test_dwell_scans_are_the_ones_the_live_run_listed(tmp_path):
     assert [s.host_time_s - t for s in recording.dwell_scans(first)] == [3, 4, 5, 6]
     assert second.scan_sequences == (2, 3, 5)
     assert [s.host_time_s - t for s in recording.dwell_scans(second)] == [102, 103, 105]
+
+
+def test_meta_accepts_the_products_value_types(tmp_path):
+    import enum
+    from pathlib import Path
+
+    from pydantic import BaseModel
+
+    from lasercal_hw.models import ScannerIdentity
+
+    class Mode(enum.Enum):
+        DRY_RUN = "dry-run"
+
+    class Limits(BaseModel):
+        speed_m_s: float = 0.1
+
+    identity = ScannerIdentity("Hokuyo", "UTM-30LX-EW", "1.2.3", "SCIP 2.0", "H1", "UTM-30LX-EW")
+    meta = {"scanner": identity, "mode": Mode.DRY_RUN, "limits": Limits(), "out": Path("/tmp/x"),
+            "q": np.arange(3, dtype=np.int32), "flag": np.bool_(True), "gain": np.float32(0.5)}
+    path = tmp_path / "session.mcap"
+    SessionRecorder(path, meta).close()
+    assert read_session(path).meta == {
+        "scanner": {"vendor": "Hokuyo", "product": "UTM-30LX-EW", "firmware": "1.2.3", "protocol": "SCIP 2.0",
+                    "serial": "H1", "model": "UTM-30LX-EW"},
+        "mode": "dry-run", "limits": {"speed_m_s": 0.1}, "out": "/tmp/x", "q": [0, 1, 2], "flag": True,
+        "gain": 0.5,
+    }
