@@ -77,7 +77,6 @@ _ROS_TOPICS = {
     TOPIC_TCP_POSE: (POSE_STAMPED_TYPE, POSE_STAMPED_DEF),
     TOPIC_JOINT_STATES: (JOINT_STATE_TYPE, JOINT_STATE_DEF),
 }
-_FLOAT32_EXACT_LIMIT = 2**24
 _METADATA_NAME = "lasercal_session"
 
 
@@ -182,9 +181,10 @@ class SessionRecorder:
         ros_intensities: list[float] = []
         if scan.intensities is not None:
             intensities = np.asarray(scan.intensities, dtype=np.int64)
-            ros_intensities = intensities.astype(np.float32).tolist()
-            if np.any(np.abs(intensities) >= _FLOAT32_EXACT_LIMIT):
-                info["intensities"] = intensities
+            as_float32 = intensities.astype(np.float32)
+            ros_intensities = as_float32.tolist()
+            if not np.array_equal(as_float32.astype(np.int64), intensities):
+                info["intensities"] = intensities  # beyond float32's exact integers
         expected_m = ranges_m_from_raw_mm(raw_mm, geometry)
         if not np.array_equal(np.asarray(scan.ranges_m, dtype=np.float64), expected_m, equal_nan=True):
             info["ranges_m_f64le_b64"] = encode_float64_array(scan.ranges_m)
@@ -257,6 +257,8 @@ class SessionRecorder:
         channels: dict[int, int] = {}
         copied = 0
         with self._lock:
+            if self._closed:
+                raise RuntimeError(f"session recorder for {self.path} is closed")
             for record in McapRecords(source):
                 if isinstance(record, Schema):
                     schemas[record.id] = record

@@ -48,7 +48,7 @@ UR_JOINT_NAMES = (
 
 
 class EventKind(enum.StrEnum):
-    """Kinds of ``/lasercal/event`` messages the product writes and the reader understands."""
+    """Kinds of ``/lasercal/event`` messages the reader understands (writers may add others)."""
 
     DWELL_START = "dwell_start"
     DWELL_END = "dwell_end"
@@ -126,9 +126,12 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
         {
             "type": "object",
             "properties": {
-                "kind": {"type": "string", "enum": [k.value for k in EventKind]},
+                "kind": {
+                    "type": "string",
+                    "description": "one of " + ", ".join(k.value for k in EventKind) + ", or another kind",
+                },
                 "host_time_s": {"type": "number"},
-                "index": {"type": "integer"},
+                "index": {"type": ["integer", "null"], "description": "waypoint index"},
                 "tcp_pose": _NUMBER_ARRAY,
             },
             "required": ["kind", "host_time_s"],
