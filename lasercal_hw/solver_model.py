@@ -46,19 +46,13 @@ def lines_in_scanner(
 def plane_crossing(
     rotation: FloatArray, translation_m: FloatArray, origins: FloatArray, directions: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Crossing points (N, 2) of the rod lines with the scan plane, the maps ``A`` (N, 2, 3)
-    from a scanner-frame displacement of the line to the crossing-point displacement, and
-    the line parameters s (N,) of the crossings (measured from the rod origin)."""
+    """Crossing points (N, 2) of the rod lines with the scan plane, the slopes
+    ``g = (b_x, b_y) / b_z`` (N, 2) that define ``A = [[1, 0, -g_x], [0, 1, -g_y]]``, and the
+    line parameters s (N,) of the crossings (measured from the rod origin)."""
     a, b = lines_in_scanner(rotation, translation_m, origins, directions)
-    s = -a[:, 2] / b[:, 2]
-    crossing = a[:, :2] + s[:, None] * b[:, :2]
     slope = b[:, :2] / b[:, 2:3]
-    n = len(a)
-    shift = np.zeros((n, 2, 3))
-    shift[:, 0, 0] = 1.0
-    shift[:, 1, 1] = 1.0
-    shift[:, :, 2] = -slope
-    return crossing, shift, s
+    crossing = a[:, :2] - a[:, 2:3] * slope
+    return crossing, slope, -a[:, 2] / b[:, 2]
 
 
 def residuals_and_jacobian(
@@ -68,22 +62,30 @@ def residuals_and_jacobian(
     directions: FloatArray,
     centres_uv_m: FloatArray,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Predicted minus measured centre (N, 2), its Jacobian (N, 2, 6) in (dt, e), and ``A``."""
-    crossing, shift, _ = plane_crossing(rotation, translation_m, origins, directions)
-    residual = crossing - centres_uv_m
-    shift_rt = shift @ rotation.T  # A R^T, (N, 2, 3)
-    points = np.concatenate([crossing, np.zeros((len(crossing), 1))], axis=1)
+    """Predicted minus measured centre (N, 2), its Jacobian (N, 2, 6) in (dt, e), and the
+    slopes (N, 2) of ``A``.
+
+    Written out: ``A R^T`` has rows ``R[:, 0] - g_x R[:, 2]`` and ``R[:, 1] - g_y R[:, 2]``;
+    ``A [p]x R^T`` has rows ``g_x y R0 - g_x x R1 + y R2`` and ``g_y y R0 - g_y x R1 - x R2``.
+    """
+    crossing, slope, _ = plane_crossing(rotation, translation_m, origins, directions)
+    x, y = crossing[:, 0], crossing[:, 1]
+    gx, gy = slope[:, 0], slope[:, 1]
+    r0, r1, r2 = rotation[:, 0], rotation[:, 1], rotation[:, 2]
+    outer = np.multiply.outer
     jac = np.empty((len(crossing), 2, 6))
-    jac[:, :, :3] = -shift_rt
-    jac[:, :, 3:] = shift @ skew(points) @ rotation.T
-    return residual, jac, shift
+    jac[:, 0, :3] = outer(gx, r2) - r0
+    jac[:, 1, :3] = outer(gy, r2) - r1
+    jac[:, 0, 3:] = outer(gx * y, r0) - outer(gx * x, r1) + outer(y, r2)
+    jac[:, 1, 3:] = outer(gy * y, r0) - outer(gy * x, r1) - outer(x, r2)
+    return crossing - centres_uv_m, jac, slope
 
 
-def effective_covariance(
-    covariance_uv_m2: FloatArray, shift: FloatArray, robot_sigma_m: float
-) -> FloatArray:
-    """Residual covariance per waypoint (N, 2, 2): centre noise plus robot position noise."""
-    return covariance_uv_m2 + robot_sigma_m**2 * (shift @ np.swapaxes(shift, 1, 2))
+def effective_covariance(covariance_uv_m2: FloatArray, slope: FloatArray, robot_sigma_m: float) -> FloatArray:
+    """Residual covariance per waypoint (N, 2, 2): centre noise plus robot position noise
+    ``sigma^2 A A^T = sigma^2 (I + g g^T)``."""
+    spread = np.eye(2) + slope[:, :, None] * slope[:, None, :]
+    return covariance_uv_m2 + robot_sigma_m**2 * spread
 
 
 def whitening(covariance: FloatArray) -> FloatArray:
@@ -99,11 +101,21 @@ def whitening(covariance: FloatArray) -> FloatArray:
     return w
 
 
+def whiten_residual(white: FloatArray, residual: FloatArray) -> FloatArray:
+    """Whitened residuals (N, 2) for upper-triangular ``white``."""
+    r = np.empty_like(residual)
+    r[:, 0] = white[:, 0, 0] * residual[:, 0] + white[:, 0, 1] * residual[:, 1]
+    r[:, 1] = white[:, 1, 1] * residual[:, 1]
+    return r
+
+
 def whiten(white: FloatArray, residual: FloatArray, jac: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Whitened residual (2N,) and Jacobian (2N, 6)."""
-    r = np.einsum("nij,nj->ni", white, residual).reshape(-1)
-    j = (white @ jac).reshape(-1, jac.shape[-1])
-    return r, j
+    """Whitened residual (2N,) and Jacobian (2N, k) for upper-triangular ``white``."""
+    u00, u01, u11 = white[:, 0, 0, None], white[:, 0, 1, None], white[:, 1, 1, None]
+    j = np.empty_like(jac)
+    j[:, 0] = u00 * jac[:, 0] + u01 * jac[:, 1]
+    j[:, 1] = u11 * jac[:, 1]
+    return whiten_residual(white, residual).reshape(-1), j.reshape(-1, jac.shape[-1])
 
 
 def left_jacobian_so3(rotvec: FloatArray) -> FloatArray:
@@ -130,8 +142,8 @@ def fisher_information(
     """Fisher information (6, 6) of (dt, e) for these rod lines and noise model; its
     inverse is the Cramér-Rao bound of any unbiased estimator."""
     zeros = np.zeros((len(origins), 2))
-    _, jac, shift = residuals_and_jacobian(rotation, translation_m, origins, directions, zeros)
-    white = whitening(effective_covariance(covariance_uv_m2, shift, robot_sigma_m))
+    _, jac, slope = residuals_and_jacobian(rotation, translation_m, origins, directions, zeros)
+    white = whitening(effective_covariance(covariance_uv_m2, slope, robot_sigma_m))
     _, j = whiten(white, zeros, jac)
     return j.T @ j
 

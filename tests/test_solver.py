@@ -31,8 +31,8 @@ def _cost(matrix: np.ndarray, obs: list[Observation], options: SolverOptions) ->
     centres = np.array([o.centre_uv_m for o in obs])
     cov = np.array([o.covariance_uv_m2 for o in obs])
     origins, directions = rod_lines_in_base(poses, RodLine())
-    residual, jac, shift = residuals_and_jacobian(matrix[:3, :3], matrix[:3, 3], origins, directions, centres)
-    r, _ = whiten(whitening(effective_covariance(cov, shift, options.robot_sigma_m)), residual, jac)
+    residual, jac, slope = residuals_and_jacobian(matrix[:3, :3], matrix[:3, 3], origins, directions, centres)
+    r, _ = whiten(whitening(effective_covariance(cov, slope, options.robot_sigma_m)), residual, jac)
     return float(r @ r)
 
 
@@ -141,7 +141,8 @@ def test_rods_through_one_point_name_the_unobservable_rotation() -> None:
         tcp = pose_to_matrix(np.array([0, 0, 0, np.pi + rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), 0]))
         tcp[:3, 3] = crossing - 0.3 * tcp[:3, 2]
         obs.append(Observation(index=k, tcp_pose=matrix_to_pose(tcp), centre_uv_m=crossing_uv))
-    expected = r"rotation about base axis .* through \(0\.7\d, 0\.2\d, 0\.1\d\) m is not observable.*spread"
+    expected = r"3 directions \(rotation about base axis .* through \(0\.7\d, 0\.2\d, 0\.1\d\) m.*\) are not"
+    expected += r" observable .*spread the crossing points"
     with pytest.raises(DegenerateDataError, match=expected):
         solve(obs, RodLine())
 
