@@ -63,7 +63,8 @@ class TransportUrl:
 
     def __str__(self) -> str:
         if self.kind == "tcp":
-            return f"scip+tcp://{self.host}:{self.port}"
+            host = f"[{self.host}]" if ":" in self.host else self.host
+            return f"scip+tcp://{host}:{self.port}"
         return f"scip+serial://{self.device}?baud={self.baud}"
 
 
