@@ -50,6 +50,7 @@ app.add_typer(scanner_app, name="scanner")
 from lasercal_hw.cli.fake import fake_app  # noqa: E402
 
 app.add_typer(fake_app, name="fake")
+
 from lasercal_hw.cli.robot import robot_app  # noqa: E402
 
 app.add_typer(robot_app, name="robot")
@@ -67,6 +68,7 @@ app.command("run")(run_command)
 from lasercal_hw.cli.session import session_app  # noqa: E402
 
 app.add_typer(session_app, name="session")
+
 
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
