@@ -30,32 +30,44 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fakes.scip_server import DEFAULT_PORT, FakeScannerServer
-from fakes.ur_controller.controller import ControllerConfig, FakeController, FaultPlan
+from fakes.ur_controller.controller import ControllerConfig, FaultPlan
 from fakes.ur_controller.process import FakeRobot
-from fakes.world import World
+from fakes.world import World, WorldRangeSource
+from lasercal_hw.models import FloatArray
 
 READY_PREFIX = "fake cell ready:"
 MOVES_BEFORE_FIRST_WAYPOINT = 1
 
 
-class WorldScanSource:
-    """The fake scanner's range source: one revolution of the world, cast at the TCP pose
-    the fake controller reports when the scan starts."""
+class StepWindowSource:
+    """Serves the fake scanner's step-window requests (``fakes.scan_scene.RangeSource``)
+    from the world's full revolutions (``WorldRangeSource.ranges_mm(time_s)``); the two
+    calls of one scan share one cast."""
 
-    def __init__(self, world: World, controller: FakeController, seed: int | None = 0) -> None:
-        self._world = world
-        self._controller = controller
-        self._rng = np.random.default_rng(seed)
+    def __init__(self, revolutions: WorldRangeSource, first_step: int) -> None:
+        self._revolutions = revolutions
+        self._first_step = first_step
+        self._last: tuple[float, NDArray[np.int64], NDArray[np.int64]] | None = None
 
-    def ranges_mm(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """Ranges (mm, error codes) and intensities of steps 0..1080."""
-        return self._world.scan_mm(self._controller.tcp_pose_matrix(), self._rng)
+    def _revolution(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        if self._last is None or self._last[0] != time_s:
+            ranges, intensities = self._revolutions.ranges_mm(time_s)
+            self._last = (time_s, ranges, intensities)
+        return self._last[1], self._last[2]
+
+    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
+        """Distances (mm, error codes) of steps ``step_first..step_last``."""
+        return self._revolution(time_s)[0][step_first - self._first_step : step_last - self._first_step + 1]
+
+    def intensities(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
+        """Intensities of the same steps of the same scan."""
+        return self._revolution(time_s)[1][step_first - self._first_step : step_last - self._first_step + 1]
 
 
 class FakeCell:
     """A fake robot and a fake scanner on ``address`` looking at one world."""
 
-    def __init__(self, address: str, scene: Path | None = None, seed: int | None = 0) -> None:
+    def __init__(self, address: str, scene: Path | None = None, seed: int = 0) -> None:
         self.world = World.from_scene(scene)
         faults = self.world.scene.faults
         stop_at = faults.protective_stop_at_waypoint
@@ -65,11 +77,15 @@ class FakeCell:
             )
         )
         self.robot = FakeRobot(address, config)
-        self.scanner = FakeScannerServer(
-            address, DEFAULT_PORT, source=WorldScanSource(self.world, self.robot.controller, seed)
-        )
+        revolutions = WorldRangeSource(self.world, self._tcp_pose_at, seed)
+        source = StepWindowSource(revolutions, self.world.geometry.first_step)
+        self.scanner = FakeScannerServer(address, DEFAULT_PORT, source=source)
         self.address = self.robot.address
         self.scanner_url = ""
+
+    def _tcp_pose_at(self, time_s: float) -> FloatArray:
+        """The TCP pose the fake controller reports now (scans are cast as they start)."""
+        return self.robot.controller.tcp_pose_matrix()
 
     def start(self) -> None:
         """Bind every port and start serving; closes what was opened on failure."""

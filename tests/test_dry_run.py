@@ -82,14 +82,17 @@ def test_dry_run_recovers_the_fake_cells_transform(tmp_path: Path) -> None:
     assert np.allclose(truth[:3, 3], [0.30, 0.50, 0.20])
     assert 1000 * np.linalg.norm(estimate[:3, 3] - truth[:3, 3]) < 40.0
     assert document["ground_truth"]["error"]["rotation_deg"] < 4.0
-    assert document["observations"] == WAYPOINTS
+    # Every waypoint gave an observation or a recorded reason (the world has mixed pixels).
+    assert document["observations"] >= WAYPOINTS - 2
+    assert document["observations"] + len(document["skipped"]) == WAYPOINTS
+    assert all(skip["reason"] for skip in document["skipped"])
     assert process_gone(document["fake_cell"]["pid"])
     for name in ("session.mcap", "observations.csv", "result.json", "report.png",
                  "base_to_laser.urdf.xml", "static_transform_publisher.args"):
         assert (out / name).stat().st_size > 0, name
     recording = read_session(out / "session.mcap")
     assert not recording.truncated
-    assert len(recording.events_of("observation")) == WAYPOINTS
+    assert len(recording.events_of("observation")) == document["observations"]
     assert recording.meta["dry_run"] is True
     assert "--child-frame-id laser" in (out / "static_transform_publisher.args").read_text()
 
@@ -109,7 +112,7 @@ def test_sigint_stops_the_run_and_resume_finishes_it(tmp_path: Path) -> None:
             lines.append(line)
             if match := re.search(r"\(pid (\d+)\)", line):
                 cell_pid = int(match.group(1))
-            if "waypoint 3: rod at" in line:
+            if re.search(r"waypoint 4: (rod at|skipped)", line):
                 process.send_signal(signal.SIGINT)
                 break
         _, rest = process.communicate(timeout=60)
@@ -123,7 +126,8 @@ def test_sigint_stops_the_run_and_resume_finishes_it(tmp_path: Path) -> None:
     assert cell_pid is not None and process_gone(cell_pid)
     recording = read_session(out / "session.mcap")
     done = [event["index"] for event in recording.events_of("observation")]
-    assert done[:3] == [0, 1, 2] and len(done) < WAYPOINTS
+    done += [event["index"] for event in recording.events_of("waypoint_skipped")]
+    assert set(range(3)) <= set(done) and len(done) < WAYPOINTS
     assert recording.events_of("abort")[-1]["cause"] == "interrupted"
     assert not (out / "result.json").exists()
 
@@ -133,10 +137,11 @@ def test_sigint_stops_the_run_and_resume_finishes_it(tmp_path: Path) -> None:
     )
     assert resumed.returncode == ExitCode.OK, resumed.stderr[-3000:]
     document = json.loads(resumed.stdout)
-    assert document["observations"] == WAYPOINTS
     final = read_session(out / "session.mcap")
-    indices = sorted({event["index"] for event in final.events_of("observation")})
-    assert indices == list(range(WAYPOINTS))
+    observed = {event["index"] for event in final.events_of("observation")}
+    skipped = {event["index"] for event in final.events_of("waypoint_skipped")}
+    assert observed | skipped == set(range(WAYPOINTS))
+    assert document["observations"] == len(observed)
     revisited = [e["index"] for e in final.events_of("dwell_start")]
     assert revisited.count(0) == 1, "a resumed run must not measure finished waypoints again"
     assert json.loads((out / "result.json").read_text())["run"]["resumed_after_waypoints"] == len(done)
