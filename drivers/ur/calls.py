@@ -22,13 +22,22 @@ T = TypeVar("T")
 
 
 def ur_call(what: str, fn: Callable[[], T], *, timeout_s: float | None = None,
-            false_is_error: bool = True) -> T:
+            false_is_error: bool = True, lock: threading.Lock | None = None) -> T:
     """Run ``fn`` (a ur_rtde call) and return its result.
 
     Raises ``RobotError`` if it raises, returns ``False`` (unless ``false_is_error`` is
     off, for calls whose ``False`` is an answer) or returns an empty list;
-    ``DeviceTimeoutError`` if ``timeout_s`` passes first.
+    ``DeviceTimeoutError`` if ``timeout_s`` passes first. With ``lock`` the call runs
+    while holding it: ur_rtde's command handshake must not be entered by two threads at
+    once, and a call abandoned at its deadline keeps the lock until it really returns.
     """
+    if lock is not None:
+        unlocked = fn
+
+        def fn() -> T:
+            with lock:
+                return unlocked()
+
     if timeout_s is None:
         result = _invoke(what, fn)
     else:

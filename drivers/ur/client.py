@@ -14,9 +14,11 @@ accelerations above ``MotionLimits`` raise ``ConfigError``; they are never clamp
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import socket
 import struct
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -47,6 +49,7 @@ _ROTATION_TOLERANCE_RAD = 1e-3
 _JOINT_TOLERANCE_RAD = 1e-3
 _STEADY_SPEED_RAD_S = 1e-3
 _MOVE_MARGIN_S = 2.0
+STREAM_STALL_S = 0.3
 
 
 @dataclass(frozen=True)
@@ -133,6 +136,27 @@ def _after_colon(line: str) -> str:
     return line.split(":", 1)[1].strip() if ":" in line else line.strip()
 
 
+class _StreamWatchdog:
+    """Notices when the RTDE receive stream stops (frozen or dropped connection)."""
+
+    def __init__(self, receive: Any) -> None:
+        self._receive = receive
+        self._last_timestamp = -1.0
+        self._last_change = time.monotonic()
+
+    def problem(self) -> str | None:
+        """A description of the stall, or None while packages keep arriving."""
+        if not ur_call("isConnected", self._receive.isConnected, false_is_error=False):
+            return "the RTDE connection to the robot was lost"
+        timestamp = float(ur_call("getTimestamp", self._receive.getTimestamp, false_is_error=False))
+        now = time.monotonic()
+        if timestamp != self._last_timestamp:
+            self._last_timestamp, self._last_change = timestamp, now
+        elif now - self._last_change > STREAM_STALL_S:
+            return f"no robot state for {now - self._last_change:.2f} s (RTDE stream stalled)"
+        return None
+
+
 class _Disconnected:
     """Stands in for the ur_rtde interfaces after ``close`` (so their sockets and threads
     are freed): every use raises RobotError."""
@@ -153,9 +177,10 @@ class URRobot:
         self._receive = receive
         self._control = control
         self._halted: str | None = None
+        self._broken: str | None = None
         self._closed = False
-        self._tcp_offset = pose_to_matrix(ur_call("getTCPOffset", control.getTCPOffset,
-                                                   timeout_s=_COMMAND_TIMEOUT_S))
+        self._command_lock = threading.Lock()
+        self._tcp_offset = pose_to_matrix(self._command("getTCPOffset", control.getTCPOffset))
 
     @classmethod
     def connect(cls, host: str, limits: MotionLimits | None = None, *, timeout_s: float = 5.0) -> URRobot:
@@ -187,6 +212,11 @@ class URRobot:
                 except Exception:
                     logger.debug("disconnect after a failed connect raised", exc_info=True)
             raise
+
+    def _command(self, what: str, fn: Any, *, false_is_error: bool = True,
+                 timeout_s: float = _COMMAND_TIMEOUT_S) -> Any:
+        """A control-interface command: serialised, with a deadline."""
+        return ur_call(what, fn, timeout_s=timeout_s, false_is_error=false_is_error, lock=self._command_lock)
 
     # -- identity and state ----------------------------------------------------------------
 
@@ -249,6 +279,8 @@ class URRobot:
         if self._halted is not None:
             raise ProtectiveStopError(f"motion refused: {self._halted} earlier on this connection; inspect "
                                       "the cell, unlock the stop on the teach pendant and connect again")
+        if self._broken is not None:
+            raise TransportError(f"motion refused: {self._broken} earlier on this connection; connect again")
         self._raise_if_stopped()
 
     def _raise_if_stopped(self) -> None:
@@ -293,15 +325,23 @@ class URRobot:
     def _run_move(self, what: str, start: Any, expected_s: float) -> None:
         """Start an asynchronous move and watch it until it ends."""
         try:
-            ur_call(what, start, timeout_s=_COMMAND_TIMEOUT_S)
+            self._command(what, start)
         except RobotError:
             self._raise_if_stopped()
             raise
         allowed_s = 1.5 * expected_s + _MOVE_MARGIN_S
         deadline = time.monotonic() + allowed_s
+        watchdog = _StreamWatchdog(self._receive)
         try:
             while True:
                 self._raise_if_stopped()
+                stall = watchdog.problem()
+                if stall is not None:
+                    self._broken = stall
+                    with contextlib.suppress(RobotError, DeviceTimeoutError):
+                        self.stop(timeout_s=STREAM_STALL_S)
+                    raise DeviceTimeoutError(f"{what}: {stall}; the arm was told to stop, check it and "
+                                             "connect again")
                 if ur_call("getAsyncOperationProgress", self._control.getAsyncOperationProgress,
                            false_is_error=False) < 0:
                     break
@@ -330,12 +370,14 @@ class URRobot:
                 raise DeviceTimeoutError(f"the arm was still moving after {timeout_s:g} s")
             time.sleep(POLL_S)
 
-    def stop(self) -> None:
-        """Decelerate any motion to rest (joint deceleration at the configured cap)."""
+    def stop(self, timeout_s: float = _COMMAND_TIMEOUT_S) -> None:
+        """Decelerate any motion to rest (joint deceleration at the configured cap, at
+        least 2 rad/s²)."""
         if self._closed or not self._control.isProgramRunning():
             return
-        ur_call("stopJ", lambda: self._control.stopJ(max(self.limits.max_joint_accel_rad_s2, 2.0), False),
-                timeout_s=_COMMAND_TIMEOUT_S, false_is_error=False)
+        decel = max(self.limits.max_joint_accel_rad_s2, 2.0)
+        control = self._control
+        self._command("stopJ", lambda: control.stopJ(decel, False), timeout_s=timeout_s, false_is_error=False)
 
     # -- kinematics and safety queries -----------------------------------------------------
 
@@ -352,20 +394,20 @@ class URRobot:
         target = np.asarray(pose, dtype=float).reshape(6).tolist()
         q_near = self.joint_positions_rad().tolist()
         control = self._control
-        if self._supports_ik_has_solution() and not ur_call(
+        if self._supports_ik_has_solution() and not self._command(
                 "getInverseKinematicsHasSolution",
-                lambda: control.getInverseKinematicsHasSolution(target, q_near),
-                timeout_s=_COMMAND_TIMEOUT_S, false_is_error=False):
+                lambda: control.getInverseKinematicsHasSolution(target, q_near), false_is_error=False):
             return None
-        return np.array(ur_call("getInverseKinematics", lambda: control.getInverseKinematics(target, q_near),
-                                timeout_s=_COMMAND_TIMEOUT_S))
+        return np.array(self._command("getInverseKinematics",
+                                      lambda: control.getInverseKinematics(target, q_near)))
 
     def is_within_safety_limits(self, pose: FloatArray) -> bool:
         """True when the controller's safety limits allow the TCP pose."""
         target = np.asarray(pose, dtype=float).reshape(6).tolist()
         control = self._control
-        return bool(ur_call("isPoseWithinSafetyLimits", lambda: control.isPoseWithinSafetyLimits(target),
-                            timeout_s=_COMMAND_TIMEOUT_S, false_is_error=False))
+        return bool(self._command("isPoseWithinSafetyLimits",
+                                  lambda: control.isPoseWithinSafetyLimits(target),
+                                  false_is_error=False))
 
     # -- shutdown ---------------------------------------------------------------------------------
 
@@ -382,7 +424,7 @@ class URRobot:
         ]
         for what, step in steps:
             try:
-                ur_call(what, step, timeout_s=_COMMAND_TIMEOUT_S, false_is_error=False)
+                self._command(what, step, false_is_error=False)
             except (RobotError, DeviceTimeoutError) as exc:
                 logger.warning("while disconnecting from %s: %s", self.host, exc)
         # Dropping the last reference destroys the C++ objects and frees their sockets.

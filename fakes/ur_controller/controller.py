@@ -66,20 +66,21 @@ _SINGULARITY_SPEED_FACTOR = 1.5
 
 @dataclass
 class FaultPlan:
-    """Faults the fake injects by itself (the fake cell may also call the trigger
-    methods directly)."""
+    """Faults the fake injects by itself. Each fires once, either at a controller time
+    (``*_at_s``, seconds after start) or during move command k (``*_at_move``, 1-based,
+    when that move is ``move_fraction`` of the way through its duration). The fake cell
+    may also call the trigger methods of ``FakeController`` directly."""
 
     protective_stop_at_move: int | None = None
-    """1-based index of the move command during which a protective stop hits."""
-    protective_stop_fraction: float = 0.5
-    """How far (fraction of its duration) that move gets before the stop."""
     protective_stop_at_s: float | None = None
-    """Controller time (s after start) of a protective stop, whatever is happening."""
+    freeze_at_move: int | None = None
     freeze_at_s: float | None = None
     freeze_duration_s: float = 1.0
-    """Stop streaming RTDE data for this long (>= 2.5 s makes ur_rtde reconnect)."""
+    """Length of an RTDE stream freeze (>= 2.5 s makes ur_rtde reconnect, and can crash it)."""
+    drop_at_move: int | None = None
     drop_at_s: float | None = None
-    """Close every client connection at this controller time."""
+    """Close every client connection (dashboard, RTDE, script)."""
+    move_fraction: float = 0.5
     unlock_delay_s: float = 5.0
     """A protective stop can be unlocked this long after it happened (5 s on a real robot)."""
 
@@ -454,19 +455,21 @@ class FakeController:
         logger.warning("control program stopped: %s", message)
         self.runtime_error(message)
 
+    def _fault_due(self, at_s: float | None, at_move: int | None) -> bool:
+        if at_s is not None and self._time_s >= at_s:
+            return True
+        motion = self._motion
+        return (at_move is not None and motion is not None and not motion.stopping
+                and self._move_index == at_move
+                and motion.elapsed_s >= self.config.faults.move_fraction * motion.profile.duration_s)
+
     def _check_faults(self) -> None:
         faults = self.config.faults
-        if faults.protective_stop_at_s is not None and self._time_s >= faults.protective_stop_at_s:
-            self._fire_once("stop_at_s", lambda: self.protective_stop("injected at a given time"))
-        motion = self._motion
-        if (faults.protective_stop_at_move is not None and motion is not None
-                and self._move_index == faults.protective_stop_at_move
-                and motion.elapsed_s >= faults.protective_stop_fraction * motion.profile.duration_s):
-            self._fire_once("stop_at_move", lambda: self.protective_stop(
-                f"injected during move command {faults.protective_stop_at_move}"))
-        if faults.freeze_at_s is not None and self._time_s >= faults.freeze_at_s:
+        if self._fault_due(faults.protective_stop_at_s, faults.protective_stop_at_move):
+            self._fire_once("protective_stop", lambda: self.protective_stop("injected fault"))
+        if self._fault_due(faults.freeze_at_s, faults.freeze_at_move):
             self._fire_once("freeze", lambda: self.freeze_streams(faults.freeze_duration_s))
-        if faults.drop_at_s is not None and self._time_s >= faults.drop_at_s:
+        if self._fault_due(faults.drop_at_s, faults.drop_at_move):
             self._fire_once("drop", lambda: threading.Thread(
                 target=self.drop_connections, name="fake-ur-drop", daemon=True).start())
 

@@ -118,16 +118,20 @@ def fake_robot(
     start_q: str = typer.Option("", "--start-q", help="Start joint positions, 6 comma-separated radians."),
     tcp_offset: str = typer.Option("", "--tcp-offset", help="TCP offset pose x,y,z,rx,ry,rz (m, rad)."),
     protective_stop_at_move: int | None = typer.Option(
-        None, "--protective-stop-at-move", min=1, help="Protective stop halfway through move command K."),
+        None, "--protective-stop-at-move", min=1, help="Protective stop during move command K (1-based)."),
     protective_stop_at_s: float | None = typer.Option(
         None, "--protective-stop-at-s", min=0.0, help="Protective stop this many seconds after start."),
     unlock_delay_s: float = typer.Option(5.0, "--unlock-delay-s", min=0.0,
                                          help="Seconds before a protective stop can be unlocked."),
-    freeze_at_s: float | None = typer.Option(None, "--freeze-at-s", min=0.0,
-                                             help="Stop streaming RTDE data at this time ..."),
+    freeze_at_move: int | None = typer.Option(None, "--freeze-at-move", min=1,
+                                              help="Stop streaming RTDE data during move command K ..."),
+    freeze_at_s: float | None = typer.Option(None, "--freeze-at-s", min=0.0, help="... or at this time ..."),
     freeze_s: float = typer.Option(1.0, "--freeze-s", min=0.0, help="... for this many seconds."),
-    drop_at_s: float | None = typer.Option(None, "--drop-at-s", min=0.0,
-                                           help="Close every client connection at this time."),
+    drop_at_move: int | None = typer.Option(None, "--drop-at-move", min=1,
+                                            help="Close every client connection during move command K ..."),
+    drop_at_s: float | None = typer.Option(None, "--drop-at-s", min=0.0, help="... or at this time."),
+    move_fraction: float = typer.Option(0.5, "--fault-move-fraction", min=0.0, max=1.0,
+                                        help="How far through move K the *-at-move faults hit."),
     local_control: bool = typer.Option(False, "--local-control",
                                        help="Report remote control off (ur_rtde control then refuses)."),
 ) -> None:
@@ -148,9 +152,12 @@ def fake_robot(
         faults=FaultPlan(
             protective_stop_at_move=protective_stop_at_move,
             protective_stop_at_s=protective_stop_at_s,
+            freeze_at_move=freeze_at_move,
             freeze_at_s=freeze_at_s,
             freeze_duration_s=freeze_s,
+            drop_at_move=drop_at_move,
             drop_at_s=drop_at_s,
+            move_fraction=move_fraction,
             unlock_delay_s=unlock_delay_s,
         ),
     )

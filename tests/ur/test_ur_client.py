@@ -8,13 +8,20 @@ import sys
 import time
 from typing import Any, ClassVar
 
+import dashboard_client
 import numpy as np
 import pytest
 
 from drivers.ur.client import MotionLimits, URRobot, _trapezoid_duration_s
 from fakes.ur5_kinematics import forward_kinematics
 from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
-from lasercal_hw.errors import ConfigError, ProtectiveStopError, RobotError, TransportError
+from lasercal_hw.errors import (
+    ConfigError,
+    DeviceTimeoutError,
+    ProtectiveStopError,
+    RobotError,
+    TransportError,
+)
 from lasercal_hw.geometry import matrix_to_pose
 from tests.ur.conftest import StartFake
 
@@ -181,3 +188,59 @@ def test_robot_info_cli_prints_the_pose(start_fake: StartFake) -> None:
         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
     )
     assert text.returncode == 0 and "TCP pose" in text.stdout
+
+
+def test_frozen_stream_during_a_move_raises_timeout_and_refuses_motion(start_fake: StartFake) -> None:
+    fake = start_fake("--freeze-at-move", "1", "--freeze-s", "1.0")
+    with URRobot.connect(fake.address) as robot:
+        q = np.array(DEFAULT_START_Q_RAD)
+        q[0] = 0.4
+        with pytest.raises(DeviceTimeoutError, match="stalled"):
+            robot.move_joint(q, 1.0, 1.4)
+        with pytest.raises(TransportError, match="earlier on this connection"):
+            robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.4)
+
+
+def test_protective_stop_can_be_unlocked_and_a_new_connection_moves_again(start_fake: StartFake) -> None:
+    fake = start_fake("--protective-stop-at-move", "1", "--unlock-delay-s", "0")
+    q = np.array(DEFAULT_START_Q_RAD)
+    q[0] = 0.3
+    with URRobot.connect(fake.address) as robot:
+        with pytest.raises(ProtectiveStopError):
+            robot.move_joint(q, 1.0, 1.4)
+        assert robot.state().safety_status == "PROTECTIVE_STOP"
+        assert not robot.state().program_running
+    dash = dashboard_client.DashboardClient(fake.address)
+    dash.connect()
+    dash.unlockProtectiveStop()
+    dash.disconnect()
+    with URRobot.connect(fake.address) as robot:
+        robot.move_joint(q, 1.0, 1.4)
+        assert robot.state().safety_status == "NORMAL"
+
+
+_DROP_SCRIPT = """
+import dashboard_client
+import numpy as np
+from drivers.ur.client import URRobot
+from lasercal_hw.errors import LasercalError
+robot = URRobot.connect({address!r})
+try:
+    for k in range(3):
+        robot.move_joint(np.array([0.3 * (k + 1), -1.5708, 1.5708, -1.5708, -1.5708, 0.0]), 1.0, 1.4)
+    print("NO ERROR", flush=True)
+except LasercalError as exc:
+    print("ERROR", type(exc).__name__, exc, flush=True)
+robot.close()
+"""
+
+
+def test_dropped_connection_during_a_move_surfaces_as_an_error(start_fake: StartFake) -> None:
+    # ur_rtde 1.6.5 reconnects by itself after a drop and has crashed its process
+    # afterwards, so the client runs in a child process of its own.
+    fake = start_fake("--drop-at-move", "2")
+    result = subprocess.run([sys.executable, "-c", _DROP_SCRIPT.format(address=fake.address)],
+                            capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    lines = [line for line in result.stdout.splitlines() if line.startswith(("ERROR", "NO ERROR"))]
+    assert lines, result.stdout + result.stderr
+    assert lines[0].split()[1] in {"RobotError", "TransportError", "DeviceTimeoutError"}, lines[0]
