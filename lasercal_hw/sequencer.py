@@ -357,7 +357,7 @@ class Sequencer:
                 last = retry
                 logger.warning("waypoint %d attempt %d: %s", index, attempt, retry.reason)
                 self._event("waypoint_retry", index=index, attempt=attempt, reason=retry.reason)
-                self._progress("retry", f"waypoint {index + 1}: {retry.reason}; repeating", waypoint=index)
+                self._progress("retry", f"waypoint {index}: {retry.reason}; repeating", waypoint=index)
         assert last is not None
         if last.scanner_fault:
             raise DeviceError(
@@ -368,11 +368,11 @@ class Sequencer:
 
     def _attempt_waypoint(self, index: int, attempt: int) -> None:
         count = len(self._waypoints)
-        self._progress("move", f"moving to waypoint {index + 1}/{count}", waypoint=index)
+        self._progress("move", f"moving to waypoint {index} ({index + 1} of {count})", waypoint=index)
         self._move(self._waypoints[index], self._joint_targets[index])
         settled_s = self._settle()
         tcp_start = self._read_tcp(settled_s)
-        self._progress("dwell", f"dwelling {self._job.dwell_s:g} s at waypoint {index + 1}", waypoint=index)
+        self._progress("dwell", f"dwelling {self._job.dwell_s:g} s at waypoint {index}", waypoint=index)
         capture = self._dwell(index, attempt, settled_s, tcp_start)
         tcp_end = self._read_tcp(self._clock())
         drift_mm = 1000.0 * float(np.linalg.norm(tcp_end[:3] - tcp_start[:3]))
@@ -414,7 +414,7 @@ class Sequencer:
         )
         self._progress(
             "centre",
-            f"waypoint {index + 1}: rod at ({u:+.4f}, {v:+.4f}) m from {len(capture.scans)} scans",
+            f"waypoint {index}: rod at ({u:+.4f}, {v:+.4f}) m from {len(capture.scans)} scans",
             waypoint=index,
             scans_averaged=len(capture.scans),
             centre_uv_m=(u, v),
@@ -556,7 +556,7 @@ class Sequencer:
     def _skip(self, index: int, reason: str) -> None:
         self._skipped.append(SkippedWaypoint(index, reason))
         self._event("waypoint_skipped", index=index, reason=reason)
-        self._progress("skip", f"waypoint {index + 1} skipped: {reason}", waypoint=index)
+        self._progress("skip", f"waypoint {index} skipped: {reason}", waypoint=index)
 
     def _halt(self, cause: str, message: str) -> None:
         try:

@@ -21,7 +21,7 @@ from tests.doubles import semicircle_waypoints
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
 
-WAYPOINTS = 8
+WAYPOINTS = 10
 
 
 def write_job(folder: Path) -> Path:
@@ -29,7 +29,7 @@ def write_job(folder: Path) -> Path:
                header="x,y,z,rx,ry,rz", comments="")
     job = folder / "job.toml"
     job.write_text(
-        "dwell_s = 0.3\n"
+        "dwell_s = 0.5\n"
         "[trajectory]\nwaypoints_file = \"waypoints.csv\"\n"
         "[background]\nscans = 10\n"
         "[motion]\nspeed_m_s = 0.25\naccel_m_s2 = 1.0\n"
@@ -67,37 +67,9 @@ def test_fake_cell_child_reports_truth_and_is_stopped() -> None:
     assert process_gone(pid)
 
 
-def test_dry_run_recovers_the_fake_cells_transform(tmp_path: Path) -> None:
-    job = write_job(tmp_path)
-    out = tmp_path / "out"
-    result = subprocess.run(
-        lasercal("--dry-run", "--json", "--config", str(job), "--out", str(out)),
-        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
-    )
-    assert result.returncode == ExitCode.OK, result.stderr[-3000:]
-    document = json.loads(result.stdout)
-    estimate = np.array(document["T_base_laser"])
-    truth = np.array(document["ground_truth"]["T_base_laser"])
-    assert estimate.shape == truth.shape == (4, 4)
-    assert np.allclose(truth[:3, 3], [0.30, 0.50, 0.20])
-    assert 1000 * np.linalg.norm(estimate[:3, 3] - truth[:3, 3]) < 40.0
-    assert document["ground_truth"]["error"]["rotation_deg"] < 4.0
-    # Every waypoint gave an observation or a recorded reason (the world has mixed pixels).
-    assert document["observations"] >= WAYPOINTS - 2
-    assert document["observations"] + len(document["skipped"]) == WAYPOINTS
-    assert all(skip["reason"] for skip in document["skipped"])
-    assert process_gone(document["fake_cell"]["pid"])
-    for name in ("session.mcap", "observations.csv", "result.json", "report.png",
-                 "base_to_laser.urdf.xml", "static_transform_publisher.args"):
-        assert (out / name).stat().st_size > 0, name
-    recording = read_session(out / "session.mcap")
-    assert not recording.truncated
-    assert len(recording.events_of("observation")) == document["observations"]
-    assert recording.meta["dry_run"] is True
-    assert "--child-frame-id laser" in (out / "static_transform_publisher.args").read_text()
-
-
-def test_sigint_stops_the_run_and_resume_finishes_it(tmp_path: Path) -> None:
+def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path: Path) -> None:
+    """One dry run, interrupted and resumed: every exit path stops the fake cell, the
+    recording survives the interrupt, and the resumed run reports estimate and truth."""
     job = write_job(tmp_path)
     out = tmp_path / "out"
     process = subprocess.Popen(
@@ -112,7 +84,7 @@ def test_sigint_stops_the_run_and_resume_finishes_it(tmp_path: Path) -> None:
             lines.append(line)
             if match := re.search(r"\(pid (\d+)\)", line):
                 cell_pid = int(match.group(1))
-            if re.search(r"waypoint 4: (rod at|skipped)", line):
+            if re.search(r"waypoint 3:? (rod at|skipped)", line):
                 process.send_signal(signal.SIGINT)
                 break
         _, rest = process.communicate(timeout=60)
@@ -137,11 +109,27 @@ def test_sigint_stops_the_run_and_resume_finishes_it(tmp_path: Path) -> None:
     )
     assert resumed.returncode == ExitCode.OK, resumed.stderr[-3000:]
     document = json.loads(resumed.stdout)
+    estimate = np.array(document["T_base_laser"])
+    truth = np.array(document["ground_truth"]["T_base_laser"])
+    assert estimate.shape == truth.shape == (4, 4)
+    assert np.allclose(truth[:3, 3], [0.30, 0.50, 0.20])
+    assert 1000 * np.linalg.norm(estimate[:3, 3] - truth[:3, 3]) < 40.0
+    assert document["ground_truth"]["error"]["rotation_deg"] < 4.0
+    # Every waypoint gave an observation or a recorded reason (the world has mixed pixels).
+    assert document["observations"] >= WAYPOINTS - 3
+    assert all(skip["reason"] for skip in document["skipped"])
+    assert process_gone(document["fake_cell"]["pid"])
+    for name in ("session.mcap", "observations.csv", "result.json", "report.png",
+                 "base_to_laser.urdf.xml", "static_transform_publisher.args"):
+        assert (out / name).stat().st_size > 0, name
+    assert "--child-frame-id laser" in (out / "static_transform_publisher.args").read_text()
     final = read_session(out / "session.mcap")
     observed = {event["index"] for event in final.events_of("observation")}
     skipped = {event["index"] for event in final.events_of("waypoint_skipped")}
     assert observed | skipped == set(range(WAYPOINTS))
     assert document["observations"] == len(observed)
+    assert document["observations"] + len(document["skipped"]) == WAYPOINTS
+    assert final.meta["dry_run"] is True and not final.truncated
     revisited = [e["index"] for e in final.events_of("dwell_start")]
     assert revisited.count(0) == 1, "a resumed run must not measure finished waypoints again"
     assert json.loads((out / "result.json").read_text())["run"]["resumed_after_waypoints"] == len(done)
