@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import pty
 import re
 import signal
 import subprocess
@@ -133,3 +134,46 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
     revisited = [e["index"] for e in final.events_of("dwell_start")]
     assert revisited.count(0) == 1, "a resumed run must not measure finished waypoints again"
     assert json.loads((out / "result.json").read_text())["run"]["resumed_after_waypoints"] == len(done)
+
+
+def test_protective_stop_aborts_with_device_error_and_no_further_motion(tmp_path: Path) -> None:
+    job = write_job(tmp_path)
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[faults]\nprotective_stop_at_waypoint = 2\n")
+    out = tmp_path / "out"
+    result = subprocess.run(
+        lasercal("--dry-run", "--config", str(job), "--scene", str(scene), "--out", str(out)),
+        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
+    )
+    assert result.returncode == ExitCode.DEVICE_ERROR, result.stderr[-3000:]
+    assert "protective stop at waypoint 2" in result.stderr
+    assert "will not resume by itself" in result.stderr
+    assert f"lasercal run --resume {out / 'session.mcap'}" in result.stderr.replace("\n", "")
+    recording = read_session(out / "session.mcap")
+    assert max(event["index"] for event in recording.events_of("dwell_start")) == 1
+    abort = recording.events_of("abort")
+    assert len(abort) == 1 and abort[0]["cause"] == "protective_stop" and abort[0]["index"] == 2
+
+
+def test_operator_declining_at_the_prompt_moves_nothing(tmp_path: Path) -> None:
+    job = write_job(tmp_path)
+    out = tmp_path / "out"
+    with FakeCellProcess() as cell:
+        controller, terminal = pty.openpty()
+        try:
+            process = subprocess.Popen(
+                lasercal("--robot", cell.robot_host, "--scanner", cell.scanner_url, "--config", str(job),
+                         "--out", str(out)),
+                stdin=terminal, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+            )
+            os.close(terminal)
+            os.write(controller, b"n\n")
+            _, stderr = process.communicate(timeout=120)
+        finally:
+            os.close(controller)
+    assert process.returncode == ExitCode.INTERRUPTED, stderr[-3000:]
+    assert "Start the motion?" in stderr and "declined" in stderr
+    recording = read_session(out / "session.mcap")
+    assert recording.events_of("dwell_start") == []
+    assert recording.events_of("background") == []
+    assert recording.events_of("abort")[0]["cause"] == "interrupted"

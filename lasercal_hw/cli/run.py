@@ -28,7 +28,7 @@ from lasercal_hw.cli.solve import _print_result as print_result
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.devices import Robot, Scanner
 from lasercal_hw.dry_run import FakeCellProcess
-from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
+from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError, LasercalError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.preflight import PreflightReport
 from lasercal_hw.recorder import SessionRecorder
@@ -61,6 +61,15 @@ class ProgressView:
 
     def __exit__(self, *exc_info: object) -> None:
         self._progress.stop()
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        """Stop the live display (e.g. for a prompt), then resume it."""
+        self._progress.stop()
+        try:
+            yield
+        finally:
+            self._progress.start()
 
     def __call__(self, event: Progress) -> None:
         """Show one progress event."""
@@ -105,19 +114,19 @@ def _require_confirmation_possible(yes: bool, dry_run: bool) -> None:
 
 
 def _confirm(
-    job: JobConfig, waypoints: FloatArray, host: str, dry_run: bool, ui: Console
+    job: JobConfig, waypoints: FloatArray, view: ProgressView, ui: Console
 ) -> Callable[[PreflightReport], None]:
     def ask(report: PreflightReport) -> None:
-        if dry_run:
-            return
         motion = job.motion
-        ui.print(
-            f"About to move the {report.robot.model} at {host} (serial {report.robot.serial_number}) through "
-            f"{len(waypoints)} waypoints, {motion.move} moves capped at {motion.speed_m_s} m/s and "
-            f"{motion.accel_m_s2} m/s^2, dwelling {job.dwell_s:g} s each. Keep clear of the arm."
-        )
-        if not typer.confirm("Start the motion?", default=False, err=True):
-            raise InterruptedRunError("the operator declined at the confirmation prompt; nothing moved")
+        with view.paused():
+            ui.print(
+                f"Preflight passed. About to move the {report.robot.model} at {job.robot.host} (serial "
+                f"{report.robot.serial_number}) to its retract pose and through {len(waypoints)} waypoints, "
+                f"{motion.move} moves capped at {motion.speed_m_s} m/s and {motion.accel_m_s2} m/s^2, "
+                f"dwelling {job.dwell_s:g} s each. Keep clear of the arm."
+            )
+            if not typer.confirm("Start the motion?", default=False, err=True):
+                raise InterruptedRunError("the operator declined at the confirmation prompt; nothing moved")
 
     return ask
 
@@ -287,7 +296,7 @@ def run_command(
         }
         if truth is not None:
             meta["ground_truth_T_base_laser"] = truth.tolist()
-        session_path = out_dir / SESSION_FILE
+        session_path = resume if resume is not None else out_dir / SESSION_FILE
         if resume is not None:
             recorder = SessionRecorder.resume(resume, meta)
         else:
@@ -295,16 +304,24 @@ def run_command(
         stack.callback(recorder.close)
         view = stack.enter_context(ProgressView(ui))
         started_s = time.monotonic()
-        outcome = Sequencer(
+        sequencer = Sequencer(
             robot_device,
             scanner_device,
             recorder,
             job,
             waypoints,
             on_progress=view,
-            before_motion=_confirm(job, waypoints, job.robot.host, dry_run, ui),
+            before_motion=None if yes or dry_run else _confirm(job, waypoints, view, ui),
             resume=state,
-        ).run()
+        )
+        try:
+            outcome = sequencer.run()
+        except (LasercalError, KeyboardInterrupt):
+            err_console.print(
+                f"recording kept in {escape(str(session_path))}; after fixing the cause continue with: "
+                f"lasercal run --resume {escape(str(session_path))}"
+            )
+            raise
         files = {"session": session_path} | write_outputs(
             out_dir, outcome, job, ground_truth=truth, title=f"lasercal {'dry run' if dry_run else 'run'}"
         )
