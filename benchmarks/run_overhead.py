@@ -33,7 +33,7 @@ def main() -> None:
         np.savetxt(root / "waypoints.csv", semicircle_waypoints(args.waypoints), delimiter=",")
         (root / "job.toml").write_text(
             f"dwell_s = {args.dwell}\n[trajectory]\nwaypoints_file = \"waypoints.csv\"\n"
-            "[motion]\nspeed_m_s = 0.25\naccel_m_s2 = 1.0\n"
+            "[motion]\njoint_speed_rad_s = 1.2\njoint_accel_rad_s2 = 3.0\n"
         )
         result = subprocess.run(
             [sys.executable, "-m", "lasercal_hw.cli.main", "run", "--dry-run", "--json",

@@ -153,9 +153,14 @@ class BackgroundConfig(_Strict):
 
 
 class MotionConfig(_Strict):
-    """Speed and acceleration caps; moves are straight TCP lines unless ``move`` is joint."""
+    """Speed and acceleration caps, and how to move between waypoints.
 
-    move: Literal["linear", "joint"] = "linear"
+    ``joint`` (default) moves in joint space to each waypoint's preflight solution: no
+    singularity on the way can stop it. ``linear`` moves the TCP on straight lines, which
+    stay inside the (convex) workspace box but may pass near a singularity.
+    """
+
+    move: Literal["linear", "joint"] = "joint"
     speed_m_s: float = Field(0.10, gt=0.0, le=0.5)
     accel_m_s2: float = Field(0.30, gt=0.0, le=2.0)
     joint_speed_rad_s: float = Field(0.50, gt=0.0, le=1.5)

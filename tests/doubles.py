@@ -268,14 +268,14 @@ def rod_down_pose(xyz_m: FloatArray, tilt_x_rad: float = 0.0, tilt_y_rad: float 
     return np.concatenate([np.asarray(xyz_m, dtype=float), matrix_to_rotvec(rotation)])
 
 
-def semicircle_waypoints(count: int = 12) -> FloatArray:
+def semicircle_waypoints(count: int = 12, tilt_rad: float = 0.4) -> FloatArray:
     """Two arcs in front of the scanner with varied heights and tilts (well conditioned)."""
     poses = []
     rng = np.random.default_rng(7)
     for k in range(count):
-        radius_m = 0.55 if k % 2 == 0 else 0.7
-        angle = np.radians(-60 + 80 * k / max(count - 1, 1))
-        xyz = [radius_m * np.cos(angle), radius_m * np.sin(angle), 0.27 + 0.05 * (k % 3)]
-        tilt_x, tilt_y = rng.uniform(-0.4, 0.4, 2)
+        radius_m = 0.45 if k % 2 == 0 else 0.75
+        angle = np.radians(-70 + 100 * k / max(count - 1, 1))
+        xyz = [radius_m * np.cos(angle), radius_m * np.sin(angle), 0.25 + 0.07 * (k % 3)]
+        tilt_x, tilt_y = rng.uniform(-tilt_rad, tilt_rad, 2)
         poses.append(rod_down_pose(xyz, tilt_x, tilt_y))
     return np.array(poses)
