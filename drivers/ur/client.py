@@ -50,6 +50,7 @@ _JOINT_TOLERANCE_RAD = 1e-3
 _STEADY_SPEED_RAD_S = 1e-3
 _MOVE_MARGIN_S = 2.0
 STREAM_STALL_S = 0.3
+_SETTLE_TIMEOUT_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -356,7 +357,8 @@ class URRobot:
         except KeyboardInterrupt:
             self.stop()
             raise
-        self._raise_if_stopped()
+        # The receive stream is a connection of its own and may lag the control one.
+        self.wait_until_steady(_SETTLE_TIMEOUT_S)
 
     def wait_until_steady(self, timeout_s: float) -> None:
         """Block until every joint is at rest; DeviceTimeoutError after ``timeout_s``."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable, Iterator, Sequence
 
 import pytest
@@ -46,3 +47,17 @@ def start_fake() -> Iterator[StartFake]:
     yield start
     for fake in started:
         fake.close()
+
+
+def eventually(condition: Callable[[], bool], timeout_s: float = 2.0) -> bool:
+    """True once ``condition()`` holds (polled every 2 ms), False after ``timeout_s``.
+
+    A receive interface is a connection of its own and may lag the control connection
+    by a package or two, so "the move returned" and "the stream shows it" differ slightly.
+    """
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.002)
+    return True

@@ -171,6 +171,7 @@ def test_ten_moves_leave_no_socket_or_process_behind(start_fake: StartFake) -> N
         robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.0)
 
 
+@pytest.mark.slow
 def test_robot_info_cli_prints_the_pose(start_fake: StartFake) -> None:
     fake = start_fake()
     result = subprocess.run(
@@ -201,6 +202,7 @@ def test_frozen_stream_during_a_move_raises_timeout_and_refuses_motion(start_fak
             robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.4)
 
 
+@pytest.mark.slow
 def test_protective_stop_can_be_unlocked_and_a_new_connection_moves_again(start_fake: StartFake) -> None:
     fake = start_fake("--protective-stop-at-move", "1", "--unlock-delay-s", "0")
     q = np.array(DEFAULT_START_Q_RAD)
