@@ -59,6 +59,8 @@ _STATUS_PROGRAM_RUNNING = 0x2
 _SCRIPT_START_DELAY_S = 0.03
 _STEADY_SPEED_RAD_S = 1e-4
 _MAX_CYCLE_DT_S = 0.05
+# A cycle thread this many cycles late (process suspended) skips ahead instead of catching up.
+_RESYNC_CYCLES = 50
 # A linear move whose joints would have to exceed their speed limit by this factor in one
 # cycle passes (close to) a singularity; the real controller stops there too.
 _SINGULARITY_SPEED_FACTOR = 1.5
@@ -540,7 +542,7 @@ class FakeController:
             delay = next_deadline - time.monotonic()
             if delay > 0:
                 self._stop_event.wait(delay)
-            elif delay < -10 * period_s:
+            elif delay < -_RESYNC_CYCLES * period_s:
                 next_deadline = time.monotonic()  # far behind (suspended?): resynchronise
 
     def stop(self) -> None:
