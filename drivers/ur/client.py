@@ -414,23 +414,32 @@ class URRobot:
     # -- shutdown ---------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Stop the control script, then disconnect all three interfaces; safe twice."""
+        """Stop the control script, then disconnect all three interfaces; safe twice.
+
+        The two RTDE disconnects each sleep 0.5 s inside ur_rtde (GIL released), so they
+        run side by side."""
         if self._closed:
             return
         self._closed = True
-        steps = [
-            ("stopScript", lambda: self._control.stopScript() if self._control.isProgramRunning() else None),
-            ("RTDEControlInterface.disconnect", self._control.disconnect),
-            ("RTDEReceiveInterface.disconnect", self._receive.disconnect),
-            ("DashboardClient.disconnect", self._dashboard.disconnect),
-        ]
-        for what, step in steps:
-            try:
-                self._command(what, step, false_is_error=False)
-            except (RobotError, DeviceTimeoutError) as exc:
-                logger.warning("while disconnecting from %s: %s", self.host, exc)
+        control, receive, dashboard = self._control, self._receive, self._dashboard
+        self._quietly("stopScript", lambda: control.stopScript() if control.isProgramRunning() else None,
+                      self._command_lock)
+        receive_thread = threading.Thread(
+            target=self._quietly, args=("RTDEReceiveInterface.disconnect", receive.disconnect),
+            name="ur-receive-disconnect", daemon=True)
+        receive_thread.start()
+        self._quietly("RTDEControlInterface.disconnect", control.disconnect, self._command_lock)
+        receive_thread.join(_COMMAND_TIMEOUT_S)
+        self._quietly("DashboardClient.disconnect", dashboard.disconnect)
         # Dropping the last reference destroys the C++ objects and frees their sockets.
         self._control = self._receive = self._dashboard = _Disconnected()
+
+    def _quietly(self, what: str, step: Any, lock: threading.Lock | None = None) -> None:
+        """One shutdown step; failures are logged, not raised (the rest must still run)."""
+        try:
+            ur_call(what, step, timeout_s=_COMMAND_TIMEOUT_S, false_is_error=False, lock=lock)
+        except (RobotError, DeviceTimeoutError) as exc:
+            logger.warning("while disconnecting from %s: %s", self.host, exc)
 
     def __enter__(self) -> URRobot:
         return self

@@ -52,12 +52,12 @@ def test_sync_movel_and_movej_reach_their_targets(start_fake: StartFake, version
         target = receive.getActualTCPPose()
         target[0] += 0.04
         target[2] -= 0.03
-        assert control.moveL(target, 0.25, 1.2)
+        assert control.moveL(target, 0.5, 3.0)
         assert eventually(lambda: np.allclose(receive.getActualTCPPose(), target, atol=1e-6))
         q_target = receive.getActualQ()
         q_target[0] += 0.2
         q_target[5] -= 0.3
-        assert control.moveJ(q_target, 1.05, 1.4)
+        assert control.moveJ(q_target, 2.0, 8.0)
         assert eventually(lambda: np.allclose(receive.getActualQ(), q_target, atol=1e-9))
     finally:
         control.stopScript()
