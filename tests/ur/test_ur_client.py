@@ -157,7 +157,8 @@ def test_ten_moves_leave_no_socket_or_process_behind(start_fake: StartFake) -> N
     children_before = _children()
     fds_before = _open_fds()
     threads_before = len(os.listdir("/proc/self/task"))
-    robot = URRobot.connect(fake.address, MotionLimits(max_joint_speed_rad_s=3.0, max_joint_accel_rad_s2=20.0))
+    fast = MotionLimits(max_joint_speed_rad_s=3.0, max_joint_accel_rad_s2=20.0)
+    robot = URRobot.connect(fake.address, fast)
     for k in range(10):
         q = np.array(DEFAULT_START_Q_RAD)
         q[0] = 0.02 * ((k % 2) * 2 - 1)
