@@ -178,7 +178,7 @@ class URRobot:
         self._receive = receive
         self._control = control
         self._halted: str | None = None
-        self._broken: str | None = None
+        self._broken: tuple[str, type[RobotError | TransportError]] | None = None
         self._closed = False
         self._command_lock = threading.Lock()
         self._tcp_offset = pose_to_matrix(self._command("getTCPOffset", control.getTCPOffset))
@@ -281,7 +281,8 @@ class URRobot:
             raise ProtectiveStopError(f"motion refused: {self._halted} earlier on this connection; inspect "
                                       "the cell, unlock the stop on the teach pendant and connect again")
         if self._broken is not None:
-            raise TransportError(f"motion refused: {self._broken} earlier on this connection; connect again")
+            reason, error = self._broken
+            raise error(f"motion refused: {reason} earlier on this connection; connect again")
         self._raise_if_stopped()
 
     def _raise_if_stopped(self) -> None:
@@ -327,8 +328,13 @@ class URRobot:
         """Start an asynchronous move and watch it until it ends."""
         try:
             self._command(what, start)
-        except RobotError:
+        except RobotError as exc:
             self._raise_if_stopped()
+            if not ur_call("isProgramRunning", self._control.isProgramRunning, false_is_error=False):
+                self._broken = ("the control program stopped", RobotError)
+                raise RobotError(f"{what} failed: the control program on the robot has stopped (for example "
+                                 "the target is out of reach or a runtime error occurred); check the robot's "
+                                 "log and connect again") from exc
             raise
         allowed_s = 1.5 * expected_s + _MOVE_MARGIN_S
         deadline = time.monotonic() + allowed_s
@@ -338,7 +344,7 @@ class URRobot:
                 self._raise_if_stopped()
                 stall = watchdog.problem()
                 if stall is not None:
-                    self._broken = stall
+                    self._broken = (stall, TransportError)
                     with contextlib.suppress(RobotError, DeviceTimeoutError):
                         self.stop(timeout_s=STREAM_STALL_S)
                     raise DeviceTimeoutError(f"{what}: {stall}; the arm was told to stop, check it and "

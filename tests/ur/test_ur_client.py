@@ -82,6 +82,10 @@ def test_reachability_and_safety_checks(start_fake: StartFake) -> None:
         assert robot.inverse_kinematics(unreachable) is None
         assert not robot.is_within_safety_limits(unreachable)
         assert robot.state().program_running
+        with pytest.raises(RobotError, match="control program on the robot has stopped"):
+            robot.move_linear(unreachable, 0.25, 1.2)
+        with pytest.raises(RobotError, match="control program stopped earlier"):
+            robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.0)
 
 
 class _RecordingControl:
