@@ -23,7 +23,7 @@ from lasercal_hw.errors import (
     TransportError,
 )
 from lasercal_hw.geometry import matrix_to_pose
-from tests.ur.conftest import StartFake
+from tests.ur.conftest import StartFake, eventually
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
@@ -149,6 +149,18 @@ def _open_fds() -> int:
     return len(os.listdir("/proc/self/fd"))
 
 
+def _established_with(address: str) -> int:
+    """Established TCP connections to or from ``address`` on this host (/proc/net/tcp)."""
+    hex_address = "".join(f"{int(octet):02X}" for octet in reversed(address.split(".")))
+    count = 0
+    with open("/proc/net/tcp") as table:
+        for row in list(table)[1:]:
+            local, remote, state = row.split()[1:4]
+            if state == "01" and hex_address in (local.split(":")[0], remote.split(":")[0]):
+                count += 1
+    return count
+
+
 def _children() -> set[str]:
     path = f"/proc/{os.getpid()}/task/{os.getpid()}/children"
     with open(path) as handle:
@@ -163,12 +175,17 @@ def test_ten_moves_leave_no_socket_or_process_behind(start_fake: StartFake) -> N
     threads_before = len(os.listdir("/proc/self/task"))
     fast = MotionLimits(max_joint_speed_rad_s=3.0, max_joint_accel_rad_s2=20.0)
     robot = URRobot.connect(fake.address, fast)
-    for k in range(10):
-        q = np.array(DEFAULT_START_Q_RAD)
-        q[0] = 0.02 * ((k % 2) * 2 - 1)
-        robot.move_joint(q, 3.0, 20.0)
-    robot.close()
+    try:
+        for k in range(10):
+            q = np.array(DEFAULT_START_Q_RAD)
+            q[0] = 0.02 * ((k % 2) * 2 - 1)
+            robot.move_joint(q, 3.0, 20.0)
+        # Both ends of: dashboard, receive RTDE, control RTDE, script, control's own dashboard.
+        assert _established_with(fake.address) == 2 * 5
+    finally:
+        robot.close()
     robot.close()  # safe twice
+    assert eventually(lambda: _established_with(fake.address) == 0)
     assert _open_fds() == fds_before
     assert _children() == children_before
     assert len(os.listdir("/proc/self/task")) <= threads_before
