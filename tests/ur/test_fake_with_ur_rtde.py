@@ -114,15 +114,15 @@ def test_second_and_third_connection_after_disconnect(start_fake: StartFake) -> 
     fake = start_fake()
     for attempt in range(3):
         control = rtde_control.RTDEControlInterface(fake.address)
-        assert control.isProgramRunning()
-        q = np.array(DEFAULT_START_Q_RAD)
-        q[0] = 0.05 * (attempt + 1)
-        assert control.moveJ(q.tolist(), 1.0, 2.0)
-        if attempt == 0:
-            control.disconnect()  # leaves the control script running: next ctor kills it
-        else:
-            control.stopScript()
-            assert not control.isProgramRunning()
+        try:
+            assert control.isProgramRunning()
+            q = np.array(DEFAULT_START_Q_RAD)
+            q[0] = 0.05 * (attempt + 1)
+            assert control.moveJ(q.tolist(), 1.0, 2.0)
+            if attempt > 0:  # the first disconnect leaves the script running: the next ctor kills it
+                control.stopScript()
+                assert not control.isProgramRunning()
+        finally:
             control.disconnect()
 
 
