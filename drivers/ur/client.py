@@ -158,36 +158,47 @@ class _StreamWatchdog:
         return None
 
 
-class _Disconnected:
-    """Stands in for the ur_rtde interfaces after ``close`` (so their sockets and threads
-    are freed): every use raises RobotError."""
+class _Unavailable:
+    """Stands in for an ur_rtde interface that is not there: after ``close`` (so the real
+    ones, their sockets and threads are freed) or on a read-only connection. Every use
+    raises RobotError with the reason."""
+
+    def __init__(self, reason: str) -> None:
+        self._reason = reason
 
     def __getattr__(self, name: str) -> Any:
-        raise RobotError(f"cannot call {name}: the robot connection is closed; connect again")
+        raise RobotError(f"cannot call {name}: {self._reason}")
 
 
 class URRobot:
     """A UR arm through ur_rtde; use ``URRobot.connect(host)``."""
 
     def __init__(self, host: str, limits: MotionLimits, version: tuple[int, int, int, int],
-                 dashboard: Any, receive: Any, control: Any) -> None:
+                 dashboard: Any, receive: Any, control: Any | None) -> None:
         self.host = host
         self.limits = limits
         self.version = version
         self._dashboard = dashboard
         self._receive = receive
-        self._control = control
+        self._has_control = control is not None
+        self._control = control if control is not None else _Unavailable(
+            "this connection is read-only; connect with control=True to move or query kinematics")
         self._halted: str | None = None
         self._broken: tuple[str, type[RobotError | TransportError]] | None = None
         self._closed = False
         self._command_lock = threading.Lock()
-        self._tcp_offset = pose_to_matrix(self._command("getTCPOffset", control.getTCPOffset))
+        self._tcp_offset = (pose_to_matrix(self._command("getTCPOffset", control.getTCPOffset))
+                            if control is not None else None)
 
     @classmethod
-    def connect(cls, host: str, limits: MotionLimits | None = None, *, timeout_s: float = 5.0) -> URRobot:
-        """Connect the dashboard, receive and control interfaces (the control script is
-        uploaded). Raises TransportError/DeviceTimeoutError if nothing answers, RobotError
-        if the controller refuses (e.g. remote control off)."""
+    def connect(cls, host: str, limits: MotionLimits | None = None, *, timeout_s: float = 5.0,
+                control: bool = True) -> URRobot:
+        """Connect the dashboard, receive and (unless ``control`` is off) control
+        interfaces. The control interface uploads ur_rtde's control script, which stops
+        any program running on the robot; a read-only connection (``control=False``)
+        leaves the robot's program alone but cannot move or query kinematics.
+        Raises TransportError/DeviceTimeoutError if nothing answers, RobotError if the
+        controller refuses (e.g. remote control off)."""
         import dashboard_client
         import rtde_control
         import rtde_receive
@@ -203,9 +214,12 @@ class URRobot:
             opened.append(dashboard)
             receive = ur_call("RTDEReceiveInterface", lambda: rtde_receive.RTDEReceiveInterface(host))
             opened.append(receive)
-            control = ur_call("RTDEControlInterface", lambda: rtde_control.RTDEControlInterface(host))
-            opened.append(control)
-            return cls(host, limits or MotionLimits(), version, dashboard, receive, control)
+            control_interface = None
+            if control:
+                control_interface = ur_call("RTDEControlInterface",
+                                            lambda: rtde_control.RTDEControlInterface(host))
+                opened.append(control_interface)
+            return cls(host, limits or MotionLimits(), version, dashboard, receive, control_interface)
         except BaseException:
             for interface in reversed(opened):
                 try:
@@ -249,12 +263,15 @@ class URRobot:
         return RobotState(
             robot_mode=_after_colon(ur_call("robotmode", dash.robotmode)),
             safety_status=_after_colon(ur_call("safetystatus", dash.safetystatus)),
-            program_running=bool(ur_call("isProgramRunning", self._control.isProgramRunning,
-                                         false_is_error=False)),
+            program_running=self._program_running(),
             remote_control=remote,
             protective_stop=bool(bits & PROTECTIVE_STOP_BIT),
             emergency_stop=bool(bits & EMERGENCY_STOP_BITS),
         )
+
+    def _program_running(self) -> bool:
+        """``runtime_state == 2`` (PLAYING) in the receive stream, ur_rtde's own test."""
+        return int(ur_call("getRuntimeState", self._receive.getRuntimeState, false_is_error=False)) == 2
 
     def tcp_pose(self) -> FloatArray:
         """Actual TCP pose (UR pose vector) from the newest RTDE package."""
@@ -264,8 +281,11 @@ class URRobot:
         """Actual flange (tool0) pose: the TCP pose times the inverse TCP offset.
 
         ur_rtde's getActualToolFlangePose is fire-and-forget in 1.6.5 and reads its
-        result registers before the script wrote them, so it is not used.
+        result registers before the script wrote them, so it is not used. The TCP offset
+        comes from the control interface (RobotError on a read-only connection).
         """
+        if self._tcp_offset is None:
+            raise RobotError("the flange pose needs the TCP offset, which only a control connection reads")
         return matrix_to_pose(pose_to_matrix(self.tcp_pose()) @ invert_transform(self._tcp_offset))
 
     def joint_positions_rad(self) -> FloatArray:
@@ -277,6 +297,8 @@ class URRobot:
     def _check_may_move(self) -> None:
         if self._closed:
             raise RobotError("the robot connection is closed; connect again")
+        if not self._has_control:
+            raise RobotError("this connection is read-only; connect with control=True to move the robot")
         if self._halted is not None:
             raise ProtectiveStopError(f"motion refused: {self._halted} earlier on this connection; inspect "
                                       "the cell, unlock the stop on the teach pendant and connect again")
@@ -330,7 +352,7 @@ class URRobot:
             self._command(what, start)
         except RobotError as exc:
             self._raise_if_stopped()
-            if not ur_call("isProgramRunning", self._control.isProgramRunning, false_is_error=False):
+            if not self._program_running():
                 self._broken = ("the control program stopped", RobotError)
                 raise RobotError(f"{what} failed: the control program on the robot has stopped (for example "
                                  "the target is out of reach or a runtime error occurred); check the robot's "
@@ -352,7 +374,7 @@ class URRobot:
                 if ur_call("getAsyncOperationProgress", self._control.getAsyncOperationProgress,
                            false_is_error=False) < 0:
                     break
-                if not ur_call("isProgramRunning", self._control.isProgramRunning, false_is_error=False):
+                if not self._program_running():
                     raise RobotError(f"{what}: the control program stopped during the move (a runtime error "
                                      "on the controller, e.g. a singularity); see the robot's log")
                 if time.monotonic() > deadline:
@@ -381,7 +403,7 @@ class URRobot:
     def stop(self, timeout_s: float = _COMMAND_TIMEOUT_S) -> None:
         """Decelerate any motion to rest (joint deceleration at the configured cap, at
         least 2 rad/s²)."""
-        if self._closed or not self._control.isProgramRunning():
+        if self._closed or not self._has_control or not self._program_running():
             return
         decel = max(self.limits.max_joint_accel_rad_s2, 2.0)
         control = self._control
@@ -428,17 +450,20 @@ class URRobot:
             return
         self._closed = True
         control, receive, dashboard = self._control, self._receive, self._dashboard
-        self._quietly("stopScript", lambda: control.stopScript() if control.isProgramRunning() else None,
-                      self._command_lock)
+        if self._has_control:
+            self._quietly("stopScript", lambda: control.stopScript() if control.isProgramRunning() else None,
+                          self._command_lock)
         receive_thread = threading.Thread(
             target=self._quietly, args=("RTDEReceiveInterface.disconnect", receive.disconnect),
             name="ur-receive-disconnect", daemon=True)
         receive_thread.start()
-        self._quietly("RTDEControlInterface.disconnect", control.disconnect, self._command_lock)
+        if self._has_control:
+            self._quietly("RTDEControlInterface.disconnect", control.disconnect, self._command_lock)
         receive_thread.join(_COMMAND_TIMEOUT_S)
         self._quietly("DashboardClient.disconnect", dashboard.disconnect)
         # Dropping the last reference destroys the C++ objects and frees their sockets.
-        self._control = self._receive = self._dashboard = _Disconnected()
+        closed = _Unavailable("the robot connection is closed; connect again")
+        self._control = self._receive = self._dashboard = closed
 
     def _quietly(self, what: str, step: Any, lock: threading.Lock | None = None) -> None:
         """One shutdown step; failures are logged, not raised (the rest must still run)."""

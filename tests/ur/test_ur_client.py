@@ -69,6 +69,18 @@ def test_moves_reach_targets_and_limits_are_enforced(start_fake: StartFake) -> N
         assert np.allclose(robot.joint_positions_rad(), q, atol=1e-9)  # nothing moved
 
 
+def test_read_only_connection_leaves_the_program_alone(start_fake: StartFake) -> None:
+    fake = start_fake()
+    with URRobot.connect(fake.address, control=False) as robot:
+        assert not robot.state().program_running
+        assert np.allclose(robot.tcp_pose(), START_POSE, atol=1e-9)
+        with pytest.raises(RobotError, match="read-only"):
+            robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.0)
+        with pytest.raises(RobotError, match="read-only"):
+            robot.inverse_kinematics(START_POSE)
+        robot.stop()  # nothing to stop, no error
+
+
 def test_reachability_and_safety_checks(start_fake: StartFake) -> None:
     fake = start_fake()
     with URRobot.connect(fake.address) as robot:
@@ -206,11 +218,15 @@ def test_robot_info_cli_prints_the_pose(start_fake: StartFake) -> None:
     assert np.allclose(document["tcp_pose"], START_POSE, atol=1e-6)
     assert document["identity"]["serial_number"] == "20185500042"
     assert document["state"]["robot_mode"] == "RUNNING"
+    assert document["state"]["program_running"] is False  # read-only: no control script uploaded
     text = subprocess.run(
         [sys.executable, "-m", "lasercal_hw.cli.main", "robot", "info", "--robot", fake.address],
         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
     )
-    assert text.returncode == 0 and "TCP pose" in text.stdout
+    assert text.returncode == 0, text.stderr
+    pose_line = next(line for line in text.stdout.splitlines() if line.startswith("TCP pose [m, rad]: "))
+    printed = [float(v) for v in pose_line.split(": ", 1)[1].split(",")]
+    assert np.allclose(printed, START_POSE, atol=1e-6)
 
 
 def test_frozen_stream_during_a_move_raises_timeout_and_refuses_motion(start_fake: StartFake) -> None:
