@@ -375,6 +375,7 @@ class URRobot:
                            false_is_error=False) < 0:
                     break
                 if not self._program_running():
+                    self._broken = ("the control program stopped", RobotError)
                     raise RobotError(f"{what}: the control program stopped during the move (a runtime error "
                                      "on the controller, e.g. a singularity); see the robot's log")
                 if time.monotonic() > deadline:
