@@ -541,7 +541,7 @@ class FakeController:
             next_deadline += period_s
             delay = next_deadline - time.monotonic()
             if delay > 0:
-                self._stop_event.wait(delay)
+                time.sleep(delay)
             elif delay < -_RESYNC_CYCLES * period_s:
                 next_deadline = time.monotonic()  # far behind (suspended?): resynchronise
 
