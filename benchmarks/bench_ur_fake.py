@@ -143,10 +143,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--duration", type=float, default=60.0, help="seconds to stream (default 60)")
     parser.add_argument("--address", default="127.0.0.90", help="loopback address for the fake")
-    parser.add_argument("--frequency", type=float, default=500.0, help="requested rate (Hz)")
+    parser.add_argument("--version", choices=["5.11", "3.15"], default="5.11",
+                        help="controller the fake reports (3.15 streams at most 125 Hz)")
+    parser.add_argument("--frequency", type=float, default=None,
+                        help="requested rate (Hz; default 500, 125 for 3.15)")
     args = parser.parse_args()
+    if args.frequency is None:
+        args.frequency = 500.0 if args.version == "5.11" else 125.0
 
-    with FakeRobotProcess(args.address) as fake:
+    with FakeRobotProcess(args.address, ["--version", args.version]) as fake:
         socks = [open_stream(args.address, args.frequency) for _ in range(2)]
         receiver, sender = multiprocessing.Pipe(duplex=False)
         reference_process = multiprocessing.Process(target=reference_sleep_loop,
@@ -163,8 +168,8 @@ def main() -> None:
         reference_process.join()
 
     ref_rate, ref_p50, ref_p99 = jitter_ms(reference, args.frequency)
-    print(f"fake UR RTDE stream, {args.duration:g} s, 2 clients, {len(RECEIVE_RECIPE_5_11)} variables, "
-          f"target {args.frequency:g} Hz")
+    print(f"fake UR {args.version} RTDE stream, {args.duration:g} s, 2 clients, "
+          f"{len(RECEIVE_RECIPE_5_11)} variables, target {args.frequency:g} Hz")
     print(f"reference sleep loop (own process): {ref_rate:.1f} Hz, jitter p50 {ref_p50:.3f} ms, "
           f"p99 {ref_p99:.3f} ms")
     for k, times in enumerate(arrivals):
