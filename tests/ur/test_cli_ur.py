@@ -9,6 +9,7 @@ import pytest
 
 from fakes.ur_controller.net import require_loopback
 from lasercal_hw.errors import ConfigError, ExitCode
+from tests.ur.conftest import StartFake
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -38,3 +39,11 @@ def test_robot_info_without_a_robot_is_a_device_error() -> None:
 def test_require_loopback_rejects(address: str) -> None:
     with pytest.raises(ConfigError):
         require_loopback(address)
+
+
+def test_fake_robot_exits_cleanly_on_sigterm(start_fake: StartFake) -> None:
+    fake = start_fake()
+    assert fake.process is not None
+    fake.process.terminate()
+    assert fake.process.wait(timeout=10) == 0
+    assert "Traceback" not in fake.stderr_text()

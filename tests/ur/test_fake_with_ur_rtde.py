@@ -132,3 +132,19 @@ def test_several_fakes_side_by_side(start_fake: StartFake) -> None:
             # getForwardKinematics() without arguments: the TCP pose of the current joints.
             expected = matrix_to_pose(forward_kinematics(q))
             assert np.allclose(control.getForwardKinematics(), expected, atol=1e-9)
+
+
+def test_upper_range_registers(start_fake: StartFake) -> None:
+    fake = start_fake()
+    flags = int(rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT) | int(
+        rtde_control.RTDEControlInterface.FLAG_UPPER_RANGE_REGISTERS)
+    control = rtde_control.RTDEControlInterface(fake.address, 500.0, flags)
+    try:
+        q = np.array(DEFAULT_START_Q_RAD)
+        q[0] = 0.2
+        assert control.moveJ(q.tolist(), 2.0, 8.0)
+        pose = matrix_to_pose(forward_kinematics(q)).tolist()
+        assert np.allclose(control.getInverseKinematics(pose), q, atol=1e-8)
+    finally:
+        control.stopScript()
+        control.disconnect()
