@@ -137,6 +137,12 @@ def _after_colon(line: str) -> str:
     return line.split(":", 1)[1].strip() if ":" in line else line.strip()
 
 
+@dataclass(frozen=True)
+class _Stall:
+    message: str
+    connected: bool
+
+
 class _StreamWatchdog:
     """Notices when the RTDE receive stream stops (frozen or dropped connection)."""
 
@@ -145,16 +151,17 @@ class _StreamWatchdog:
         self._last_timestamp = -1.0
         self._last_change = time.monotonic()
 
-    def problem(self) -> str | None:
-        """A description of the stall, or None while packages keep arriving."""
+    def problem(self) -> _Stall | None:
+        """What is wrong with the stream, or None while packages keep arriving."""
         if not ur_call("isConnected", self._receive.isConnected, false_is_error=False):
-            return "the RTDE connection to the robot was lost"
+            return _Stall("the RTDE connection to the robot was lost", connected=False)
         timestamp = float(ur_call("getTimestamp", self._receive.getTimestamp, false_is_error=False))
         now = time.monotonic()
         if timestamp != self._last_timestamp:
             self._last_timestamp, self._last_change = timestamp, now
         elif now - self._last_change > STREAM_STALL_S:
-            return f"no robot state for {now - self._last_change:.2f} s (RTDE stream stalled)"
+            return _Stall(f"no robot state for {now - self._last_change:.2f} s (RTDE stream stalled)",
+                          connected=True)
         return None
 
 
@@ -366,10 +373,15 @@ class URRobot:
                 self._raise_if_stopped()
                 stall = watchdog.problem()
                 if stall is not None:
-                    self._broken = (stall, TransportError)
-                    with contextlib.suppress(RobotError, DeviceTimeoutError):
-                        self.stop(timeout_s=STREAM_STALL_S)
-                    raise DeviceTimeoutError(f"{what}: {stall}; the arm was told to stop, check it and "
+                    self._broken = (stall.message, TransportError)
+                    if stall.connected:
+                        # Commands still reach the robot: ask it to stop. On a lost connection
+                        # ur_rtde is reconnecting by itself, and a command now can crash it.
+                        with contextlib.suppress(RobotError, DeviceTimeoutError):
+                            self.stop(timeout_s=STREAM_STALL_S)
+                    outcome = ("the arm was told to stop" if stall.connected
+                               else "the arm may finish the move")
+                    raise DeviceTimeoutError(f"{what}: {stall.message}; {outcome}, check it and "
                                              "connect again")
                 if ur_call("getAsyncOperationProgress", self._control.getAsyncOperationProgress,
                            false_is_error=False) < 0:
