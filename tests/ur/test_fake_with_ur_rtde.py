@@ -92,6 +92,7 @@ def test_inverse_kinematics_and_safety_limits(start_fake: StartFake) -> None:
         assert control.isProgramRunning()
 
 
+@pytest.mark.slow
 def test_second_and_third_connection_after_disconnect(start_fake: StartFake) -> None:
     fake = start_fake()
     for attempt in range(3):

@@ -116,8 +116,10 @@ class _RecordingControl:
         return attribute
 
 
-def test_protective_stop_mid_move_raises_at_once_and_never_resumes(start_fake: StartFake) -> None:
-    fake = start_fake("--protective-stop-at-move", "2", "--unlock-delay-s", "0")
+@pytest.mark.parametrize("version", ["5.11", "3.15"])
+def test_protective_stop_mid_move_raises_at_once_and_never_resumes(start_fake: StartFake,
+                                                                   version: str) -> None:
+    fake = start_fake("--protective-stop-at-move", "2", "--version", version)
     with URRobot.connect(fake.address) as robot:
         recorder = _RecordingControl(robot._control)
         robot._control = recorder
