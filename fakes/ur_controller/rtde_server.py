@@ -69,7 +69,6 @@ class RtdeSession:
         self._inputs: dict[int, rp.Recipe] = {}
         self._next_input_id = 1
         self.streaming = False
-        self.packages_sent = 0
 
     # -- writes ----------------------------------------------------------------------------
 
@@ -90,8 +89,7 @@ class RtdeSession:
         if self._cycle_count < self._cycles_per_package:
             return
         self._cycle_count = 0
-        values = [getter(snapshot) for getter in self._getters]
-        body = self._output.pack(dict(zip(self._output.names, values, strict=True)))
+        body = self._output.pack_in_order([getter(snapshot) for getter in self._getters])
         message = rp.encode_message(rp.DATA_PACKAGE, b"\x01" + body)
         if not self._write_lock.acquire(blocking=False):
             return  # a reply is being written; this package is skipped
@@ -101,7 +99,6 @@ class RtdeSession:
                 if self._pending:
                     return  # client is not reading; drop this package
             self._pending = self._send_some(message)
-            self.packages_sent += 1
         except OSError:
             self.streaming = False
         finally:
