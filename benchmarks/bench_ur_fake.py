@@ -5,7 +5,8 @@ RTDE connections with ur_rtde's default 5.11 receive recipe (58 variables, 500 H
 for ``--duration`` seconds and prints the achieved rate, the inter-arrival jitter
 (|period - nominal|, p50/p99) and the fake process's CPU share from /proc/<pid>/stat.
 As a reference measured in the same run, a plain absolute-deadline sleep loop at the
-same rate runs in this process; the fake's jitter is also printed as a ratio to it.
+same rate runs in a process of its own; the fake's jitter is also printed as a ratio to
+it. One thread reads both connections, so the two clients do not compete for the GIL.
 
     .venv/bin/python benchmarks/bench_ur_fake.py --duration 60 --address 127.0.0.90
 """
@@ -13,11 +14,13 @@ same rate runs in this process; the fake's jitter is also printed as a ratio to 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
+import selectors
 import socket
 import struct
-import threading
 import time
+from multiprocessing.connection import Connection
 
 import numpy as np
 
@@ -62,27 +65,53 @@ def _request(sock: socket.socket, kind: str, payload: bytes = b"") -> bytes:
     return reply
 
 
-def stream_client(address: str, frequency_hz: float, duration_s: float, arrivals: list[float]) -> None:
-    """Set up one RTDE output recipe and record the arrival time of every data package."""
-    with socket.create_connection((address, RTDE_PORT), timeout=5.0) as sock:
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        _request(sock, "V", struct.pack(">H", 2))
-        _request(sock, "v")
-        names = ",".join(RECEIVE_RECIPE_5_11) + ","
-        reply = _request(sock, "O", struct.pack(">d", frequency_hz) + names.encode())
-        if b"NOT_FOUND" in reply:
-            raise ConnectionError(f"recipe rejected: {reply!r}")
-        _request(sock, "S")
+def open_stream(address: str, frequency_hz: float) -> socket.socket:
+    """An RTDE connection with the 5.11 receive recipe set up and started."""
+    sock = socket.create_connection((address, RTDE_PORT), timeout=5.0)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    _request(sock, "V", struct.pack(">H", 2))
+    _request(sock, "v")
+    names = ",".join(RECEIVE_RECIPE_5_11) + ","
+    reply = _request(sock, "O", struct.pack(">d", frequency_hz) + names.encode())
+    if b"NOT_FOUND" in reply:
+        raise ConnectionError(f"recipe rejected: {reply!r}")
+    _request(sock, "S")
+    sock.setblocking(False)
+    return sock
+
+
+def read_streams(socks: list[socket.socket], duration_s: float) -> list[list[float]]:
+    """Arrival time of every data package on each socket, read by one thread (so the
+    clients do not compete for the GIL)."""
+    arrivals: list[list[float]] = [[] for _ in socks]
+    buffers = [bytearray() for _ in socks]
+    with selectors.DefaultSelector() as selector:
+        for index, sock in enumerate(socks):
+            selector.register(sock, selectors.EVENT_READ, index)
         end = time.perf_counter() + duration_s
         while time.perf_counter() < end:
-            kind, _ = _read_message(sock)
-            if kind == ord("U"):
-                arrivals.append(time.perf_counter())
+            for key, _ in selector.select(timeout=0.1):
+                index = key.data
+                chunk = socks[index].recv(65536)
+                if not chunk:
+                    raise ConnectionError("fake closed an RTDE connection")
+                now = time.perf_counter()
+                buffer = buffers[index]
+                buffer += chunk
+                while len(buffer) >= 3:
+                    size, kind = struct.unpack_from(">HB", buffer)
+                    if len(buffer) < size:
+                        break
+                    if kind == ord("U"):
+                        arrivals[index].append(now)
+                    del buffer[:size]
+    return arrivals
 
 
-def reference_sleep_loop(frequency_hz: float, duration_s: float, ticks: list[float]) -> None:
-    """The same absolute-deadline loop the fake uses, doing nothing, in this process."""
+def reference_sleep_loop(frequency_hz: float, duration_s: float, results: Connection) -> None:
+    """The fake's absolute-deadline loop doing nothing, in a process of its own."""
     period = 1.0 / frequency_hz
+    ticks: list[float] = []
     next_deadline = time.perf_counter()
     end = next_deadline + duration_s
     while next_deadline < end:
@@ -91,6 +120,8 @@ def reference_sleep_loop(frequency_hz: float, duration_s: float, ticks: list[flo
         if delay > 0:
             time.sleep(delay)
         ticks.append(time.perf_counter())
+    results.send(ticks)
+    results.close()
 
 
 def cpu_seconds(pid: int) -> float:
@@ -112,28 +143,34 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--duration", type=float, default=60.0, help="seconds to stream (default 60)")
     parser.add_argument("--address", default="127.0.0.90", help="loopback address for the fake")
-    parser.add_argument("--frequency", type=float, default=500.0, help="requested rate (Hz)")
+    parser.add_argument("--version", choices=["5.11", "3.15"], default="5.11",
+                        help="controller the fake reports (3.15 streams at most 125 Hz)")
+    parser.add_argument("--frequency", type=float, default=None,
+                        help="requested rate (Hz; default 500, 125 for 3.15)")
     args = parser.parse_args()
+    if args.frequency is None:
+        args.frequency = 500.0 if args.version == "5.11" else 125.0
 
-    with FakeRobotProcess(args.address) as fake:
-        arrivals: list[list[float]] = [[], []]
-        reference: list[float] = []
-        threads = [threading.Thread(target=stream_client,
-                                    args=(args.address, args.frequency, args.duration, times))
-                   for times in arrivals]
-        threads.append(threading.Thread(target=reference_sleep_loop,
-                                        args=(args.frequency, args.duration, reference)))
+    with FakeRobotProcess(args.address, ["--version", args.version]) as fake:
+        socks = [open_stream(args.address, args.frequency) for _ in range(2)]
+        receiver, sender = multiprocessing.Pipe(duplex=False)
+        reference_process = multiprocessing.Process(target=reference_sleep_loop,
+                                                    args=(args.frequency, args.duration, sender))
         cpu_before, wall_before = cpu_seconds(fake.pid), time.perf_counter()
-        for thread in threads:
-            thread.start()
-        for thread in threads:
-            thread.join()
+        reference_process.start()
+        try:
+            arrivals = read_streams(socks, args.duration)
+        finally:
+            for sock in socks:
+                sock.close()
         cpu_share = (cpu_seconds(fake.pid) - cpu_before) / (time.perf_counter() - wall_before)
+        reference = receiver.recv()
+        reference_process.join()
 
     ref_rate, ref_p50, ref_p99 = jitter_ms(reference, args.frequency)
-    print(f"fake UR RTDE stream, {args.duration:g} s, 2 clients, {len(RECEIVE_RECIPE_5_11)} variables, "
-          f"target {args.frequency:g} Hz")
-    print(f"reference sleep loop in this process: {ref_rate:.1f} Hz, jitter p50 {ref_p50:.3f} ms, "
+    print(f"fake UR {args.version} RTDE stream, {args.duration:g} s, 2 clients, "
+          f"{len(RECEIVE_RECIPE_5_11)} variables, target {args.frequency:g} Hz")
+    print(f"reference sleep loop (own process): {ref_rate:.1f} Hz, jitter p50 {ref_p50:.3f} ms, "
           f"p99 {ref_p99:.3f} ms")
     for k, times in enumerate(arrivals):
         rate, p50, p99 = jitter_ms(times, args.frequency)

@@ -50,6 +50,7 @@ _JOINT_TOLERANCE_RAD = 1e-3
 _STEADY_SPEED_RAD_S = 1e-3
 _MOVE_MARGIN_S = 2.0
 STREAM_STALL_S = 0.3
+_SETTLE_TIMEOUT_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -136,6 +137,12 @@ def _after_colon(line: str) -> str:
     return line.split(":", 1)[1].strip() if ":" in line else line.strip()
 
 
+@dataclass(frozen=True)
+class _Stall:
+    message: str
+    connected: bool
+
+
 class _StreamWatchdog:
     """Notices when the RTDE receive stream stops (frozen or dropped connection)."""
 
@@ -144,49 +151,61 @@ class _StreamWatchdog:
         self._last_timestamp = -1.0
         self._last_change = time.monotonic()
 
-    def problem(self) -> str | None:
-        """A description of the stall, or None while packages keep arriving."""
+    def problem(self) -> _Stall | None:
+        """What is wrong with the stream, or None while packages keep arriving."""
         if not ur_call("isConnected", self._receive.isConnected, false_is_error=False):
-            return "the RTDE connection to the robot was lost"
+            return _Stall("the RTDE connection to the robot was lost", connected=False)
         timestamp = float(ur_call("getTimestamp", self._receive.getTimestamp, false_is_error=False))
         now = time.monotonic()
         if timestamp != self._last_timestamp:
             self._last_timestamp, self._last_change = timestamp, now
         elif now - self._last_change > STREAM_STALL_S:
-            return f"no robot state for {now - self._last_change:.2f} s (RTDE stream stalled)"
+            return _Stall(f"no robot state for {now - self._last_change:.2f} s (RTDE stream stalled)",
+                          connected=True)
         return None
 
 
-class _Disconnected:
-    """Stands in for the ur_rtde interfaces after ``close`` (so their sockets and threads
-    are freed): every use raises RobotError."""
+class _Unavailable:
+    """Stands in for an ur_rtde interface that is not there: after ``close`` (so the real
+    ones, their sockets and threads are freed) or on a read-only connection. Every use
+    raises RobotError with the reason."""
+
+    def __init__(self, reason: str) -> None:
+        self._reason = reason
 
     def __getattr__(self, name: str) -> Any:
-        raise RobotError(f"cannot call {name}: the robot connection is closed; connect again")
+        raise RobotError(f"cannot call {name}: {self._reason}")
 
 
 class URRobot:
     """A UR arm through ur_rtde; use ``URRobot.connect(host)``."""
 
     def __init__(self, host: str, limits: MotionLimits, version: tuple[int, int, int, int],
-                 dashboard: Any, receive: Any, control: Any) -> None:
+                 dashboard: Any, receive: Any, control: Any | None) -> None:
         self.host = host
         self.limits = limits
         self.version = version
         self._dashboard = dashboard
         self._receive = receive
-        self._control = control
+        self._has_control = control is not None
+        self._control = control if control is not None else _Unavailable(
+            "this connection is read-only; connect with control=True to move or query kinematics")
         self._halted: str | None = None
-        self._broken: str | None = None
+        self._broken: tuple[str, type[RobotError | TransportError]] | None = None
         self._closed = False
         self._command_lock = threading.Lock()
-        self._tcp_offset = pose_to_matrix(self._command("getTCPOffset", control.getTCPOffset))
+        self._tcp_offset = (pose_to_matrix(self._command("getTCPOffset", control.getTCPOffset))
+                            if control is not None else None)
 
     @classmethod
-    def connect(cls, host: str, limits: MotionLimits | None = None, *, timeout_s: float = 5.0) -> URRobot:
-        """Connect the dashboard, receive and control interfaces (the control script is
-        uploaded). Raises TransportError/DeviceTimeoutError if nothing answers, RobotError
-        if the controller refuses (e.g. remote control off)."""
+    def connect(cls, host: str, limits: MotionLimits | None = None, *, timeout_s: float = 5.0,
+                control: bool = True) -> URRobot:
+        """Connect the dashboard, receive and (unless ``control`` is off) control
+        interfaces. The control interface uploads ur_rtde's control script, which stops
+        any program running on the robot; a read-only connection (``control=False``)
+        leaves the robot's program alone but cannot move or query kinematics.
+        Raises TransportError/DeviceTimeoutError if nothing answers, RobotError if the
+        controller refuses (e.g. remote control off)."""
         import dashboard_client
         import rtde_control
         import rtde_receive
@@ -202,9 +221,12 @@ class URRobot:
             opened.append(dashboard)
             receive = ur_call("RTDEReceiveInterface", lambda: rtde_receive.RTDEReceiveInterface(host))
             opened.append(receive)
-            control = ur_call("RTDEControlInterface", lambda: rtde_control.RTDEControlInterface(host))
-            opened.append(control)
-            return cls(host, limits or MotionLimits(), version, dashboard, receive, control)
+            control_interface = None
+            if control:
+                control_interface = ur_call("RTDEControlInterface",
+                                            lambda: rtde_control.RTDEControlInterface(host))
+                opened.append(control_interface)
+            return cls(host, limits or MotionLimits(), version, dashboard, receive, control_interface)
         except BaseException:
             for interface in reversed(opened):
                 try:
@@ -248,12 +270,15 @@ class URRobot:
         return RobotState(
             robot_mode=_after_colon(ur_call("robotmode", dash.robotmode)),
             safety_status=_after_colon(ur_call("safetystatus", dash.safetystatus)),
-            program_running=bool(ur_call("isProgramRunning", self._control.isProgramRunning,
-                                         false_is_error=False)),
+            program_running=self._program_running(),
             remote_control=remote,
             protective_stop=bool(bits & PROTECTIVE_STOP_BIT),
             emergency_stop=bool(bits & EMERGENCY_STOP_BITS),
         )
+
+    def _program_running(self) -> bool:
+        """``runtime_state == 2`` (PLAYING) in the receive stream, ur_rtde's own test."""
+        return int(ur_call("getRuntimeState", self._receive.getRuntimeState, false_is_error=False)) == 2
 
     def tcp_pose(self) -> FloatArray:
         """Actual TCP pose (UR pose vector) from the newest RTDE package."""
@@ -263,8 +288,11 @@ class URRobot:
         """Actual flange (tool0) pose: the TCP pose times the inverse TCP offset.
 
         ur_rtde's getActualToolFlangePose is fire-and-forget in 1.6.5 and reads its
-        result registers before the script wrote them, so it is not used.
+        result registers before the script wrote them, so it is not used. The TCP offset
+        comes from the control interface (RobotError on a read-only connection).
         """
+        if self._tcp_offset is None:
+            raise RobotError("the flange pose needs the TCP offset, which only a control connection reads")
         return matrix_to_pose(pose_to_matrix(self.tcp_pose()) @ invert_transform(self._tcp_offset))
 
     def joint_positions_rad(self) -> FloatArray:
@@ -276,11 +304,14 @@ class URRobot:
     def _check_may_move(self) -> None:
         if self._closed:
             raise RobotError("the robot connection is closed; connect again")
+        if not self._has_control:
+            raise RobotError("this connection is read-only; connect with control=True to move the robot")
         if self._halted is not None:
             raise ProtectiveStopError(f"motion refused: {self._halted} earlier on this connection; inspect "
                                       "the cell, unlock the stop on the teach pendant and connect again")
         if self._broken is not None:
-            raise TransportError(f"motion refused: {self._broken} earlier on this connection; connect again")
+            reason, error = self._broken
+            raise error(f"motion refused: {reason} earlier on this connection; connect again")
         self._raise_if_stopped()
 
     def _raise_if_stopped(self) -> None:
@@ -326,8 +357,13 @@ class URRobot:
         """Start an asynchronous move and watch it until it ends."""
         try:
             self._command(what, start)
-        except RobotError:
+        except RobotError as exc:
             self._raise_if_stopped()
+            if not self._program_running():
+                self._broken = ("the control program stopped", RobotError)
+                raise RobotError(f"{what} failed: the control program on the robot has stopped (for example "
+                                 "the target is out of reach or a runtime error occurred); check the robot's "
+                                 "log and connect again") from exc
             raise
         allowed_s = 1.5 * expected_s + _MOVE_MARGIN_S
         deadline = time.monotonic() + allowed_s
@@ -337,15 +373,21 @@ class URRobot:
                 self._raise_if_stopped()
                 stall = watchdog.problem()
                 if stall is not None:
-                    self._broken = stall
-                    with contextlib.suppress(RobotError, DeviceTimeoutError):
-                        self.stop(timeout_s=STREAM_STALL_S)
-                    raise DeviceTimeoutError(f"{what}: {stall}; the arm was told to stop, check it and "
+                    self._broken = (stall.message, TransportError)
+                    if stall.connected:
+                        # Commands still reach the robot: ask it to stop. On a lost connection
+                        # ur_rtde is reconnecting by itself, and a command now can crash it.
+                        with contextlib.suppress(RobotError, DeviceTimeoutError):
+                            self.stop(timeout_s=STREAM_STALL_S)
+                    outcome = ("the arm was told to stop" if stall.connected
+                               else "the arm may finish the move")
+                    raise DeviceTimeoutError(f"{what}: {stall.message}; {outcome}, check it and "
                                              "connect again")
                 if ur_call("getAsyncOperationProgress", self._control.getAsyncOperationProgress,
                            false_is_error=False) < 0:
                     break
-                if not ur_call("isProgramRunning", self._control.isProgramRunning, false_is_error=False):
+                if not self._program_running():
+                    self._broken = ("the control program stopped", RobotError)
                     raise RobotError(f"{what}: the control program stopped during the move (a runtime error "
                                      "on the controller, e.g. a singularity); see the robot's log")
                 if time.monotonic() > deadline:
@@ -356,7 +398,8 @@ class URRobot:
         except KeyboardInterrupt:
             self.stop()
             raise
-        self._raise_if_stopped()
+        # The receive stream is a connection of its own and may lag the control one.
+        self.wait_until_steady(_SETTLE_TIMEOUT_S)
 
     def wait_until_steady(self, timeout_s: float) -> None:
         """Block until every joint is at rest; DeviceTimeoutError after ``timeout_s``."""
@@ -373,7 +416,7 @@ class URRobot:
     def stop(self, timeout_s: float = _COMMAND_TIMEOUT_S) -> None:
         """Decelerate any motion to rest (joint deceleration at the configured cap, at
         least 2 rad/s²)."""
-        if self._closed or not self._control.isProgramRunning():
+        if self._closed or not self._has_control or not self._program_running():
             return
         decel = max(self.limits.max_joint_accel_rad_s2, 2.0)
         control = self._control
@@ -412,23 +455,35 @@ class URRobot:
     # -- shutdown ---------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Stop the control script, then disconnect all three interfaces; safe twice."""
+        """Stop the control script, then disconnect all three interfaces; safe twice.
+
+        The two RTDE disconnects each sleep 0.5 s inside ur_rtde (GIL released), so they
+        run side by side."""
         if self._closed:
             return
         self._closed = True
-        steps = [
-            ("stopScript", lambda: self._control.stopScript() if self._control.isProgramRunning() else None),
-            ("RTDEControlInterface.disconnect", self._control.disconnect),
-            ("RTDEReceiveInterface.disconnect", self._receive.disconnect),
-            ("DashboardClient.disconnect", self._dashboard.disconnect),
-        ]
-        for what, step in steps:
-            try:
-                self._command(what, step, false_is_error=False)
-            except (RobotError, DeviceTimeoutError) as exc:
-                logger.warning("while disconnecting from %s: %s", self.host, exc)
+        control, receive, dashboard = self._control, self._receive, self._dashboard
+        if self._has_control:
+            self._quietly("stopScript", lambda: control.stopScript() if control.isProgramRunning() else None,
+                          self._command_lock)
+        receive_thread = threading.Thread(
+            target=self._quietly, args=("RTDEReceiveInterface.disconnect", receive.disconnect),
+            name="ur-receive-disconnect", daemon=True)
+        receive_thread.start()
+        if self._has_control:
+            self._quietly("RTDEControlInterface.disconnect", control.disconnect, self._command_lock)
+        receive_thread.join(_COMMAND_TIMEOUT_S)
+        self._quietly("DashboardClient.disconnect", dashboard.disconnect)
         # Dropping the last reference destroys the C++ objects and frees their sockets.
-        self._control = self._receive = self._dashboard = _Disconnected()
+        closed = _Unavailable("the robot connection is closed; connect again")
+        self._control = self._receive = self._dashboard = closed
+
+    def _quietly(self, what: str, step: Any, lock: threading.Lock | None = None) -> None:
+        """One shutdown step; failures are logged, not raised (the rest must still run)."""
+        try:
+            ur_call(what, step, timeout_s=_COMMAND_TIMEOUT_S, false_is_error=False, lock=lock)
+        except (RobotError, DeviceTimeoutError) as exc:
+            logger.warning("while disconnecting from %s: %s", self.host, exc)
 
     def __enter__(self) -> URRobot:
         return self

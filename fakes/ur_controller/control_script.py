@@ -131,7 +131,6 @@ class ControlScript:
         try:
             self._step()
         except ScriptRuntimeError as exc:
-            logger.warning("control script runtime error: %s", exc)
             self.ended = True
             self._host.runtime_error(str(exc))
 

@@ -59,6 +59,8 @@ _STATUS_PROGRAM_RUNNING = 0x2
 _SCRIPT_START_DELAY_S = 0.03
 _STEADY_SPEED_RAD_S = 1e-4
 _MAX_CYCLE_DT_S = 0.05
+# A cycle thread this many cycles late (process suspended) skips ahead instead of catching up.
+_RESYNC_CYCLES = 50
 # A linear move whose joints would have to exceed their speed limit by this factor in one
 # cycle passes (close to) a singularity; the real controller stops there too.
 _SINGULARITY_SPEED_FACTOR = 1.5
@@ -408,9 +410,8 @@ class FakeController:
 
     def runtime_error(self, message: str) -> None:
         """The control program hit a runtime error: it stops, and so does the arm."""
-        self.last_error = message
-        self._stop_motion_now()
-        self._end_program()
+        logger.warning("control program stopped by a runtime error: %s", message)
+        self._halt(message)
 
     # -- internals (lock held) ------------------------------------------------------------
 
@@ -438,7 +439,7 @@ class FakeController:
         q = motion.advance(dt_s, self._q)
         if q is None or (dt_s > 0.0 and np.any(
                 np.abs(q - self._q) > _SINGULARITY_SPEED_FACTOR * JOINT_SPEED_LIMITS_RAD_S * dt_s)):
-            self._script_failed("movel: the path passes a singularity or leaves the workspace")
+            self.runtime_error("movel: the path passes a singularity or leaves the workspace")
             return
         T_new = self._fk(q)
         if dt_s > 0.0:
@@ -450,10 +451,6 @@ class FakeController:
             if not motion.stopping:
                 self._moves_completed += 1
             self._motion = None
-
-    def _script_failed(self, message: str) -> None:
-        logger.warning("control program stopped: %s", message)
-        self.runtime_error(message)
 
     def _fault_due(self, at_s: float | None, at_move: int | None) -> bool:
         if at_s is not None and self._time_s >= at_s:
@@ -539,8 +536,8 @@ class FakeController:
             next_deadline += period_s
             delay = next_deadline - time.monotonic()
             if delay > 0:
-                self._stop_event.wait(delay)
-            elif delay < -10 * period_s:
+                time.sleep(delay)
+            elif delay < -_RESYNC_CYCLES * period_s:
                 next_deadline = time.monotonic()  # far behind (suspended?): resynchronise
 
     def stop(self) -> None:

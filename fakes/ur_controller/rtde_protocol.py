@@ -238,9 +238,12 @@ class Recipe:
 
     def pack(self, values: Mapping[str, object]) -> bytes:
         """Pack the values named by the recipe; every name must be present."""
+        return self.pack_in_order([values[name] for name in self.names])
+
+    def pack_in_order(self, values: Sequence[object]) -> bytes:
+        """Pack one value per recipe entry, in recipe order."""
         flat: list[object] = []
-        for name, count in zip(self.names, self._counts, strict=True):
-            value = values[name]
+        for value, count in zip(values, self._counts, strict=True):
             if count > 1:
                 flat.extend(value)  # type: ignore[call-overload]
             else:

@@ -2,8 +2,9 @@
 
 Each connection gets an ``RtdeSession``. Its own thread reads requests and answers each
 setup request with exactly one reply (ur_rtde takes whatever arrives next as the reply).
-Data packages are sent from the controller's cycle thread (``RtdeServer.on_cycle``) at
-the frequency the client asked for, with a non-blocking send: a client that stops
+Data packages are sent from the controller's cycle thread (``RtdeServer.on_cycle``),
+one per controller cycle at the full rate (every n-th cycle for a rate n times lower),
+with a non-blocking send: a client that stops
 reading loses packages, never the stream's framing, and never stalls the controller.
 """
 
@@ -63,12 +64,11 @@ class RtdeSession:
         self._pending = b""
         self._output: rp.Recipe | None = None
         self._getters: list[Getter] = []
-        self._period_s = 0.0
-        self._next_due_s = 0.0
+        self._cycles_per_package = 1
+        self._cycle_count = 0
         self._inputs: dict[int, rp.Recipe] = {}
         self._next_input_id = 1
         self.streaming = False
-        self.packages_sent = 0
 
     # -- writes ----------------------------------------------------------------------------
 
@@ -80,15 +80,16 @@ class RtdeSession:
                 self._pending = b""
             self.sock.sendall(message)
 
-    def send_data(self, snapshot: Snapshot, now_s: float) -> None:
-        """Send one data package if one is due (called on the cycle thread)."""
-        if not self.streaming or self._output is None or now_s + 1e-4 < self._next_due_s:
+    def send_data(self, snapshot: Snapshot) -> None:
+        """Send this cycle's data package if one is due (called on the cycle thread):
+        every cycle at the full rate, every n-th cycle at a rate n times lower."""
+        if not self.streaming or self._output is None:
             return
-        self._next_due_s += self._period_s
-        if self._next_due_s < now_s - self._period_s:
-            self._next_due_s = now_s + self._period_s
-        values = [getter(snapshot) for getter in self._getters]
-        body = self._output.pack(dict(zip(self._output.names, values, strict=True)))
+        self._cycle_count += 1
+        if self._cycle_count < self._cycles_per_package:
+            return
+        self._cycle_count = 0
+        body = self._output.pack_in_order([getter(snapshot) for getter in self._getters])
         message = rp.encode_message(rp.DATA_PACKAGE, b"\x01" + body)
         if not self._write_lock.acquire(blocking=False):
             return  # a reply is being written; this package is skipped
@@ -98,7 +99,6 @@ class RtdeSession:
                 if self._pending:
                     return  # client is not reading; drop this package
             self._pending = self._send_some(message)
-            self.packages_sent += 1
         except OSError:
             self.streaming = False
         finally:
@@ -141,7 +141,7 @@ class RtdeSession:
         elif package_type == rp.CONTROL_PACKAGE_SETUP_INPUTS:
             self._setup_inputs(payload)
         elif package_type == rp.CONTROL_PACKAGE_START:
-            self._next_due_s = controller.time_s
+            self._cycle_count = self._cycles_per_package - 1  # first package on the next cycle
             self._reply(package_type, bytes([1 if self._output is not None else 0]))
             self.streaming = self._output is not None
         elif package_type == rp.CONTROL_PACKAGE_PAUSE:
@@ -163,7 +163,7 @@ class RtdeSession:
             frequency_hz = cycle_hz
         self._output = rp.Recipe(names, types)
         self._getters = [value_getter(n, t) for n, t in zip(names, types, strict=True)]
-        self._period_s = 1.0 / frequency_hz
+        self._cycles_per_package = max(1, round(cycle_hz / frequency_hz))
         self._reply(rp.CONTROL_PACKAGE_SETUP_OUTPUTS, rp.setup_reply(1, types))
 
     def _setup_inputs(self, payload: bytes) -> None:
@@ -223,6 +223,5 @@ class RtdeServer:
             return
         with self._lock:
             sessions = list(self._sessions)
-        now_s = snapshot.values["timestamp"]
         for session in sessions:
-            session.send_data(snapshot, now_s)  # type: ignore[arg-type]
+            session.send_data(snapshot)

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 import pytest
+import rtde_control
+import rtde_receive
 
 from fakes.ur_controller.process import FakeRobotProcess
 from lasercal_hw.errors import TransportError
@@ -46,3 +50,41 @@ def start_fake() -> Iterator[StartFake]:
     yield start
     for fake in started:
         fake.close()
+
+
+def eventually(condition: Callable[[], bool], timeout_s: float = 2.0) -> bool:
+    """True once ``condition()`` holds (polled every 2 ms), False after ``timeout_s``.
+
+    A receive interface is a connection of its own and may lag the control connection
+    by a package or two, so "the move returned" and "the stream shows it" differ slightly.
+    """
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.002)
+    return True
+
+
+@contextmanager
+def receive_interface(address: str) -> Iterator[rtde_receive.RTDEReceiveInterface]:
+    """An RTDEReceiveInterface that is always disconnected (before its fake is killed)."""
+    receive = rtde_receive.RTDEReceiveInterface(address)
+    try:
+        yield receive
+    finally:
+        receive.disconnect()
+
+
+@contextmanager
+def control_interface(address: str, *,
+                      stop_script: bool = True) -> Iterator[rtde_control.RTDEControlInterface]:
+    """An RTDEControlInterface that is always disconnected, its script stopped first
+    unless ``stop_script`` is off (then the script keeps running, as after a plain disconnect)."""
+    control = rtde_control.RTDEControlInterface(address)
+    try:
+        yield control
+    finally:
+        if stop_script and control.isProgramRunning():
+            control.stopScript()
+        control.disconnect()

@@ -141,3 +141,28 @@ def test_program_is_ignored_in_local_control() -> None:
 @pytest.mark.parametrize("version", [(5, 11, 6, 1), (3, 15, 7, 1)])
 def test_cycle_rate_follows_the_controller_generation(version: tuple[int, int, int, int]) -> None:
     assert ControllerConfig(version=version).cycle_hz == (500.0 if version[0] == 5 else 125.0)
+
+
+def test_protective_stop_at_a_given_time_fires_once() -> None:
+    controller = started(ControllerConfig(faults=FaultPlan(protective_stop_at_s=0.1, unlock_delay_s=0.0)))
+    cycles = run_until(controller, lambda: controller.safety_mode == SAFETY_PROTECTIVE_STOP)
+    assert 0.1 <= controller.time_s < 0.2 and cycles > 0
+    assert controller.unlock_protective_stop() is None
+    for _ in range(20):
+        controller.step(DT)
+    assert controller.safety_mode == SAFETY_NORMAL
+
+
+def test_emergency_stop_sets_the_emergency_bits_until_released() -> None:
+    controller = started()
+    controller.trigger_emergency_stop()
+    controller.step(DT)
+    bits = controller.snapshot().values["safety_status_bits"]
+    assert isinstance(bits, int) and bits & 0x80 and not bits & 0x1
+    assert controller.runtime_state == RUNTIME_STOPPED
+    assert controller.unlock_protective_stop() is None  # the dashboard cannot clear an e-stop
+    controller.step(DT)
+    assert controller.snapshot().values["safety_status_bits"] == bits
+    controller.release_emergency_stop()
+    controller.step(DT)
+    assert controller.snapshot().values["safety_status_bits"] == 0x1

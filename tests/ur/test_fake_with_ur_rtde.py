@@ -4,17 +4,17 @@ process on its own loopback address)."""
 from __future__ import annotations
 
 import time
+from contextlib import ExitStack
 
 import dashboard_client
 import numpy as np
 import pytest
 import rtde_control
-import rtde_receive
 
 from fakes.ur5_kinematics import forward_kinematics
 from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
 from lasercal_hw.geometry import matrix_to_pose, pose_to_matrix
-from tests.ur.conftest import StartFake
+from tests.ur.conftest import StartFake, control_interface, eventually, receive_interface
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
@@ -26,50 +26,40 @@ def test_receive_and_dashboard_report_the_start_pose(start_fake: StartFake, vers
     fake = start_fake("--version", version)
     dash = dashboard_client.DashboardClient(fake.address)
     dash.connect()
-    receive = rtde_receive.RTDEReceiveInterface(fake.address)
     try:
         assert dash.robotmode() == "Robotmode: RUNNING"
         assert dash.safetystatus() == "Safetystatus: NORMAL"
         assert dash.polyscopeVersion().startswith(version)
-        expected = matrix_to_pose(forward_kinematics(np.array(DEFAULT_START_Q_RAD)))
-        assert np.allclose(receive.getActualTCPPose(), expected, atol=1e-9)
-        assert np.allclose(receive.getActualQ(), DEFAULT_START_Q_RAD)
-        first = receive.getTimestamp()
-        time.sleep(0.05)
-        assert receive.getTimestamp() > first
-        assert receive.getSafetyStatusBits() == 1 and receive.getRobotMode() == 7
+        with receive_interface(fake.address) as receive:
+            expected = matrix_to_pose(forward_kinematics(np.array(DEFAULT_START_Q_RAD)))
+            assert np.allclose(receive.getActualTCPPose(), expected, atol=1e-9)
+            assert np.allclose(receive.getActualQ(), DEFAULT_START_Q_RAD)
+            first = receive.getTimestamp()
+            assert eventually(lambda: receive.getTimestamp() > first)
+            assert receive.getSafetyStatusBits() == 1 and receive.getRobotMode() == 7
     finally:
-        receive.disconnect()
         dash.disconnect()
 
 
 @pytest.mark.parametrize("version", VERSIONS)
 def test_sync_movel_and_movej_reach_their_targets(start_fake: StartFake, version: str) -> None:
     fake = start_fake("--version", version)
-    receive = rtde_receive.RTDEReceiveInterface(fake.address)
-    control = rtde_control.RTDEControlInterface(fake.address)
-    try:
+    with receive_interface(fake.address) as receive, control_interface(fake.address) as control:
         target = receive.getActualTCPPose()
         target[0] += 0.04
         target[2] -= 0.03
-        assert control.moveL(target, 0.25, 1.2)
-        assert np.allclose(receive.getActualTCPPose(), target, atol=1e-6)
+        assert control.moveL(target, 0.5, 3.0)
+        assert eventually(lambda: np.allclose(receive.getActualTCPPose(), target, atol=1e-6))
         q_target = receive.getActualQ()
         q_target[0] += 0.2
         q_target[5] -= 0.3
-        assert control.moveJ(q_target, 1.05, 1.4)
-        assert np.allclose(receive.getActualQ(), q_target, atol=1e-9)
-    finally:
-        control.stopScript()
-        control.disconnect()
-        receive.disconnect()
+        assert control.moveJ(q_target, 2.0, 8.0)
+        assert eventually(lambda: np.allclose(receive.getActualQ(), q_target, atol=1e-9))
 
 
 def test_async_movel_stopped_halfway(start_fake: StartFake) -> None:
     fake = start_fake()
-    receive = rtde_receive.RTDEReceiveInterface(fake.address)
-    control = rtde_control.RTDEControlInterface(fake.address)
-    try:
+    with receive_interface(fake.address) as receive, control_interface(fake.address) as control:
         start = np.array(receive.getActualTCPPose())
         target = start.copy()
         target[1] += 0.3
@@ -78,24 +68,16 @@ def test_async_movel_stopped_halfway(start_fake: StartFake) -> None:
         time.sleep(0.6)
         control.stopL(2.0)
         assert control.getAsyncOperationProgress() < 0
-        # The receive connection may lag the control connection by a package or two.
-        deadline = time.monotonic() + 2.0
-        while not np.allclose(receive.getActualQd(), 0.0) and time.monotonic() < deadline:
-            time.sleep(0.002)
+        assert eventually(lambda: np.allclose(receive.getActualQd(), 0.0))
         stopped = np.array(receive.getActualTCPPose())
         assert start[1] + 0.02 < stopped[1] < target[1] - 0.02
         time.sleep(0.05)
         assert np.allclose(receive.getActualTCPPose(), stopped)  # at rest
-    finally:
-        control.stopScript()
-        control.disconnect()
-        receive.disconnect()
 
 
 def test_inverse_kinematics_and_safety_limits(start_fake: StartFake) -> None:
     fake = start_fake()
-    control = rtde_control.RTDEControlInterface(fake.address)
-    try:
+    with control_interface(fake.address) as control:
         q = np.array([0.3, -1.2, 1.4, -1.8, -1.5, 0.4])
         pose = matrix_to_pose(forward_kinematics(q)).tolist()
         solution = control.getInverseKinematics(pose, q.tolist())
@@ -108,36 +90,24 @@ def test_inverse_kinematics_and_safety_limits(start_fake: StartFake) -> None:
         assert not control.isPoseWithinSafetyLimits(far)
         assert not control.getInverseKinematicsHasSolution(far)
         assert control.isProgramRunning()
-    finally:
-        control.stopScript()
-        control.disconnect()
 
 
+@pytest.mark.slow
 def test_second_and_third_connection_after_disconnect(start_fake: StartFake) -> None:
     fake = start_fake()
     for attempt in range(3):
-        control = rtde_control.RTDEControlInterface(fake.address)
-        assert control.isProgramRunning()
-        q = np.array(DEFAULT_START_Q_RAD)
-        q[0] = 0.05 * (attempt + 1)
-        assert control.moveJ(q.tolist(), 1.0, 2.0)
-        if attempt == 0:
-            control.disconnect()  # leaves the control script running: next ctor kills it
-        else:
-            control.stopScript()
-            assert not control.isProgramRunning()
-            control.disconnect()
+        # The first disconnect leaves the script running: the next constructor kills it.
+        with control_interface(fake.address, stop_script=attempt > 0) as control:
+            assert control.isProgramRunning()
+            q = np.array(DEFAULT_START_Q_RAD)
+            q[0] = 0.05 * (attempt + 1)
+            assert control.moveJ(q.tolist(), 1.0, 2.0)
 
 
 def test_second_control_interface_while_connected_is_refused(start_fake: StartFake) -> None:
     fake = start_fake()
-    control = rtde_control.RTDEControlInterface(fake.address)
-    try:
-        with pytest.raises(RuntimeError, match="already in use"):
-            rtde_control.RTDEControlInterface(fake.address)
-    finally:
-        control.stopScript()
-        control.disconnect()
+    with control_interface(fake.address), pytest.raises(RuntimeError, match="already in use"):
+        rtde_control.RTDEControlInterface(fake.address)
 
 
 def test_local_control_refuses_the_control_interface(start_fake: StartFake) -> None:
@@ -146,24 +116,36 @@ def test_local_control_refuses_the_control_interface(start_fake: StartFake) -> N
         rtde_control.RTDEControlInterface(fake.address)
 
 
+@pytest.mark.slow
 def test_several_fakes_side_by_side(start_fake: StartFake) -> None:
     fakes = [start_fake() for _ in range(3)]
     assert len({fake.address for fake in fakes}) == 3
-    controls = [rtde_control.RTDEControlInterface(fake.address) for fake in fakes]
-    receives = [rtde_receive.RTDEReceiveInterface(fake.address) for fake in fakes]
-    try:
+    with ExitStack() as stack:
+        controls = [stack.enter_context(control_interface(fake.address)) for fake in fakes]
+        targets = []
         for k, control in enumerate(controls):
             q = np.array(DEFAULT_START_Q_RAD)
             q[0] = 0.1 * (k + 1)
+            targets.append(q)
             assert control.moveJ(q.tolist(), 1.05, 1.4, True)
-        time.sleep(0.05)
-        for k, (control, receive) in enumerate(zip(controls, receives, strict=True)):
-            while control.getAsyncOperationProgress() >= 0:
-                time.sleep(0.01)
-            assert receive.getActualQ()[0] == pytest.approx(0.1 * (k + 1))
+        for control, q in zip(controls, targets, strict=True):
+            assert eventually(lambda c=control: c.getAsyncOperationProgress() < 0)
+            # getForwardKinematics() without arguments: the TCP pose of the current joints.
+            expected = matrix_to_pose(forward_kinematics(q))
+            assert np.allclose(control.getForwardKinematics(), expected, atol=1e-9)
+
+
+def test_upper_range_registers(start_fake: StartFake) -> None:
+    fake = start_fake()
+    flags = int(rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT) | int(
+        rtde_control.RTDEControlInterface.FLAG_UPPER_RANGE_REGISTERS)
+    control = rtde_control.RTDEControlInterface(fake.address, 500.0, flags)
+    try:
+        q = np.array(DEFAULT_START_Q_RAD)
+        q[0] = 0.2
+        assert control.moveJ(q.tolist(), 2.0, 8.0)
+        pose = matrix_to_pose(forward_kinematics(q)).tolist()
+        assert np.allclose(control.getInverseKinematics(pose), q, atol=1e-8)
     finally:
-        for control in controls:
-            control.stopScript()
-            control.disconnect()
-        for receive in receives:
-            receive.disconnect()
+        control.stopScript()
+        control.disconnect()

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import itertools
 import struct
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from fakes.ur_controller import rtde_protocol as rp
 
@@ -50,3 +53,21 @@ def test_recipe_packs_standard_sizes_and_pads_short_input() -> None:
 
 def test_version_reply_is_four_big_endian_uint32() -> None:
     assert rp.version_reply((5, 11, 6, 108949)) == struct.pack(">IIII", 5, 11, 6, 108949)
+
+
+@given(payloads=st.lists(st.binary(max_size=300), max_size=8),
+       cuts=st.lists(st.integers(0, 3000), max_size=10))
+def test_framing_is_independent_of_how_the_stream_is_cut(payloads: list[bytes], cuts: list[int]) -> None:
+    wire = b"".join(rp.encode_message(rp.DATA_PACKAGE, payload) for payload in payloads)
+    bounds = sorted({0, len(wire), *(c for c in cuts if c < len(wire))})
+    framer = rp.MessageFramer()
+    received = [m for a, b in itertools.pairwise(bounds) for m in framer.feed(wire[a:b])]
+    assert received == [(rp.DATA_PACKAGE, payload) for payload in payloads]
+
+
+@given(q=st.lists(st.floats(allow_nan=False, width=64), min_size=6, max_size=6),
+       mode=st.integers(-(2**31), 2**31 - 1), bits=st.integers(0, 2**32 - 1))
+def test_recipe_round_trip(q: list[float], mode: int, bits: int) -> None:
+    recipe = rp.Recipe(["actual_q", "robot_mode", "safety_status_bits"], ["VECTOR6D", "INT32", "UINT32"])
+    values = recipe.unpack(recipe.pack({"actual_q": q, "robot_mode": mode, "safety_status_bits": bits}))
+    assert values == {"actual_q": tuple(q), "robot_mode": mode, "safety_status_bits": bits}

@@ -23,7 +23,7 @@ from lasercal_hw.errors import (
     TransportError,
 )
 from lasercal_hw.geometry import matrix_to_pose
-from tests.ur.conftest import StartFake
+from tests.ur.conftest import StartFake, eventually
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
 
@@ -69,6 +69,18 @@ def test_moves_reach_targets_and_limits_are_enforced(start_fake: StartFake) -> N
         assert np.allclose(robot.joint_positions_rad(), q, atol=1e-9)  # nothing moved
 
 
+def test_read_only_connection_leaves_the_program_alone(start_fake: StartFake) -> None:
+    fake = start_fake()
+    with URRobot.connect(fake.address, control=False) as robot:
+        assert not robot.state().program_running
+        assert np.allclose(robot.tcp_pose(), START_POSE, atol=1e-9)
+        with pytest.raises(RobotError, match="read-only"):
+            robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.0)
+        with pytest.raises(RobotError, match="read-only"):
+            robot.inverse_kinematics(START_POSE)
+        robot.stop()  # nothing to stop, no error
+
+
 def test_reachability_and_safety_checks(start_fake: StartFake) -> None:
     fake = start_fake()
     with URRobot.connect(fake.address) as robot:
@@ -82,6 +94,10 @@ def test_reachability_and_safety_checks(start_fake: StartFake) -> None:
         assert robot.inverse_kinematics(unreachable) is None
         assert not robot.is_within_safety_limits(unreachable)
         assert robot.state().program_running
+        with pytest.raises(RobotError, match="control program on the robot has stopped"):
+            robot.move_linear(unreachable, 0.25, 1.2)
+        with pytest.raises(RobotError, match="control program stopped earlier"):
+            robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.0)
 
 
 class _RecordingControl:
@@ -100,8 +116,10 @@ class _RecordingControl:
         return attribute
 
 
-def test_protective_stop_mid_move_raises_at_once_and_never_resumes(start_fake: StartFake) -> None:
-    fake = start_fake("--protective-stop-at-move", "2", "--unlock-delay-s", "0")
+@pytest.mark.parametrize("version", ["5.11", "3.15"])
+def test_protective_stop_mid_move_raises_at_once_and_never_resumes(start_fake: StartFake,
+                                                                   version: str) -> None:
+    fake = start_fake("--protective-stop-at-move", "2", "--version", version)
     with URRobot.connect(fake.address) as robot:
         recorder = _RecordingControl(robot._control)
         robot._control = recorder
@@ -145,6 +163,18 @@ def _open_fds() -> int:
     return len(os.listdir("/proc/self/fd"))
 
 
+def _established_with(address: str) -> int:
+    """Established TCP connections to or from ``address`` on this host (/proc/net/tcp)."""
+    hex_address = "".join(f"{int(octet):02X}" for octet in reversed(address.split(".")))
+    count = 0
+    with open("/proc/net/tcp") as table:
+        for row in list(table)[1:]:
+            local, remote, state = row.split()[1:4]
+            if state == "01" and hex_address in (local.split(":")[0], remote.split(":")[0]):
+                count += 1
+    return count
+
+
 def _children() -> set[str]:
     path = f"/proc/{os.getpid()}/task/{os.getpid()}/children"
     with open(path) as handle:
@@ -157,13 +187,19 @@ def test_ten_moves_leave_no_socket_or_process_behind(start_fake: StartFake) -> N
     children_before = _children()
     fds_before = _open_fds()
     threads_before = len(os.listdir("/proc/self/task"))
-    robot = URRobot.connect(fake.address)
-    for k in range(10):
-        q = np.array(DEFAULT_START_Q_RAD)
-        q[0] = 0.05 * ((k % 2) * 2 - 1)
-        robot.move_joint(q, 1.05, 1.4)
-    robot.close()
+    fast = MotionLimits(max_joint_speed_rad_s=3.0, max_joint_accel_rad_s2=20.0)
+    robot = URRobot.connect(fake.address, fast)
+    try:
+        for k in range(10):
+            q = np.array(DEFAULT_START_Q_RAD)
+            q[0] = 0.02 * ((k % 2) * 2 - 1)
+            robot.move_joint(q, 3.0, 20.0)
+        # Both ends of: dashboard, receive RTDE, control RTDE, script, control's own dashboard.
+        assert _established_with(fake.address) == 2 * 5
+    finally:
+        robot.close()
     robot.close()  # safe twice
+    assert eventually(lambda: _established_with(fake.address) == 0)
     assert _open_fds() == fds_before
     assert _children() == children_before
     assert len(os.listdir("/proc/self/task")) <= threads_before
@@ -171,6 +207,7 @@ def test_ten_moves_leave_no_socket_or_process_behind(start_fake: StartFake) -> N
         robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.0)
 
 
+@pytest.mark.slow
 def test_robot_info_cli_prints_the_pose(start_fake: StartFake) -> None:
     fake = start_fake()
     result = subprocess.run(
@@ -183,11 +220,15 @@ def test_robot_info_cli_prints_the_pose(start_fake: StartFake) -> None:
     assert np.allclose(document["tcp_pose"], START_POSE, atol=1e-6)
     assert document["identity"]["serial_number"] == "20185500042"
     assert document["state"]["robot_mode"] == "RUNNING"
+    assert document["state"]["program_running"] is False  # read-only: no control script uploaded
     text = subprocess.run(
         [sys.executable, "-m", "lasercal_hw.cli.main", "robot", "info", "--robot", fake.address],
         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
     )
-    assert text.returncode == 0 and "TCP pose" in text.stdout
+    assert text.returncode == 0, text.stderr
+    pose_line = next(line for line in text.stdout.splitlines() if line.startswith("TCP pose [m, rad]: "))
+    printed = [float(v) for v in pose_line.split(": ", 1)[1].split(",")]
+    assert np.allclose(printed, START_POSE, atol=1e-6)
 
 
 def test_frozen_stream_during_a_move_raises_timeout_and_refuses_motion(start_fake: StartFake) -> None:
@@ -201,6 +242,7 @@ def test_frozen_stream_during_a_move_raises_timeout_and_refuses_motion(start_fak
             robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.4)
 
 
+@pytest.mark.slow
 def test_protective_stop_can_be_unlocked_and_a_new_connection_moves_again(start_fake: StartFake) -> None:
     fake = start_fake("--protective-stop-at-move", "1", "--unlock-delay-s", "0")
     q = np.array(DEFAULT_START_Q_RAD)
@@ -235,12 +277,19 @@ robot.close()
 """
 
 
-def test_dropped_connection_during_a_move_surfaces_as_an_error(start_fake: StartFake) -> None:
-    # ur_rtde 1.6.5 reconnects by itself after a drop and has crashed its process
-    # afterwards, so the client runs in a child process of its own.
+def test_dropped_connection_during_a_move_never_passes_as_success(start_fake: StartFake) -> None:
+    # After a drop, ur_rtde 1.6.5 reconnects from its own threads, and those threads often
+    # crash the process (SIGSEGV) within a second, whatever the client does (seen even
+    # without any further call). So the client runs in a child process of its own, and
+    # the test asks for what the driver can promise: the move never reports success, and
+    # when the process lives long enough to report, it reports a device error.
     fake = start_fake("--drop-at-move", "2")
     result = subprocess.run([sys.executable, "-c", _DROP_SCRIPT.format(address=fake.address)],
                             capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
     lines = [line for line in result.stdout.splitlines() if line.startswith(("ERROR", "NO ERROR"))]
-    assert lines, result.stdout + result.stderr
-    assert lines[0].split()[1] in {"RobotError", "TransportError", "DeviceTimeoutError"}, lines[0]
+    assert not any(line.startswith("NO ERROR") for line in lines), lines
+    if result.returncode == 0 or lines:
+        assert lines, result.stdout + result.stderr
+        assert lines[0].split()[1] in {"RobotError", "TransportError", "DeviceTimeoutError"}, lines[0]
+    else:
+        assert result.returncode == -11, result.stderr  # ur_rtde's crash, nothing else
