@@ -88,7 +88,9 @@ def test_empty_ik_answer_counts_as_unreachable() -> None:
 
 
 def test_duplicate_indices_are_reported() -> None:
-    report = check_waypoints([wp(0, 0.45, -0.2, 0.35), wp(0, 0.5, 0.1, 0.4)], inverse_kinematics=inverse_kinematics_pose)
+    report = check_waypoints(
+        [wp(0, 0.45, -0.2, 0.35), wp(0, 0.5, 0.1, 0.4)], inverse_kinematics=inverse_kinematics_pose
+    )
     assert [str(p) for p in report.problems] == ["waypoint 0: duplicate waypoint index"]
 
 
@@ -104,5 +106,5 @@ def test_require_raises_config_error_listing_all_failures() -> None:
 
 
 def test_workspace_box_must_be_ordered() -> None:
-    with pytest.raises(ValidationError, match="z: min 0.5 m must be below max 0.2 m"):
+    with pytest.raises(ValidationError, match=r"z: min 0\.5 m must be below max 0\.2 m"):
         WorkspaceBox(min_m=(0.0, 0.0, 0.5), max_m=(1.0, 1.0, 0.2))

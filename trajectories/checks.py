@@ -112,6 +112,7 @@ def check_waypoints(
     solutions: dict[int, FloatArray] = {}
     seen: set[int] = set()
     for waypoint in waypoints:
+
         def problem(reason: str, w: Waypoint = waypoint) -> None:
             problems.append(WaypointProblem(w.index, w.label, reason))
 
@@ -122,7 +123,9 @@ def check_waypoints(
         for reason in box.violations(pose[:3], "TCP"):
             problem(reason)
         if rod is not None:
-            rod_ends = np.array([rod.origin_m, np.asarray(rod.origin_m) + rod.length_m * rod.unit_direction()])
+            rod_ends = np.array(
+                [rod.origin_m, np.asarray(rod.origin_m) + rod.length_m * rod.unit_direction()]
+            )
             ends_base = transform_points(waypoint.matrix(), rod_ends)
             for name, end in zip(("rod start", "rod end"), ends_base, strict=True):
                 for reason in box.violations(end, name):

@@ -95,12 +95,16 @@ def parse_semicircle_parameters(data: object, source: str = "trajectory") -> Sem
         raise ConfigError(f"{source}: invalid semicircle parameters: {problems}") from None
 
 
-def _tilts_deg(params: SemicircleParameters, arc: int, count: int, first_index: int,
-               rng: np.random.Generator | None) -> list[tuple[float, float]]:
+def _tilts_deg(
+    params: SemicircleParameters, arc: int, count: int, first_index: int, rng: np.random.Generator | None
+) -> list[tuple[float, float]]:
     """(magnitude, direction) of the tool tilt for each waypoint of one arc."""
     if rng is None:
         return [
-            (params.tilt_deg, (TILT_DIRECTION_STEP_DEG * (first_index + k) + ARC_TILT_OFFSET_DEG * arc) % 360.0)
+            (
+                params.tilt_deg,
+                (TILT_DIRECTION_STEP_DEG * (first_index + k) + ARC_TILT_OFFSET_DEG * arc) % 360.0,
+            )
             for k in range(count)
         ]
     return [
@@ -142,8 +146,13 @@ def semicircle_waypoints(params: SemicircleParameters, rod: RodLine | None = Non
             ]
             rotation = tool_orientation(params.tool_yaw_deg, tilt_deg, tilt_dir_deg)
             pose = matrix_to_pose(make_transform(rotation, position))
-            label = f"arc {arc + 1} at {angle_deg:+.0f} deg, tilt {tilt_deg:.1f} deg toward {tilt_dir_deg:.1f} deg"
-            waypoints.append(Waypoint(index=len(waypoints), tcp_pose=tuple(float(v) for v in pose), label=label))
+            label = (
+                f"arc {arc + 1} at {angle_deg:+.0f} deg, "
+                f"tilt {tilt_deg:.1f} deg toward {tilt_dir_deg:.1f} deg"
+            )
+            waypoints.append(
+                Waypoint(index=len(waypoints), tcp_pose=tuple(float(v) for v in pose), label=label)
+            )
     if params.scan_plane_z_m is not None:
         _require_plane_crossings(waypoints, rod or RodLine(), params.scan_plane_z_m)
     logger.debug("generated %d semicircle waypoints", len(waypoints))

@@ -63,9 +63,7 @@ def _number(value: object, where: str, name: str) -> float:
     if not math.isfinite(number):
         raise ConfigError(f"{where}: field {name!r} must be finite, got {value!r}")
     if name in ("x", "y", "z") and abs(number) > _MAX_POSITION_M:
-        raise ConfigError(
-            f"{where}: field {name!r} = {number} m is implausibly far; positions are in metres"
-        )
+        raise ConfigError(f"{where}: field {name!r} = {number} m is implausibly far; positions are in metres")
     return number
 
 
@@ -118,11 +116,16 @@ def parse_waypoints_csv(text: str, source: str = "waypoints.csv") -> list[Waypoi
     for line, row in rows[1:]:
         where = f"{source} line {line}"
         if len(row) != len(columns):
-            raise ConfigError(f"{where}: expected {len(columns)} fields ({','.join(columns)}), got {len(row)}")
+            raise ConfigError(
+                f"{where}: expected {len(columns)} fields ({','.join(columns)}), got {len(row)}"
+            )
         cells = {name: cell.strip() for name, cell in zip(columns, row, strict=True)}
         pose = tuple(_number(cells[name], where, name) for name in POSE_FIELDS)
         parsed.append(
-            (where, Waypoint(index=_index(cells["index"], where), tcp_pose=pose, label=cells.get("label", "")))
+            (
+                where,
+                Waypoint(index=_index(cells["index"], where), tcp_pose=pose, label=cells.get("label", "")),
+            )
         )
     return _finish(parsed, source)
 
@@ -135,10 +138,14 @@ def parse_waypoints_toml(text: str, source: str = "waypoints.toml") -> list[Wayp
         raise ConfigError(f"{source}: not valid TOML: {exc}") from None
     unknown_keys = sorted(set(document) - {"waypoints"})
     if unknown_keys:
-        raise ConfigError(f"{source}: unknown top-level key(s) {', '.join(unknown_keys)}; expected [[waypoints]]")
+        raise ConfigError(
+            f"{source}: unknown top-level key(s) {', '.join(unknown_keys)}; expected [[waypoints]]"
+        )
     entries = document.get("waypoints")
     if not isinstance(entries, list):
-        raise ConfigError(f"{source}: expected an array of tables [[waypoints]] with pose = [x, y, z, rx, ry, rz]")
+        raise ConfigError(
+            f"{source}: expected an array of tables [[waypoints]] with pose = [x, y, z, rx, ry, rz]"
+        )
     parsed: list[tuple[str, Waypoint]] = []
     for position, entry in enumerate(entries):
         where = f"{source} waypoints[{position}]"
