@@ -46,6 +46,11 @@ def _root(
     )
 
 
+from lasercal_hw.cli.trajectory import trajectory_app  # noqa: E402
+
+app.add_typer(trajectory_app, name="trajectory")
+
+
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
     try:
