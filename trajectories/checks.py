@@ -23,7 +23,7 @@ from trajectories.waypoint import Waypoint
 logger = logging.getLogger(__name__)
 
 #: ``inverse_kinematics(pose) -> q or None``: joint angles reaching the UR pose vector.
-InverseKinematics = Callable[[FloatArray], "FloatArray | Sequence[float] | None"]
+InverseKinematics = Callable[[FloatArray], FloatArray | Sequence[float] | None]
 #: ``within_safety_limits(pose) -> bool``: the controller's (or a model's) safety verdict.
 SafetyCheck = Callable[[FloatArray], bool]
 
