@@ -74,11 +74,11 @@ _DOMAIN_SLACK = 1e-9
 _WRIST_SINGULAR_SIN = 1e-7
 
 
-def _dh_transforms(theta: FloatArray, dh: DHParameters) -> FloatArray:
-    """Link transforms (..., 6, 4, 4) for joint angles (..., 6)."""
-    d = np.asarray(dh.d_m)
-    a = np.asarray(dh.a_m)
-    alpha = np.asarray(dh.alpha_rad)
+def _link_transforms(theta: ArrayLike, d_m: ArrayLike, a_m: ArrayLike, alpha_rad: ArrayLike) -> FloatArray:
+    """``Rz(theta) Tz(d) Tx(a) Rx(alpha)`` (..., 4, 4), broadcasting over all arguments."""
+    theta, d, a, alpha = np.broadcast_arrays(
+        *(np.asarray(v, dtype=float) for v in (theta, d_m, a_m, alpha_rad))
+    )
     ct, st = np.cos(theta), np.sin(theta)
     ca, sa = np.cos(alpha), np.sin(alpha)
     zero = np.zeros_like(theta)
@@ -86,10 +86,15 @@ def _dh_transforms(theta: FloatArray, dh: DHParameters) -> FloatArray:
     rows = [
         np.stack([ct, -st * ca, st * sa, a * ct], axis=-1),
         np.stack([st, ct * ca, -ct * sa, a * st], axis=-1),
-        np.stack([zero, sa * one, ca * one, d * one], axis=-1),
+        np.stack([zero, sa, ca, d], axis=-1),
         np.stack([zero, zero, zero, one], axis=-1),
     ]
     return np.stack(rows, axis=-2)
+
+
+def _dh_transforms(theta: FloatArray, dh: DHParameters) -> FloatArray:
+    """Link transforms (..., 6, 4, 4) for joint angles (..., 6)."""
+    return _link_transforms(theta, dh.d_m, dh.a_m, dh.alpha_rad)
 
 
 def _tcp_matrix(tcp_offset_pose: ArrayLike | None) -> FloatArray | None:
@@ -127,7 +132,7 @@ def _safe_acos(x: float) -> float | None:
 
 
 def _single_link(theta: float, i: int, dh: DHParameters) -> FloatArray:
-    return _dh_transforms(np.full(6, theta), dh)[i]
+    return _link_transforms(theta, dh.d_m[i], dh.a_m[i], dh.alpha_rad[i])
 
 
 def _candidate_solutions(flange: FloatArray, theta6_free: float, dh: DHParameters) -> list[FloatArray]:
