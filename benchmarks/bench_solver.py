@@ -12,6 +12,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -32,8 +33,11 @@ SIZES = {20: 60, 75: 60, 1_000: 10, 10_000: 5}
 PAPER_REPEATS = {20: 20, 75: 20, 1_000: 3, 10_000: 1}
 
 
-def _run(points: int, repeats: int, formulation: str, seed: int) -> tuple[float, float, float, int]:
-    """Median solve time (s), RMS translation and rotation error over the CRB, non-converged count."""
+def _run(
+    points: int, repeats: int, formulation: str, seed: int, outlier_m: float = 0.0
+) -> tuple[float, float, float, int]:
+    """Median solve time (s), RMS translation and rotation error over the CRB, non-converged
+    count; with ``outlier_m`` one centre per data set is moved that far along u."""
     protocol = Protocol(points=points)
     truth = paper_ground_truth()
     rod = RodLine()
@@ -42,6 +46,8 @@ def _run(points: int, repeats: int, formulation: str, seed: int) -> tuple[float,
     times, sq_t, sq_r, crb_t, crb_r, failed = [], [], [], [], [], 0
     for _ in range(repeats):
         obs, poses = simulate_observations(truth, rod, protocol, rng)
+        if outlier_m:
+            obs[0] = dataclasses.replace(obs[0], centre_uv_m=obs[0].centre_uv_m + np.array([outlier_m, 0.0]))
         start = time.perf_counter()
         result = solve(obs, rod, options=options, formulation=formulation)  # type: ignore[arg-type]
         times.append(time.perf_counter() - start)
@@ -62,7 +68,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="fewer repeats")
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
-    console = Console()
+    console = Console(width=150)
     table = Table(title="lasercal solver benchmark (one core, paper protocol, 10 mm / 1 mm noise)")
     for name in (
         "waypoints", "ours median", "ours RMS/CRB t, r", "paper median", "paper RMS/CRB t, r",
@@ -85,6 +91,14 @@ def main() -> None:
         )
         console.print(f"done {points} waypoints")
     console.print(table)
+    outliers = Table(title="Same data with one centre moved 20 cm (75 waypoints)")
+    for name in ("formulation", "RMS/CRB translation", "RMS/CRB rotation", "median time"):
+        outliers.add_column(name, justify="right")
+    repeats = 10 if args.quick else 40
+    for formulation in ("ours", "paper"):
+        seconds, ratio_t, ratio_r, _ = _run(75, repeats, formulation, args.seed, outlier_m=0.2)
+        outliers.add_row(formulation, f"{ratio_t:.2f}", f"{ratio_r:.2f}", f"{seconds * 1e3:.1f} ms")
+    console.print(outliers)
     console.print(
         "ours = robust mode (default): linear start, Huber loss with chi-square rejection, final LM; "
         "RMS/CRB = RMS error over the Cramér-Rao bound (t: translation, r: ZYX angles; 1.00 is efficient)"

@@ -184,7 +184,7 @@ def monte_carlo(
     failures = 0
     for trial in range(trials):
         observations, poses = simulate_observations(truth, rod, protocol, rng)
-        result = solve(observations, rod, robust=False, options=options, formulation=formulation)  # type: ignore[arg-type]
+        result = solve(observations, rod, options=options, formulation=formulation)  # type: ignore[arg-type]
         crb = crb_covariance(truth, poses, rod, protocol)
         crbs.append(crb)
         crb_draws.append(crb_rng.multivariate_normal(np.zeros(6), crb, _CRB_DRAWS_PER_TRIAL))

@@ -448,16 +448,14 @@ def _result(
     crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
     delta_mm = np.nan_to_num((data.centres - crossing) * 1e3, nan=1e12, posinf=1e12, neginf=-1e12)
     norm_mm = np.linalg.norm(delta_mm, axis=1)
-    residuals = [
-        WaypointResidual.model_construct(  # values computed here, validation would cost 10 us each
-            index=int(data.index[i]),
-            du_mm=float(delta_mm[i, 0]),
-            dv_mm=float(delta_mm[i, 1]),
-            norm_mm=float(norm_mm[i]),
-            whitened_norm=_finite(np.sqrt(m2[i])),
-            used=bool(used[i]),
-        )
-        for i in range(len(data.index))
+    whitened_norm = np.nan_to_num(np.sqrt(m2), posinf=1e12)
+    columns = zip(
+        data.index.tolist(), delta_mm[:, 0].tolist(), delta_mm[:, 1].tolist(), norm_mm.tolist(),
+        whitened_norm.tolist(), used.tolist(), strict=True,
+    )
+    residuals = [  # values computed here: skip validation (10k waypoints would cost ~50 ms)
+        WaypointResidual.model_construct(index=i, du_mm=du, dv_mm=dv, norm_mm=nm, whitened_norm=wn, used=u)
+        for i, du, dv, nm, wn, u in columns
     ]
     transform = make_transform(rotation, translation)
     options = opts.model_dump()
