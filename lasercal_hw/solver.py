@@ -129,7 +129,14 @@ def solve(
         rotation, translation, used, evaluations = _fit(rotation, translation, data, usable, robust, opts)
         outliers += _rejected(rotation, translation, data, usable & ~used, opts)
         converged, message = True, "converged"
-    result = _result(rotation, translation, data, used, outliers, opts, robust)
+    try:
+        result = _result(rotation, translation, data, used, outliers, opts, robust)
+    except DegenerateDataError as exc:
+        if opts.formulation != "paper":
+            raise
+        raise CalibrationError(
+            f"the paper formulation ended at an unusable pose ({message}; {evaluations} evaluations): {exc}"
+        ) from exc
     result.provenance.converged = converged
     result.provenance.iterations = evaluations
     result.provenance.message = message
@@ -433,6 +440,11 @@ def _result(
     dof = 2 * int(used.sum()) - 6
     reduced = float(m2[used].sum() / dof) if dof > 0 else 1.0
     covariance = crb * reduced
+    if reduced > 4.0:
+        observability.notes.append(
+            f"residuals are {np.sqrt(reduced):.1f} times the stated noise (reduced chi-square "
+            f"{reduced:.1f}): the centre sigma is too small, or the rod axis definition or TCP poses are off"
+        )
     euler_map = np.linalg.inv(euler_zyx_axes(*matrix_to_euler_zyx(rotation)[:2]))
 
     def std_parts(cov: FloatArray) -> tuple[list[float], list[float], list[float]]:
