@@ -235,7 +235,8 @@ def _fit(
     robust: bool,
     opts: SolverOptions,
 ) -> tuple[FloatArray, FloatArray, np.ndarray, int]:
-    """Robust refinement with iterated rejection, then plain least squares on the inliers."""
+    """Robust refinement with iterated rejection, then plain least squares on the inliers
+    (weights re-evaluated at the robust estimate, so the answer does not depend on the path)."""
     used = usable.copy()
     evaluations = 0
     threshold = chi2.ppf(opts.outlier_confidence, 2)
@@ -244,8 +245,7 @@ def _fit(
         for _ in range(opts.max_rejection_rounds):
             rotation, translation, nfev = _refine(rotation, translation, data, used, opts.loss, knee, opts)
             evaluations += nfev
-            whitened = _whitened(rotation, translation, data, opts)
-            m2 = (whitened**2).sum(axis=1)
+            m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
             scale2 = max(1.0, float(np.median(m2[used])) / _MEDIAN_CHI2_2DOF)
             accepted = usable & (m2 <= threshold * scale2)
             if np.array_equal(accepted, used):
@@ -259,10 +259,6 @@ def _fit(
                 f"{opts.max_outlier_fraction:.0%}): the centres or TCP poses are inconsistent; check the rod "
                 "definition (--axis-origin/--axis-direction) and the centre noise (sigma_u, sigma_v)"
             )
-        if np.abs(whitened[used]).max() <= knee:
-            # Every residual of the final set is in the loss's quadratic zone: the robust
-            # optimum is already the least-squares optimum of the inliers.
-            return rotation, translation, used, evaluations
     rotation, translation, nfev = _refine(rotation, translation, data, used, "linear", knee, opts)
     return rotation, translation, used, evaluations + nfev
 
