@@ -472,7 +472,7 @@ def _result(
     ]
     transform = make_transform(rotation, translation)
     options = opts.model_dump()
-    options["robust"] = robust
+    options["robust"] = robust and opts.formulation == "ours"  # the paper's problem has no robust mode
     return CalibrationResult(
         T_base_laser=transform.tolist(),
         T_laser_base=invert_transform(transform).tolist(),

@@ -21,7 +21,7 @@ from lasercal_hw.solver_model import (
     whiten,
     whitening,
 )
-from tests.solver_fixtures import TRUTH, observations, translation_error_mm
+from tests.test_solver_helpers import TRUTH, observations, translation_error_mm
 
 PAPER_OPTIONS = SolverOptions(default_sigma_uv_m=0.01, robot_sigma_m=0.001)
 

@@ -54,7 +54,7 @@ def simulate_command(
     ) as progress:
         task = progress.add_task("trials", total=trials)
         summary = monte_carlo(
-            trials, seed, protocol, formulation=formulation,
+            trials, seed, protocol, formulation="paper" if formulation == "paper" else "ours",
             progress=lambda done: progress.update(task, completed=done),
         )
     if as_json:
