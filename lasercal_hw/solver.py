@@ -143,6 +143,11 @@ def solve(
     result.provenance.iterations = evaluations
     result.provenance.message = message
     result.provenance.solve_time_s = time.perf_counter() - started
+    logger.info(
+        "solved (%s): %d of %d waypoints used, RMS residual %.2f mm, %d evaluations, %.1f ms",
+        opts.formulation, result.waypoints_used, len(observations), result.rms_residual_mm, evaluations,
+        result.provenance.solve_time_s * 1e3,
+    )
     return result
 
 
@@ -248,6 +253,10 @@ def _fit(
             m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
             scale2 = max(1.0, float(np.median(m2[used])) / _MEDIAN_CHI2_2DOF)
             accepted = usable & (m2 <= threshold * scale2)
+            logger.debug(
+                "rejection round: %d of %d accepted (robust scale %.2f)",
+                accepted.sum(), usable.sum(), np.sqrt(scale2),
+            )
             if np.array_equal(accepted, used):
                 break
             used = accepted
