@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -170,7 +171,7 @@ def monte_carlo(
     seed: int,
     protocol: Protocol,
     *,
-    formulation: str = "ours",
+    formulation: Literal["ours", "paper"] = "ours",
     rod: RodLine | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> MonteCarloSummary:
@@ -184,7 +185,7 @@ def monte_carlo(
     failures = 0
     for trial in range(trials):
         observations, poses = simulate_observations(truth, rod, protocol, rng)
-        result = solve(observations, rod, robust=False, options=options, formulation=formulation)  # type: ignore[arg-type]
+        result = solve(observations, rod, options=options, formulation=formulation)
         crb = crb_covariance(truth, poses, rod, protocol)
         crbs.append(crb)
         crb_draws.append(crb_rng.multivariate_normal(np.zeros(6), crb, _CRB_DRAWS_PER_TRIAL))

@@ -71,7 +71,9 @@ class SolverOptions(BaseModel):
 
     formulation: Literal["ours", "paper"] = "ours"
     loss: Literal["huber", "soft_l1", "cauchy"] = Field("huber", description="robust loss in robust mode")
-    loss_scale: float = Field(2.0, gt=0, description="robust loss knee, in whitened units (sigmas)")
+    loss_scale: float | None = Field(
+        None, gt=0, description="robust loss knee in sigmas; default: the outlier limit (3.7 at 99.9 %)"
+    )
     outlier_confidence: float = Field(0.999, gt=0.5, lt=1.0)
     max_rejection_rounds: int = Field(10, ge=1)
     max_outlier_fraction: float = Field(0.3, ge=0.0, lt=1.0)
@@ -129,11 +131,23 @@ def solve(
         rotation, translation, used, evaluations = _fit(rotation, translation, data, usable, robust, opts)
         outliers += _rejected(rotation, translation, data, usable & ~used, opts)
         converged, message = True, "converged"
-    result = _result(rotation, translation, data, used, outliers, opts, robust)
+    try:
+        result = _result(rotation, translation, data, used, outliers, opts, robust)
+    except DegenerateDataError as exc:
+        if opts.formulation != "paper":
+            raise
+        raise CalibrationError(
+            f"the paper formulation ended at an unusable pose ({message}; {evaluations} evaluations): {exc}"
+        ) from exc
     result.provenance.converged = converged
     result.provenance.iterations = evaluations
     result.provenance.message = message
     result.provenance.solve_time_s = time.perf_counter() - started
+    logger.info(
+        "solved (%s): %d of %d waypoints used, RMS residual %.2f mm, %d evaluations, %.1f ms",
+        opts.formulation, result.waypoints_used, len(observations), result.rms_residual_mm, evaluations,
+        result.provenance.solve_time_s * 1e3,
+    )
     return result
 
 
@@ -226,17 +240,23 @@ def _fit(
     robust: bool,
     opts: SolverOptions,
 ) -> tuple[FloatArray, FloatArray, np.ndarray, int]:
-    """Robust refinement with iterated rejection, then plain least squares on the inliers."""
+    """Robust refinement with iterated rejection, then plain least squares on the inliers
+    (weights re-evaluated at the robust estimate, so the answer does not depend on the path)."""
     used = usable.copy()
     evaluations = 0
+    threshold = chi2.ppf(opts.outlier_confidence, 2)
+    knee = opts.loss_scale or float(np.sqrt(threshold))
     if robust:
-        threshold = chi2.ppf(opts.outlier_confidence, 2)
         for _ in range(opts.max_rejection_rounds):
-            rotation, translation, nfev = _refine(rotation, translation, data, used, opts.loss, opts)
+            rotation, translation, nfev = _refine(rotation, translation, data, used, opts.loss, knee, opts)
             evaluations += nfev
-            m2 = _whitened_squared(rotation, translation, data, opts)
+            m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
             scale2 = max(1.0, float(np.median(m2[used])) / _MEDIAN_CHI2_2DOF)
             accepted = usable & (m2 <= threshold * scale2)
+            logger.debug(
+                "rejection round: %d of %d accepted (robust scale %.2f)",
+                accepted.sum(), usable.sum(), np.sqrt(scale2),
+            )
             if np.array_equal(accepted, used):
                 break
             used = accepted
@@ -248,7 +268,7 @@ def _fit(
                 f"{opts.max_outlier_fraction:.0%}): the centres or TCP poses are inconsistent; check the rod "
                 "definition (--axis-origin/--axis-direction) and the centre noise (sigma_u, sigma_v)"
             )
-    rotation, translation, nfev = _refine(rotation, translation, data, used, "linear", opts)
+    rotation, translation, nfev = _refine(rotation, translation, data, used, "linear", knee, opts)
     return rotation, translation, used, evaluations + nfev
 
 
@@ -258,6 +278,7 @@ def _refine(
     data: _Data,
     mask: np.ndarray,
     loss: str,
+    knee: float,
     opts: SolverOptions,
 ) -> tuple[FloatArray, FloatArray, int]:
     """One least-squares run on the masked waypoints, parameterised as a translation
@@ -285,7 +306,7 @@ def _refine(
         jac=lambda x: evaluate(x)[1],
         method="lm" if loss == "linear" else "trf",
         loss=loss,
-        f_scale=opts.loss_scale,
+        f_scale=knee,
         x_scale="jac",
         xtol=1e-12,
         ftol=1e-12,
@@ -293,14 +314,11 @@ def _refine(
     return rotvec_to_matrix(fit.x[3:]) @ rotation0, translation0 + fit.x[:3], int(fit.nfev)
 
 
-def _whitened_squared(
-    rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions
-) -> FloatArray:
-    """Squared Mahalanobis length of every waypoint's residual (N,)."""
+def _whitened(rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions) -> FloatArray:
+    """Whitened residual of every waypoint (N, 2); non-finite ones become infinite."""
     crossing, slope, _ = plane_crossing(rotation, translation, data.origins, data.directions)
     white = whitening(effective_covariance(data.covariance, slope, opts.robot_sigma_m))
-    whitened = whiten_residual(white, crossing - data.centres)
-    return np.nan_to_num((whitened**2).sum(axis=1), nan=np.inf)
+    return np.nan_to_num(whiten_residual(white, crossing - data.centres), nan=np.inf)
 
 
 def _rejected(
@@ -308,7 +326,7 @@ def _rejected(
 ) -> list[Outlier]:
     if not rejected.any():
         return []
-    m2 = _whitened_squared(rotation, translation, data, opts)
+    m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
     crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
     norm_mm = np.linalg.norm(crossing - data.centres, axis=1) * 1e3
     threshold = chi2.ppf(opts.outlier_confidence, 2)
@@ -344,13 +362,6 @@ def _check_observability(
     singular = np.sqrt(np.clip(eigenvalues, 0.0, None))[::-1]
     vectors = vectors[:, ::-1]
     ratio = float(singular[-1] / singular[0]) if singular[0] > 0 else 0.0
-    weakest = _describe_direction(vectors[:, -1], lever_m, translation)
-    notes = [
-        f"weakly observable ({singular[k] / singular[0]:.1e} of the strongest): "
-        f"{_describe_direction(vectors[:, k], lever_m, translation)}"
-        for k in range(6)
-        if singular[0] > 0 and singular[k] / singular[0] < opts.weak_condition_ratio
-    ]
     if not np.isfinite(ratio) or ratio < opts.min_condition_ratio:
         lost = [
             _describe_direction(vectors[:, k], lever_m, translation)
@@ -362,11 +373,17 @@ def _check_observability(
             f"{what} not observable from these waypoints ({stage} singular-value ratio {ratio:.1e}); "
             f"{_advice(vectors[:, -1], rotation, directions, crossing)}"
         )
+    notes = [
+        f"weakly observable ({singular[k] / singular[0]:.1e} of the strongest): "
+        f"{_describe_direction(vectors[:, k], lever_m, translation)}"
+        for k in range(6)
+        if singular[k] / singular[0] < opts.weak_condition_ratio
+    ]
     observability = Observability(
         lever_m=lever_m,
         singular_values=[float(s) for s in singular],
         condition_ratio=ratio,
-        weakest_direction=weakest,
+        weakest_direction=_describe_direction(vectors[:, -1], lever_m, translation),
         notes=notes,
     )
     return fisher, observability
@@ -429,10 +446,15 @@ def _result(
 ) -> CalibrationResult:
     fisher, observability = _check_observability(rotation, translation, data, used, opts, stage="final")
     crb = np.linalg.inv(fisher)
-    m2 = _whitened_squared(rotation, translation, data, opts)
+    m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
     dof = 2 * int(used.sum()) - 6
     reduced = float(m2[used].sum() / dof) if dof > 0 else 1.0
     covariance = crb * reduced
+    if reduced > 4.0:
+        observability.notes.append(
+            f"residuals are {np.sqrt(reduced):.1f} times the stated noise (reduced chi-square "
+            f"{reduced:.1f}): the centre sigma is too small, or the rod axis definition or TCP poses are off"
+        )
     euler_map = np.linalg.inv(euler_zyx_axes(*matrix_to_euler_zyx(rotation)[:2]))
 
     def std_parts(cov: FloatArray) -> tuple[list[float], list[float], list[float]]:
@@ -448,20 +470,18 @@ def _result(
     crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
     delta_mm = np.nan_to_num((data.centres - crossing) * 1e3, nan=1e12, posinf=1e12, neginf=-1e12)
     norm_mm = np.linalg.norm(delta_mm, axis=1)
-    residuals = [
-        WaypointResidual.model_construct(  # values computed here, validation would cost 10 us each
-            index=int(data.index[i]),
-            du_mm=float(delta_mm[i, 0]),
-            dv_mm=float(delta_mm[i, 1]),
-            norm_mm=float(norm_mm[i]),
-            whitened_norm=_finite(np.sqrt(m2[i])),
-            used=bool(used[i]),
-        )
-        for i in range(len(data.index))
+    whitened_norm = np.nan_to_num(np.sqrt(m2), posinf=1e12)
+    columns = zip(
+        data.index.tolist(), delta_mm[:, 0].tolist(), delta_mm[:, 1].tolist(), norm_mm.tolist(),
+        whitened_norm.tolist(), used.tolist(), strict=True,
+    )
+    residuals = [  # values computed here: skip validation (10k waypoints would cost ~50 ms)
+        WaypointResidual.model_construct(index=i, du_mm=du, dv_mm=dv, norm_mm=nm, whitened_norm=wn, used=u)
+        for i, du, dv, nm, wn, u in columns
     ]
     transform = make_transform(rotation, translation)
     options = opts.model_dump()
-    options["robust"] = robust
+    options["robust"] = robust and opts.formulation == "ours"  # the paper's problem has no robust mode
     return CalibrationResult(
         T_base_laser=transform.tolist(),
         T_laser_base=invert_transform(transform).tolist(),

@@ -4,7 +4,8 @@ Unknowns: ZYX Euler angles (yaw, pitch, roll) and translation of ``T_base_laser`
 line parameter gamma_i per waypoint.  Error per waypoint (3D, base frame):
 ``E_i = R (u_i, v_i, 0) + t - (o_i + gamma_i d_i)``; minimise ``sum |E_i|^2`` starting from
 all zeros with bounds t in [-2, 2] m and angles in [-2 pi, 2 pi] (gamma unbounded),
-by scipy's trust-region-reflective method (the paper used Matlab's fmincon).
+by scipy's trust-region-reflective method with a sparse Jacobian (the paper used Matlab's
+fmincon, an interior-point method).
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ from lasercal_hw.solver_model import euler_zyx_axes
 
 TRANSLATION_BOUND_M = 2.0
 ANGLE_BOUND_RAD = 2.0 * np.pi
-_DENSE_LIMIT = 400
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ def solve_paper(
         error = points @ rotation.T + x[3:6] - origins - x[6:, None] * directions
         return error.reshape(-1)
 
-    def jacobian(x: FloatArray) -> FloatArray | sparse.csr_matrix:
+    def jacobian(x: FloatArray) -> sparse.csr_matrix:
         rotation = euler_zyx_to_matrix(x[0], x[1], x[2])
         rotated = points @ rotation.T  # (N, 3)
         axes = euler_zyx_axes(x[0], x[1])  # columns: d R / d angle_k = [axis_k]x R
@@ -60,11 +60,10 @@ def solve_paper(
             pose_block[:, :, k] = np.cross(axes[:, k], rotated)
         pose_block[:, :, 3:] = np.eye(3)
         values = np.concatenate([pose_block.reshape(-1), -directions.reshape(-1)])
-        matrix = sparse.csr_matrix(
+        return sparse.csr_matrix(
             (values, (np.concatenate([pose_rows, rows]), np.concatenate([pose_cols, gamma_cols]))),
             shape=(3 * n, 6 + n),
         )
-        return matrix.toarray() if n <= _DENSE_LIMIT else matrix
 
     lower = np.concatenate([[-ANGLE_BOUND_RAD] * 3, [-TRANSLATION_BOUND_M] * 3, np.full(n, -np.inf)])
     upper = -lower
@@ -76,7 +75,7 @@ def solve_paper(
         method="trf",
         x_scale="jac",
         max_nfev=max_evaluations,
-        tr_solver="exact" if n <= _DENSE_LIMIT else "lsmr",
+        tr_solver="lsmr",  # sparse and iterative: no dense SVD of the (3N, 6+N) Jacobian
     )
     x = fit.x
     return PaperSolution(

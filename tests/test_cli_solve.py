@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from lasercal_hw.observations import write_observations_csv
-from tests.solver_fixtures import TRUTH, observations
+from tests.test_solver_helpers import TRUTH, observations
 
 pytestmark = pytest.mark.integration
 

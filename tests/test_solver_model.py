@@ -14,7 +14,7 @@ from lasercal_hw.solver_model import (
     rod_lines_in_base,
     whitening,
 )
-from tests.solver_fixtures import TRUTH, observations
+from tests.test_solver_helpers import TRUTH, observations
 
 
 def _lines() -> tuple[np.ndarray, np.ndarray, np.ndarray]:

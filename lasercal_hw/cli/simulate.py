@@ -18,9 +18,8 @@ from lasercal_hw.simulate import (
 )
 
 _LABELS = {
-    "x": "|e_x| (mm)", "y": "|e_y| (mm)", "z": "|e_z| (mm)", "xyz": "|e_xyz| (mm)",
-    "rot_x": "|e_rot_x| roll (deg)", "rot_y": "|e_rot_y| pitch (deg)",
-    "rot_z": "|e_rot_z| yaw (deg)", "rot": "|e_rot| (deg)",
+    "x": "|e_x| mm", "y": "|e_y| mm", "z": "|e_z| mm", "xyz": "|e_xyz| mm",
+    "rot_x": "|e_rot_x| deg", "rot_y": "|e_rot_y| deg", "rot_z": "|e_rot_z| deg", "rot": "|e_rot| deg",
 }
 
 
@@ -55,7 +54,7 @@ def simulate_command(
     ) as progress:
         task = progress.add_task("trials", total=trials)
         summary = monte_carlo(
-            trials, seed, protocol, formulation=formulation,
+            trials, seed, protocol, formulation="paper" if formulation == "paper" else "ours",
             progress=lambda done: progress.update(task, completed=done),
         )
     if as_json:
@@ -67,7 +66,7 @@ def simulate_command(
 
 def _print_summary(summary: MonteCarloSummary, formulation: str) -> None:
     table = Table(title=f"Table 1 reproduction: {summary.trials} trials, {formulation} formulation")
-    for name in ("metric", "ours mu", "paper mu", "CRB mu", "ours sigma", "paper sigma", "CRB sigma"):
+    for name in ("metric", "run mu", "paper mu", "CRB mu", "run sigma", "paper sigma", "CRB sigma"):
         table.add_column(name, justify="left" if name == "metric" else "right")
     for key in METRICS:
         table.add_row(
@@ -77,8 +76,8 @@ def _print_summary(summary: MonteCarloSummary, formulation: str) -> None:
         )
     console.print(table)
     console.print(
-        "paper sigma printed in um for translations (probably mm); rotation errors are ZYX angle "
-        "differences; CRB columns: N(0, CRB) draws per trial"
+        "run: this Monte Carlo; paper: Table 1 (its translation sigmas are printed in um, probably mm); "
+        "rot_x, rot_y, rot_z: roll, pitch, yaw (ZYX) angle differences; CRB: N(0, CRB) draws per trial"
     )
     console.print(
         f"RMS translation error {summary.rms_translation_mm:.3f} mm "

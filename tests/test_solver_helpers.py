@@ -1,4 +1,4 @@
-"""Shared helpers for the solver tests: simulated observations of the paper's setup."""
+"""Shared helpers for the solver tests (no tests here): simulated observations of the paper setup."""
 
 from __future__ import annotations
 
