@@ -67,7 +67,9 @@ def bench_decode(repeat: int) -> None:
     assert intensities == vectorised.intensities.tolist()  # type: ignore[union-attr]
 
     number = 200
-    fast = min(timeit.repeat(lambda: decode_scan_lines(lines, request), number=number, repeat=repeat)) / number
+    fast = (
+        min(timeit.repeat(lambda: decode_scan_lines(lines, request), number=number, repeat=repeat)) / number
+    )
     slow = min(timeit.repeat(lambda: plain_python_decode(lines), number=number // 10, repeat=repeat)) / (
         number // 10
     )
@@ -121,16 +123,24 @@ def bench_stream(duration_s: float, link: str) -> None:
     expected = wall / 0.025
     print(f"stream over {link}: {wall:.1f} s, ME 1081 steps with intensities")
     print(f"  scans consumed {count} (expected ~{expected:.0f} at 40 Hz), received {stats.received}")
-    print(f"  dropped {scanner.dropped_scans()} (queue overflow {stats.queue_overflows}, corrupted "
-          f"{stats.corrupted}), reconnects {stats.reconnects}")
-    print(f"  client process CPU {cpu:.2f} s = {100 * cpu / wall:.1f} % of one core "
-          f"({1000 * cpu / max(count, 1):.2f} ms per scan); fake process {100 * fake_cpu / wall:.1f} %")
-    print(f"  host receive - device stamp: median {np.median(lag_ms):.1f} ms, p99 "
-          f"{np.percentile(lag_ms, 99):.1f} ms; clock drift estimate {clock.drift * 1e6:.1f} ppm")
+    print(
+        f"  dropped {scanner.dropped_scans()} (queue overflow {stats.queue_overflows}, corrupted "
+        f"{stats.corrupted}), reconnects {stats.reconnects}"
+    )
+    print(
+        f"  client process CPU {cpu:.2f} s = {100 * cpu / wall:.1f} % of one core "
+        f"({1000 * cpu / max(count, 1):.2f} ms per scan); fake process {100 * fake_cpu / wall:.1f} %"
+    )
+    print(
+        f"  host receive - device stamp: median {np.median(lag_ms):.1f} ms, p99 "
+        f"{np.percentile(lag_ms, 99):.1f} ms; clock drift estimate {clock.drift * 1e6:.1f} ppm"
+    )
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="what", required=True)
     decode = sub.add_parser("decode", help="vectorised vs. plain Python decode of one ME scan")
     decode.add_argument("--repeat", type=int, default=5)
