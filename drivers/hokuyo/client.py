@@ -60,8 +60,8 @@ TAG_SAFE_STATUSES = ("0C", "0D", "0G", "0H")
 
 
 def _echo_matches(received: bytes, expected: bytes) -> bool:
-    # endswith: a message cut short before it can glue its last partial line to the echo
-    return received == expected or received.endswith(b"\n" + expected) or received.endswith(expected)
+    """Exact echo, or one with a stale partial line glued in front (a message cut short)."""
+    return received.endswith(expected)
 
 
 class HokuyoScanner:
