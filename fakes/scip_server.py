@@ -21,11 +21,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import ipaddress
 import logging
 import os
 import select
 import socket
+import struct
+import termios
 import threading
 import time
 import tty
@@ -34,7 +37,7 @@ from dataclasses import dataclass
 from types import TracebackType
 
 from drivers.hokuyo.codec import CommandFramer
-from fakes.scan_scene import RangeSource, RoomScene
+from fakes.scan_scene import RangeSource, RevolutionSource, RoomScene
 from fakes.scip_device import SCAN_PERIOD_S, ScipDevice
 from fakes.scip_faults import FaultInjector, ScipFaults
 from fakes.scip_identity import UTM_30LX_EW, LinkKind, ScipIdentity, SensorState
@@ -94,7 +97,7 @@ class FakeScannerServer:
         port: int = 0,
         *,
         pty: bool = False,
-        source: RangeSource | None = None,
+        source: RangeSource | RevolutionSource | None = None,
         faults: ScipFaults | None = None,
         identity: ScipIdentity = UTM_30LX_EW,
         start_time_ms: int = 0,
@@ -108,7 +111,7 @@ class FakeScannerServer:
         self.address = loopback_host(address)
         self.port = port
         self.use_pty = pty
-        self.source: RangeSource = source if source is not None else RoomScene()
+        self.source: RangeSource | RevolutionSource = source if source is not None else RoomScene()
         self.faults = faults if faults is not None else ScipFaults()
         self.identity = identity
         self.start_time_ms = start_time_ms
@@ -451,6 +454,18 @@ class FakeScannerServer:
             fd = self._link_fd()
         if self._conn is not None:
             self._lose_client()
-        else:
-            self._close_pty()
-            self._out.clear()
+            return
+        idle_checks = 0
+        while self._slave_fd is not None and time.monotonic() < deadline_s and idle_checks < 3:
+            # Let the reader take what was sent: a hang-up discards unread input. The
+            # kernel moves written bytes to the slave asynchronously, so wait for the
+            # queue to read empty several times in a row.
+            idle_checks = 0 if _unread_bytes(self._slave_fd) else idle_checks + 1
+            time.sleep(0.005)
+        self._close_pty()
+        self._out.clear()
+
+
+def _unread_bytes(tty_fd: int) -> int:
+    """Bytes waiting to be read on a terminal."""
+    return struct.unpack("i", fcntl.ioctl(tty_fd, termios.FIONREAD, b"\0\0\0\0"))[0]

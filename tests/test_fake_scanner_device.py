@@ -22,12 +22,15 @@ class ReplaySource:
 
     def __init__(self, ranges: np.ndarray, intensities: np.ndarray) -> None:
         self.ranges = np.asarray(ranges, dtype=np.int64)
-        self.intensities = np.asarray(intensities, dtype=np.int64)
+        self.intensities_all = np.asarray(intensities, dtype=np.int64)
         self.times: list[float] = []
 
-    def ranges_mm(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
         self.times.append(time_s)
-        return self.ranges, self.intensities
+        return self.ranges[step_first : step_last + 1]
+
+    def intensities(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
+        return self.intensities_all[step_first : step_last + 1]
 
 
 def ramp_source() -> ReplaySource:
@@ -114,7 +117,7 @@ def test_me_stream_has_the_captured_message_layout_and_decodes() -> None:
     scan = codec.decode_scan_lines(lines[2:], codec.parse_scan_request(lines[0]))
     assert scan.timestamp_ms == 1025
     np.testing.assert_array_equal(scan.distances_mm, source.ranges)
-    np.testing.assert_array_equal(scan.intensities, source.intensities)
+    np.testing.assert_array_equal(scan.intensities, source.intensities_all)
     assert device.state is SensorState.STREAMING
 
 
@@ -339,7 +342,9 @@ def test_range_source_with_wrong_shape_is_rejected_clearly() -> None:
 
 def test_default_scene_sees_walls_and_the_rod() -> None:
     scene = RoomScene(cylinders=(Cylinder((2.0, 0.0), 0.020),))
-    ranges, intensities = scene.ranges_mm(0.0)
+    ranges, intensities = scene.revolution(0.0)
+    np.testing.assert_array_equal(scene.ranges_mm(500, 599, 0.0), ranges[500:600])
+    np.testing.assert_array_equal(scene.intensities(0, 9, 0.0), intensities[:10])
     assert ranges.shape == (STEP_COUNT,) and intensities.shape == (STEP_COUNT,)
     assert ranges[540] == 1980  # straight ahead: rod surface at 2.0 - 0.02 m
     assert ranges[0] == round(2000 * np.sqrt(2))  # -135 deg: hits the x = -2 m wall first
@@ -347,8 +352,26 @@ def test_default_scene_sees_walls_and_the_rod() -> None:
     rod_beams = np.flatnonzero(ranges < 2100)
     assert 3 <= rod_beams.size <= 8 and rod_beams.min() < 540 < rod_beams.max()
     noisy = RoomScene(noise_mm=10.0, seed=3)
-    first, _ = noisy.ranges_mm(1.0)
-    again, _ = noisy.ranges_mm(1.0)
-    later, _ = noisy.ranges_mm(1.025)
+    first = noisy.ranges_mm(0, 1080, 1.0)
+    again = noisy.ranges_mm(0, 1080, 1.0)
+    later = noisy.ranges_mm(0, 1080, 1.025)
     np.testing.assert_array_equal(first, again)
     assert not np.array_equal(first, later)
+
+
+def test_whole_revolution_sources_are_still_accepted() -> None:
+    class Revolution:
+        calls = 0
+
+        def ranges_mm(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
+            Revolution.calls += 1
+            steps = np.arange(STEP_COUNT)
+            return 2000 + steps, 7 * steps
+
+    device = ScipDevice(Revolution())
+    reply(device, b"BM")
+    lines = reply(device, b"GE0100010901")[:-2].split(b"\n")
+    scan = codec.decode_scan_lines(lines[2:], codec.parse_scan_request(lines[0]))
+    assert scan.distances_mm.tolist() == list(range(2100, 2110))
+    assert scan.intensities is not None and scan.intensities.tolist() == [7 * s for s in range(100, 110)]
+    assert Revolution.calls == 1  # distances and intensities of one scan come from one call
