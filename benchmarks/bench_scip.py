@@ -106,9 +106,12 @@ def bench_stream(duration_s: float, link: str) -> None:
             fake_cpu_start = process_cpu_s(fake.pid)
             lags: list[float] = []
             count = 0
+            first_sequence = last_sequence = -1
             while time.monotonic() - wall_start < duration_s:
                 scan = scanner.next_scan(2.0)
                 lags.append(scan.host_time_s - scan.device_time_s)
+                first_sequence = scan.sequence if count == 0 else first_sequence
+                last_sequence = scan.sequence
                 count += 1
             wall = time.monotonic() - wall_start
             cpu = time.process_time() - cpu_start
@@ -122,7 +125,11 @@ def bench_stream(duration_s: float, link: str) -> None:
     lag_ms = 1000 * np.array(lags)
     expected = wall / 0.025
     print(f"stream over {link}: {wall:.1f} s, ME 1081 steps with intensities")
-    print(f"  scans consumed {count} (expected ~{expected:.0f} at 40 Hz), received {stats.received}")
+    not_sent = last_sequence - first_sequence + 1 - count - scanner.dropped_scans()
+    print(
+        f"  scans consumed {count} (expected ~{expected:.0f} at 40 Hz), received {stats.received}, "
+        f"scan periods the fake did not send (stalls) {not_sent}"
+    )
     print(
         f"  dropped {scanner.dropped_scans()} (queue overflow {stats.queue_overflows}, corrupted "
         f"{stats.corrupted}), reconnects {stats.reconnects}"
