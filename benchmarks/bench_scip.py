@@ -67,7 +67,9 @@ def bench_decode(repeat: int) -> None:
     assert intensities == vectorised.intensities.tolist()  # type: ignore[union-attr]
 
     number = 200
-    fast = min(timeit.repeat(lambda: decode_scan_lines(lines, request), number=number, repeat=repeat)) / number
+    fast = (
+        min(timeit.repeat(lambda: decode_scan_lines(lines, request), number=number, repeat=repeat)) / number
+    )
     slow = min(timeit.repeat(lambda: plain_python_decode(lines), number=number // 10, repeat=repeat)) / (
         number // 10
     )
@@ -104,9 +106,12 @@ def bench_stream(duration_s: float, link: str) -> None:
             fake_cpu_start = process_cpu_s(fake.pid)
             lags: list[float] = []
             count = 0
+            first_sequence = last_sequence = -1
             while time.monotonic() - wall_start < duration_s:
                 scan = scanner.next_scan(2.0)
                 lags.append(scan.host_time_s - scan.device_time_s)
+                first_sequence = scan.sequence if count == 0 else first_sequence
+                last_sequence = scan.sequence
                 count += 1
             wall = time.monotonic() - wall_start
             cpu = time.process_time() - cpu_start
@@ -120,17 +125,29 @@ def bench_stream(duration_s: float, link: str) -> None:
     lag_ms = 1000 * np.array(lags)
     expected = wall / 0.025
     print(f"stream over {link}: {wall:.1f} s, ME 1081 steps with intensities")
-    print(f"  scans consumed {count} (expected ~{expected:.0f} at 40 Hz), received {stats.received}")
-    print(f"  dropped {scanner.dropped_scans()} (queue overflow {stats.queue_overflows}, corrupted "
-          f"{stats.corrupted}), reconnects {stats.reconnects}")
-    print(f"  client process CPU {cpu:.2f} s = {100 * cpu / wall:.1f} % of one core "
-          f"({1000 * cpu / max(count, 1):.2f} ms per scan); fake process {100 * fake_cpu / wall:.1f} %")
-    print(f"  host receive - device stamp: median {np.median(lag_ms):.1f} ms, p99 "
-          f"{np.percentile(lag_ms, 99):.1f} ms; clock drift estimate {clock.drift * 1e6:.1f} ppm")
+    not_sent = last_sequence - first_sequence + 1 - count - scanner.dropped_scans()
+    print(
+        f"  scans consumed {count} (expected ~{expected:.0f} at 40 Hz), received {stats.received}, "
+        f"scan periods the fake did not send (stalls) {not_sent}"
+    )
+    print(
+        f"  dropped {scanner.dropped_scans()} (queue overflow {stats.queue_overflows}, corrupted "
+        f"{stats.corrupted}), reconnects {stats.reconnects}"
+    )
+    print(
+        f"  client process CPU {cpu:.2f} s = {100 * cpu / wall:.1f} % of one core "
+        f"({1000 * cpu / max(count, 1):.2f} ms per scan); fake process {100 * fake_cpu / wall:.1f} %"
+    )
+    print(
+        f"  host receive - device stamp: median {np.median(lag_ms):.1f} ms, p99 "
+        f"{np.percentile(lag_ms, 99):.1f} ms; clock drift estimate {clock.drift * 1e6:.1f} ppm"
+    )
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="what", required=True)
     decode = sub.add_parser("decode", help="vectorised vs. plain Python decode of one ME scan")
     decode.add_argument("--repeat", type=int, default=5)

@@ -11,6 +11,7 @@ plugs in through the same protocol.
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -40,6 +41,42 @@ class RangeSource(Protocol):
     def intensities(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
         """Received-light intensities (18-bit, unitless)."""
         ...
+
+
+class RevolutionSource(Protocol):
+    """The first published form of a source: one call per revolution returning all 1081
+    distances and intensities. Still accepted; ``as_range_source`` adapts it."""
+
+    def ranges_mm(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Distances (mm) and intensities of steps 0..1080 at ``time_s``."""
+        ...
+
+
+class _RevolutionAdapter:
+    """Serves step windows of a ``RevolutionSource`` (one call per scan time)."""
+
+    def __init__(self, source: RevolutionSource) -> None:
+        self._source = source
+        self._last: tuple[float, NDArray[np.int64], NDArray[np.int64]] | None = None
+
+    def _revolution(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        if self._last is None or self._last[0] != time_s:
+            ranges, intensities = self._source.ranges_mm(time_s)
+            self._last = (time_s, np.asarray(ranges, dtype=np.int64), np.asarray(intensities, dtype=np.int64))
+        return self._last[1], self._last[2]
+
+    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
+        return self._revolution(time_s)[0][step_first : step_last + 1]
+
+    def intensities(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
+        return self._revolution(time_s)[1][step_first : step_last + 1]
+
+
+def as_range_source(source: RangeSource | RevolutionSource) -> RangeSource:
+    """``source`` as a ``RangeSource``: a one-argument ``ranges_mm(time_s)`` is wrapped."""
+    if len(inspect.signature(source.ranges_mm).parameters) == 1:
+        return _RevolutionAdapter(source)  # type: ignore[arg-type]
+    return source  # type: ignore[return-value]
 
 
 def beam_angles_rad() -> NDArray[np.float64]:

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.hokuyo import codec
-from fakes.scan_scene import RangeSource
+from fakes.scan_scene import RangeSource, RevolutionSource, as_range_source
 from fakes.scip_identity import UTM_30LX_EW, LinkKind, ScipIdentity, SensorState
 
 logger = logging.getLogger(__name__)
@@ -68,7 +68,7 @@ class ScipDevice:
 
     def __init__(
         self,
-        source: RangeSource,
+        source: RangeSource | RevolutionSource,
         *,
         identity: ScipIdentity = UTM_30LX_EW,
         link: LinkKind = LinkKind.ETHERNET,
@@ -78,7 +78,7 @@ class ScipDevice:
     ) -> None:
         if scan_period_s <= 0:
             raise ValueError("scan_period_s must be positive")
-        self.source = source
+        self.source = as_range_source(source)
         self.identity = identity
         self.link = link
         self.scan_period_s = scan_period_s

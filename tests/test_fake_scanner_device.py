@@ -357,3 +357,21 @@ def test_default_scene_sees_walls_and_the_rod() -> None:
     later = noisy.ranges_mm(0, 1080, 1.025)
     np.testing.assert_array_equal(first, again)
     assert not np.array_equal(first, later)
+
+
+def test_whole_revolution_sources_are_still_accepted() -> None:
+    class Revolution:
+        calls = 0
+
+        def ranges_mm(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
+            Revolution.calls += 1
+            steps = np.arange(STEP_COUNT)
+            return 2000 + steps, 7 * steps
+
+    device = ScipDevice(Revolution())
+    reply(device, b"BM")
+    lines = reply(device, b"GE0100010901")[:-2].split(b"\n")
+    scan = codec.decode_scan_lines(lines[2:], codec.parse_scan_request(lines[0]))
+    assert scan.distances_mm.tolist() == list(range(2100, 2110))
+    assert scan.intensities is not None and scan.intensities.tolist() == [7 * s for s in range(100, 110)]
+    assert Revolution.calls == 1  # distances and intensities of one scan come from one call

@@ -22,7 +22,6 @@ from lasercal_hw.errors import ChecksumError, ProtocolError
 logger = logging.getLogger(__name__)
 
 LF = b"\n"
-CR = b"\r"
 CHAR_OFFSET = 0x30
 """Every encoded character is ``value + 0x30`` (range ``'0'`` .. ``'o'``)."""
 BITS_PER_CHAR = 6
