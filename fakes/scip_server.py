@@ -236,11 +236,9 @@ class FakeScannerServer:
 
     def _close_all(self) -> None:
         self._close_conn()
-        for sock_name in ("_listener",):
-            sock = getattr(self, sock_name)
-            if sock is not None:
-                sock.close()
-                setattr(self, sock_name, None)
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
         self._close_pty()
         for name in ("_wake_r", "_wake_w"):
             fd = getattr(self, name)
