@@ -69,7 +69,6 @@ from lasercal_hw.cli.session import session_app  # noqa: E402
 
 app.add_typer(session_app, name="session")
 
-
 from lasercal_hw.cli.trajectory import trajectory_app  # noqa: E402
 
 app.add_typer(trajectory_app, name="trajectory")
