@@ -80,6 +80,17 @@ def check_poses(
     return problems, solutions
 
 
+def first_clear_pose(
+    robot: Robot, candidates: list[FloatArray], rod: RodLine, workspace: WorkspaceConfig
+) -> FloatArray | None:
+    """The first candidate pose that passes every pose check, or None."""
+    for pose in candidates:
+        problems, _ = check_poses(robot, {"candidate": pose}, rod, workspace)
+        if not problems:
+            return pose
+    return None
+
+
 def run_preflight(
     robot: Robot,
     scanner: Scanner,

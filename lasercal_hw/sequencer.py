@@ -29,7 +29,7 @@ from lasercal_hw.errors import (
 )
 from lasercal_hw.extraction import RodCentre, RodNotFoundError, find_rod_centre
 from lasercal_hw.models import FloatArray, LaserScan, Observation, RodLine
-from lasercal_hw.preflight import PreflightReport, run_preflight
+from lasercal_hw.preflight import PreflightReport, first_clear_pose, rod_end_points_m, run_preflight
 from lasercal_hw.quality import Verdict, evaluate_gates
 from lasercal_hw.result import CalibrationResult
 from lasercal_hw.scan_average import AveragedScan, average_scans
@@ -38,7 +38,8 @@ from lasercal_hw.solver_model import lines_in_scanner, plane_crossing, rod_lines
 
 logger = logging.getLogger(__name__)
 
-RETRACT = "retract pose"
+RETRACT = "retract pose (for the background; see background.pose)"
+NOMINAL_CLEARANCE_M = 0.08
 
 
 class RunRecorder(Protocol):
@@ -171,13 +172,40 @@ def predict_rod(T_base_laser: FloatArray, tcp_pose: FloatArray, rod: RodLine) ->
     return RodPrediction(axis, crossing[0] if on_rod else None)
 
 
-def retract_pose(job: JobConfig, waypoints: FloatArray) -> FloatArray:
-    """Where the background is taken: the configured pose, or the first waypoint lifted."""
+def background_lift_m(job: JobConfig, pose: FloatArray) -> float:
+    """How far to lift a waypoint along base z so that the whole rod is above the scan plane.
+
+    The configured ``background.lift_m`` if any; else, with a nominal scanner mounting, just
+    enough for both rod ends to clear its plane by ``NOMINAL_CLEARANCE_M``; else the rod
+    length plus 5 cm (enough wherever the rod crossed the plane).
+    """
+    if job.background.lift_m is not None:
+        return job.background.lift_m
+    nominal = job.scanner.nominal
+    default_m = job.background_lift_m()
+    if nominal is None:
+        return default_m
+    T_base_laser = nominal.matrix()
+    normal = T_base_laser[:3, 2]
+    if normal[2] < 0.5:  # a scanner on its side: its plane is steep, lifting does not clear it
+        return default_m
+    heights_m = (rod_end_points_m(pose, job.rod.rod_line()) - T_base_laser[:3, 3]) @ normal
+    return max(0.0, (NOMINAL_CLEARANCE_M - float(heights_m.min())) / float(normal[2]))
+
+
+def retract_candidates(job: JobConfig, waypoints: FloatArray) -> list[FloatArray]:
+    """Where the background may be taken, best first: the configured ``background.pose``;
+    else each waypoint lifted clear of the plane, the first waypoint first, then the
+    others nearest the robot base first (a far waypoint lifted may be out of reach)."""
     if job.background.pose is not None:
-        return np.asarray(job.background.pose, dtype=float)
-    pose = np.asarray(waypoints[0], dtype=float).copy()
-    pose[2] += job.background_lift_m()
-    return pose
+        return [np.asarray(job.background.pose, dtype=float)]
+    order = sorted(range(len(waypoints)), key=lambda i: (i != 0, float(np.linalg.norm(waypoints[i][:3]))))
+    candidates = []
+    for i in order:
+        pose = np.asarray(waypoints[i], dtype=float).copy()
+        pose[2] += background_lift_m(job, pose)
+        candidates.append(pose)
+    return candidates
 
 
 def _jsonable(value: Any) -> Any:
@@ -282,7 +310,10 @@ class Sequencer:
 
     def _run(self) -> RunOutcome:
         count = len(self._waypoints)
-        retract = retract_pose(self._job, self._waypoints)
+        candidates = retract_candidates(self._job, self._waypoints)
+        retract = first_clear_pose(self._robot, candidates, self._rod, self._job.workspace)
+        if retract is None:  # preflight lists why the preferred one fails
+            retract = candidates[0]
         self._progress("preflight", f"checking devices and {count} waypoints")
         poses = {RETRACT: retract} | {f"waypoint {i}": w for i, w in enumerate(self._waypoints)}
         report = run_preflight(self._robot, self._scanner, poses, self._rod, self._job.workspace)

@@ -1,55 +1,34 @@
-"""The waypoints of a job: from a waypoint file (CSV of UR poses) or a named preset."""
+"""The waypoints of a job: a named preset (``trajectories.presets``) with optional
+parameter overrides, or a waypoint file (``trajectories.waypoint_file``: CSV or TOML)."""
 
 from __future__ import annotations
 
-import csv
-from pathlib import Path
-
-import numpy as np
-
 from lasercal_hw.config import JobConfig
-from lasercal_hw.errors import ConfigError
+from lasercal_hw.geometry import matrix_to_pose
 from lasercal_hw.models import FloatArray
+from trajectories.presets import get_preset
+from trajectories.semicircles import parse_semicircle_parameters, semicircle_waypoints
+from trajectories.waypoint import Waypoint, waypoint_matrices
+from trajectories.waypoint_file import load_waypoints
 
-WAYPOINT_COLUMNS = ("x", "y", "z", "rx", "ry", "rz")
 
+def job_waypoint_list(job: JobConfig) -> list[Waypoint]:
+    """The waypoints the job visits, in order, with their labels.
 
-def load_waypoints_csv(path: Path) -> FloatArray:
-    """Waypoints (N, 6) from a CSV file of UR poses ``x,y,z,rx,ry,rz`` (m, rotation vector).
-
-    A first row of column names is allowed; blank lines and lines starting with ``#`` are
-    ignored. Errors name the file and the line.
+    ``trajectory.parameters`` override the preset's semicircle parameters field by field;
+    the preset's plane-crossing check uses the job's rod.
     """
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"cannot read waypoint file {path}: {exc.strerror or exc}") from None
-    poses: list[list[float]] = []
-    for line_number, row in enumerate(csv.reader(text.splitlines()), start=1):
-        cells = [cell.strip() for cell in row]
-        if not cells or not any(cells) or cells[0].startswith("#"):
-            continue
-        if not poses and tuple(c.lower() for c in cells) == WAYPOINT_COLUMNS:
-            continue
-        if len(cells) != 6:
-            raise ConfigError(f"{path}:{line_number}: expected 6 values x,y,z,rx,ry,rz, got {len(cells)}")
-        try:
-            pose = [float(cell) for cell in cells]
-        except ValueError:
-            raise ConfigError(f"{path}:{line_number}: not a number in {','.join(cells)!r}") from None
-        if not np.all(np.isfinite(pose)):
-            raise ConfigError(f"{path}:{line_number}: values must be finite")
-        poses.append(pose)
-    if not poses:
-        raise ConfigError(f"{path}: no waypoints in the file")
-    return np.asarray(poses, dtype=float)
+    trajectory = job.trajectory
+    if trajectory.waypoints_file is not None:
+        return load_waypoints(trajectory.waypoints_file)
+    assert trajectory.preset is not None
+    preset = get_preset(trajectory.preset)
+    parameters = parse_semicircle_parameters(
+        preset.parameters.model_dump() | trajectory.parameters, source=f"trajectory preset {preset.name!r}"
+    )
+    return semicircle_waypoints(parameters, job.rod.rod_line())
 
 
 def job_waypoints(job: JobConfig) -> FloatArray:
-    """The waypoints the job visits, in order."""
-    if job.trajectory.waypoints_file is not None:
-        return load_waypoints_csv(job.trajectory.waypoints_file)
-    raise ConfigError(
-        f"trajectory preset {job.trajectory.preset!r} is not available in this build; "
-        "give trajectory.waypoints_file (CSV of x,y,z,rx,ry,rz per line) in the job file"
-    )
+    """The job's waypoints as UR pose vectors (N, 6)."""
+    return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))

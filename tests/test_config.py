@@ -9,7 +9,7 @@ import pytest
 
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.waypoints import load_waypoints_csv
+from lasercal_hw.waypoints import job_waypoint_list, job_waypoints
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
@@ -33,7 +33,7 @@ def test_examples_load(name: str) -> None:
 def test_drill_example_describes_an_offset_tilted_bit() -> None:
     rod = load_job(EXAMPLES / "drill.toml").rod.rod_line()
     assert rod.radius_m == 0.005
-    assert np.allclose(rod.origin_m, [0.0, 0.03, 0.12])
+    assert np.allclose(rod.origin_m, [0.0, 0.03, 0.15])
     tilt_deg = np.degrees(np.arccos(rod.unit_direction() @ [0, 0, 1]))
     assert 0.5 < tilt_deg < 10
 
@@ -77,22 +77,36 @@ def test_preset_and_waypoint_file_are_exclusive(tmp_path: Path) -> None:
 
 def test_waypoint_file_is_relative_to_the_job_file(tmp_path: Path) -> None:
     (tmp_path / "w.csv").write_text(
-        "x,y,z,rx,ry,rz\n0.5,0,0.3,3.14159,0,0\n# comment\n\n0.6,0.1,0.3,3.1,0.1,0\n"
+        "index,x,y,z,rx,ry,rz\n0,0.5,0,0.3,3.14159,0,0\n# comment\n\n1,0.6,0.1,0.3,3.1,0.1,0\n"
     )
     path = tmp_path / "job.toml"
     path.write_text('[trajectory]\nwaypoints_file = "w.csv"\n')
     job = load_job(path)
     assert job.trajectory.preset is None
-    waypoints = load_waypoints_csv(job.trajectory.waypoints_file)
+    waypoints = job_waypoints(job)
     assert waypoints.shape == (2, 6)
-    assert waypoints[1, 0] == 0.6
+    assert waypoints[1, 0] == pytest.approx(0.6)
+
+
+def test_presets_give_waypoints_and_parameters_override_them(tmp_path: Path) -> None:
+    assert job_waypoints(JobConfig()).shape == (20, 6)
+    path = tmp_path / "job.toml"
+    path.write_text('[trajectory]\npreset = "paper"\nparameters = { step_deg = 60.0 }\n')
+    assert len(job_waypoint_list(load_job(path))) == 8
+    path.write_text('[trajectory]\npreset = "nonesuch"\n')
+    with pytest.raises(ConfigError, match="unknown trajectory preset 'nonesuch'"):
+        job_waypoints(load_job(path))
+    path.write_text('[trajectory]\npreset = "paper"\nparameters = { step_deg = -1.0 }\n')
+    with pytest.raises(ConfigError, match="step_deg"):
+        job_waypoints(load_job(path))
 
 
 def test_bad_waypoint_file_names_the_line(tmp_path: Path) -> None:
-    path = tmp_path / "w.csv"
-    path.write_text("0.5,0,0.3,3.14,0,0\n0.5,0,0.3,3.14,0\n")
-    with pytest.raises(ConfigError, match=r"w.csv:2: expected 6 values"):
-        load_waypoints_csv(path)
+    (tmp_path / "w.csv").write_text("index,x,y,z,rx,ry,rz\n0,0.5,0,0.3,3.14,0,0\n1,0.5,0,0.3,3.14,0\n")
+    path = tmp_path / "job.toml"
+    path.write_text('[trajectory]\nwaypoints_file = "w.csv"\n')
+    with pytest.raises(ConfigError, match=r"w.csv line 3: expected 7 fields"):
+        job_waypoints(load_job(path))
 
 
 def test_overrides_are_validated() -> None:

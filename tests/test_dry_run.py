@@ -18,20 +18,17 @@ import pytest
 from lasercal_hw.dry_run import FakeCellProcess, free_loopback_address, ports_free
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.session import read_session
-from tests.doubles import semicircle_waypoints
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
 
-WAYPOINTS = 10
+WAYPOINTS = 8  # the 'quick' preset
 
 
 def write_job(folder: Path) -> Path:
-    np.savetxt(folder / "waypoints.csv", semicircle_waypoints(WAYPOINTS, tilt_rad=0.3), delimiter=",",
-               header="x,y,z,rx,ry,rz", comments="")
     job = folder / "job.toml"
     job.write_text(
         "dwell_s = 0.5\n"
-        "[trajectory]\nwaypoints_file = \"waypoints.csv\"\n"
+        "[trajectory]\npreset = \"quick\"\n"
         "[background]\nscans = 10\n"
         "[motion]\njoint_speed_rad_s = 1.2\njoint_accel_rad_s2 = 3.0\n"
         # A short test trajectory: gates sized for it, not for a real run.

@@ -17,9 +17,10 @@ from lasercal_hw.errors import (
 )
 from lasercal_hw.geometry import matrix_to_euler_zyx
 from lasercal_hw.models import RobotState
+from lasercal_hw.preflight import rod_end_points_m
 from lasercal_hw.recorder import SessionRecorder
 from lasercal_hw.resume import resume_state
-from lasercal_hw.sequencer import Progress, Sequencer
+from lasercal_hw.sequencer import NOMINAL_CLEARANCE_M, Progress, Sequencer, background_lift_m
 from lasercal_hw.session import read_session
 from tests.doubles import (
     PAPER_T_BASE_LASER,
@@ -242,6 +243,33 @@ def test_preflight_refuses_a_robot_not_in_remote_control() -> None:
     for expected in ("protective stop", "mode is IDLE", "safety status is PROTECTIVE_STOP", "remote control"):
         assert expected in message
     assert robot.moves == []
+
+
+def test_background_pose_falls_back_to_another_lifted_waypoint() -> None:
+    job = fast_job()
+    waypoints = semicircle_waypoints(8)
+    first_lifted = waypoints[0].copy()
+    first_lifted[2] += job.background_lift_m()
+    clock, robot, scanner = make_cell(job, forbidden_poses=[first_lifted])
+    Sequencer(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock).run()
+    nearest = min(range(1, 8), key=lambda i: np.linalg.norm(waypoints[i][:3]))
+    expected = waypoints[nearest].copy()
+    expected[2] += job.background_lift_m()
+    assert np.allclose(robot.moves[0], expected)
+
+
+def test_nominal_mounting_lifts_the_rod_just_clear_of_the_plane() -> None:
+    yaw, pitch, roll = np.degrees(matrix_to_euler_zyx(PAPER_T_BASE_LASER[:3, :3]))
+    nominal = {"translation_m": PAPER_T_BASE_LASER[:3, 3].tolist(), "euler_zyx_deg": [yaw, pitch, roll]}
+    job = fast_job(scanner={"nominal": nominal})
+    pose = semicircle_waypoints(8)[0]
+    lift_m = background_lift_m(job, pose)
+    assert 0.0 < lift_m < job.background_lift_m()
+    lifted = pose.copy()
+    lifted[2] += lift_m
+    ends = rod_end_points_m(lifted, job.rod.rod_line())
+    heights = (ends - PAPER_T_BASE_LASER[:3, 3]) @ PAPER_T_BASE_LASER[:3, 2]
+    assert heights.min() == pytest.approx(NOMINAL_CLEARANCE_M)
 
 
 def test_nominal_pose_predicts_where_to_look() -> None:
