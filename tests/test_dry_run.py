@@ -27,7 +27,7 @@ WAYPOINTS = 8  # the 'quick' preset
 def write_job(folder: Path) -> Path:
     job = folder / "job.toml"
     job.write_text(
-        "dwell_s = 0.5\n"
+        "dwell_s = 1.0\n"
         "[trajectory]\npreset = \"quick\"\n"
         "[background]\nscans = 10\n"
         "[motion]\njoint_speed_rad_s = 1.2\njoint_accel_rad_s2 = 3.0\n"
