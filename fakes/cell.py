@@ -27,7 +27,6 @@ from types import FrameType
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from fakes.scip_server import DEFAULT_PORT, FakeScannerServer
 from fakes.ur_controller.controller import ControllerConfig, FaultPlan
@@ -37,31 +36,6 @@ from lasercal_hw.models import FloatArray
 
 READY_PREFIX = "fake cell ready:"
 MOVES_BEFORE_FIRST_WAYPOINT = 1
-
-
-class StepWindowSource:
-    """Serves the fake scanner's step-window requests (``fakes.scan_scene.RangeSource``)
-    from the world's full revolutions (``WorldRangeSource.ranges_mm(time_s)``); the two
-    calls of one scan share one cast."""
-
-    def __init__(self, revolutions: WorldRangeSource, first_step: int) -> None:
-        self._revolutions = revolutions
-        self._first_step = first_step
-        self._last: tuple[float, NDArray[np.int64], NDArray[np.int64]] | None = None
-
-    def _revolution(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        if self._last is None or self._last[0] != time_s:
-            ranges, intensities = self._revolutions.ranges_mm(time_s)
-            self._last = (time_s, ranges, intensities)
-        return self._last[1], self._last[2]
-
-    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        """Distances (mm, error codes) of steps ``step_first..step_last``."""
-        return self._revolution(time_s)[0][step_first - self._first_step : step_last - self._first_step + 1]
-
-    def intensities(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        """Intensities of the same steps of the same scan."""
-        return self._revolution(time_s)[1][step_first - self._first_step : step_last - self._first_step + 1]
 
 
 class FakeCell:
@@ -77,8 +51,7 @@ class FakeCell:
             )
         )
         self.robot = FakeRobot(address, config)
-        revolutions = WorldRangeSource(self.world, self._tcp_pose_at, seed)
-        source = StepWindowSource(revolutions, self.world.geometry.first_step)
+        source = WorldRangeSource(self.world, self._tcp_pose_at, seed)
         self.scanner = FakeScannerServer(address, DEFAULT_PORT, source=source)
         self.address = self.robot.address
         self.scanner_url = ""
