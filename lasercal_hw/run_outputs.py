@@ -75,6 +75,7 @@ def result_document(
         document["ground_truth"] = {
             "T_base_laser": np.asarray(ground_truth, dtype=float).tolist(),
             "error": transform_error(result.matrix(), ground_truth),
+            "first_pass_error": transform_error(outcome.first_pass.matrix(), ground_truth),
         }
     return document
 

@@ -184,9 +184,11 @@ def _print_summary(
         f"{command_s:.1f} s, {100 * _overhead_with_io(outcome, command_s):.1f} %"
     )
     if truth_error is not None:
+        e = truth_error
         console.print(
-            f"dry run: error against the fake cell's ground truth {truth_error['translation_mm']:.2f} mm, "
-            f"{truth_error['rotation_deg']:.3f} deg"
+            f"dry run: error against the fake cell's ground truth {e['translation_mm']:.2f} mm, "
+            f"{e['rotation_deg']:.3f} deg (first pass {e['first_pass_translation_mm']:.2f} mm, "
+            f"{e['first_pass_rotation_deg']:.3f} deg)"
         )
     for name, path in files.items():
         console.print(f"  {name}: {escape(str(path))}")
@@ -232,6 +234,7 @@ def _json_document(
         document["ground_truth"] = {
             "T_base_laser": np.asarray(truth).tolist(),
             "error": transform_error(result.matrix(), truth),
+            "first_pass_error": transform_error(outcome.first_pass.matrix(), truth),
         }
     return document
 
@@ -345,7 +348,12 @@ def run_command(
     if as_json:
         print_json(_json_document(outcome, files, truth, cell_info, command_s))
     else:
-        error = transform_error(outcome.result.matrix(), truth) if truth is not None else None
+        error = None
+        if truth is not None:
+            first = transform_error(outcome.first_pass.matrix(), truth)
+            error = transform_error(outcome.result.matrix(), truth) | {
+                f"first_pass_{key}": value for key, value in first.items()
+            }
         _print_summary(outcome, files, error, command_s)
     if not outcome.verdict.passed:
         failures = "; ".join(outcome.verdict.failures())
