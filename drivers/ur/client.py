@@ -230,9 +230,9 @@ class URRobot:
         except BaseException:
             for interface in reversed(opened):
                 try:
-                    interface.disconnect()
-                except Exception:
-                    logger.debug("disconnect after a failed connect raised", exc_info=True)
+                    ur_call("disconnect", interface.disconnect, false_is_error=False)
+                except RobotError as exc:
+                    logger.debug("disconnect after a failed connect: %s", exc)
             raise
 
     def _command(self, what: str, fn: Any, *, false_is_error: bool = True,
