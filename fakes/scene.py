@@ -1,0 +1,184 @@
+"""The fake cell's scene file (TOML): geometry, noise and fault settings, validated.
+
+``load_scene(None)`` gives the packaged ``fakes/scenes/default.toml``; every field has a
+default, so a scene file only lists what it changes.  docs/extraction.md describes the
+format.  A bad file raises ``ConfigError`` naming the file, the field and the problem.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from lasercal_hw.errors import ConfigError
+
+Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Vector2 = Annotated[list[float], Field(min_length=2, max_length=2)]
+Probability = Annotated[float, Field(ge=0.0, le=1.0)]
+Reflectivity = Annotated[float, Field(gt=0.0, le=1.0)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _non_zero(vector: list[float]) -> list[float]:
+    if math.hypot(*vector) == 0.0:
+        raise ValueError("must not be the zero vector")
+    return vector
+
+
+class ScannerSettings(_Strict):
+    """Ground-truth pose and beam layout of the scanner (defaults: the paper, UTM-30LX-EW)."""
+
+    translation_m: Vector3 = [0.30, 0.50, 0.20]
+    euler_zyx_deg: Vector3 = [5.0, 7.0, 3.0]
+    first_step: int = Field(0, ge=0)
+    last_step: int = Field(1080, ge=0)
+    front_step: int = Field(540, ge=0)
+    steps_per_revolution: int = Field(1440, gt=0)
+    min_range_m: float = Field(0.023, ge=0.0)
+    max_range_m: float = Field(60.0, gt=0.0)
+    scan_period_s: float = Field(0.025, gt=0.0)
+
+    @model_validator(mode="after")
+    def _steps_in_order(self) -> ScannerSettings:
+        if self.last_step < self.first_step:
+            raise ValueError(f"last_step ({self.last_step}) is before first_step ({self.first_step})")
+        if self.max_range_m <= self.min_range_m:
+            raise ValueError("max_range_m must be larger than min_range_m")
+        return self
+
+
+class RodSettings(_Strict):
+    """The rod (or drill bit) on the flange: ``origin_m + s * direction``, s in [0, length_m]."""
+
+    origin_m: Vector3 = [0.0, 0.0, 0.0]
+    direction: Vector3 = [0.0, 0.0, 1.0]
+    radius_m: float = Field(0.02, gt=0.0)
+    length_m: float = Field(0.3, gt=0.0)
+    reflectivity: Reflectivity = 0.8
+
+    _direction_non_zero = field_validator("direction")(_non_zero)
+
+
+class ColumnSettings(_Strict):
+    """The robot's base as a vertical cylinder standing on the base origin."""
+
+    enabled: bool = True
+    radius_m: float = Field(0.075, gt=0.0)
+    height_m: float = Field(0.25, gt=0.0)
+    reflectivity: Reflectivity = 0.5
+
+
+class WallSettings(_Strict):
+    """A vertical wall between two floor points (base frame), from z_min_m to z_max_m."""
+
+    name: str = "wall"
+    start_m: Vector2
+    end_m: Vector2
+    z_min_m: float = 0.0
+    z_max_m: float = 2.5
+    reflectivity: Reflectivity = 0.7
+
+    @model_validator(mode="after")
+    def _proper_rectangle(self) -> WallSettings:
+        if self.start_m == self.end_m:
+            raise ValueError(f"wall {self.name!r}: start_m and end_m are the same point")
+        if self.z_max_m <= self.z_min_m:
+            raise ValueError(f"wall {self.name!r}: z_max_m must be above z_min_m")
+        return self
+
+
+class FloorSettings(_Strict):
+    """A horizontal plane (the floor or the table the robot stands on)."""
+
+    enabled: bool = True
+    z_m: float = 0.0
+    reflectivity: Reflectivity = 0.4
+
+
+class NoiseSettings(_Strict):
+    """Range noise, bias, mixed pixels, dropouts and the robot's absolute-accuracy error."""
+
+    range_sigma_m: float = Field(0.010, ge=0.0)
+    range_sigma_far_m: float = Field(0.030, ge=0.0)
+    far_from_m: float = Field(10.0, gt=0.0)
+    bias_offset_m: float = 0.0
+    bias_per_m: float = 0.0
+    bias_ripple_m: float = 0.0
+    bias_ripple_period_m: float = Field(1.0, gt=0.0)
+    beam_footprint_deg: float = Field(0.25, ge=0.0)
+    edge_jump_m: float = Field(0.03, gt=0.0)
+    mixed_pixel_probability: Probability = 0.5
+    dropout_probability: Probability = 0.001
+    robot_position_error_m: float = Field(0.001, ge=0.0)
+    robot_rotation_error_deg: float = Field(0.02, ge=0.0)
+    robot_error_seed: int = 0
+
+
+class FaultSettings(_Strict):
+    """Faults the fake devices inject (acted on by the fake robot and scanner)."""
+
+    protective_stop_at_waypoint: int | None = Field(None, ge=0)
+    scanner_drop_at_waypoint: int | None = Field(None, ge=0)
+    corrupt_checksum_probability: Probability = 0.0
+
+
+def _default_walls() -> list[WallSettings]:
+    corners = [(-1.5, -1.5), (2.5, -1.5), (2.5, 2.5), (-1.5, 2.5)]
+    names = ["south", "east", "north", "west"]
+    return [
+        WallSettings(name=name, start_m=list(a), end_m=list(b))
+        for name, a, b in zip(names, corners, corners[1:] + corners[:1], strict=True)
+    ]
+
+
+class Scene(_Strict):
+    """Everything the simulated world needs."""
+
+    scanner: ScannerSettings = ScannerSettings()
+    rod: RodSettings = RodSettings()
+    column: ColumnSettings = ColumnSettings()
+    walls: list[WallSettings] = Field(default_factory=_default_walls)
+    floor: FloorSettings = FloorSettings()
+    noise: NoiseSettings = NoiseSettings()
+    faults: FaultSettings = FaultSettings()
+
+
+def _format_errors(error: ValidationError) -> str:
+    parts = []
+    for item in error.errors():
+        where = ".".join(str(p) for p in item["loc"]) or "(top level)"
+        parts.append(f"{where}: {item['msg']} (got {item.get('input')!r})")
+    return "; ".join(parts)
+
+
+def parse_scene(text: str, source: str = "<scene>") -> Scene:
+    """Validate a scene given as TOML text; ``source`` names it in error messages."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"scene file {source} is not valid TOML: {exc}; fix the syntax") from exc
+    try:
+        return Scene.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(f"scene file {source} is invalid: {_format_errors(exc)}") from exc
+
+
+def load_scene(path: str | Path | None = None) -> Scene:
+    """Read and validate a scene file; ``None`` loads the packaged default scene."""
+    if path is None:
+        text = resources.files("fakes.scenes").joinpath("default.toml").read_text(encoding="utf-8")
+        return parse_scene(text, "fakes/scenes/default.toml")
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read scene file {path}: {exc.strerror}; check the path") from exc
+    return parse_scene(text, str(path))

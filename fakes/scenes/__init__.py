@@ -1,0 +1,1 @@
+"""Scene files for the fake cell (TOML)."""

@@ -1,0 +1,567 @@
+"""Rod centre from an averaged scan: segment the rod, drop mixed pixels, fit its centre.
+
+Steps (docs/extraction.md has the reasoning):
+
+1. Segment: with a background scan, beams significantly nearer than the background (per-
+   beam noise of both scans); without one, runs of valid beams split at range jumps.
+   A candidate must stand in front of its neighbours and span the angle a rod of the
+   known radius covers at its range; the one nearest ``expected_uv_m`` (if given) or
+   with the best-matching size wins.
+2. Seed: mean of the arc points plus the paper's ``R*pi/4`` correction away from the
+   scanner (exact for a far rod whose beams sample the half circle evenly across).
+3. Fit: Gauss-Newton on the orthogonal distance of each point to the rod's surface,
+   ``dist(point, axis line) - r``, with the axis through the unknown centre (u, v, 0).
+   With ``axis_in_scanner`` the line is tilted and the cross-section is the ellipse
+   (semi-minor r, semi-major r/|cos tilt|); without it the line is the scanner z axis
+   and the cross-section a circle.  Each residual is weighted by the range noise
+   projected on the surface normal plus a small lateral (beam-angle) term.
+4. Mixed pixels: edge beams lying significantly behind the fitted surface are dropped
+   and the fit repeated.
+5. Radius: a free-radius fit when enough beams over a wide enough arc hit the rod.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from lasercal_hw.errors import CalibrationError, ConfigError
+from lasercal_hw.models import FloatArray
+from lasercal_hw.scan_average import AveragedScan
+
+logger = logging.getLogger(__name__)
+
+_Z_AXIS = np.array([0.0, 0.0, 1.0])
+
+
+class RodNotFoundError(CalibrationError):
+    """The rod could not be found or fitted in a scan; the message says why."""
+
+
+@dataclass(frozen=True)
+class RodQuality:
+    """How much to trust a rod centre."""
+
+    beams_used: int
+    fit_rms_m: float
+    arc_span_deg: float
+    estimated_radius_m: float | None
+    mixed_pixels_dropped: int
+
+
+@dataclass(frozen=True)
+class RodCentre:
+    """Where the rod axis pierces the scan plane, in the scanner frame (metres)."""
+
+    centre_uv_m: FloatArray
+    covariance_uv_m2: FloatArray
+    quality: RodQuality
+    beam_indices: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+
+@dataclass(frozen=True)
+class ExtractionSettings:
+    """Tuning of ``find_rod_centre``; the defaults suit a UTM-30LX-EW and a 5-25 mm rod."""
+
+    background_sigmas: float = 4.0
+    min_depth_below_background_m: float = 0.01
+    default_range_sigma_m: float = 0.01
+    range_sigma_floor_m: float = 1e-4
+    beam_angle_sigma_rad: float = 2e-4
+    min_jump_m: float = 0.01
+    min_visible_fraction: float = 0.6
+    min_beams: int = 3
+    min_beams_for_radius: int = 8
+    min_arc_span_for_radius_deg: float = 100.0
+    edge_residual_sigmas: float = 4.0
+    max_edge_drops_per_side: int = 1
+    search_radius_m: float = 0.15
+    max_rms_radius_fraction: float = 0.1
+    max_iterations: int = 50
+    min_axis_cos_tilt: float = 0.2
+
+
+@dataclass(frozen=True)
+class _Section:
+    """The rod's cross-section shape in the scan plane."""
+
+    axis: FloatArray  # unit rod axis, scanner frame, pointing to +z
+    radius_m: float
+
+    @property
+    def cos_tilt(self) -> float:
+        return abs(float(self.axis[2]))
+
+    @property
+    def semi_major_m(self) -> float:
+        return self.radius_m / self.cos_tilt
+
+    def major_dir(self) -> FloatArray:
+        """Unit in-plane direction of the ellipse's major axis (x if untilted)."""
+        xy = self.axis[:2]
+        norm = float(np.linalg.norm(xy))
+        return xy / norm if norm > 1e-12 else np.array([1.0, 0.0])
+
+    def to_circle(self, points: FloatArray) -> FloatArray:
+        """Squeeze the plane along the major axis so the ellipse becomes a circle."""
+        e = self.major_dir()
+        return points - (1.0 - self.cos_tilt) * (points @ e)[:, None] * e
+
+    def from_circle(self, points: FloatArray) -> FloatArray:
+        """Inverse of ``to_circle``."""
+        e = self.major_dir()
+        return points + (1.0 / self.cos_tilt - 1.0) * (points @ e)[:, None] * e
+
+
+def seed_centre_pi4(
+    points_m: FloatArray, radius_m: float, axis_in_scanner: FloatArray | None = None
+) -> FloatArray:
+    """The paper's estimate: mean of the arc points moved ``R*pi/4`` away from the scanner.
+
+    For a tilted rod the correction is applied where the ellipse is a circle (the plane
+    squeezed along the major axis) and mapped back.
+    """
+    section = _Section(_unit_axis(axis_in_scanner), radius_m)
+    squeezed = section.to_circle(np.asarray(points_m, dtype=float))
+    mean = squeezed.mean(axis=0)
+    seed = mean + radius_m * np.pi / 4.0 * mean / np.linalg.norm(mean)
+    return section.from_circle(seed[None, :])[0]
+
+
+def find_rod_centre(
+    scan: AveragedScan,
+    *,
+    radius_m: float,
+    background: AveragedScan | None = None,
+    axis_in_scanner: FloatArray | None = None,
+    expected_uv_m: FloatArray | None = None,
+    settings: ExtractionSettings | None = None,
+) -> RodCentre:
+    """Find the rod's centre (u, v) in an averaged scan (scanner frame, metres).
+
+    ``background``: the same view without the rod, for segmentation against clutter;
+    ``axis_in_scanner``: the rod axis (unit 3-vector, scanner frame) to fit the tilted
+    cross-section; ``expected_uv_m``: where the rod should be, to pick among candidates.
+    Raises ``RodNotFoundError`` saying why when there is no usable rod in the scan, and
+    ``ConfigError`` for a non-positive radius or a zero axis.
+    """
+    settings = settings or ExtractionSettings()
+    if not radius_m > 0.0:
+        raise ConfigError(f"rod radius must be positive, got {radius_m} m; set the rod radius")
+    section = _Section(_unit_axis(axis_in_scanner), radius_m)
+    if section.cos_tilt < settings.min_axis_cos_tilt:
+        raise RodNotFoundError(
+            f"rod axis is {np.degrees(np.arccos(section.cos_tilt)):.0f} deg from the scan plane normal: "
+            "its cross-section is too elongated to fit; tilt the rod less"
+        )
+    if background is not None and background.ranges_m.shape != scan.ranges_m.shape:
+        raise CalibrationError(
+            f"background has {background.ranges_m.size} beams but the scan has {scan.ranges_m.size}; "
+            "record the background with the same scanner settings"
+        )
+    sigma = _range_sigma(scan, settings)
+    expected = None if expected_uv_m is None else np.asarray(expected_uv_m, dtype=float)
+    candidates, notes = _candidate_segments(scan, sigma, section, background, settings)
+    if expected is not None:
+        candidates = _near_expected(scan, candidates, expected, section, settings)
+    if not candidates:
+        raise RodNotFoundError(_diagnose(scan, section, background, expected, settings, notes))
+    reasons: list[str] = []
+    for beams in candidates:
+        try:
+            return _fit_segment(scan, sigma, beams, section, settings)
+        except RodNotFoundError as exc:
+            reasons.append(str(exc))
+    raise RodNotFoundError("; ".join(dict.fromkeys(reasons)))
+
+
+def _unit_axis(axis: FloatArray | None) -> FloatArray:
+    if axis is None:
+        return _Z_AXIS
+    a = np.asarray(axis, dtype=float)
+    norm = float(np.linalg.norm(a))
+    if a.shape != (3,) or not norm > 0.0:
+        raise ConfigError(f"axis_in_scanner must be a non-zero 3-vector, got {axis!r}")
+    a = a / norm
+    return a if a[2] >= 0.0 else -a
+
+
+def _range_sigma(scan: AveragedScan, settings: ExtractionSettings) -> FloatArray:
+    """Per-beam sigma of the averaged range, with a fallback where it is unknown."""
+    std = np.where(np.isfinite(scan.std_m), scan.std_m, settings.default_range_sigma_m)
+    return np.fmax(std, settings.range_sigma_floor_m)
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[NDArray[np.int64]]:
+    """Index arrays of the runs of consecutive True values."""
+    padded = np.concatenate([[False], mask, [False]])
+    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    return [np.arange(start, stop) for start, stop in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def _jump_threshold_m(section: _Section, sigma: FloatArray, settings: ExtractionSettings) -> FloatArray:
+    """Largest range step between neighbouring beams that stays inside one rod."""
+    pair_sigma = np.sqrt(sigma[:-1] ** 2 + sigma[1:] ** 2)
+    return section.semi_major_m + settings.min_jump_m + 5.0 * pair_sigma
+
+
+def _candidate_segments(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    section: _Section,
+    background: AveragedScan | None,
+    settings: ExtractionSettings,
+) -> tuple[list[NDArray[np.int64]], list[str]]:
+    """Beam index runs that could be the rod, best first (size match), and why rod-sized
+    runs were refused (cut by the field of view, partly hidden)."""
+    ranges = scan.ranges_m
+    valid = np.isfinite(ranges)
+    if background is None:
+        foreground = valid
+    else:
+        bg_sigma = _range_sigma(background, settings)
+        margin = np.fmax(
+            settings.min_depth_below_background_m,
+            settings.background_sigmas * np.sqrt(sigma**2 + bg_sigma**2),
+        )
+        bg_valid = np.isfinite(background.ranges_m)
+        with np.errstate(invalid="ignore"):
+            foreground = valid & (~bg_valid | (background.ranges_m - ranges > margin))
+    with np.errstate(invalid="ignore"):  # inf - inf where a caller passed inf for no return
+        jumps = np.abs(np.diff(ranges)) > _jump_threshold_m(section, sigma, settings)
+    split = np.concatenate([[False], jumps])
+    segments: list[NDArray[np.int64]] = []
+    for run in _runs(foreground):
+        cuts = np.flatnonzero(split[run[1:]]) + 1
+        segments.extend(np.split(run, cuts))
+    scored, notes = [], []
+    last_beam = ranges.size - 1
+    for beams in segments:
+        if beams[0] == 0 or beams[-1] == last_beam:
+            if _size_mismatch(scan, beams, section, settings, partial=True) is not None:
+                problem = "is cut by the edge of the field of view; move the rod inward"
+                _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
+            continue
+        fit = _size_mismatch(scan, beams, section, settings)
+        if fit is None:
+            continue
+        if background is None and not _in_front(scan, beams, sigma):
+            problem = "is partly hidden behind a nearer object; clear the line of sight"
+            _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
+            continue
+        scored.append((fit, beams))
+    scored.sort(key=lambda item: item[0])
+    return [beams for _, beams in scored], notes
+
+
+def _note_if_rod(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    beams: NDArray[np.int64],
+    section: _Section,
+    settings: ExtractionSettings,
+    notes: list[str],
+    problem: str,
+) -> None:
+    """Record why a refused segment was refused, if it really looks like (part of) a rod."""
+    if beams.size < settings.min_beams:
+        return
+    try:
+        _fit_segment(scan, sigma, beams, section, settings)
+    except RodNotFoundError:
+        return
+    notes.append(f"a rod at {float(np.min(scan.ranges_m[beams])):.2f} m {problem}")
+
+
+def _beam_step_rad(scan: AveragedScan) -> float:
+    return float(np.median(np.abs(np.diff(scan.angles_rad)))) if scan.angles_rad.size > 1 else 0.0
+
+
+def _size_mismatch(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    section: _Section,
+    settings: ExtractionSettings,
+    *,
+    partial: bool = False,
+) -> float | None:
+    """How far the segment's angular width is from the rod's (in beams); None if implausible.
+
+    ``partial`` accepts any width up to the rod's (a rod cut by the field of view)."""
+    step = _beam_step_rad(scan)
+    centre_range = float(np.min(scan.ranges_m[beams])) + section.radius_m
+    if centre_range <= section.semi_major_m:
+        return None
+    width_min = 2.0 * np.arcsin(section.radius_m / centre_range)
+    width_max = 2.0 * np.arcsin(min(1.0, section.semi_major_m / centre_range))
+    width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]]))
+    low = 0.0 if partial else settings.min_visible_fraction * width_min - 2.0 * step
+    high = width_max + 2.0 * step
+    if not low <= width <= high:
+        return None
+    return abs(width - 0.5 * (width_min + width_max)) / max(step, 1e-9)
+
+
+def _in_front(scan: AveragedScan, beams: NDArray[np.int64], sigma: FloatArray) -> bool:
+    """True unless a neighbour just outside the segment is nearer (the rod would be cut)."""
+    nearest = float(np.min(scan.ranges_m[beams]))
+    for neighbour in (beams[0] - 1, beams[-1] + 1):
+        if 0 <= neighbour < scan.ranges_m.size:
+            value = scan.ranges_m[neighbour]
+            if np.isfinite(value) and value < nearest - 3.0 * sigma[neighbour]:
+                return False
+    return True
+
+
+def _near_expected(
+    scan: AveragedScan,
+    candidates: list[NDArray[np.int64]],
+    expected: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> list[NDArray[np.int64]]:
+    """Candidates whose seed lies within the search radius of the expected centre, nearest first."""
+    points = scan.points_m()
+    kept = []
+    for beams in candidates:
+        seed = seed_centre_pi4(points[beams], section.radius_m, section.axis)
+        distance = float(np.linalg.norm(seed - expected))
+        if distance <= settings.search_radius_m:
+            kept.append((distance, beams))
+    kept.sort(key=lambda item: item[0])
+    return [beams for _, beams in kept]
+
+
+def _diagnose(
+    scan: AveragedScan,
+    section: _Section,
+    background: AveragedScan | None,
+    expected: FloatArray | None,
+    settings: ExtractionSettings,
+    notes: list[str],
+) -> str:
+    """A sentence saying why no rod-like segment was found, and what to do."""
+    valid = np.isfinite(scan.ranges_m)
+    if not valid.any():
+        return "the scan has no valid beam; check the scanner (window, power) and its stream"
+    size = f"radius {section.radius_m * 1000:.1f} mm"
+    if expected is not None:
+        bearing = float(np.arctan2(expected[1], expected[0]))
+        low, high = float(scan.angles_rad.min()), float(scan.angles_rad.max())
+        if not low <= bearing <= high:
+            return (
+                f"expected rod at bearing {np.degrees(bearing):.1f} deg is outside the field of view "
+                f"[{np.degrees(low):.1f}, {np.degrees(high):.1f}] deg; move the waypoint into view"
+            )
+        beam = int(np.argmin(np.abs(scan.angles_rad - bearing)))
+        expected_range = float(np.linalg.norm(expected)) - section.semi_major_m
+        seen = scan.ranges_m[beam]
+        if np.isfinite(seen) and seen < expected_range - settings.search_radius_m:
+            return (
+                f"rod ({size}) occluded: the beam towards its expected position at {expected_range:.3f} m "
+                f"returns {seen:.3f} m; clear the line of sight"
+            )
+        if np.isfinite(seen) and seen > expected_range + settings.search_radius_m + section.semi_major_m:
+            return (
+                f"no rod ({size}) near the expected position ({expected[0]:.3f}, {expected[1]:.3f}) m: "
+                f"the beam there returns {seen:.3f} m; check the waypoint and the rod mounting"
+            )
+    if notes:
+        return "; ".join(notes)
+    method = "background subtraction" if background is not None else "range discontinuities"
+    return (
+        f"no segment matching a rod of {size} found by {method} "
+        f"({int(valid.sum())} valid beams); check the rod radius, the rod's range "
+        "(beams are 0.25 deg apart) and, without a background scan, that nothing touches the rod"
+    )
+
+
+@dataclass(frozen=True)
+class _Fit:
+    centre_uv_m: FloatArray
+    covariance_uv_m2: FloatArray
+    residuals_m: FloatArray
+    whitened: FloatArray
+
+
+def _residuals(
+    points: FloatArray, centre: FloatArray, section: _Section, radius_m: float
+) -> tuple[FloatArray, FloatArray]:
+    """Orthogonal distances to the cylinder surface and unit surface normals (N, 3)."""
+    rel = np.zeros((points.shape[0], 3))
+    rel[:, :2] = points - centre
+    w = rel - (rel @ section.axis)[:, None] * section.axis
+    dist = np.linalg.norm(w, axis=1)
+    normals = w / np.fmax(dist, 1e-15)[:, None]
+    return dist - radius_m, normals
+
+
+def _residual_sigma(
+    points: FloatArray, sigma: FloatArray, normals: FloatArray, radius_m: float, settings: ExtractionSettings
+) -> FloatArray:
+    """Sigma of each orthogonal residual from range noise and lateral beam uncertainty.
+
+    The last term is the second-order effect of a range error at grazing incidence
+    (``dr**2 / 2R``), which dominates where the beam is nearly tangent to a thin rod.
+    """
+    ranges = np.linalg.norm(points, axis=1)
+    beam = points / ranges[:, None]
+    along = normals[:, 0] * beam[:, 0] + normals[:, 1] * beam[:, 1]
+    across = -normals[:, 0] * beam[:, 1] + normals[:, 1] * beam[:, 0]
+    lateral = ranges * settings.beam_angle_sigma_rad
+    curvature = sigma**2 / (np.sqrt(2.0) * radius_m)
+    return np.sqrt((sigma * along) ** 2 + (lateral * across) ** 2 + curvature**2)
+
+
+def _gauss_newton(
+    points: FloatArray,
+    sigma: FloatArray,
+    seed: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+    *,
+    free_radius: bool,
+) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+    """Weighted Gauss-Newton on (u, v[, r]); returns (params, normal matrix, whitened) or None."""
+    params = np.concatenate([seed, [section.radius_m]]) if free_radius else seed.copy()
+
+    def evaluate(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        radius = p[2] if free_radius else section.radius_m
+        res, normals = _residuals(points, p[:2], section, radius)
+        res_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
+        jac = -normals[:, :2]
+        if free_radius:
+            jac = np.column_stack([jac, -np.ones(points.shape[0])])
+        return res / res_sigma, jac / res_sigma[:, None], res
+
+    whitened, jac, _ = evaluate(params)
+    cost = float(whitened @ whitened)
+    for _ in range(settings.max_iterations):
+        normal = jac.T @ jac
+        try:
+            step = np.linalg.solve(normal, -jac.T @ whitened)
+        except np.linalg.LinAlgError:
+            return None
+        scale = 1.0
+        while scale > 1e-4:
+            trial = params + scale * step
+            trial_whitened, trial_jac, _ = evaluate(trial)
+            trial_cost = float(trial_whitened @ trial_whitened)
+            if trial_cost <= cost * (1.0 + 1e-12):
+                break
+            scale *= 0.5
+        else:
+            break
+        params, whitened, jac, cost = trial, trial_whitened, trial_jac, trial_cost
+        if float(np.linalg.norm(scale * step[:2])) < 1e-10:
+            break
+    if not np.all(np.isfinite(params)):
+        return None
+    return params, jac.T @ jac, whitened
+
+
+def _fit_centre(
+    points: FloatArray, sigma: FloatArray, section: _Section, settings: ExtractionSettings
+) -> _Fit:
+    seed = seed_centre_pi4(points, section.radius_m, section.axis)
+    solved = _gauss_newton(points, sigma, seed, section, settings, free_radius=False)
+    limit = 2.0 * section.semi_major_m + 0.01
+    if solved is None or float(np.linalg.norm(solved[0] - seed)) > limit:
+        raise RodNotFoundError(
+            f"circle fit diverged from its seed ({seed[0]:.3f}, {seed[1]:.3f}) m; the segment is not a "
+            "clean arc (clutter touching the rod?)"
+        )
+    centre, normal, whitened = solved
+    if float(np.linalg.norm(centre)) <= float(np.min(np.linalg.norm(points, axis=1))):
+        raise RodNotFoundError(
+            "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
+        )
+    residuals, _ = _residuals(points, centre, section, section.radius_m)
+    dof = max(points.shape[0] - 2, 1)
+    variance_factor = max(1.0, float(whitened @ whitened) / dof)
+    covariance = np.linalg.inv(normal) * variance_factor
+    return _Fit(centre, covariance, residuals, whitened)
+
+
+def _drop_mixed_edges(
+    points: FloatArray, sigma: FloatArray, section: _Section, settings: ExtractionSettings
+) -> tuple[NDArray[np.int64], _Fit]:
+    """Fit, then drop edge beams lying significantly behind the fitted surface; refit."""
+    keep = np.arange(points.shape[0])
+    fit = _fit_centre(points, sigma, section, settings)
+    dropped = {"first": 0, "last": 0}
+    while keep.size > settings.min_beams:
+        candidates = []
+        for side, pos in (("first", 0), ("last", keep.size - 1)):
+            if dropped[side] < settings.max_edge_drops_per_side:
+                behind = fit.residuals_m[pos] > 0.0
+                if behind and fit.whitened[pos] > settings.edge_residual_sigmas:
+                    candidates.append((fit.whitened[pos], side, pos))
+        if not candidates:
+            break
+        _, side, pos = max(candidates)
+        dropped[side] += 1
+        keep = np.delete(keep, pos)
+        fit = _fit_centre(points[keep], sigma[keep], section, settings)
+    return keep, fit
+
+
+def _arc_span_deg(points: FloatArray, centre: FloatArray, section: _Section) -> float:
+    """Angle the used points cover as seen from the centre (in the squeezed, circular frame)."""
+    squeezed = section.to_circle(points)
+    c = section.to_circle(centre[None, :])[0]
+    towards_scanner = np.arctan2(-c[1], -c[0])
+    rel = squeezed - c
+    angles = np.angle(np.exp(1j * (np.arctan2(rel[:, 1], rel[:, 0]) - towards_scanner)))
+    return float(np.degrees(angles.max() - angles.min()))
+
+
+def _fit_segment(
+    scan: AveragedScan,
+    sigma_all: FloatArray,
+    beams: NDArray[np.int64],
+    section: _Section,
+    settings: ExtractionSettings,
+) -> RodCentre:
+    if beams.size < settings.min_beams:
+        range_m = float(np.min(scan.ranges_m[beams]))
+        raise RodNotFoundError(
+            f"too few beams on the rod: {beams.size} at {range_m:.2f} m (need {settings.min_beams}); "
+            "move the rod closer or use a thicker rod"
+        )
+    points = scan.points_m()[beams]
+    sigma = sigma_all[beams]
+    keep, fit = _drop_mixed_edges(points, sigma, section, settings)
+    used = points[keep]
+    rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
+    if rms > settings.max_rms_radius_fraction * section.radius_m + 3.0 * float(np.median(sigma[keep])):
+        raise RodNotFoundError(
+            f"segment of {keep.size} beams is not a rod of radius {section.radius_m * 1000:.1f} mm "
+            f"(fit RMS {rms * 1000:.1f} mm)"
+        )
+    span = _arc_span_deg(used, fit.centre_uv_m, section)
+    estimated_radius = None
+    if keep.size >= settings.min_beams_for_radius and span >= settings.min_arc_span_for_radius_deg:
+        free = _gauss_newton(used, sigma[keep], fit.centre_uv_m, section, settings, free_radius=True)
+        if free is not None and 0.0 < free[0][2] < 4.0 * section.radius_m:
+            estimated_radius = float(free[0][2])
+    dropped = int(beams.size - keep.size)
+    logger.debug(
+        "rod centre (%.4f, %.4f) m from %d beams, rms %.2f mm, span %.0f deg, %d edge beams dropped",
+        fit.centre_uv_m[0], fit.centre_uv_m[1], keep.size, rms * 1000, span, dropped,
+    )
+    return RodCentre(
+        centre_uv_m=fit.centre_uv_m,
+        covariance_uv_m2=fit.covariance_uv_m2,
+        quality=RodQuality(
+            beams_used=int(keep.size),
+            fit_rms_m=rms,
+            arc_span_deg=span,
+            estimated_radius_m=estimated_radius,
+            mixed_pixels_dropped=dropped,
+        ),
+        beam_indices=beams[keep].astype(np.int64),
+    )
