@@ -12,6 +12,9 @@ from rich.markup import escape
 
 from lasercal_hw import __version__
 from lasercal_hw.cli.common import err_console
+from lasercal_hw.cli.fake import fake_app
+from lasercal_hw.cli.scanner import scanner_app
+from lasercal_hw.cli.session import session_app
 from lasercal_hw.errors import ExitCode, LasercalError
 
 app = typer.Typer(
@@ -46,8 +49,8 @@ def _root(
     )
 
 
-from lasercal_hw.cli.session import session_app  # noqa: E402
-
+app.add_typer(fake_app, name="fake")
+app.add_typer(scanner_app, name="scanner")
 app.add_typer(session_app, name="session")
 
 
