@@ -15,6 +15,8 @@ from lasercal_hw.cli.common import err_console
 from lasercal_hw.cli.fake import fake_app
 from lasercal_hw.cli.scanner import scanner_app
 from lasercal_hw.cli.session import session_app
+from lasercal_hw.cli.simulate import simulate_command
+from lasercal_hw.cli.solve import solve_command
 from lasercal_hw.errors import ExitCode, LasercalError
 
 app = typer.Typer(
@@ -49,6 +51,8 @@ def _root(
     )
 
 
+app.command("simulate")(simulate_command)
+app.command("solve")(solve_command)
 app.add_typer(fake_app, name="fake")
 app.add_typer(scanner_app, name="scanner")
 app.add_typer(session_app, name="session")

@@ -1,0 +1,96 @@
+"""``lasercal solve``: calibrate offline from recorded observations."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+import typer
+from rich.table import Table
+
+from lasercal_hw.cli.common import console, parse_vector, print_json
+from lasercal_hw.errors import ConfigError
+from lasercal_hw.models import RodLine
+from lasercal_hw.observations import load_observations
+from lasercal_hw.result import CalibrationResult
+from lasercal_hw.solver import SolverOptions, solve
+
+
+def solve_command(
+    input_path: Annotated[Path, typer.Argument(help="observations.csv", show_default=False)],
+    axis_origin: str = typer.Option("0,0,0", "--axis-origin", help="Rod axis origin in the TCP frame (m)."),
+    axis_direction: str = typer.Option("0,0,1", "--axis-direction", help="Rod axis direction, TCP frame."),
+    robust: bool = typer.Option(True, "--robust/--no-robust", help="Robust loss and outlier rejection."),
+    formulation: str = typer.Option("ours", "--formulation", help="ours | paper (the paper's own problem)."),
+    sigma_mm: float = typer.Option(5.0, "--sigma-mm", help="Centre noise for rows without sigma_u, sigma_v."),
+    robot_sigma_mm: float = typer.Option(0.5, "--robot-sigma-mm", help="Robot TCP position noise per axis."),
+    output: Annotated[Path | None, typer.Option("--output", "-o", help="Also write result.json.")] = None,
+    as_json: bool = typer.Option(False, "--json", help="Print the result.json document instead of a table."),
+) -> None:
+    """Solve for T_base_laser from observations (index,tcp_x..tcp_rz,u,v[,sigma_u,sigma_v])."""
+    if formulation not in ("ours", "paper"):
+        raise ConfigError(f"--formulation must be 'ours' or 'paper', got {formulation!r}")
+    if sigma_mm <= 0 or robot_sigma_mm < 0:
+        raise ConfigError("--sigma-mm must be positive and --robot-sigma-mm not negative")
+    direction = np.array(parse_vector(axis_direction, 3, "--axis-direction"))
+    if np.linalg.norm(direction) < 1e-9:
+        raise ConfigError("--axis-direction must not be the zero vector")
+    rod = RodLine(origin_m=np.array(parse_vector(axis_origin, 3, "--axis-origin")), direction=direction)
+    observations = load_observations(input_path)
+    options = SolverOptions(default_sigma_uv_m=sigma_mm / 1e3, robot_sigma_m=robot_sigma_mm / 1e3)
+    mode: Literal["ours", "paper"] = "paper" if formulation == "paper" else "ours"
+    result = solve(observations, rod, robust=robust, options=options, formulation=mode)
+    document = result.to_json_dict()
+    if output is not None:
+        try:
+            output.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"cannot write {str(output)!r}: {exc}") from exc
+    if as_json:
+        print_json(document)
+    else:
+        _print_result(result)
+
+
+def _print_result(result: CalibrationResult) -> None:
+    prov = result.provenance
+    console.print(
+        f"[bold]T_base_laser[/] ({prov.formulation} formulation, {result.waypoints_used} of "
+        f"{len(result.residuals)} waypoints used, {prov.solve_time_s * 1e3:.1f} ms"
+        f"{'' if prov.converged else ', [red]NOT CONVERGED[/]'})"
+    )
+    matrix = Table(show_header=False, box=None, padding=(0, 2))
+    for row in result.T_base_laser:
+        matrix.add_row(*(f"{v:+.6f}" for v in row))
+    console.print(matrix)
+    table = Table(title="Pose of the scanner in the base frame")
+    for name in ("parameter", "value", "std", "CRB"):
+        table.add_column(name, justify="left" if name == "parameter" else "right")
+    for axis, value, std, crb in zip(
+        "xyz", result.translation_m, result.std_translation_mm, result.crb_translation_mm, strict=True
+    ):
+        table.add_row(f"t_{axis} (mm)", f"{value * 1e3:.2f}", f"{std:.3f}", f"{crb:.3f}")
+    for name, value, std, crb in zip(
+        ("yaw", "pitch", "roll"), result.euler_zyx_deg, result.std_euler_zyx_deg, result.crb_euler_zyx_deg,
+        strict=True,
+    ):
+        table.add_row(f"{name} (deg, ZYX)", f"{value:.4f}", f"{std:.4f}", f"{crb:.4f}")
+    for axis, std, crb in zip("xyz", result.std_rotation_deg, result.crb_rotation_deg, strict=True):
+        table.add_row(f"rotation about base {axis} (deg)", "", f"{std:.4f}", f"{crb:.4f}")
+    console.print(table)
+    console.print(
+        f"RMS residual {result.rms_residual_mm:.2f} mm, reduced chi-square {result.reduced_chi_square:.2f}, "
+        f"weakest direction: {result.observability.weakest_direction} "
+        f"(singular-value ratio {result.observability.condition_ratio:.2e})"
+    )
+    for note in result.observability.notes:
+        console.print(f"[yellow]note:[/] {note}")
+    if result.outliers:
+        outliers = Table(title="Waypoints left out")
+        for name in ("index", "residual (mm)", "reason"):
+            outliers.add_column(name)
+        for o in result.outliers:
+            outliers.add_row(str(o.index), f"{o.residual_mm:.1f}", o.reason)
+        console.print(outliers)

@@ -1,0 +1,99 @@
+"""The calibration result: the document written to ``result.json``.
+
+Units are in the field names.  Rotation uncertainties are given twice: as small
+rotations about the base x, y, z axes (``*_rotation_deg``, the left perturbation
+``R' = exp([e]x) R``) and as ZYX Euler angle uncertainties (``*_euler_zyx_deg``, yaw,
+pitch, roll).  ``std_*`` come from the Jacobian at the solution scaled by the reduced
+chi-square (a posteriori); ``crb_*`` are the Cramér-Rao bound of the same waypoints
+under the stated noise model (a priori).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from lasercal_hw.geometry import FloatArray
+
+
+class WaypointResidual(BaseModel):
+    """Measured minus predicted rod centre of one waypoint, in the scanner plane."""
+
+    index: int
+    du_mm: float
+    dv_mm: float
+    norm_mm: float
+    whitened_norm: float = Field(description="Mahalanobis length under the noise model")
+    used: bool
+
+
+class Outlier(BaseModel):
+    """A waypoint left out of the final fit, and why."""
+
+    index: int
+    residual_mm: float
+    reason: str
+
+
+class Observability(BaseModel):
+    """How well the waypoints pin down each direction of the transform."""
+
+    lever_m: float = Field(description="length that converts rotation (rad) to metres for comparison")
+    singular_values: list[float] = Field(description="of the whitened Jacobian, rotations scaled by lever_m")
+    condition_ratio: float = Field(description="smallest over largest singular value")
+    weakest_direction: str
+    notes: list[str] = Field(default_factory=list)
+
+
+class Provenance(BaseModel):
+    """What produced the result."""
+
+    software: str = "lasercal"
+    software_version: str
+    formulation: Literal["ours", "paper"]
+    solver_options: dict[str, Any]
+    converged: bool
+    iterations: int
+    solve_time_s: float
+    message: str = ""
+
+
+class CalibrationResult(BaseModel):
+    """Pose of the scanner in the robot base frame, with its uncertainty and diagnostics."""
+
+    T_base_laser: list[list[float]] = Field(description="4x4, p_base = T @ p_laser, row-major")
+    T_laser_base: list[list[float]] = Field(description="inverse of T_base_laser")
+    translation_m: list[float]
+    quaternion_xyzw: list[float]
+    euler_zyx_deg: list[float] = Field(description="yaw, pitch, roll; R = Rz Ry Rx")
+    rotvec: list[float] = Field(description="rotation vector in radians")
+    covariance: list[list[float]] = Field(
+        description="6x6 a-posteriori covariance of (tx, ty, tz [m], rot x, y, z about base axes [rad])"
+    )
+    std_translation_mm: list[float]
+    std_rotation_deg: list[float] = Field(description="about base x, y, z")
+    std_euler_zyx_deg: list[float] = Field(description="yaw, pitch, roll")
+    crb_translation_mm: list[float]
+    crb_rotation_deg: list[float] = Field(description="about base x, y, z")
+    crb_euler_zyx_deg: list[float] = Field(description="yaw, pitch, roll")
+    reduced_chi_square: float
+    residuals: list[WaypointResidual]
+    outliers: list[Outlier]
+    rms_residual_mm: float
+    waypoints_used: int
+    observability: Observability
+    provenance: Provenance
+
+    def matrix(self) -> FloatArray:
+        """``T_base_laser`` as a 4x4 numpy array."""
+        return np.asarray(self.T_base_laser, dtype=float)
+
+    def inverse_matrix(self) -> FloatArray:
+        """``T_laser_base`` as a 4x4 numpy array."""
+        return np.asarray(self.T_laser_base, dtype=float)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The ``result.json`` document (plain JSON types, matrices row-major)."""
+        return self.model_dump(mode="json")

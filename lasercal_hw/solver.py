@@ -1,0 +1,529 @@
+"""Solve for ``T_base_laser`` from rod observations.
+
+Pipeline (see docs/solver.md): validate -> closed-form linear start (``solver_init``) ->
+robust nonlinear least squares on the whitened in-plane residual (``solver_model``) with
+iterated outlier rejection -> plain least squares on the inliers -> covariance, Cramér-Rao
+bound and observability check.  ``formulation="paper"`` runs the paper's own problem
+(``solver_paper``) instead and reports it with the same diagnostics.
+
+Outlier test: a waypoint is rejected when its squared whitened residual exceeds the
+chi-square quantile with 2 degrees of freedom at ``outlier_confidence`` (99.9 %: 13.8),
+times ``s^2 = max(1, median(m^2) / (2 ln 2))`` (the data's robust noise scale, never below
+the stated noise model); repeated with re-admission until the set is stable.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, Field
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from lasercal_hw import __version__
+from lasercal_hw.errors import CalibrationError, ConfigError, DegenerateDataError
+from lasercal_hw.geometry import (
+    FloatArray,
+    invert_transform,
+    make_transform,
+    matrix_to_euler_zyx,
+    matrix_to_quat,
+    matrix_to_rotvec,
+    rotvec_to_matrix,
+)
+from lasercal_hw.models import Observation, RodLine
+from lasercal_hw.result import (
+    CalibrationResult,
+    Observability,
+    Outlier,
+    Provenance,
+    WaypointResidual,
+)
+from lasercal_hw.solver_init import linear_initial_pose
+from lasercal_hw.solver_model import (
+    effective_covariance,
+    euler_zyx_axes,
+    fisher_information,
+    left_jacobian_so3,
+    plane_crossing,
+    residuals_and_jacobian,
+    rod_lines_in_base,
+    whiten,
+    whiten_residual,
+    whitening,
+)
+from lasercal_hw.solver_paper import solve_paper
+
+logger = logging.getLogger(__name__)
+
+MIN_WAYPOINTS = 5
+_MEDIAN_CHI2_2DOF = 2.0 * np.log(2.0)
+
+
+class SolverOptions(BaseModel):
+    """Settings of the solver (recorded in the result's provenance)."""
+
+    formulation: Literal["ours", "paper"] = "ours"
+    loss: Literal["huber", "soft_l1", "cauchy"] = Field("huber", description="robust loss in robust mode")
+    loss_scale: float | None = Field(
+        None, gt=0, description="robust loss knee in sigmas; default: the outlier limit (3.7 at 99.9 %)"
+    )
+    outlier_confidence: float = Field(0.999, gt=0.5, lt=1.0)
+    max_rejection_rounds: int = Field(10, ge=1)
+    max_outlier_fraction: float = Field(0.3, ge=0.0, lt=1.0)
+    default_sigma_uv_m: float = Field(0.005, gt=0, description="centre noise when none is given")
+    robot_sigma_m: float = Field(0.0005, ge=0, description="robot TCP position noise per axis")
+    min_incidence_deg: float = Field(
+        5.0, ge=0, lt=90, description="rod-to-plane angle below which a waypoint is unusable"
+    )
+    parallel_tolerance_deg: float = Field(0.5, ge=0, description="all rod axes within this are 'parallel'")
+    min_condition_ratio: float = Field(1e-6, gt=0, description="refuse below this singular-value ratio")
+    weak_condition_ratio: float = Field(1e-2, gt=0, description="note directions below this ratio")
+
+
+@dataclass
+class _Data:
+    """The observations as arrays, rod lines in the base frame."""
+
+    index: np.ndarray
+    origins: FloatArray
+    directions: FloatArray
+    centres: FloatArray
+    covariance: FloatArray
+
+
+def solve(
+    observations: Sequence[Observation],
+    rod: RodLine,
+    *,
+    robust: bool = True,
+    options: SolverOptions | None = None,
+    formulation: Literal["ours", "paper"] | None = None,
+) -> CalibrationResult:
+    """Estimate ``T_base_laser`` from rod observations; see the module docstring.
+
+    Raises ``DegenerateDataError`` when the data cannot determine all six degrees of
+    freedom, ``ConfigError`` for invalid covariances, ``CalibrationError`` when too many
+    waypoints are outliers.
+    """
+    started = time.perf_counter()
+    opts = options or SolverOptions()
+    if formulation is not None:
+        opts = opts.model_copy(update={"formulation": formulation})
+    data = _arrays(observations, rod, opts)
+    _check_rod_directions(data.directions, opts)
+    weights = 1.0 / np.sqrt(0.5 * np.trace(data.covariance, axis1=1, axis2=2))
+    rotation, translation = linear_initial_pose(data.origins, data.directions, data.centres, weights)
+    usable, outliers = _usable_by_incidence(rotation, translation, data, opts)
+    _check_observability(rotation, translation, data, usable, opts, stage="initial")
+
+    if opts.formulation == "paper":
+        paper = solve_paper(data.origins[usable], data.directions[usable], data.centres[usable])
+        rotation, translation = paper.rotation, paper.translation_m
+        used, converged, evaluations, message = usable, paper.converged, paper.evaluations, paper.message
+    else:
+        rotation, translation, used, evaluations = _fit(rotation, translation, data, usable, robust, opts)
+        outliers += _rejected(rotation, translation, data, usable & ~used, opts)
+        converged, message = True, "converged"
+    try:
+        result = _result(rotation, translation, data, used, outliers, opts, robust)
+    except DegenerateDataError as exc:
+        if opts.formulation != "paper":
+            raise
+        raise CalibrationError(
+            f"the paper formulation ended at an unusable pose ({message}; {evaluations} evaluations): {exc}"
+        ) from exc
+    result.provenance.converged = converged
+    result.provenance.iterations = evaluations
+    result.provenance.message = message
+    result.provenance.solve_time_s = time.perf_counter() - started
+    logger.info(
+        "solved (%s): %d of %d waypoints used, RMS residual %.2f mm, %d evaluations, %.1f ms",
+        opts.formulation, result.waypoints_used, len(observations), result.rms_residual_mm, evaluations,
+        result.provenance.solve_time_s * 1e3,
+    )
+    return result
+
+
+def _arrays(observations: Sequence[Observation], rod: RodLine, opts: SolverOptions) -> _Data:
+    n = len(observations)
+    if n < MIN_WAYPOINTS:
+        raise DegenerateDataError(
+            f"only {n} waypoint(s); at least {MIN_WAYPOINTS} with different rod orientations are needed "
+            "(each gives 2 equations for 6 unknowns): record more waypoints"
+        )
+    index = np.array([o.index for o in observations])
+    poses = np.array([np.asarray(o.tcp_pose, dtype=float) for o in observations])
+    centres = np.array([np.asarray(o.centre_uv_m, dtype=float) for o in observations])
+    covariance = np.array(
+        [
+            np.eye(2) * opts.default_sigma_uv_m**2 if o.covariance_uv_m2 is None else o.covariance_uv_m2
+            for o in observations
+        ],
+        dtype=float,
+    )
+    if poses.shape != (n, 6) or centres.shape != (n, 2) or covariance.shape != (n, 2, 2):
+        raise ConfigError(
+            "each observation needs a 6-element TCP pose, a 2-element centre and a 2x2 covariance"
+        )
+    finite = np.isfinite(poses).all(axis=1) & np.isfinite(centres).all(axis=1)
+    finite &= np.isfinite(covariance).all(axis=(1, 2))
+    if not finite.all():
+        bad = ", ".join(str(i) for i in index[~finite][:10])
+        raise DegenerateDataError(
+            f"waypoint(s) {bad} contain NaN or infinite values: re-record or remove those waypoints"
+        )
+    rod_direction = np.asarray(rod.direction, dtype=float)
+    if not (np.isfinite(rod_direction).all() and np.linalg.norm(rod_direction) > 1e-9):
+        raise ConfigError(f"rod axis direction {rod_direction.tolist()} is not a usable direction")
+    det = covariance[:, 0, 0] * covariance[:, 1, 1] - covariance[:, 0, 1] ** 2
+    bad_cov = ~((covariance[:, 0, 0] > 0) & (det > 0))
+    if bad_cov.any():
+        raise ConfigError(
+            f"centre covariance of waypoint {index[bad_cov][0]} is not positive definite: "
+            "give positive sigma_u, sigma_v"
+        )
+    origins, directions = rod_lines_in_base(poses, rod)
+    return _Data(index, origins, directions, centres, covariance)
+
+
+def _check_rod_directions(directions: FloatArray, opts: SolverOptions) -> None:
+    mean = directions.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    spread_deg = float(np.degrees(np.arccos(np.clip(directions @ mean, -1.0, 1.0))).max())
+    if spread_deg <= opts.parallel_tolerance_deg:
+        raise DegenerateDataError(
+            f"all rod axes are parallel (within {spread_deg:.2f} deg, along base {_fmt(mean)}): the "
+            "translation along the rod axis and the tilt of the scan plane are not observable; vary "
+            "the tool orientation, tilting the rod 10-20 deg about two different axes across the waypoints"
+        )
+
+
+def _usable_by_incidence(
+    rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions
+) -> tuple[np.ndarray, list[Outlier]]:
+    """Waypoints whose rod crosses the (initial) scan plane steeply enough to be used."""
+    normal = rotation[:, 2]
+    incidence_deg = np.degrees(np.arcsin(np.clip(np.abs(data.directions @ normal), 0.0, 1.0)))
+    usable = incidence_deg >= opts.min_incidence_deg
+    if usable.sum() < MIN_WAYPOINTS:
+        raise DegenerateDataError(
+            f"rod axes lie nearly in the scan plane (steepest crossing {incidence_deg.max():.1f} deg, "
+            f"{int(usable.sum())} waypoint(s) above {opts.min_incidence_deg:g} deg): the crossing point "
+            "along the rod is not observable; point the rod through the scan plane at 30 deg or more"
+        )
+    crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
+    offset_mm = np.linalg.norm(crossing - data.centres, axis=1) * 1e3
+    outliers = [
+        Outlier(
+            index=int(data.index[i]),
+            residual_mm=_finite(offset_mm[i]),
+            reason=f"rod axis only {incidence_deg[i]:.1f} deg from the scan plane "
+            f"(minimum {opts.min_incidence_deg:g} deg)",
+        )
+        for i in np.flatnonzero(~usable)
+    ]
+    return usable, outliers
+
+
+def _fit(
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    usable: np.ndarray,
+    robust: bool,
+    opts: SolverOptions,
+) -> tuple[FloatArray, FloatArray, np.ndarray, int]:
+    """Robust refinement with iterated rejection, then plain least squares on the inliers
+    (weights re-evaluated at the robust estimate, so the answer does not depend on the path)."""
+    used = usable.copy()
+    evaluations = 0
+    threshold = chi2.ppf(opts.outlier_confidence, 2)
+    knee = opts.loss_scale or float(np.sqrt(threshold))
+    if robust:
+        for _ in range(opts.max_rejection_rounds):
+            rotation, translation, nfev = _refine(rotation, translation, data, used, opts.loss, knee, opts)
+            evaluations += nfev
+            m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
+            scale2 = max(1.0, float(np.median(m2[used])) / _MEDIAN_CHI2_2DOF)
+            accepted = usable & (m2 <= threshold * scale2)
+            logger.debug(
+                "rejection round: %d of %d accepted (robust scale %.2f)",
+                accepted.sum(), usable.sum(), np.sqrt(scale2),
+            )
+            if np.array_equal(accepted, used):
+                break
+            used = accepted
+        rejected = int(usable.sum() - used.sum())
+        limit = opts.max_outlier_fraction * usable.sum()
+        if rejected > limit or used.sum() < MIN_WAYPOINTS:
+            raise CalibrationError(
+                f"{rejected} of {int(usable.sum())} waypoints fail the outlier test (limit "
+                f"{opts.max_outlier_fraction:.0%}): the centres or TCP poses are inconsistent; check the rod "
+                "definition (--axis-origin/--axis-direction) and the centre noise (sigma_u, sigma_v)"
+            )
+    rotation, translation, nfev = _refine(rotation, translation, data, used, "linear", knee, opts)
+    return rotation, translation, used, evaluations + nfev
+
+
+def _refine(
+    rotation0: FloatArray,
+    translation0: FloatArray,
+    data: _Data,
+    mask: np.ndarray,
+    loss: str,
+    knee: float,
+    opts: SolverOptions,
+) -> tuple[FloatArray, FloatArray, int]:
+    """One least-squares run on the masked waypoints, parameterised as a translation
+    increment and a base-frame rotation vector increment from the given pose."""
+    origins, directions = data.origins[mask], data.directions[mask]
+    centres, covariance = data.centres[mask], data.covariance[mask]
+    _, _, slope = residuals_and_jacobian(rotation0, translation0, origins, directions, centres)
+    white = whitening(effective_covariance(covariance, slope, opts.robot_sigma_m))
+    cache: dict[bytes, tuple[FloatArray, FloatArray]] = {}
+
+    def evaluate(x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        key = x.tobytes()
+        if key not in cache:
+            cache.clear()
+            rotation = Rotation.from_rotvec(x[3:]).as_matrix() @ rotation0  # 3x faster than geometry's
+            translation = translation0 + x[:3]
+            residual, jac, _ = residuals_and_jacobian(rotation, translation, origins, directions, centres)
+            jac[:, :, 3:] = (jac[:, :, 3:].reshape(-1, 3) @ left_jacobian_so3(x[3:])).reshape(-1, 2, 3)
+            cache[key] = whiten(white, residual, jac)
+        return cache[key]
+
+    fit = least_squares(
+        lambda x: evaluate(x)[0],
+        np.zeros(6),
+        jac=lambda x: evaluate(x)[1],
+        method="lm" if loss == "linear" else "trf",
+        loss=loss,
+        f_scale=knee,
+        x_scale="jac",
+        xtol=1e-12,
+        ftol=1e-12,
+    )
+    return rotvec_to_matrix(fit.x[3:]) @ rotation0, translation0 + fit.x[:3], int(fit.nfev)
+
+
+def _whitened(rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions) -> FloatArray:
+    """Whitened residual of every waypoint (N, 2); non-finite ones become infinite."""
+    crossing, slope, _ = plane_crossing(rotation, translation, data.origins, data.directions)
+    white = whitening(effective_covariance(data.covariance, slope, opts.robot_sigma_m))
+    return np.nan_to_num(whiten_residual(white, crossing - data.centres), nan=np.inf)
+
+
+def _rejected(
+    rotation: FloatArray, translation: FloatArray, data: _Data, rejected: np.ndarray, opts: SolverOptions
+) -> list[Outlier]:
+    if not rejected.any():
+        return []
+    m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
+    crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
+    norm_mm = np.linalg.norm(crossing - data.centres, axis=1) * 1e3
+    threshold = chi2.ppf(opts.outlier_confidence, 2)
+    return [
+        Outlier(
+            index=int(data.index[i]),
+            residual_mm=_finite(norm_mm[i]),
+            reason=f"whitened residual {np.sqrt(m2[i]):.1f} sigma exceeds the chi-square(2) "
+            f"{opts.outlier_confidence:.1%} limit {np.sqrt(threshold):.2f} sigma (robust scale applied)",
+        )
+        for i in np.flatnonzero(rejected)
+    ]
+
+
+def _check_observability(
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    used: np.ndarray,
+    opts: SolverOptions,
+    *,
+    stage: str,
+) -> tuple[FloatArray, Observability]:
+    """Fisher information of the used waypoints; refuse if a direction is not observable."""
+    origins, directions = data.origins[used], data.directions[used]
+    fisher = fisher_information(
+        rotation, translation, origins, directions, data.covariance[used], opts.robot_sigma_m
+    )
+    crossing, _, _ = plane_crossing(rotation, translation, origins, directions)
+    lever_m = max(0.1, float(np.sqrt(np.mean(np.sum(crossing**2, axis=1)))))
+    scale = np.array([1.0, 1.0, 1.0, 1.0 / lever_m, 1.0 / lever_m, 1.0 / lever_m])
+    eigenvalues, vectors = np.linalg.eigh(fisher * np.outer(scale, scale))
+    singular = np.sqrt(np.clip(eigenvalues, 0.0, None))[::-1]
+    vectors = vectors[:, ::-1]
+    ratio = float(singular[-1] / singular[0]) if singular[0] > 0 else 0.0
+    if not np.isfinite(ratio) or ratio < opts.min_condition_ratio:
+        lost = [
+            _describe_direction(vectors[:, k], lever_m, translation)
+            for k in range(6)
+            if not singular[k] > opts.min_condition_ratio * singular[0]
+        ]
+        what = f"{lost[0]} is" if len(lost) == 1 else f"{len(lost)} directions ({'; '.join(lost)}) are"
+        raise DegenerateDataError(
+            f"{what} not observable from these waypoints ({stage} singular-value ratio {ratio:.1e}); "
+            f"{_advice(vectors[:, -1], rotation, directions, crossing)}"
+        )
+    notes = [
+        f"weakly observable ({singular[k] / singular[0]:.1e} of the strongest): "
+        f"{_describe_direction(vectors[:, k], lever_m, translation)}"
+        for k in range(6)
+        if singular[k] / singular[0] < opts.weak_condition_ratio
+    ]
+    observability = Observability(
+        lever_m=lever_m,
+        singular_values=[float(s) for s in singular],
+        condition_ratio=ratio,
+        weakest_direction=_describe_direction(vectors[:, -1], lever_m, translation),
+        notes=notes,
+    )
+    return fisher, observability
+
+
+def _describe_direction(vector: FloatArray, lever_m: float, translation: FloatArray) -> str:
+    """Name a parameter direction (dt, lever * e) in words: a translation, or a rotation
+    about a base-frame axis through a point (the scanner turning about that axis)."""
+    trans, rot = vector[:3], vector[3:] / lever_m
+    if np.linalg.norm(vector[3:]) < 0.3:
+        return f"translation along base {_fmt(trans / np.linalg.norm(trans))}"
+    # A whole-body rotation e about an axis through c moves the scanner origin by e x (t - c).
+    axis = rot / np.linalg.norm(rot)
+    moment = np.cross(rot, translation) - trans
+    foot = np.cross(moment, rot) / (rot @ rot)
+    point = foot + ((translation - foot) @ axis) * axis
+    text = f"rotation about base axis {_fmt(axis)} through ({', '.join(f'{v:.2f}' for v in point)}) m"
+    slide = (trans @ axis) / np.linalg.norm(rot)
+    if abs(slide) > 0.1 * lever_m:
+        text += f" with {abs(slide):.2f} m/rad translation along it"
+    return text
+
+
+def _advice(vector: FloatArray, rotation: FloatArray, directions: FloatArray, crossing: FloatArray) -> str:
+    """What to change in the trajectory so that the given direction becomes observable."""
+    spread_mm = 1e3 * float(np.sqrt(np.mean(np.sum((crossing - crossing.mean(axis=0)) ** 2, axis=1))))
+    mean_rod = directions.mean(axis=0) / max(np.linalg.norm(directions.mean(axis=0)), 1e-12)
+    tilt_deg = float(np.degrees(np.arccos(np.clip(directions @ mean_rod, -1.0, 1.0))).max())
+    spread = (
+        f"spread the crossing points over the scan plane (now within {spread_mm:.0f} mm RMS; "
+        "use different bearings and distances)"
+    )
+    tilt = (
+        f"tilt the rod more between waypoints (now within {tilt_deg:.1f} deg; "
+        "use 10-20 deg about two different axes)"
+    )
+    if spread_mm < 50.0:
+        return spread
+    if tilt_deg < 5.0:
+        return tilt
+    trans, rot = vector[:3], vector[3:]
+    normal = rotation[:, 2]
+    if np.linalg.norm(trans) >= np.linalg.norm(rot):
+        unit = trans / np.linalg.norm(trans)
+        return tilt if abs(unit @ normal) > 0.7 or abs(unit @ mean_rod) > 0.7 else spread
+    unit = rot / np.linalg.norm(rot)
+    if abs(unit @ normal) > 0.7:
+        return spread
+    return "vary both the rod tilt (10-20 deg about two axes) and the crossing position in the scan plane"
+
+
+def _result(
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    used: np.ndarray,
+    outliers: list[Outlier],
+    opts: SolverOptions,
+    robust: bool,
+) -> CalibrationResult:
+    fisher, observability = _check_observability(rotation, translation, data, used, opts, stage="final")
+    crb = np.linalg.inv(fisher)
+    m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
+    dof = 2 * int(used.sum()) - 6
+    reduced = float(m2[used].sum() / dof) if dof > 0 else 1.0
+    covariance = crb * reduced
+    if reduced > 4.0:
+        observability.notes.append(
+            f"residuals are {np.sqrt(reduced):.1f} times the stated noise (reduced chi-square "
+            f"{reduced:.1f}): the centre sigma is too small, or the rod axis definition or TCP poses are off"
+        )
+    euler_map = np.linalg.inv(euler_zyx_axes(*matrix_to_euler_zyx(rotation)[:2]))
+
+    def std_parts(cov: FloatArray) -> tuple[list[float], list[float], list[float]]:
+        rot_cov = cov[3:, 3:]
+        return (
+            _list(np.sqrt(np.diag(cov[:3, :3])) * 1e3),
+            _list(np.degrees(np.sqrt(np.diag(rot_cov)))),
+            _list(np.degrees(np.sqrt(np.diag(euler_map @ rot_cov @ euler_map.T)))),
+        )
+
+    std_t, std_r, std_e = std_parts(covariance)
+    crb_t, crb_r, crb_e = std_parts(crb)
+    crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
+    delta_mm = np.nan_to_num((data.centres - crossing) * 1e3, nan=1e12, posinf=1e12, neginf=-1e12)
+    norm_mm = np.linalg.norm(delta_mm, axis=1)
+    whitened_norm = np.nan_to_num(np.sqrt(m2), posinf=1e12)
+    columns = zip(
+        data.index.tolist(), delta_mm[:, 0].tolist(), delta_mm[:, 1].tolist(), norm_mm.tolist(),
+        whitened_norm.tolist(), used.tolist(), strict=True,
+    )
+    residuals = [  # values computed here: skip validation (10k waypoints would cost ~50 ms)
+        WaypointResidual.model_construct(index=i, du_mm=du, dv_mm=dv, norm_mm=nm, whitened_norm=wn, used=u)
+        for i, du, dv, nm, wn, u in columns
+    ]
+    transform = make_transform(rotation, translation)
+    options = opts.model_dump()
+    options["robust"] = robust and opts.formulation == "ours"  # the paper's problem has no robust mode
+    return CalibrationResult(
+        T_base_laser=transform.tolist(),
+        T_laser_base=invert_transform(transform).tolist(),
+        translation_m=_list(translation),
+        quaternion_xyzw=_list(matrix_to_quat(rotation)),
+        euler_zyx_deg=_list(np.degrees(matrix_to_euler_zyx(rotation))),
+        rotvec=_list(matrix_to_rotvec(rotation)),
+        covariance=covariance.tolist(),
+        std_translation_mm=std_t,
+        std_rotation_deg=std_r,
+        std_euler_zyx_deg=std_e,
+        crb_translation_mm=crb_t,
+        crb_rotation_deg=crb_r,
+        crb_euler_zyx_deg=crb_e,
+        reduced_chi_square=reduced,
+        residuals=residuals,
+        outliers=outliers,
+        rms_residual_mm=float(np.sqrt(np.mean(norm_mm[used] ** 2))),
+        waypoints_used=int(used.sum()),
+        observability=observability,
+        provenance=Provenance(
+            software_version=__version__,
+            formulation=opts.formulation,
+            solver_options=options,
+            converged=True,
+            iterations=0,
+            solve_time_s=0.0,
+        ),
+    )
+
+
+def _fmt(vector: FloatArray) -> str:
+    names = ("x", "y", "z")
+    axis = int(np.argmax(np.abs(vector)))
+    if abs(vector[axis]) > 0.98:
+        return f"{'-' if vector[axis] < 0 else ''}{names[axis]}"
+    return "(" + ", ".join(f"{v:+.2f}" for v in vector) + ")"
+
+
+def _finite(value: float) -> float:
+    return float(value) if np.isfinite(value) else 1e12
+
+
+def _list(array: FloatArray) -> list[float]:
+    return [float(v) for v in np.asarray(array).ravel()]

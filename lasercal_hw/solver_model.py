@@ -1,0 +1,157 @@
+"""Measurement model of the rod calibration, vectorised over waypoints.
+
+For waypoint i the rod axis in the base frame is the line ``o_i + s d_i``.  With the
+scanner pose ``T_base_laser = (R, t)`` the line in the scanner frame is ``a_i + s b_i``
+(``a = R^T (o - t)``, ``b = R^T d``); it pierces the scan plane z = 0 at
+``s = -a_z / b_z`` in the point ``p_i = (x_i, y_i, 0)``, which is compared with the
+measured centre (u_i, v_i).  The line parameter is thus eliminated in closed form.
+
+Perturbations (the parameters of the Jacobian and covariance): a translation ``dt`` of
+the scanner origin in base coordinates (m) and a small rotation ``e`` about the base
+axes (rad), ``R' = exp([e]x) R``.  With ``A_i = [[1, 0, -b_x/b_z], [0, 1, -b_y/b_z]]``:
+
+    d p_i / d dt = -A_i R^T          d p_i / d e = A_i [p_i]x R^T
+
+Noise model: the centre (u, v) has covariance ``C_i`` (from extraction, or isotropic
+``sigma_uv``); the robot's reported TCP position has isotropic error ``sigma_robot``,
+which moves the crossing point by ``A_i R^T dp``.  The effective covariance of the
+residual is ``C_i + sigma_robot^2 A_i A_i^T`` (first order; the robot's orientation
+error is not modelled).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lasercal_hw.geometry import FloatArray, pose_to_matrix, skew
+from lasercal_hw.models import RodLine
+
+
+def rod_lines_in_base(tcp_poses: FloatArray, rod: RodLine) -> tuple[FloatArray, FloatArray]:
+    """Origins (N, 3) and unit directions (N, 3) of the rod axis in the base frame."""
+    transforms = pose_to_matrix(np.asarray(tcp_poses, dtype=float))
+    rotations = transforms[:, :3, :3]
+    origins = rotations @ np.asarray(rod.origin_m, dtype=float) + transforms[:, :3, 3]
+    directions = rotations @ rod.unit_direction()
+    return origins, directions
+
+
+def lines_in_scanner(
+    rotation: FloatArray, translation_m: FloatArray, origins: FloatArray, directions: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """The rod lines in the scanner frame: points a (N, 3) and directions b (N, 3)."""
+    return (origins - translation_m) @ rotation, directions @ rotation
+
+
+def plane_crossing(
+    rotation: FloatArray, translation_m: FloatArray, origins: FloatArray, directions: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Crossing points (N, 2) of the rod lines with the scan plane, the slopes
+    ``g = (b_x, b_y) / b_z`` (N, 2) that define ``A = [[1, 0, -g_x], [0, 1, -g_y]]``, and the
+    line parameters s (N,) of the crossings (measured from the rod origin)."""
+    a, b = lines_in_scanner(rotation, translation_m, origins, directions)
+    slope = b[:, :2] / b[:, 2:3]
+    crossing = a[:, :2] - a[:, 2:3] * slope
+    return crossing, slope, -a[:, 2] / b[:, 2]
+
+
+def residuals_and_jacobian(
+    rotation: FloatArray,
+    translation_m: FloatArray,
+    origins: FloatArray,
+    directions: FloatArray,
+    centres_uv_m: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Predicted minus measured centre (N, 2), its Jacobian (N, 2, 6) in (dt, e), and the
+    slopes (N, 2) of ``A``.
+
+    Written out: ``A R^T`` has rows ``R[:, 0] - g_x R[:, 2]`` and ``R[:, 1] - g_y R[:, 2]``;
+    ``A [p]x R^T`` has rows ``g_x y R0 - g_x x R1 + y R2`` and ``g_y y R0 - g_y x R1 - x R2``.
+    """
+    crossing, slope, _ = plane_crossing(rotation, translation_m, origins, directions)
+    x, y = crossing[:, 0], crossing[:, 1]
+    gx, gy = slope[:, 0], slope[:, 1]
+    r0, r1, r2 = rotation[:, 0], rotation[:, 1], rotation[:, 2]
+    outer = np.multiply.outer
+    jac = np.empty((len(crossing), 2, 6))
+    jac[:, 0, :3] = outer(gx, r2) - r0
+    jac[:, 1, :3] = outer(gy, r2) - r1
+    jac[:, 0, 3:] = outer(gx * y, r0) - outer(gx * x, r1) + outer(y, r2)
+    jac[:, 1, 3:] = outer(gy * y, r0) - outer(gy * x, r1) - outer(x, r2)
+    return crossing - centres_uv_m, jac, slope
+
+
+def effective_covariance(covariance_uv_m2: FloatArray, slope: FloatArray, robot_sigma_m: float) -> FloatArray:
+    """Residual covariance per waypoint (N, 2, 2): centre noise plus robot position noise
+    ``sigma^2 A A^T = sigma^2 (I + g g^T)``."""
+    spread = np.eye(2) + slope[:, :, None] * slope[:, None, :]
+    return covariance_uv_m2 + robot_sigma_m**2 * spread
+
+
+def whitening(covariance: FloatArray) -> FloatArray:
+    """Upper-triangular ``U`` (N, 2, 2) with ``U^T U = inv(covariance)``."""
+    c00, c01, c11 = covariance[:, 0, 0], covariance[:, 0, 1], covariance[:, 1, 1]
+    det = c00 * c11 - c01 * c01
+    s00, s01, s11 = c11 / det, -c01 / det, c00 / det
+    u00 = np.sqrt(s00)
+    u01 = s01 / u00
+    u11 = np.sqrt(np.maximum(s11 - u01 * u01, 0.0))
+    w = np.zeros_like(covariance)
+    w[:, 0, 0], w[:, 0, 1], w[:, 1, 1] = u00, u01, u11
+    return w
+
+
+def whiten_residual(white: FloatArray, residual: FloatArray) -> FloatArray:
+    """Whitened residuals (N, 2) for upper-triangular ``white``."""
+    r = np.empty_like(residual)
+    r[:, 0] = white[:, 0, 0] * residual[:, 0] + white[:, 0, 1] * residual[:, 1]
+    r[:, 1] = white[:, 1, 1] * residual[:, 1]
+    return r
+
+
+def whiten(white: FloatArray, residual: FloatArray, jac: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Whitened residual (2N,) and Jacobian (2N, k) for upper-triangular ``white``."""
+    u00, u01, u11 = white[:, 0, 0, None], white[:, 0, 1, None], white[:, 1, 1, None]
+    j = np.empty_like(jac)
+    j[:, 0] = u00 * jac[:, 0] + u01 * jac[:, 1]
+    j[:, 1] = u11 * jac[:, 1]
+    return whiten_residual(white, residual).reshape(-1), j.reshape(-1, jac.shape[-1])
+
+
+def left_jacobian_so3(rotvec: FloatArray) -> FloatArray:
+    """``J_l(phi)`` with ``exp(phi + d) = exp(J_l(phi) d) exp(phi)`` to first order."""
+    angle = float(np.linalg.norm(rotvec))
+    k = skew(rotvec)
+    if angle < 1e-8:
+        return np.eye(3) + 0.5 * k
+    return (
+        np.eye(3)
+        + (1.0 - np.cos(angle)) / angle**2 * k
+        + (angle - np.sin(angle)) / angle**3 * (k @ k)
+    )
+
+
+def fisher_information(
+    rotation: FloatArray,
+    translation_m: FloatArray,
+    origins: FloatArray,
+    directions: FloatArray,
+    covariance_uv_m2: FloatArray,
+    robot_sigma_m: float,
+) -> FloatArray:
+    """Fisher information (6, 6) of (dt, e) for these rod lines and noise model; its
+    inverse is the Cramér-Rao bound of any unbiased estimator."""
+    zeros = np.zeros((len(origins), 2))
+    _, jac, slope = residuals_and_jacobian(rotation, translation_m, origins, directions, zeros)
+    white = whitening(effective_covariance(covariance_uv_m2, slope, robot_sigma_m))
+    _, j = whiten(white, zeros, jac)
+    return j.T @ j
+
+
+def euler_zyx_axes(yaw_rad: float, pitch_rad: float) -> FloatArray:
+    """Columns: the base-frame axes of the three ZYX rotations, so that a change
+    ``(d yaw, d pitch, d roll)`` is the small base rotation ``E @ (d yaw, d pitch, d roll)``
+    (``E = [z, Rz(yaw) y, Rz(yaw) Ry(pitch) x]``)."""
+    cy, sy = np.cos(yaw_rad), np.sin(yaw_rad)
+    cp, sp = np.cos(pitch_rad), np.sin(pitch_rad)
+    return np.array([[0.0, -sy, cy * cp], [0.0, cy, sy * cp], [1.0, 0.0, -sp]])

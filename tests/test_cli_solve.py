@@ -1,0 +1,112 @@
+"""``lasercal solve`` and ``lasercal simulate`` end to end, as a user runs them."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lasercal_hw.observations import write_observations_csv
+from tests.test_solver_helpers import TRUTH, observations
+
+pytestmark = pytest.mark.integration
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", *args],
+        capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL,
+    )
+
+
+def _csv(tmp_path: Path, **kwargs: object) -> Path:
+    path = tmp_path / "observations.csv"
+    write_observations_csv(path, observations(**kwargs))  # type: ignore[arg-type]
+    return path
+
+
+def _assert_one_line_error(result: subprocess.CompletedProcess[str], code: int, *fragments: str) -> None:
+    assert result.returncode == code, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert "Traceback" not in result.stderr
+    for fragment in fragments:
+        assert fragment in lines[0]
+
+
+def test_solve_json_is_the_result_document(tmp_path: Path) -> None:
+    out = tmp_path / "result.json"
+    result = run_cli("solve", str(_csv(tmp_path, points=30)), "--json", "--output", str(out))
+    assert result.returncode == 0, result.stderr
+    document = json.loads(result.stdout)
+    matrix = np.array(document["T_base_laser"])
+    assert matrix.shape == (4, 4)
+    assert np.linalg.norm(matrix[:3, 3] - TRUTH[:3, 3]) < 0.03
+    assert json.loads(out.read_text()) == document
+
+
+def test_solve_prints_a_readable_table(tmp_path: Path) -> None:
+    result = run_cli("solve", str(_csv(tmp_path, points=30)), "--no-robust")
+    assert result.returncode == 0, result.stderr
+    assert "T_base_laser" in result.stdout and "t_z (mm)" in result.stdout and "CRB" in result.stdout
+
+
+def test_axis_options_change_the_rod_line(tmp_path: Path) -> None:
+    path = _csv(tmp_path, points=30, laser_noise_m=0.0, robot_noise_m=0.0)
+    moved = run_cli("solve", str(path), "--json", "--axis-origin", "0,0,0.1", "--axis-direction", "0,0,2")
+    assert moved.returncode == 0, moved.stderr
+    # The rod's origin slides along its own axis: same line, same answer.
+    np.testing.assert_allclose(json.loads(moved.stdout)["T_base_laser"], TRUTH, atol=1e-8)
+    bad = run_cli("solve", str(path), "--axis-direction", "0,0")
+    _assert_one_line_error(bad, 2, "--axis-direction must have 3 numbers")
+
+
+def test_too_few_rows_exit_4(tmp_path: Path) -> None:
+    _assert_one_line_error(run_cli("solve", str(_csv(tmp_path, points=3))), 4, "at least 5")
+
+
+def test_parallel_axes_exit_4(tmp_path: Path) -> None:
+    result = run_cli("solve", str(_csv(tmp_path, points=20, tilt_deg=1e-9)))
+    _assert_one_line_error(result, 4, "parallel", "tilting the rod")
+
+
+def test_number_typo_exit_2_naming_line_and_column(tmp_path: Path) -> None:
+    path = _csv(tmp_path, points=10)
+    lines = path.read_text().splitlines()
+    fields = lines[4].split(",")
+    fields[7] = "0.3x"
+    lines[4] = ",".join(fields)
+    path.write_text("\n".join(lines) + "\n")
+    _assert_one_line_error(run_cli("solve", str(path)), 2, "line 5, column u", "'0.3x'")
+
+
+def test_missing_column_exit_2_naming_it(tmp_path: Path) -> None:
+    path = tmp_path / "obs.csv"
+    path.write_text("index,tcp_x,tcp_y,tcp_z,tcp_rx,tcp_ry,tcp_rz,u\n0,0,0,0,0,0,0,0\n")
+    _assert_one_line_error(run_cli("solve", str(path)), 2, "missing column(s) v")
+
+
+def test_missing_file_exit_2(tmp_path: Path) -> None:
+    _assert_one_line_error(run_cli("solve", str(tmp_path / "absent.csv")), 2, "does not exist")
+
+
+def test_simulate_json_reports_statistics_against_the_bound() -> None:
+    result = run_cli("simulate", "--trials", "5", "--points", "20", "--seed", "3", "--json")
+    assert result.returncode == 0, result.stderr
+    document = json.loads(result.stdout)
+    assert document["trials"] == 5 and document["failures"] == 0
+    assert set(document["mean"]) == {"x", "y", "z", "xyz", "rot_x", "rot_y", "rot_z", "rot"}
+    assert document["paper_mean"]["xyz"] == 9.581
+    assert 0.2 < document["rms_translation_mm"] / document["crb_rms_translation_mm"] < 5
+
+
+def test_simulate_table_and_bad_option() -> None:
+    result = run_cli("simulate", "--trials", "3", "--formulation", "paper")
+    assert result.returncode == 0, result.stderr
+    for fragment in ("paper mu", "9.581", "RMS translation error"):
+        assert fragment in result.stdout
+    _assert_one_line_error(run_cli("simulate", "--points", "3"), 2, "--points at least 5")
