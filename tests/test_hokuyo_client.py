@@ -197,3 +197,19 @@ def test_stream_lost_without_reconnect_reports_transport_error() -> None:
                 scanner.next_scan(3.0)
         finally:
             scanner.close()
+
+
+def test_watchdog_reconnects_a_silent_stream_and_reports_the_gap(link: str) -> None:
+    with serve(utm_replay(scans_per_stream=2), link) as server, HokuyoScanner.open(
+        server.url, sync_clock=False
+    ) as scanner:
+        scanner.start_streaming(intensities=True)
+        scans = [scanner.next_scan(5.0) for _ in range(4)]
+        stats = scanner.stream_stats()
+        scanner.stop_streaming()
+    assert [s.raw_ranges_mm.sum() for s in scans] == [1_287_760] * 4
+    assert stats.reconnects == 1
+    (gap,) = stats.gaps
+    assert "no data for 1 s" in gap.reason
+    assert 1.0 <= gap.duration_s < 3.0
+    assert sum(r.startswith(b"ME") for r in server.requests) == 2

@@ -26,14 +26,17 @@ STEPS = np.arange(1081)
 
 
 class KnownSource:
-    """Distances 1000 + step mm, except error code 1 on steps 0..9 and 60001 (> DMAX) on
-    step 10; intensity 2 * step."""
+    """A ``RangeSource``: distances 1000 + step mm, except error code 1 on steps 0..9 and
+    60001 (> DMAX) on step 10; intensity 2 * step."""
 
-    def ranges_mm(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
         ranges = 1000 + STEPS
         ranges[:10] = 1
         ranges[10] = 60001
-        return ranges.astype(np.int64), (2 * STEPS).astype(np.int64)
+        return ranges[step_first : step_last + 1].astype(np.int64)
+
+    def intensities(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
+        return (2 * STEPS[step_first : step_last + 1]).astype(np.int64)
 
 
 EXPECTED_M = np.where((STEPS < 10) | (STEPS == 10), np.nan, (1000 + STEPS) / 1000.0)
@@ -243,3 +246,17 @@ def test_framer_sees_the_exact_bytes_of_a_fake_scan(server: FakeScannerServer) -
         (b"ME0000108001003", b"00"), (b"ME0000108001002", b"99"), (b"ME0000108001001", b"99"),
         (b"ME0000108001000", b"99")]
     assert framer.discarded_bytes == 0
+
+
+def test_queue_overflow_drops_oldest_and_counts(server: FakeScannerServer) -> None:
+    with HokuyoScanner.open(server.url, queue_size=4) as scanner:
+        scanner.start_streaming()
+        first = scanner.next_scan(2.0)
+        time.sleep(0.5)  # ~20 scans arrive while nobody reads
+        queued = [scanner.next_scan(2.0) for _ in range(4)]
+        stats = scanner.stream_stats()
+        scanner.stop_streaming()
+    assert stats.queue_overflows >= 10 and stats.corrupted == 0
+    assert scanner.dropped_scans() == stats.queue_overflows
+    assert queued[0].sequence - first.sequence > 10  # the newest scans were kept
+    assert [s.sequence for s in queued] == list(range(queued[0].sequence, queued[0].sequence + 4))

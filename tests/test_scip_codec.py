@@ -396,3 +396,15 @@ def test_truncated_capture_yields_only_complete_messages(cut: int, seed: int) ->
     responses = feed_in_chunks(framer, stream[:cut], random.Random(seed))
     complete = stream[:cut].count(b"\n\n")
     assert [r.echo for r in responses] == UTM30LX_ECHOES[:complete]
+
+
+def test_irregular_line_lengths_are_checked_one_by_one() -> None:
+    lines = [b"0123" + checksum(b"0123"), b"45" + checksum(b"45"), b"6789" + checksum(b"6789")]
+    assert decode_data_lines(lines) == b"0123456789"
+    with pytest.raises(DataLineChecksumError) as info:
+        decode_data_lines([lines[0], b"45X", lines[2], b"7"])
+    assert info.value.bad_lines == [1, 3]
+    with pytest.raises(DataLineChecksumError) as info:
+        decode_data_lines([*encode_data_lines(b"0" * 130)[:2], b"12X"])
+    assert info.value.bad_lines == [2]
+    assert decode_data_lines([]) == b""

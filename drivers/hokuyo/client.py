@@ -60,8 +60,8 @@ TAG_SAFE_STATUSES = ("0C", "0D", "0G", "0H")
 
 
 def _echo_matches(received: bytes, expected: bytes) -> bool:
-    # endswith: a message cut short before it can glue its last partial line to the echo
-    return received == expected or received.endswith(b"\n" + expected) or received.endswith(expected)
+    """Exact echo, or one with a stale partial line glued in front (a message cut short)."""
+    return received.endswith(expected)
 
 
 class HokuyoScanner:
@@ -409,7 +409,9 @@ class HokuyoScanner:
         self._gaps: list[StreamGap] = []
         self._sequence = -1
         self._last_device_ms: int | None = None
-        self._gap_pending: tuple[float, str] | None = None
+        self._last_host_s = 0.0
+        self._gap_pending: str | None = None
+        """Reason of a reconnect whose gap is measured at the next scan."""
 
     def _start_on_device(self, request: ScanRequest) -> ScanRequest:
         """Send MD/ME and wait for its acknowledgement; retry untagged if the tag is refused."""
@@ -526,9 +528,9 @@ class HokuyoScanner:
     def _reader_main(self) -> None:
         last_data = time.monotonic()
         watchdog_s = max(1.0, 20 * self.parameters().scan_period_s)
-        while self._pending:  # scans that arrived together with the acknowledgement
-            self._dispatch(self._pending.popleft(), time.time())
         while not self._stop_reader.is_set():
+            while self._pending:  # scans that arrived together with a (re)start acknowledgement
+                self._dispatch(self._pending.popleft(), time.time())
             try:
                 data = self._current_transport().read_some(READER_POLL_S)
             except DeviceTimeoutError:
@@ -547,9 +549,8 @@ class HokuyoScanner:
             discarded_before = self._framer.discarded_chunks
             responses = self._framer.feed(data)
             self._corrupted += self._framer.discarded_chunks - discarded_before
-            self._pending.extend(responses)
-            while self._pending:
-                self._dispatch(self._pending.popleft(), host_time)
+            for response in responses:
+                self._dispatch(response, host_time)
 
     def _is_stream_echo(self, echo: bytes, request: ScanRequest) -> bool:
         prefix = request.prefix()
@@ -596,8 +597,8 @@ class HokuyoScanner:
             if elapsed_ms > 0:
                 missed = max(round(elapsed_ms / period_ms) - 1, 0)
             if self._gap_pending is not None:
-                gap_host_start, reason = self._gap_pending
-                duration_s = elapsed_ms / 1000.0 if elapsed_ms > 0 else host_time - gap_host_start
+                reason = self._gap_pending
+                duration_s = elapsed_ms / 1000.0 if elapsed_ms > 0 else host_time - self._last_host_s
                 gap = StreamGap(missed, duration_s, reason)
                 self._gaps.append(gap)
                 logger.warning(
@@ -609,6 +610,7 @@ class HokuyoScanner:
                 )
         self._gap_pending = None
         self._last_device_ms = device_ms
+        self._last_host_s = host_time
         self._sequence += 1 + missed
         self._received += 1
         geometry = self._stream_geometry or self.geometry()
@@ -633,7 +635,6 @@ class HokuyoScanner:
             self._stop_reader.set()
             return
         logger.warning("%s: %s; reconnecting", self.url, reason)
-        gap_start = time.time()
         with self._io_lock:
             old, self._transport = self._transport, None
         if old is not None:
@@ -650,7 +651,7 @@ class HokuyoScanner:
                 self._resynchronise(quiet_s=0.1, max_drain_s=1.0)
                 self._stream = self._start_on_device(request)
                 self._reconnects += 1
-                self._gap_pending = (gap_start, reason)
+                self._gap_pending = reason
                 return
             except (TransportError, ProtocolError, ScannerStatusError) as exc:
                 with self._io_lock:

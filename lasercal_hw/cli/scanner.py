@@ -159,10 +159,11 @@ def capture(
         title=f"{len(captured)} scans from {url} ({identity.model}, {geometry.beam_count} beams)",
         title_justify="left",
     )
-    for column in ("seq", "device time [s]", "host-device [ms]", "valid", "min [m]", "median [m]", "max [m]"):
+    for column in ("seq", "t [s]", "lag [ms]", "valid", "min [m]", "median [m]", "max [m]"):
         table.add_column(column, justify="right")
     if intensity:
-        table.add_column("median intensity", justify="right")
+        table.add_column("intensity", justify="right")
+    start_s = captured[0].device_time_s
     for scan in captured:
         valid = scan.ranges_m[scan.valid]
         summary = (
@@ -172,7 +173,7 @@ def capture(
         )
         row = [
             str(scan.sequence),
-            f"{scan.device_time_s:.3f}",
+            f"{scan.device_time_s - start_s:.3f}",
             f"{1000 * (scan.host_time_s - scan.device_time_s):.1f}",
             f"{valid.size}",
             *summary,
@@ -181,4 +182,8 @@ def capture(
             row.append(f"{np.median(scan.intensities):.0f}")
         table.add_row(*row)
     console.print(table)
+    console.print(
+        "t: scan time (device clock) since the first scan; lag: host receive time - scan time; "
+        "intensity: median"
+    )
     console.print(", ".join(f"{key} {value}" for key, value in stats_doc.items()))
