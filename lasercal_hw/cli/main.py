@@ -17,6 +17,7 @@ from lasercal_hw.cli.scanner import scanner_app
 from lasercal_hw.cli.session import session_app
 from lasercal_hw.cli.simulate import simulate_command
 from lasercal_hw.cli.solve import solve_command
+from lasercal_hw.cli.trajectory import trajectory_app
 from lasercal_hw.errors import ExitCode, LasercalError
 
 app = typer.Typer(
@@ -56,6 +57,7 @@ app.command("solve")(solve_command)
 app.add_typer(fake_app, name="fake")
 app.add_typer(scanner_app, name="scanner")
 app.add_typer(session_app, name="session")
+app.add_typer(trajectory_app, name="trajectory")
 
 
 def main() -> None:

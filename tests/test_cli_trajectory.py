@@ -1,0 +1,90 @@
+"""``lasercal trajectory list/show/check`` end to end."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from lasercal_hw.cli.main import app
+from trajectories.presets import preset_waypoints
+
+runner = CliRunner()
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
+
+
+def test_list_names_every_preset_as_json() -> None:
+    result = runner.invoke(app, ["trajectory", "list", "--json"])
+    assert result.exit_code == 0, result.output
+    listed = {entry["name"]: entry["waypoints"] for entry in json.loads(result.stdout)}
+    assert listed == {"paper": 20, "compact": 20, "drill": 20, "quick": 8}
+
+
+def test_show_default_preset_json_matches_the_library() -> None:
+    result = runner.invoke(app, ["trajectory", "show", "--json"])
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    assert document["source"] == "paper"
+    assert document["rod"]["length_m"] == pytest.approx(0.3)
+    expected = [w.model_dump(mode="json") for w in preset_waypoints("paper")]
+    assert document["waypoints"] == json.loads(json.dumps(expected))
+
+
+def test_show_table_lists_waypoints() -> None:
+    result = runner.invoke(app, ["trajectory", "show", "quick"])
+    assert result.exit_code == 0, result.output
+    assert "+0.6934" in result.stdout and "quick" in result.stdout
+
+
+def test_show_and_check_a_waypoint_file(tmp_path: Path) -> None:
+    file = tmp_path / "mine.csv"
+    file.write_text("index,x,y,z,rx,ry,rz\n0,0.45,-0.2,0.35,3.1416,0,0\n1,1.6,0,0.35,3.1416,0,0\n")
+    shown = runner.invoke(app, ["trajectory", "show", "--file", str(file), "--json"])
+    assert [w["index"] for w in json.loads(shown.stdout)["waypoints"]] == [0, 1]
+    checked = runner.invoke(app, ["trajectory", "check", "--file", str(file), "--json"])
+    assert checked.exit_code == 2
+    report = json.loads(checked.stdout)
+    assert report["ok"] is False
+    assert {p["index"] for p in report["problems"]} == {1}
+    assert "0" in report["joint_solutions_rad"]
+
+
+def test_check_default_preset_passes() -> None:
+    result = runner.invoke(app, ["trajectory", "check"])
+    assert result.exit_code == 0, result.output
+    assert "all 20 waypoints are reachable" in result.stdout
+
+
+def test_check_with_a_tight_box_fails_with_exit_code_2_and_lists_waypoints() -> None:
+    result = run_cli("trajectory", "check", "drill", "--box-min", "0.4,-1,0")
+    assert result.returncode == 2
+    assert "4 of 20 waypoints fail" in result.stdout
+    assert "waypoint 14" in result.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["trajectory", "show", "nope"], "unknown trajectory preset 'nope'"),
+        (["trajectory", "check", "--box-min", "1,1,1"], "min 1.0 m must be below max 0.9 m"),
+        (["trajectory", "show", "--file", "/nonexistent/w.csv"], "does not exist"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_code_2(args: list[str], message: str) -> None:
+    result = run_cli(*args)
+    assert result.returncode == 2
+    assert message in result.stderr
+    assert "Traceback" not in result.stderr
