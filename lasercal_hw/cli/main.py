@@ -13,6 +13,7 @@ from rich.markup import escape
 from lasercal_hw import __version__
 from lasercal_hw.cli.common import err_console
 from lasercal_hw.cli.fake import fake_app
+from lasercal_hw.cli.robot import robot_app
 from lasercal_hw.cli.scanner import scanner_app
 from lasercal_hw.cli.session import session_app
 from lasercal_hw.cli.simulate import simulate_command
@@ -58,6 +59,7 @@ app.add_typer(fake_app, name="fake")
 app.add_typer(scanner_app, name="scanner")
 app.add_typer(session_app, name="session")
 app.add_typer(trajectory_app, name="trajectory")
+app.add_typer(robot_app, name="robot")
 
 
 def main() -> None:

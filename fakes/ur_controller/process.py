@@ -1,0 +1,183 @@
+"""Run a fake UR controller: in this process (``FakeRobot``, for the fake cell) or as a
+separate OS process (``FakeRobotProcess``, for tests and tools).
+
+ur_rtde's constructors hold the GIL while they wait for the controller, so a fake must
+never run as threads inside the process of an ur_rtde client: use ``FakeRobotProcess``
+there. ``FakeRobot`` is for processes that host the fake itself (``lasercal fake robot``,
+the fake cell, which also runs the fake scanner next to it).
+"""
+
+from __future__ import annotations
+
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from types import TracebackType
+
+from fakes.ur_controller.controller import ControllerConfig, FakeController
+from fakes.ur_controller.dashboard import Dashboard
+from fakes.ur_controller.net import TcpListener, require_loopback
+from fakes.ur_controller.rtde_server import RtdeServer
+from fakes.ur_controller.script_server import ScriptServer
+from lasercal_hw.errors import DeviceTimeoutError, TransportError
+
+DASHBOARD_PORT = 29999
+RTDE_PORT = 30004
+SCRIPT_PORT = 30003
+READY_PREFIX = "fake robot ready"
+
+
+class FakeRobot:
+    """Controller + dashboard + RTDE + script servers on one loopback address."""
+
+    def __init__(self, address: str, config: ControllerConfig | None = None) -> None:
+        self.address = require_loopback(address)
+        self.controller = FakeController(config)
+        self.rtde = RtdeServer(self.controller)
+        self._listeners: list[TcpListener] = []
+        self._thread = threading.Thread(target=self.controller.run, name="fake-ur-cycle", daemon=True)
+
+    def start(self) -> None:
+        """Bind the three ports and start the controller cycle; TransportError if a port
+        is taken (the listeners already bound are closed again)."""
+        servers = [(DASHBOARD_PORT, Dashboard(self.controller).serve, "dashboard"),
+                   (RTDE_PORT, self.rtde.serve, "rtde"),
+                   (SCRIPT_PORT, ScriptServer(self.controller).serve, "script")]
+        try:
+            for port, handler, name in servers:
+                self._listeners.append(TcpListener(self.address, port, handler, name))
+        except TransportError:
+            self.close()
+            raise
+        self.controller.add_drop_listener(self.drop_connections)
+        self._thread.start()
+        for listener in self._listeners:
+            listener.start()
+
+    def drop_connections(self) -> None:
+        """Close every client connection; the ports keep listening."""
+        for listener in self._listeners:
+            listener.close_clients()
+
+    def ready_line(self) -> str:
+        """The line announcing readiness on standard output."""
+        return (f"{READY_PREFIX}: address={self.address} version={self.controller.config.version_text} "
+                f"dashboard={DASHBOARD_PORT} rtde={RTDE_PORT} script={SCRIPT_PORT} pid={os.getpid()}")
+
+    def close(self) -> None:
+        """Stop the servers and the cycle; safe to call twice."""
+        for listener in self._listeners:
+            listener.close()
+        self._listeners.clear()
+        self.controller.stop()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+
+    def __enter__(self) -> FakeRobot:
+        self.start()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def serve_until_signal(robot: FakeRobot) -> None:
+    """Start ``robot``, print its ready line, and run until SIGINT or SIGTERM."""
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        robot.start()
+        print(robot.ready_line(), flush=True)
+        while not stop.wait(0.5):
+            pass
+    finally:
+        robot.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+class FakeRobotProcess:
+    """``lasercal fake robot`` as a child process; ``start`` returns once it printed its
+    ready line, ``close`` terminates it (and kills it if it does not exit)."""
+
+    def __init__(self, address: str, extra_args: Sequence[str] = (), startup_timeout_s: float = 20.0) -> None:
+        self.address = require_loopback(address)
+        self.args = [sys.executable, "-m", "lasercal_hw.cli.main", "fake", "robot",
+                     "--address", address, *extra_args]
+        self.startup_timeout_s = startup_timeout_s
+        self.process: subprocess.Popen[str] | None = None
+        self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115  (closed in close())
+        self._stderr_text = ""
+        self.ready_line = ""
+
+    @property
+    def pid(self) -> int:
+        """Process id of the fake."""
+        assert self.process is not None, "start() first"
+        return self.process.pid
+
+    def start(self) -> FakeRobotProcess:
+        """Launch and wait for the ready line; TransportError if the fake exits first,
+        DeviceTimeoutError if it stays silent."""
+        self.process = subprocess.Popen(self.args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                        stderr=self._stderr, text=True)
+        assert self.process.stdout is not None
+        deadline = time.monotonic() + self.startup_timeout_s
+        with selectors.DefaultSelector() as selector:
+            selector.register(self.process.stdout, selectors.EVENT_READ)
+            while time.monotonic() < deadline:
+                if not selector.select(timeout=deadline - time.monotonic()):
+                    continue
+                line = self.process.stdout.readline()
+                if line.startswith(READY_PREFIX):
+                    self.ready_line = line.strip()
+                    return self
+                if not line:
+                    self.close()
+                    error = self.stderr_text()
+                    raise TransportError(f"fake robot on {self.address} exited before it was ready: "
+                                         f"{error.strip()[-500:]}")
+        self.close()
+        raise DeviceTimeoutError(f"fake robot on {self.address} printed no ready line "
+                                 f"within {self.startup_timeout_s:g} s")
+
+    def stderr_text(self) -> str:
+        """Everything the fake wrote to standard error so far."""
+        if self._stderr.closed:
+            return self._stderr_text
+        self._stderr.flush()
+        self._stderr.seek(0)
+        text = self._stderr.read()
+        self._stderr.seek(0, 2)
+        return text
+
+    def close(self) -> None:
+        """Terminate the fake and reap it; safe to call twice (its stderr stays readable)."""
+        if self.process is None:
+            return
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(timeout=5.0)
+        if self.process.stdout is not None:
+            self.process.stdout.close()
+        self.process = None
+        self._stderr_text = self.stderr_text()
+        self._stderr.close()
+
+    def __enter__(self) -> FakeRobotProcess:
+        return self.start()
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
