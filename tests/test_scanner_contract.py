@@ -29,14 +29,11 @@ class KnownSource:
     """A ``RangeSource``: distances 1000 + step mm, except error code 1 on steps 0..9 and
     60001 (> DMAX) on step 10; intensity 2 * step."""
 
-    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
+    def ranges_mm(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
         ranges = 1000 + STEPS
         ranges[:10] = 1
         ranges[10] = 60001
-        return ranges[step_first : step_last + 1].astype(np.int64)
-
-    def intensities(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
-        return (2 * STEPS[step_first : step_last + 1]).astype(np.int64)
+        return ranges.astype(np.int64), (2 * STEPS).astype(np.int64)
 
 
 EXPECTED_M = np.where((STEPS < 10) | (STEPS == 10), np.nan, (1000 + STEPS) / 1000.0)
