@@ -30,7 +30,7 @@ import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import CompressionType, Writer
-from mcap_ros2._dynamic import serialize_dynamic  # the encoder behind mcap_ros2.writer.Writer
+from mcap_ros2._dynamic import serialize_dynamic  # private (no public encoder); version pinned in pyproject
 from numpy.typing import ArrayLike
 
 from lasercal_hw import __version__
