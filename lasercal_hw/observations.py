@@ -26,6 +26,8 @@ SIGMA_COLUMNS = ("sigma_u", "sigma_v")
 def load_observations(path: str | Path) -> list[Observation]:
     """Observations from an input file, chosen by its suffix (``.csv``)."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{str(path)!r} is a directory; pass the observations.csv file inside it")
     loader = _LOADERS.get(path.suffix.lower())
     if loader is None:
         supported = ", ".join(sorted(_LOADERS))
@@ -41,9 +43,11 @@ def read_observations_csv(path: str | Path) -> list[Observation]:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError as exc:
-        raise ConfigError(f"observations file {str(path)!r} does not exist") from exc
+        raise ConfigError(f"observations file {str(path)!r} does not exist; check the path") from exc
     except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"cannot read observations file {str(path)!r}: {exc}") from exc
+        raise ConfigError(
+            f"cannot read observations file {str(path)!r}: {exc}; pass a UTF-8 CSV file"
+        ) from exc
     lines = [(number, line) for number, line in enumerate(text.splitlines(), start=1)
              if line.strip() and not line.lstrip().startswith("#")]
     if not lines:

@@ -94,6 +94,24 @@ def test_missing_file_exit_2(tmp_path: Path) -> None:
     _assert_one_line_error(run_cli("solve", str(tmp_path / "absent.csv")), 2, "does not exist")
 
 
+def test_directory_instead_of_a_file_exit_2(tmp_path: Path) -> None:
+    _assert_one_line_error(run_cli("solve", str(tmp_path)), 2, "is a directory", "observations.csv")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--trials", "0"), "--trials must be at least 1, got 0"),
+        (("--trials", "-3"), "--trials must be at least 1, got -3"),
+        (("--laser-noise-mm", "-1"), "--laser-noise-mm must be positive, got -1"),
+        (("--robot-noise-mm", "-0.5"), "--robot-noise-mm must not be negative, got -0.5"),
+        (("--tilt-deg", "90"), "--tilt-deg must be between 0 and 60"),
+    ],
+)
+def test_simulate_names_the_bad_option_and_its_value(args: tuple[str, ...], message: str) -> None:
+    _assert_one_line_error(run_cli("simulate", *args), 2, message)
+
+
 def test_simulate_json_reports_statistics_against_the_bound() -> None:
     result = run_cli("simulate", "--trials", "5", "--points", "20", "--seed", "3", "--json")
     assert result.returncode == 0, result.stderr

@@ -81,9 +81,13 @@ def test_connection_refused_is_one_clear_line() -> None:
         (("scanner", "info", "http://127.0.0.1"), "scip+tcp://HOST[:PORT]"),
         (("scanner", "info", "scip+serial:///dev/ttyACM0?speed=9"), "unknown option(s) speed"),
         (("scanner", "capture", "scip+tcp://127.0.0.1:1", "--scans", "0"), "--scans must be at least 1"),
+        (("scanner", "info", "scip+tcp://[::1"), "Invalid IPv6 URL"),
+        (("scanner", "info", "scip+tcp://127.0.0.1:1", "--timeout", "0"), "--timeout must be a positive"),
+        (("scanner", "capture", "scip+tcp://127.0.0.1:1", "--timeout", "-1"), "--timeout must be a positive"),
     ],
 )
 def test_bad_input_exits_2_with_the_accepted_forms(args: tuple[str, ...], message: str) -> None:
     result = run_cli(*args)
     assert result.returncode == 2
     assert message in result.stderr
+    assert result.stderr.strip().count("\n") == 0 and "Traceback" not in result.stderr

@@ -71,3 +71,31 @@ def test_info_on_a_missing_file_is_a_one_line_error(tmp_path):
     result = run_cli("session", "info", str(tmp_path / "none.mcap"))
     assert result.returncode == 2
     assert "not found" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_info_on_a_directory_or_a_non_mcap_file_is_a_one_line_error(tmp_path):
+    not_mcap = tmp_path / "notes.mcap"
+    not_mcap.write_text("not a recording\n")
+    for path, message in ((tmp_path, "is a directory"), (not_mcap, "is not an MCAP file")):
+        result = run_cli("session", "info", str(path))
+        assert result.returncode == 2
+        assert message in result.stderr and result.stderr.strip().count("\n") == 0
+        assert "Traceback" not in result.stderr
+
+
+def test_repair_of_a_bad_source_creates_no_target(tmp_path):
+    target = tmp_path / "repaired.mcap"
+    result = run_cli("session", "repair", str(tmp_path / "none.mcap"), str(target))
+    assert result.returncode == 2 and "not found" in result.stderr
+    assert not target.exists()  # a retry with the right source must not find a stale target
+
+
+def test_repair_onto_an_existing_target_says_to_choose_another_name(tmp_path):
+    source = tmp_path / "session.mcap"
+    _crashed_session(source)
+    target = tmp_path / "repaired.mcap"
+    target.write_bytes(b"keep me")
+    result = run_cli("session", "repair", str(source), str(target))
+    assert result.returncode == 2
+    assert "choose a new file name" in result.stderr and "--resume" not in result.stderr
+    assert target.read_bytes() == b"keep me"

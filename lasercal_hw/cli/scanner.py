@@ -84,6 +84,11 @@ def _scan_doc(scan: LaserScan) -> dict[str, Any]:
     }
 
 
+def _check_timeout(timeout_s: float) -> None:
+    if not timeout_s > 0:
+        raise ConfigError(f"--timeout must be a positive number of seconds, got {timeout_s:g}")
+
+
 def _key_value_table(title: str, rows: dict[str, Any]) -> Table:
     table = Table(title=title, show_header=False, title_justify="left")
     table.add_column(style="bold")
@@ -100,6 +105,7 @@ def info(
     timeout_s: float = typer.Option(2.0, "--timeout", help="Reply timeout per command (s)."),
 ) -> None:
     """Identity (VV), parameters (PP) and status (II) of a scanner."""
+    _check_timeout(timeout_s)
     with HokuyoScanner.open(url, timeout_s=timeout_s, sync_clock=False, reconnect=False) as scanner:
         identity, parameters, status = scanner.identity(), scanner.parameters(), scanner.status()
     document = {
@@ -127,6 +133,7 @@ def capture(
     """Stream N scans (MD, or ME with --intensity) and summarise them."""
     if scans < 1:
         raise ConfigError(f"--scans must be at least 1, got {scans}")
+    _check_timeout(timeout_s)
     captured: list[LaserScan] = []
     with HokuyoScanner.open(url, timeout_s=timeout_s) as scanner:
         geometry = scanner.geometry()
