@@ -421,8 +421,13 @@ class FakeScannerServer:
             logger.info("refusing a second client %s: one client at a time", peer)
             conn.close()
             return
-        conn.setblocking(False)
-        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        try:
+            conn.setblocking(False)
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError as exc:  # the client went away between connect and accept
+            logger.info("client %s gone before it was served: %s", peer, exc)
+            conn.close()
+            return
         self._conn = conn
         self.stats.connections += 1
         self._reset_link_state()

@@ -38,7 +38,7 @@ from drivers.hokuyo.info import (
     parse_status,
 )
 from drivers.hokuyo.stamps import ClockEstimate, ClockSample, DeviceClock, TimestampUnwrapper
-from drivers.hokuyo.transport import SerialTransport, Transport, open_transport, parse_url
+from drivers.hokuyo.transport import SerialTransport, Transport, open_transport
 from lasercal_hw.errors import (
     ConfigError,
     DeviceError,
@@ -123,7 +123,6 @@ class HokuyoScanner:
 
         ``timeout_s`` bounds every command reply; ``first_step``/``last_step``/``cluster``
         choose the scan layout (default: all measurable steps)."""
-        parse_url(url)
         scanner = cls(
             url,
             open_transport(url, connect_timeout_s),
