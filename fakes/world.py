@@ -22,7 +22,13 @@ from numpy.typing import NDArray
 
 from fakes.raycast import beams_near_sphere, ray_cylinder, ray_plane, ray_rectangle
 from fakes.scene import NoiseSettings, Scene, load_scene
-from lasercal_hw.geometry import euler_zyx_to_matrix, invert_transform, make_transform, rotvec_to_matrix
+from lasercal_hw.geometry import (
+    euler_zyx_to_matrix,
+    invert_transform,
+    make_transform,
+    pose_to_matrix,
+    rotvec_to_matrix,
+)
 from lasercal_hw.models import FloatArray, RodLine, ScanGeometry
 
 logger = logging.getLogger(__name__)
@@ -347,7 +353,7 @@ class WorldRangeSource:
         starting at ``time_s``."""
         pose = np.asarray(self._tcp_pose_at(time_s), dtype=float)
         if pose.shape == (6,):
-            pose = make_transform(rotvec_to_matrix(pose[3:]), pose[:3])
+            pose = pose_to_matrix(pose)
         rng = np.random.default_rng([self._seed, round(time_s * 1e6)])
         return self._world.scan_mm(pose, rng)
 
