@@ -4,22 +4,14 @@ from __future__ import annotations
 
 import json
 import socket
-import subprocess
-import sys
 from collections.abc import Iterator
 
 import pytest
 
 from fakes.scip_server import FakeScannerServer
+from tests.cli_helpers import assert_one_line_error, run_cli
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(90)]
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "lasercal_hw.cli.main", *args],
-        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
-    )
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +79,4 @@ def test_connection_refused_is_one_clear_line() -> None:
     ],
 )
 def test_bad_input_exits_2_with_the_accepted_forms(args: tuple[str, ...], message: str) -> None:
-    result = run_cli(*args)
-    assert result.returncode == 2
-    assert message in result.stderr
-    assert result.stderr.strip().count("\n") == 0 and "Traceback" not in result.stderr
+    assert_one_line_error(run_cli(*args), 2, message)
