@@ -114,3 +114,16 @@ def test_every_descriptor_and_thread_is_released(link: str) -> None:
         with pytest.raises(TransportError, match="cannot connect"):
             HokuyoScanner.open(url, timeout_s=1.0)  # the server is gone: connection refused
     assert _resources() == before
+
+
+def test_reconnect_warnings_name_the_scanner_once(caplog: pytest.LogCaptureFixture) -> None:
+    with (
+        FakeScannerServer(source=SCENE, faults=ScipFaults(drop_after_scans=3)) as server,
+        HokuyoScanner.open(server.url, timeout_s=2.0) as client,
+    ):
+        client.start_streaming()
+        for _ in range(6):
+            client.next_scan(timeout_s=3.0)
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert any("reconnecting" in message for message in warnings)
+    assert all(message.count("scip+tcp://") == 1 for message in warnings), "\n".join(warnings)
