@@ -77,6 +77,14 @@ def test_missing_file_exit_2(tmp_path: Path) -> None:
     assert_one_line_error(run_cli("solve", str(tmp_path / "absent.csv")), 2, "does not exist")
 
 
+def test_unwritable_output_is_a_one_line_error(tmp_path: Path) -> None:
+    csv_path = _csv(tmp_path, points=30)
+    targets = ((tmp_path / "absent" / "result.json", "No such file"), (tmp_path, "Is a directory"))
+    for target, reason in targets:
+        result = run_cli("solve", str(csv_path), "--output", str(target))
+        assert_one_line_error(result, 2, "cannot write", reason, "writable directory")
+
+
 def test_directory_instead_of_a_file_exit_2(tmp_path: Path) -> None:
     assert_one_line_error(run_cli("solve", str(tmp_path)), 2, "is a directory", "observations.csv")
 
