@@ -9,6 +9,7 @@ import traceback
 
 import typer
 from rich.markup import escape
+from typer.exceptions import TyperException
 
 from lasercal_hw import __version__
 from lasercal_hw.cli.common import err_console
@@ -65,7 +66,17 @@ app.add_typer(robot_app, name="robot")
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
     try:
-        app()
+        exit_code = app(standalone_mode=False)
+    except TyperException as exc:
+        message = exc.format_message()
+        ctx = getattr(exc, "ctx", None)
+        if type(exc).__name__ != "NoArgsIsHelpError":  # typer has already shown the help for that one
+            hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+            err_console.print(f"[bold red]error:[/] {escape(message)}{escape(hint)}", soft_wrap=True)
+        sys.exit(int(ExitCode.BAD_INPUT))
+    except typer.Abort:
+        err_console.print("aborted")
+        sys.exit(int(ExitCode.INTERRUPTED))
     except LasercalError as exc:
         if _debug["enabled"]:
             traceback.print_exc()
@@ -74,6 +85,7 @@ def main() -> None:
     except KeyboardInterrupt:
         err_console.print("interrupted")
         sys.exit(int(ExitCode.INTERRUPTED))
+    sys.exit(exit_code if isinstance(exit_code, int) else 0)
 
 
 if __name__ == "__main__":
