@@ -66,7 +66,7 @@ app.add_typer(robot_app, name="robot")
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
     try:
-        exit_code = app(standalone_mode=False)
+        exit_code = app(standalone_mode=False, prog_name="lasercal")
     except TyperException as exc:
         message = exc.format_message()
         ctx = getattr(exc, "ctx", None)
