@@ -1,9 +1,8 @@
 """What the fake scanner sees: the ``RangeSource`` protocol and a default 2D scene.
 
 A range source answers, for the revolution that starts at ``time_s``, the distances in
-millimetres (values below DMIN = 23 are error codes) and the intensities of the steps
-``step_first..step_last`` (both inclusive, absolute step numbers 0..1080). The fake SCIP
-server asks for the requested steps and clusters them itself. The default scene is a
+millimetres (values below DMIN = 23 are error codes) and the intensities of all steps
+0..1080. The fake SCIP server cuts out the requested steps and clusters them itself. The default scene is a
 rectangular room with one vertical cylinder (a 20 mm calibration rod by default),
 ray-cast in the scan plane. The 3D world (``fakes/world.py``, ``WorldRangeSource``)
 plugs in through the same protocol.
@@ -11,7 +10,6 @@ plugs in through the same protocol.
 
 from __future__ import annotations
 
-import inspect
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -31,52 +29,14 @@ NO_ECHO_CODE_MM = 1
 class RangeSource(Protocol):
     """Anything that can tell the fake scanner what one revolution measures.
 
-    Both methods get the same ``time_s`` for one scan (seconds on the server's monotonic
-    clock) and return one value per step of ``step_first..step_last``."""
-
-    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        """Distances in mm (values < 23 are error codes)."""
-        ...
-
-    def intensities(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        """Received-light intensities (18-bit, unitless)."""
-        ...
-
-
-class RevolutionSource(Protocol):
-    """The first published form of a source: one call per revolution returning all 1081
-    distances and intensities. Still accepted; ``as_range_source`` adapts it."""
+    One call per scan: ``time_s`` is the start of the revolution (seconds on the server's
+    monotonic clock); the answer covers every step 0..1080, and the fake cuts out and
+    clusters the steps a request asks for."""
 
     def ranges_mm(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """Distances (mm) and intensities of steps 0..1080 at ``time_s``."""
+        """Distances in mm (values < 23 are error codes) and received-light intensities
+        (18-bit, unitless) of steps 0..1080."""
         ...
-
-
-class _RevolutionAdapter:
-    """Serves step windows of a ``RevolutionSource`` (one call per scan time)."""
-
-    def __init__(self, source: RevolutionSource) -> None:
-        self._source = source
-        self._last: tuple[float, NDArray[np.int64], NDArray[np.int64]] | None = None
-
-    def _revolution(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        if self._last is None or self._last[0] != time_s:
-            ranges, intensities = self._source.ranges_mm(time_s)
-            self._last = (time_s, np.asarray(ranges, dtype=np.int64), np.asarray(intensities, dtype=np.int64))
-        return self._last[1], self._last[2]
-
-    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        return self._revolution(time_s)[0][step_first : step_last + 1]
-
-    def intensities(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        return self._revolution(time_s)[1][step_first : step_last + 1]
-
-
-def as_range_source(source: RangeSource | RevolutionSource) -> RangeSource:
-    """``source`` as a ``RangeSource``: a one-argument ``ranges_mm(time_s)`` is wrapped."""
-    if len(inspect.signature(source.ranges_mm).parameters) == 1:
-        return _RevolutionAdapter(source)  # type: ignore[arg-type]
-    return source  # type: ignore[return-value]
 
 
 def beam_angles_rad() -> NDArray[np.float64]:
@@ -114,15 +74,7 @@ class RoomScene:
         if not (self.x_min_m < 0.0 < self.x_max_m and self.y_min_m < 0.0 < self.y_max_m):
             raise ValueError("the scanner (origin) must lie inside the room")
 
-    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        """Distances of steps ``step_first..step_last`` in mm."""
-        return self.revolution(time_s)[0][step_first : step_last + 1]
-
-    def intensities(self, step_first: int, step_last: int, time_s: float) -> NDArray[np.int64]:
-        """Intensities of steps ``step_first..step_last``."""
-        return self.revolution(time_s)[1][step_first : step_last + 1]
-
-    def revolution(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    def ranges_mm(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """Distances (mm) and intensities of all steps 0..1080 at ``time_s``: every beam
         ray-cast against the walls and the cylinders (deterministic for a given time)."""
         angles = beam_angles_rad()

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.hokuyo import codec
-from fakes.scan_scene import RangeSource, RevolutionSource, as_range_source
+from fakes.scan_scene import RangeSource
 from fakes.scip_identity import UTM_30LX_EW, LinkKind, ScipIdentity, SensorState
 
 logger = logging.getLogger(__name__)
@@ -68,7 +68,7 @@ class ScipDevice:
 
     def __init__(
         self,
-        source: RangeSource | RevolutionSource,
+        source: RangeSource,
         *,
         identity: ScipIdentity = UTM_30LX_EW,
         link: LinkKind = LinkKind.ETHERNET,
@@ -78,7 +78,7 @@ class ScipDevice:
     ) -> None:
         if scan_period_s <= 0:
             raise ValueError("scan_period_s must be positive")
-        self.source = as_range_source(source)
+        self.source = source
         self.identity = identity
         self.link = link
         self.scan_period_s = scan_period_s
@@ -338,17 +338,16 @@ class ScipDevice:
         self, request: codec.ScanRequest, scan_start_s: float
     ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         first, last = request.first_step, request.last_step
-        ranges = np.asarray(self.source.ranges_mm(first, last, scan_start_s), dtype=np.int64)
-        if request.with_intensity:
-            intensities = np.asarray(self.source.intensities(first, last, scan_start_s), dtype=np.int64)
-        else:
-            intensities = np.zeros_like(ranges)
-        steps = last - first + 1
-        if ranges.shape != (steps,) or intensities.shape != (steps,):
+        all_ranges, all_intensities = self.source.ranges_mm(scan_start_s)
+        ranges = np.asarray(all_ranges, dtype=np.int64)
+        intensities = np.asarray(all_intensities, dtype=np.int64)
+        expected = (self.identity.last_step + 1,)
+        if ranges.shape != expected or intensities.shape != expected:
             raise ValueError(
-                f"range source returned shapes {ranges.shape}/{intensities.shape} for steps "
-                f"{first}..{last}, expected ({steps},)"
+                f"range source returned shapes {ranges.shape}/{intensities.shape}, expected {expected} "
+                f"(steps 0..{self.identity.last_step})"
             )
+        ranges, intensities = ranges[first : last + 1], intensities[first : last + 1]
         ranges = np.clip(ranges, 0, (1 << 18) - 1)
         intensities = np.clip(intensities, 0, (1 << 18) - 1)
         return _cluster(ranges, intensities, max(request.cluster, 1), self.identity.min_range_mm)

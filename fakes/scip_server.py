@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from types import TracebackType
 
 from drivers.hokuyo.codec import CommandFramer
-from fakes.scan_scene import RangeSource, RevolutionSource, RoomScene
+from fakes.scan_scene import RangeSource, RoomScene
 from fakes.scip_device import SCAN_PERIOD_S, ScipDevice
 from fakes.scip_faults import FaultInjector, ScipFaults
 from fakes.scip_identity import UTM_30LX_EW, LinkKind, ScipIdentity, SensorState
@@ -97,7 +97,7 @@ class FakeScannerServer:
         port: int = 0,
         *,
         pty: bool = False,
-        source: RangeSource | RevolutionSource | None = None,
+        source: RangeSource | None = None,
         faults: ScipFaults | None = None,
         identity: ScipIdentity = UTM_30LX_EW,
         start_time_ms: int = 0,
@@ -111,7 +111,7 @@ class FakeScannerServer:
         self.address = loopback_host(address)
         self.port = port
         self.use_pty = pty
-        self.source: RangeSource | RevolutionSource = source if source is not None else RoomScene()
+        self.source: RangeSource = source if source is not None else RoomScene()
         self.faults = faults if faults is not None else ScipFaults()
         self.identity = identity
         self.start_time_ms = start_time_ms
@@ -421,8 +421,13 @@ class FakeScannerServer:
             logger.info("refusing a second client %s: one client at a time", peer)
             conn.close()
             return
-        conn.setblocking(False)
-        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        try:
+            conn.setblocking(False)
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        except OSError as exc:  # the client went away between connect and accept
+            logger.info("client %s gone before it was served: %s", peer, exc)
+            conn.close()
+            return
         self._conn = conn
         self.stats.connections += 1
         self._reset_link_state()

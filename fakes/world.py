@@ -22,7 +22,13 @@ from numpy.typing import NDArray
 
 from fakes.raycast import beams_near_sphere, ray_cylinder, ray_plane, ray_rectangle
 from fakes.scene import NoiseSettings, Scene, load_scene
-from lasercal_hw.geometry import euler_zyx_to_matrix, invert_transform, make_transform, rotvec_to_matrix
+from lasercal_hw.geometry import (
+    euler_zyx_to_matrix,
+    invert_transform,
+    make_transform,
+    pose_to_matrix,
+    rotvec_to_matrix,
+)
 from lasercal_hw.models import FloatArray, RodLine, ScanGeometry
 
 logger = logging.getLogger(__name__)
@@ -220,7 +226,7 @@ class World:
         T_true = self.robot_error.true_pose(T_base_tcp) if apply_robot_error else np.asarray(T_base_tcp)
         rod = self._rod_shape(T_true)
         ranges, cos, refl = self._static_t.copy(), self._static_cos.copy(), self._static_refl.copy()
-        beams = self._rod_beams(rod, self.angles_rad)
+        beams = self._rod_beams(rod)
         if beams.size:
             rod_t, rod_cos, _ = self._cast([rod], self._dirs[beams])
             nearer = rod_t < ranges[beams]
@@ -229,7 +235,7 @@ class World:
         intensity = refl * cos * _INTENSITY_SCALE / (1.0 + (ranges / _INTENSITY_HALF_RANGE_M) ** 2)
         if rng is not None:
             noise = self.scene.noise
-            ranges = self._mixed_pixels(ranges, rod, noise, rng)
+            ranges = self._mixed_pixels(ranges, rod, beams, noise, rng)
             finite = np.isfinite(ranges)
             measured = ranges[finite]
             noise_m = rng.normal(0.0, 1.0, measured.size) * _sigma_m(measured, noise)
@@ -240,17 +246,23 @@ class World:
         intensity = np.where(np.isfinite(ranges), np.fmax(intensity, 0.0), 0.0)
         return ranges, intensity
 
-    def _rod_beams(self, rod: _Shape, angles_rad: FloatArray) -> NDArray[np.int64]:
+    def _rod_beams(self, rod: _Shape) -> NDArray[np.int64]:
         """Indices of the beams that can touch the rod (its bounding sphere), before exact casting."""
         point, axis = rod.params
         half_length = 0.5 * self._rod.length_m
         bound_m = float(np.hypot(half_length, self._rod.radius_m))
-        return beams_near_sphere(angles_rad, point + half_length * axis, bound_m)
+        return beams_near_sphere(self.angles_rad, point + half_length * axis, bound_m)
 
     def _mixed_pixels(
-        self, ranges: FloatArray, rod: _Shape, noise: NoiseSettings, rng: np.random.Generator
+        self,
+        ranges: FloatArray,
+        rod: _Shape,
+        rod_beams: NDArray[np.int64],
+        noise: NoiseSettings,
+        rng: np.random.Generator,
     ) -> FloatArray:
-        """Beams whose footprint straddles a depth edge may return a blend of both depths."""
+        """Beams whose footprint straddles a depth edge may return a blend of both depths;
+        ``rod_beams`` are the beams that can touch the rod (``_rod_beams``)."""
         if noise.mixed_pixel_probability <= 0.0 or noise.beam_footprint_deg <= 0.0:
             return ranges
         with np.errstate(invalid="ignore"):
@@ -262,7 +274,7 @@ class World:
         if beams.size == 0:
             return ranges
         sub_t = self._static_sub_t[beams].copy()
-        near_rod = np.intersect1d(beams, self._rod_beams(rod, self.angles_rad), assume_unique=True)
+        near_rod = np.intersect1d(beams, rod_beams, assume_unique=True)
         if near_rod.size:
             rows = np.searchsorted(beams, near_rod)
             rod_t = rod.intersect(self._sub_dirs[near_rod].reshape(-1, 3)).reshape(-1, _SUB_RAYS)
@@ -341,7 +353,7 @@ class WorldRangeSource:
         starting at ``time_s``."""
         pose = np.asarray(self._tcp_pose_at(time_s), dtype=float)
         if pose.shape == (6,):
-            pose = make_transform(rotvec_to_matrix(pose[3:]), pose[:3])
+            pose = pose_to_matrix(pose)
         rng = np.random.default_rng([self._seed, round(time_s * 1e6)])
         return self._world.scan_mm(pose, rng)
 

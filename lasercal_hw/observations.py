@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,8 @@ SIGMA_COLUMNS = ("sigma_u", "sigma_v")
 def load_observations(path: str | Path) -> list[Observation]:
     """Observations from an input file, chosen by its suffix (``.csv``)."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{str(path)!r} is a directory; pass the observations.csv file inside it")
     loader = _LOADERS.get(path.suffix.lower())
     if loader is None:
         supported = ", ".join(sorted(_LOADERS))
@@ -41,9 +44,11 @@ def read_observations_csv(path: str | Path) -> list[Observation]:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError as exc:
-        raise ConfigError(f"observations file {str(path)!r} does not exist") from exc
+        raise ConfigError(f"observations file {str(path)!r} does not exist; check the path") from exc
     except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"cannot read observations file {str(path)!r}: {exc}") from exc
+        raise ConfigError(
+            f"cannot read observations file {str(path)!r}: {exc}; pass a UTF-8 CSV file"
+        ) from exc
     lines = [(number, line) for number, line in enumerate(text.splitlines(), start=1)
              if line.strip() and not line.lstrip().startswith("#")]
     if not lines:
@@ -68,45 +73,60 @@ def read_observations_csv(path: str | Path) -> list[Observation]:
     for (line_number, _), row in zip(lines[1:], rows[1:], strict=True):
         if len(row) < len(header):
             raise ConfigError(f"{path.name} line {line_number}: {len(row)} values, header has {len(header)}")
-
-        def number(name: str, row: list[str] = row, line_number: int = line_number) -> float:
-            text = row[column[name]].strip()
-            try:
-                value = float(text)
-            except ValueError:
-                raise ConfigError(
-                    f"{path.name} line {line_number}, column {name}: {text!r} is not a number"
-                ) from None
-            if not math.isfinite(value):
-                raise ConfigError(f"{path.name} line {line_number}, column {name}: {text!r} is not finite")
-            return value
-
-        index_value = number("index")
-        if index_value != int(index_value):
+        observation = _parse_row(_Row(path.name, line_number, row, column), with_sigma=all(has_sigma))
+        if observation.index in first_line:
             raise ConfigError(
-                f"{path.name} line {line_number}, column index: {index_value!r} is not an integer"
+                f"{path.name} line {line_number}: index {observation.index} repeats line "
+                f"{first_line[observation.index]}"
             )
-        index = int(index_value)
-        if index in first_line:
-            raise ConfigError(
-                f"{path.name} line {line_number}: index {index} repeats line {first_line[index]}"
-            )
-        first_line[index] = line_number
-        covariance = None
-        if all(has_sigma):
-            sigmas = [number(name) for name in SIGMA_COLUMNS]
-            if min(sigmas) <= 0:
-                raise ConfigError(f"{path.name} line {line_number}: sigma_u and sigma_v must be positive")
-            covariance = np.diag(np.square(sigmas))
-        observations.append(
-            Observation(
-                index=index,
-                tcp_pose=np.array([number(name) for name in POSE_COLUMNS]),
-                centre_uv_m=np.array([number("u"), number("v")]),
-                covariance_uv_m2=covariance,
-            )
-        )
+        first_line[observation.index] = line_number
+        observations.append(observation)
     return observations
+
+
+@dataclass(frozen=True)
+class _Row:
+    """One data line of the CSV, with what an error message needs to point at it."""
+
+    file_name: str
+    line_number: int
+    cells: list[str]
+    column: dict[str, int]
+
+    def number(self, name: str) -> float:
+        """The finite number in column ``name``."""
+        text = self.cells[self.column[name]].strip()
+        try:
+            value = float(text)
+        except ValueError:
+            raise ConfigError(
+                f"{self.file_name} line {self.line_number}, column {name}: {text!r} is not a number"
+            ) from None
+        if not math.isfinite(value):
+            raise ConfigError(
+                f"{self.file_name} line {self.line_number}, column {name}: {text!r} is not finite"
+            )
+        return value
+
+
+def _parse_row(row: _Row, *, with_sigma: bool) -> Observation:
+    index_value = row.number("index")
+    if index_value != int(index_value):
+        raise ConfigError(
+            f"{row.file_name} line {row.line_number}, column index: {index_value!r} is not an integer"
+        )
+    covariance = None
+    if with_sigma:
+        sigmas = [row.number(name) for name in SIGMA_COLUMNS]
+        if min(sigmas) <= 0:
+            raise ConfigError(f"{row.file_name} line {row.line_number}: sigma_u and sigma_v must be positive")
+        covariance = np.diag(np.square(sigmas))
+    return Observation(
+        index=int(index_value),
+        tcp_pose=np.array([row.number(name) for name in POSE_COLUMNS]),
+        centre_uv_m=np.array([row.number("u"), row.number("v")]),
+        covariance_uv_m2=covariance,
+    )
 
 
 def write_observations_csv(path: str | Path, observations: Sequence[Observation]) -> None:

@@ -30,7 +30,7 @@ import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.well_known import MessageEncoding, Profile, SchemaEncoding
 from mcap.writer import CompressionType, Writer
-from mcap_ros2._dynamic import serialize_dynamic  # the encoder behind mcap_ros2.writer.Writer
+from mcap_ros2._dynamic import serialize_dynamic  # private (no public encoder); version pinned in pyproject
 from numpy.typing import ArrayLike
 
 from lasercal_hw import __version__
@@ -250,16 +250,18 @@ class SessionRecorder:
         document = {"kind": str(kind), "host_time_s": float(host_time_s), **fields}
         self._write_json(TOPIC_EVENT, host_time_s, document, sync=True)
 
-    def copy_from(self, source: str | Path) -> int:
-        """Copy every complete message (and metadata) of the recording ``source`` byte for
-        byte, keeping topics, schemas and times; returns the number of messages copied."""
+    def copy_from(self, source: str | Path | McapRecords) -> int:
+        """Copy every complete message (and metadata) of the recording ``source`` (a path,
+        or its already read records) byte for byte, keeping topics, schemas and times;
+        returns the number of messages copied."""
         schemas: dict[int, Schema] = {}
         channels: dict[int, int] = {}
         copied = 0
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"session recorder for {self.path} is closed")
-            for record in McapRecords(source):
+            records = source if isinstance(source, McapRecords) else McapRecords(source)
+            for record in records:
                 if isinstance(record, Schema):
                     schemas[record.id] = record
                 elif isinstance(record, Channel):
@@ -380,9 +382,15 @@ class SessionRecorder:
 
 def repair_session(source: str | Path, target: str | Path) -> int:
     """Write the complete part of a (possibly crashed) recording ``source`` as a closed,
-    indexed file ``target`` that every MCAP tool opens; returns the messages copied."""
+    indexed file ``target`` that every MCAP tool opens; returns the messages copied.
+
+    ``source`` is read and checked before ``target`` is created, so a bad source leaves
+    nothing behind."""
+    if Path(target).exists():
+        raise ConfigError(f"repair target {target} already exists; choose a new file name")
+    records = McapRecords(source)
     with SessionRecorder(target, None) as recorder:
-        return recorder.copy_from(source)
+        return recorder.copy_from(records)
 
 
 def _free_backup_path(path: Path) -> Path:

@@ -58,7 +58,9 @@ class McapRecords:
         try:
             data = self.path.read_bytes()
         except FileNotFoundError as exc:
-            raise ConfigError(f"session file {self.path} not found") from exc
+            raise ConfigError(f"session file {self.path} not found; check the path") from exc
+        except IsADirectoryError as exc:
+            raise ConfigError(f"{self.path} is a directory; pass the session.mcap file inside it") from exc
         except OSError as exc:
             raise ConfigError(f"cannot read session file {self.path}: {exc.strerror}") from exc
         if len(data) < MAGIC_SIZE and _MAGIC.startswith(data):

@@ -23,3 +23,18 @@ def test_help_lists_commands() -> None:
     result = run_cli("--help")
     assert result.returncode == 0
     assert "Usage" in result.stdout
+
+
+def test_usage_errors_are_one_line_with_exit_code_2() -> None:
+    result = run_cli("simulate", "--trials", "abc")
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert "--trials" in lines[0] and "lasercal simulate --help" in lines[0]
+    assert "Traceback" not in result.stderr
+
+
+def test_unknown_command_names_it() -> None:
+    result = run_cli("calibrate-now")
+    assert result.returncode == 2
+    assert "calibrate-now" in result.stderr

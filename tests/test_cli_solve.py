@@ -3,39 +3,22 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from lasercal_hw.observations import write_observations_csv
+from tests.cli_helpers import assert_one_line_error, run_cli
 from tests.test_solver_helpers import TRUTH, observations
 
 pytestmark = pytest.mark.integration
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "lasercal_hw.cli.main", *args],
-        capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL,
-    )
 
 
 def _csv(tmp_path: Path, **kwargs: object) -> Path:
     path = tmp_path / "observations.csv"
     write_observations_csv(path, observations(**kwargs))  # type: ignore[arg-type]
     return path
-
-
-def _assert_one_line_error(result: subprocess.CompletedProcess[str], code: int, *fragments: str) -> None:
-    assert result.returncode == code, result.stderr
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1, result.stderr
-    assert "Traceback" not in result.stderr
-    for fragment in fragments:
-        assert fragment in lines[0]
 
 
 def test_solve_json_is_the_result_document(tmp_path: Path) -> None:
@@ -62,16 +45,16 @@ def test_axis_options_change_the_rod_line(tmp_path: Path) -> None:
     # The rod's origin slides along its own axis: same line, same answer.
     np.testing.assert_allclose(json.loads(moved.stdout)["T_base_laser"], TRUTH, atol=1e-8)
     bad = run_cli("solve", str(path), "--axis-direction", "0,0")
-    _assert_one_line_error(bad, 2, "--axis-direction must have 3 numbers")
+    assert_one_line_error(bad, 2, "--axis-direction must have 3 numbers")
 
 
 def test_too_few_rows_exit_4(tmp_path: Path) -> None:
-    _assert_one_line_error(run_cli("solve", str(_csv(tmp_path, points=3))), 4, "at least 5")
+    assert_one_line_error(run_cli("solve", str(_csv(tmp_path, points=3))), 4, "at least 5")
 
 
 def test_parallel_axes_exit_4(tmp_path: Path) -> None:
     result = run_cli("solve", str(_csv(tmp_path, points=20, tilt_deg=1e-9)))
-    _assert_one_line_error(result, 4, "parallel", "tilting the rod")
+    assert_one_line_error(result, 4, "parallel", "tilting the rod")
 
 
 def test_number_typo_exit_2_naming_line_and_column(tmp_path: Path) -> None:
@@ -81,17 +64,43 @@ def test_number_typo_exit_2_naming_line_and_column(tmp_path: Path) -> None:
     fields[7] = "0.3x"
     lines[4] = ",".join(fields)
     path.write_text("\n".join(lines) + "\n")
-    _assert_one_line_error(run_cli("solve", str(path)), 2, "line 5, column u", "'0.3x'")
+    assert_one_line_error(run_cli("solve", str(path)), 2, "line 5, column u", "'0.3x'")
 
 
 def test_missing_column_exit_2_naming_it(tmp_path: Path) -> None:
     path = tmp_path / "obs.csv"
     path.write_text("index,tcp_x,tcp_y,tcp_z,tcp_rx,tcp_ry,tcp_rz,u\n0,0,0,0,0,0,0,0\n")
-    _assert_one_line_error(run_cli("solve", str(path)), 2, "missing column(s) v")
+    assert_one_line_error(run_cli("solve", str(path)), 2, "missing column(s) v")
 
 
 def test_missing_file_exit_2(tmp_path: Path) -> None:
-    _assert_one_line_error(run_cli("solve", str(tmp_path / "absent.csv")), 2, "does not exist")
+    assert_one_line_error(run_cli("solve", str(tmp_path / "absent.csv")), 2, "does not exist")
+
+
+def test_unwritable_output_is_a_one_line_error(tmp_path: Path) -> None:
+    csv_path = _csv(tmp_path, points=30)
+    targets = ((tmp_path / "absent" / "result.json", "No such file"), (tmp_path, "Is a directory"))
+    for target, reason in targets:
+        result = run_cli("solve", str(csv_path), "--output", str(target))
+        assert_one_line_error(result, 2, "cannot write", reason, "writable directory")
+
+
+def test_directory_instead_of_a_file_exit_2(tmp_path: Path) -> None:
+    assert_one_line_error(run_cli("solve", str(tmp_path)), 2, "is a directory", "observations.csv")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (("--trials", "0"), "--trials must be at least 1, got 0"),
+        (("--trials", "-3"), "--trials must be at least 1, got -3"),
+        (("--laser-noise-mm", "-1"), "--laser-noise-mm must be positive, got -1"),
+        (("--robot-noise-mm", "-0.5"), "--robot-noise-mm must not be negative, got -0.5"),
+        (("--tilt-deg", "90"), "--tilt-deg must be between 0 and 60"),
+    ],
+)
+def test_simulate_names_the_bad_option_and_its_value(args: tuple[str, ...], message: str) -> None:
+    assert_one_line_error(run_cli("simulate", *args), 2, message)
 
 
 def test_simulate_json_reports_statistics_against_the_bound() -> None:
@@ -109,4 +118,4 @@ def test_simulate_table_and_bad_option() -> None:
     assert result.returncode == 0, result.stderr
     for fragment in ("paper mu", "9.581", "RMS translation error"):
         assert fragment in result.stdout
-    _assert_one_line_error(run_cli("simulate", "--points", "3"), 2, "--points at least 5")
+    assert_one_line_error(run_cli("simulate", "--points", "3"), 2, "--points at least 5")

@@ -25,12 +25,9 @@ class ReplaySource:
         self.intensities_all = np.asarray(intensities, dtype=np.int64)
         self.times: list[float] = []
 
-    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
+    def ranges_mm(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
         self.times.append(time_s)
-        return self.ranges[step_first : step_last + 1]
-
-    def intensities(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
-        return self.intensities_all[step_first : step_last + 1]
+        return self.ranges, self.intensities_all
 
 
 def ramp_source() -> ReplaySource:
@@ -342,9 +339,7 @@ def test_range_source_with_wrong_shape_is_rejected_clearly() -> None:
 
 def test_default_scene_sees_walls_and_the_rod() -> None:
     scene = RoomScene(cylinders=(Cylinder((2.0, 0.0), 0.020),))
-    ranges, intensities = scene.revolution(0.0)
-    np.testing.assert_array_equal(scene.ranges_mm(500, 599, 0.0), ranges[500:600])
-    np.testing.assert_array_equal(scene.intensities(0, 9, 0.0), intensities[:10])
+    ranges, intensities = scene.ranges_mm(0.0)
     assert ranges.shape == (STEP_COUNT,) and intensities.shape == (STEP_COUNT,)
     assert ranges[540] == 1980  # straight ahead: rod surface at 2.0 - 0.02 m
     assert ranges[0] == round(2000 * np.sqrt(2))  # -135 deg: hits the x = -2 m wall first
@@ -352,14 +347,14 @@ def test_default_scene_sees_walls_and_the_rod() -> None:
     rod_beams = np.flatnonzero(ranges < 2100)
     assert 3 <= rod_beams.size <= 8 and rod_beams.min() < 540 < rod_beams.max()
     noisy = RoomScene(noise_mm=10.0, seed=3)
-    first = noisy.ranges_mm(0, 1080, 1.0)
-    again = noisy.ranges_mm(0, 1080, 1.0)
-    later = noisy.ranges_mm(0, 1080, 1.025)
+    first, _ = noisy.ranges_mm(1.0)
+    again, _ = noisy.ranges_mm(1.0)
+    later, _ = noisy.ranges_mm(1.025)
     np.testing.assert_array_equal(first, again)
     assert not np.array_equal(first, later)
 
 
-def test_whole_revolution_sources_are_still_accepted() -> None:
+def test_one_source_call_serves_the_requested_steps_of_a_scan() -> None:
     class Revolution:
         calls = 0
 

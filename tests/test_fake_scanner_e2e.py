@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import threading
 from collections.abc import Iterator
 
 import numpy as np
@@ -11,6 +14,7 @@ from drivers.hokuyo.client import HokuyoScanner
 from fakes.scan_scene import Cylinder, RoomScene
 from fakes.scip_faults import ScipFaults
 from fakes.scip_server import FakeScannerServer
+from lasercal_hw.errors import TransportError
 
 pytestmark = pytest.mark.timeout(60)
 SCENE = RoomScene(cylinders=(Cylinder((1.5, 0.0), 0.020),))
@@ -88,3 +92,38 @@ def test_client_reconnects_after_a_dropped_connection() -> None:
         client.stop_streaming()
     assert stats.reconnects >= 1 and server.stats.connections >= 2
     assert len(scans) == 8 and scans[-1].sequence > scans[0].sequence
+
+
+def _resources() -> tuple[int, int]:
+    return len(os.listdir("/proc/self/fd")), threading.active_count()
+
+
+@pytest.mark.parametrize("link", ["tcp", "pty"])
+def test_every_descriptor_and_thread_is_released(link: str) -> None:
+    """Normal use, a dropped link (TCP: reconnect; pty: hung up for good) and a refused
+    connection leave no socket, pty, pipe or thread behind on either side."""
+    before = _resources()
+    with FakeScannerServer(pty=link == "pty", source=SCENE, faults=ScipFaults(drop_after_scans=3)) as server:
+        with HokuyoScanner.open(server.url, timeout_s=2.0, reconnect_timeout_s=1.0) as client:
+            client.start_streaming()
+            with contextlib.suppress(TransportError):  # the pty ends the stream, TCP reconnects
+                for _ in range(6):
+                    client.next_scan(timeout_s=3.0)
+        url = server.url
+    if link == "tcp":
+        with pytest.raises(TransportError, match="cannot connect"):
+            HokuyoScanner.open(url, timeout_s=1.0)  # the server is gone: connection refused
+    assert _resources() == before
+
+
+def test_reconnect_warnings_name_the_scanner_once(caplog: pytest.LogCaptureFixture) -> None:
+    with (
+        FakeScannerServer(source=SCENE, faults=ScipFaults(drop_after_scans=3)) as server,
+        HokuyoScanner.open(server.url, timeout_s=2.0) as client,
+    ):
+        client.start_streaming()
+        for _ in range(6):
+            client.next_scan(timeout_s=3.0)
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert any("reconnecting" in message for message in warnings)
+    assert all(message.count("scip+tcp://") == 1 for message in warnings), "\n".join(warnings)

@@ -49,6 +49,7 @@ def test_parse_url(url: str, expected: TransportUrl) -> None:
         "scip+serial:///dev/ttyACM0?baud=0",
         "scip+serial:///dev/ttyACM0?parity=N",
         "scip+serial://",
+        "scip+tcp://[::1",  # urlsplit raises ValueError itself
     ],
 )
 def test_bad_urls_name_the_accepted_forms(url: str) -> None:

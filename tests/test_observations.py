@@ -81,6 +81,8 @@ def test_duplicate_index_names_both_lines(tmp_path: Path) -> None:
 def test_missing_empty_and_unsupported_files_are_config_errors(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="does not exist"):
         load_observations(tmp_path / "nope.csv")
+    with pytest.raises(ConfigError, match=r"is a directory; pass the observations\.csv file"):
+        load_observations(tmp_path)
     with pytest.raises(ConfigError, match="empty file"):
         load_observations(_write(tmp_path, "\n\n"))
     with pytest.raises(ConfigError, match=r"unsupported file type '.txt' \(supported: .csv\)"):

@@ -4,22 +4,14 @@ from __future__ import annotations
 
 import json
 import socket
-import subprocess
-import sys
 from collections.abc import Iterator
 
 import pytest
 
 from fakes.scip_server import FakeScannerServer
+from tests.cli_helpers import assert_one_line_error, run_cli
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(90)]
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "lasercal_hw.cli.main", *args],
-        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
-    )
 
 
 @pytest.fixture(scope="module")
@@ -81,9 +73,10 @@ def test_connection_refused_is_one_clear_line() -> None:
         (("scanner", "info", "http://127.0.0.1"), "scip+tcp://HOST[:PORT]"),
         (("scanner", "info", "scip+serial:///dev/ttyACM0?speed=9"), "unknown option(s) speed"),
         (("scanner", "capture", "scip+tcp://127.0.0.1:1", "--scans", "0"), "--scans must be at least 1"),
+        (("scanner", "info", "scip+tcp://[::1"), "Invalid IPv6 URL"),
+        (("scanner", "info", "scip+tcp://127.0.0.1:1", "--timeout", "0"), "--timeout must be a positive"),
+        (("scanner", "capture", "scip+tcp://127.0.0.1:1", "--timeout", "-1"), "--timeout must be a positive"),
     ],
 )
 def test_bad_input_exits_2_with_the_accepted_forms(args: tuple[str, ...], message: str) -> None:
-    result = run_cli(*args)
-    assert result.returncode == 2
-    assert message in result.stderr
+    assert_one_line_error(run_cli(*args), 2, message)

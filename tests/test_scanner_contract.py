@@ -18,7 +18,7 @@ from drivers.hokuyo.transport import parse_url
 from fakes.scip_faults import ScipFaults
 from fakes.scip_server import FakeScannerServer
 from lasercal_hw.devices import Scanner
-from lasercal_hw.errors import ScannerStatusError, TransportError
+from lasercal_hw.errors import ConfigError, ScannerStatusError, TransportError
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -29,14 +29,11 @@ class KnownSource:
     """A ``RangeSource``: distances 1000 + step mm, except error code 1 on steps 0..9 and
     60001 (> DMAX) on step 10; intensity 2 * step."""
 
-    def ranges_mm(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
+    def ranges_mm(self, time_s: float) -> tuple[np.ndarray, np.ndarray]:
         ranges = 1000 + STEPS
         ranges[:10] = 1
         ranges[10] = 60001
-        return ranges[step_first : step_last + 1].astype(np.int64)
-
-    def intensities(self, step_first: int, step_last: int, time_s: float) -> np.ndarray:
-        return (2 * STEPS[step_first : step_last + 1]).astype(np.int64)
+        return ranges.astype(np.int64), (2 * STEPS).astype(np.int64)
 
 
 EXPECTED_M = np.where((STEPS < 10) | (STEPS == 10), np.nan, (1000 + STEPS) / 1000.0)
@@ -217,6 +214,30 @@ def test_client_after_an_abandoned_stream_gets_clean_data(server: FakeScannerSer
         assert scanner.dropped_scans() == 0
     assert [s.sequence for s in scans] == list(range(10))
     assert all(np.array_equal(s.intensities, 2 * STEPS) for s in scans)
+
+
+def test_laser_sensitivity_reset_and_bit_rate_commands(scanner: HokuyoScanner, link: str) -> None:
+    assert scanner.laser_on() is True
+    assert scanner.laser_on() is False  # already on: status 02 is not an error
+    assert scanner.status().laser_on
+    scanner.laser_off()
+    assert not scanner.status().laser_on
+    scanner.set_high_sensitivity(True)
+    scanner.set_high_sensitivity(True)  # already set: 02 is not an error
+    scanner.laser_on()
+    scanner.reset()
+    status = scanner.status()
+    assert not status.laser_on and status.time_ms is not None and status.time_ms < 1000  # timer reset
+    if link == "tcp":
+        with pytest.raises(ScannerStatusError) as info:
+            scanner.set_bit_rate(115200)
+        assert info.value.status == "0F"  # meaningless on Ethernet
+    else:
+        scanner.set_bit_rate(115200)  # already at that rate: 03 is not an error
+        scanner.set_bit_rate(57600)
+        assert scanner.status().model == "UTM-30LX-EW"  # still talking after the change
+    with pytest.raises(ConfigError, match="bit rate 0"):
+        scanner.set_bit_rate(0)
 
 
 def test_refused_command_raises_status_error_with_meaning(scanner: HokuyoScanner) -> None:

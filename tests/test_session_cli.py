@@ -3,21 +3,13 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 from mcap.reader import make_reader
 
 from lasercal_hw.recorder import SessionRecorder
 from lasercal_hw.session import read_session
+from tests.cli_helpers import assert_one_line_error, run_cli
 from tests.recorder_helpers import START_TIME_S, assert_scans_equal, make_pose, make_scan
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "lasercal_hw.cli.main", *args],
-        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
-    )
 
 
 def _crashed_session(path) -> None:
@@ -71,3 +63,28 @@ def test_info_on_a_missing_file_is_a_one_line_error(tmp_path):
     result = run_cli("session", "info", str(tmp_path / "none.mcap"))
     assert result.returncode == 2
     assert "not found" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_info_on_a_directory_or_a_non_mcap_file_is_a_one_line_error(tmp_path):
+    not_mcap = tmp_path / "notes.mcap"
+    not_mcap.write_text("not a recording\n")
+    for path, message in ((tmp_path, "is a directory"), (not_mcap, "is not an MCAP file")):
+        assert_one_line_error(run_cli("session", "info", str(path)), 2, message)
+
+
+def test_repair_of_a_bad_source_creates_no_target(tmp_path):
+    target = tmp_path / "repaired.mcap"
+    result = run_cli("session", "repair", str(tmp_path / "none.mcap"), str(target))
+    assert_one_line_error(result, 2, "not found")
+    assert not target.exists()  # a retry with the right source must not find a stale target
+
+
+def test_repair_onto_an_existing_target_says_to_choose_another_name(tmp_path):
+    source = tmp_path / "session.mcap"
+    _crashed_session(source)
+    target = tmp_path / "repaired.mcap"
+    target.write_bytes(b"keep me")
+    result = run_cli("session", "repair", str(source), str(target))
+    assert_one_line_error(result, 2, "choose a new file name")
+    assert "--resume" not in result.stderr
+    assert target.read_bytes() == b"keep me"

@@ -7,7 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from drivers.hokuyo import codec
 from fakes.scene import Scene, load_scene, parse_scene
+from fakes.scip_device import ScipDevice
 from fakes.world import DROPOUT_CODE, NO_RETURN_CODE, TOO_NEAR_CODE, World, WorldRangeSource
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.extraction import find_rod_centre
@@ -269,6 +271,20 @@ def test_range_source_gives_one_repeatable_scan_per_time() -> None:
     truth = world.scan_ranges_m(T)
     valid = np.isfinite(truth) & (ranges >= 23)
     assert np.median(np.abs(ranges[valid] / 1000.0 - truth[valid])) < 0.01
+
+
+def test_range_source_plugs_into_the_fake_scanner() -> None:
+    world = World.from_scene()
+    pose = matrix_to_pose(world.ground_truth_T_base_laser @ make_transform(np.eye(3), [0.7, 0.0, -0.15]))
+    source = WorldRangeSource(world, lambda time_s: pose, seed=6)
+    device = ScipDevice(source)
+    device.handle(b"BM", 1.0)
+    lines = device.handle(b"GE0100020001", 1.0).data[:-2].split(b"\n")
+    scan = codec.decode_scan_lines(lines[2:], codec.parse_scan_request(lines[0]))
+    ranges, intensities = source.ranges_mm(device.scan_start_s(39))  # the revolution before 1.0 s
+    np.testing.assert_array_equal(scan.distances_mm, ranges[100:201])
+    assert scan.intensities is not None
+    np.testing.assert_array_equal(scan.intensities, intensities[100:201])
 
 
 @pytest.mark.parametrize(

@@ -38,7 +38,7 @@ from drivers.hokuyo.info import (
     parse_status,
 )
 from drivers.hokuyo.stamps import ClockEstimate, ClockSample, DeviceClock, TimestampUnwrapper
-from drivers.hokuyo.transport import SerialTransport, Transport, open_transport, parse_url
+from drivers.hokuyo.transport import SerialTransport, Transport, open_transport
 from lasercal_hw.errors import (
     ConfigError,
     DeviceError,
@@ -123,7 +123,6 @@ class HokuyoScanner:
 
         ``timeout_s`` bounds every command reply; ``first_step``/``last_step``/``cluster``
         choose the scan layout (default: all measurable steps)."""
-        parse_url(url)
         scanner = cls(
             url,
             open_transport(url, connect_timeout_s),
@@ -474,7 +473,10 @@ class HokuyoScanner:
         try:
             item = self._scans.get(timeout=max(timeout_s, 0.0))
         except queue.Empty:
-            raise DeviceTimeoutError(f"{self.url}: no scan within {timeout_s:g} s") from None
+            raise DeviceTimeoutError(
+                f"{self.url}: no scan within {timeout_s:g} s; check the connection (the log says "
+                "whether it was lost) or allow a longer timeout"
+            ) from None
         if isinstance(item, DeviceError):
             raise item
         return item
@@ -504,7 +506,7 @@ class HokuyoScanner:
             if reader.is_alive():
                 self._command(b"QT")
         except DeviceError as exc:
-            logger.warning("%s: QT while stopping the stream failed: %s", self.url, exc)
+            logger.warning("%s: QT while stopping the stream failed: %s", self.url, self._without_url(exc))
         finally:
             self._stop_reader.set()
             reader.join(timeout=5.0)
@@ -525,6 +527,14 @@ class HokuyoScanner:
 
     # ------------------------------------------------------------------ reader thread
 
+    def _without_url(self, exc: Exception) -> str:
+        """The message of ``exc`` without the leading ``URL: `` (for logs that name the URL)."""
+        message = str(exc)
+        transport = self._transport
+        for url in (self.url, transport.url if transport is not None else self.url):
+            message = message.removeprefix(f"{url}: ")
+        return message
+
     def _reader_main(self) -> None:
         last_data = time.monotonic()
         watchdog_s = max(1.0, 20 * self.parameters().scan_period_s)
@@ -541,7 +551,7 @@ class HokuyoScanner:
             except TransportError as exc:
                 if self._stop_reader.is_set():
                     break
-                self._recover(str(exc))
+                self._recover(self._without_url(exc))
                 last_data = time.monotonic()
                 continue
             last_data = time.monotonic()

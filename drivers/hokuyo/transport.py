@@ -70,8 +70,8 @@ class TransportUrl:
 
 def parse_url(url: str) -> TransportUrl:
     """Parse a scanner URL; ``ConfigError`` naming the accepted forms when it is not one."""
-    parts = urlsplit(url.strip())
     try:
+        parts = urlsplit(url.strip())
         if parts.scheme == "scip+tcp":
             if not parts.hostname or parts.path not in ("", "/") or parts.query:
                 raise ValueError("needs a host and nothing after it")

@@ -9,9 +9,18 @@ import traceback
 
 import typer
 from rich.markup import escape
+from typer.exceptions import TyperException
 
 from lasercal_hw import __version__
 from lasercal_hw.cli.common import err_console
+from lasercal_hw.cli.fake import fake_app
+from lasercal_hw.cli.robot import robot_app
+from lasercal_hw.cli.run import run_command
+from lasercal_hw.cli.scanner import scanner_app
+from lasercal_hw.cli.session import session_app
+from lasercal_hw.cli.simulate import simulate_command
+from lasercal_hw.cli.solve import solve_command
+from lasercal_hw.cli.trajectory import trajectory_app
 from lasercal_hw.errors import ExitCode, LasercalError
 
 app = typer.Typer(
@@ -24,10 +33,12 @@ app = typer.Typer(
 
 _debug = {"enabled": False}
 
+
 def _version_callback(value: bool) -> None:
     if value:
         typer.echo(f"lasercal {__version__}")
         raise typer.Exit()
+
 
 @app.callback()
 def _root(
@@ -43,41 +54,31 @@ def _root(
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
 
-from lasercal_hw.cli.scanner import scanner_app  # noqa: E402
-
-app.add_typer(scanner_app, name="scanner")
-
-from lasercal_hw.cli.fake import fake_app  # noqa: E402
-
-app.add_typer(fake_app, name="fake")
-
-from lasercal_hw.cli.robot import robot_app  # noqa: E402
-
-app.add_typer(robot_app, name="robot")
-
-from lasercal_hw.cli.simulate import simulate_command  # noqa: E402
-from lasercal_hw.cli.solve import solve_command  # noqa: E402
 
 app.command("simulate")(simulate_command)
 app.command("solve")(solve_command)
-
-from lasercal_hw.cli.run import run_command  # noqa: E402
-
 app.command("run")(run_command)
-
-from lasercal_hw.cli.session import session_app  # noqa: E402
-
+app.add_typer(fake_app, name="fake")
+app.add_typer(scanner_app, name="scanner")
 app.add_typer(session_app, name="session")
-
-from lasercal_hw.cli.trajectory import trajectory_app  # noqa: E402
-
 app.add_typer(trajectory_app, name="trajectory")
+app.add_typer(robot_app, name="robot")
 
 
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
     try:
-        app()
+        exit_code = app(standalone_mode=False, prog_name="lasercal")
+    except TyperException as exc:
+        message = exc.format_message()
+        ctx = getattr(exc, "ctx", None)
+        if type(exc).__name__ != "NoArgsIsHelpError":  # typer has already shown the help for that one
+            hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+            err_console.print(f"[bold red]error:[/] {escape(message)}{escape(hint)}", soft_wrap=True)
+        sys.exit(int(ExitCode.BAD_INPUT))
+    except typer.Abort:
+        err_console.print("aborted")
+        sys.exit(int(ExitCode.INTERRUPTED))
     except LasercalError as exc:
         if _debug["enabled"]:
             traceback.print_exc()
@@ -86,6 +87,8 @@ def main() -> None:
     except KeyboardInterrupt:
         err_console.print("interrupted")
         sys.exit(int(ExitCode.INTERRUPTED))
+    sys.exit(exit_code if isinstance(exit_code, int) else 0)
+
 
 if __name__ == "__main__":
     main()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -10,10 +11,9 @@ import typer
 from rich.table import Table
 
 from drivers.hokuyo.client import HokuyoScanner
-from drivers.hokuyo.info import ScannerParameters, ScannerStatus
 from lasercal_hw.cli.common import console, print_json
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.models import LaserScan, ScanGeometry, ScannerIdentity
+from lasercal_hw.models import LaserScan, ScanGeometry
 
 scanner_app = typer.Typer(
     help="Query a Hokuyo scanner and capture scans (SCIP 2.0 over TCP or serial).", no_args_is_help=True
@@ -22,41 +22,10 @@ scanner_app = typer.Typer(
 URL_HELP = "Scanner URL: scip+tcp://HOST[:PORT] (port 10940) or scip+serial:///dev/ttyACM0[?baud=115200]."
 
 
-def _identity_doc(identity: ScannerIdentity) -> dict[str, str]:
-    return {
-        "vendor": identity.vendor,
-        "product": identity.product,
-        "firmware": identity.firmware,
-        "protocol": identity.protocol,
-        "serial": identity.serial,
-        "model": identity.model,
-    }
-
-
-def _parameters_doc(parameters: ScannerParameters) -> dict[str, Any]:
-    return {
-        "model": parameters.model,
-        "min_range_mm": parameters.min_range_mm,
-        "max_range_mm": parameters.max_range_mm,
-        "steps_per_revolution": parameters.steps_per_revolution,
-        "first_step": parameters.first_step,
-        "last_step": parameters.last_step,
-        "front_step": parameters.front_step,
-        "motor_speed_rpm": parameters.motor_speed_rpm,
-        "scan_period_s": parameters.scan_period_s,
-    }
-
-
-def _status_doc(status: ScannerStatus) -> dict[str, Any]:
-    return {
-        "laser_on": status.laser_on,
-        "motor_speed": status.motor_speed,
-        "measurement_mode": status.measurement_mode,
-        "link": status.link,
-        "time_ms": status.time_ms,
-        "diagnostic": status.diagnostic,
-        "healthy": status.healthy,
-    }
+def _fields_doc(value: Any, *, drop: tuple[str, ...] = (), add: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A dataclass as a JSON-ready dict: its fields except ``drop``, then the properties ``add``."""
+    document = {f.name: getattr(value, f.name) for f in dataclasses.fields(value) if f.name not in drop}
+    return document | {name: getattr(value, name) for name in add}
 
 
 def _geometry_doc(geometry: ScanGeometry) -> dict[str, Any]:
@@ -84,6 +53,11 @@ def _scan_doc(scan: LaserScan) -> dict[str, Any]:
     }
 
 
+def _check_timeout(timeout_s: float) -> None:
+    if not timeout_s > 0:
+        raise ConfigError(f"--timeout must be a positive number of seconds, got {timeout_s:g}")
+
+
 def _key_value_table(title: str, rows: dict[str, Any]) -> Table:
     table = Table(title=title, show_header=False, title_justify="left")
     table.add_column(style="bold")
@@ -100,13 +74,14 @@ def info(
     timeout_s: float = typer.Option(2.0, "--timeout", help="Reply timeout per command (s)."),
 ) -> None:
     """Identity (VV), parameters (PP) and status (II) of a scanner."""
+    _check_timeout(timeout_s)
     with HokuyoScanner.open(url, timeout_s=timeout_s, sync_clock=False, reconnect=False) as scanner:
         identity, parameters, status = scanner.identity(), scanner.parameters(), scanner.status()
     document = {
         "url": url,
-        "identity": _identity_doc(identity),
-        "parameters": _parameters_doc(parameters),
-        "status": _status_doc(status),
+        "identity": _fields_doc(identity),
+        "parameters": _fields_doc(parameters, drop=("raw",), add=("scan_period_s",)),
+        "status": _fields_doc(status, drop=("model", "raw"), add=("healthy",)),
     }
     if json_output:
         print_json(document)
@@ -127,6 +102,7 @@ def capture(
     """Stream N scans (MD, or ME with --intensity) and summarise them."""
     if scans < 1:
         raise ConfigError(f"--scans must be at least 1, got {scans}")
+    _check_timeout(timeout_s)
     captured: list[LaserScan] = []
     with HokuyoScanner.open(url, timeout_s=timeout_s) as scanner:
         geometry = scanner.geometry()
@@ -148,7 +124,7 @@ def capture(
         print_json(
             {
                 "url": url,
-                "identity": _identity_doc(identity),
+                "identity": _fields_doc(identity),
                 "geometry": _geometry_doc(geometry),
                 "stats": stats_doc,
                 "scans": [_scan_doc(scan) for scan in captured],

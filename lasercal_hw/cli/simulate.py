@@ -34,12 +34,18 @@ def simulate_command(
     as_json: bool = typer.Option(False, "--json", help="Print the statistics as JSON."),
 ) -> None:
     """Reproduce the paper's Table 1 by Monte Carlo and compare with the Cramér-Rao bound."""
-    if trials < 1 or points < 5:
-        raise ConfigError("--trials must be at least 1 and --points at least 5")
-    if laser_noise_mm <= 0 or robot_noise_mm < 0:
-        raise ConfigError("--laser-noise-mm must be positive and --robot-noise-mm not negative")
+    if trials < 1:
+        raise ConfigError(f"--trials must be at least 1, got {trials}")
+    if points < 5:
+        raise ConfigError(
+            f"too few waypoints: need --points at least 5 (6 unknowns, 2 equations each), got {points}"
+        )
+    if not laser_noise_mm > 0:
+        raise ConfigError(f"--laser-noise-mm must be positive, got {laser_noise_mm:g}")
+    if not robot_noise_mm >= 0:
+        raise ConfigError(f"--robot-noise-mm must not be negative, got {robot_noise_mm:g}")
     if not 0 < tilt_deg < 60:
-        raise ConfigError("--tilt-deg must be between 0 and 60 degrees")
+        raise ConfigError(f"--tilt-deg must be between 0 and 60 degrees (exclusive), got {tilt_deg:g}")
     if formulation not in ("ours", "paper"):
         raise ConfigError(f"--formulation must be 'ours' or 'paper', got {formulation!r}")
     protocol = Protocol(

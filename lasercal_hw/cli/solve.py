@@ -47,7 +47,10 @@ def solve_command(
         try:
             output.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
         except OSError as exc:
-            raise ConfigError(f"cannot write {str(output)!r}: {exc}") from exc
+            raise ConfigError(
+                f"cannot write {str(output)!r}: {exc.strerror or exc}; pass --output a file path in a "
+                "writable directory"
+            ) from exc
     if as_json:
         print_json(document)
     else:
