@@ -56,7 +56,9 @@ _PAPER = SemicircleParameters(
     scan_plane_z_m=SCAN_PLANE_HINT_Z_M,
 )
 
-# The scan plane slopes down towards +x: under the drill's arcs it is ~0.14 m high.
+# The scan plane slopes down towards +x (and up towards +y): rise per metre along base x
+# and y, and its height at the drill arcs' centre.
+_SCAN_PLANE_SLOPE = (-0.12, 0.04)
 _DRILL_PLANE_HINT_Z_M = 0.14
 
 PRESETS: dict[str, Preset] = {
@@ -89,20 +91,22 @@ PRESETS: dict[str, Preset] = {
             name="drill",
             description=(
                 "For a drill bit in the gripper: a 5 mm radius, 0.10 m bit starting 0.15 m from the "
-                "flange; smaller arcs (r 0.15 and 0.25 m) so the plane's slope stays within the short "
-                "bit, tilt limited to 12 deg."
+                "flange; arcs (r 0.05 and 0.25 m) close to the scanner so the thin bit covers enough "
+                "beams, parallel to the sloping scan plane so the crossing stays on the short bit, "
+                "tilts up to 29 deg in seeded random directions."
             ),
-            parameters=_PAPER.model_copy(
-                update={
-                    "centre_m": (0.6, -0.15),
-                    "radii_m": (0.15, 0.25),
-                    "heights_m": (0.34, 0.35),
-                    "tilt_deg": 12.0,
-                    "start_deg": 80.0,
-                    "end_deg": 260.0,
-                    "tool_yaw_deg": 0.0,
-                    "scan_plane_z_m": _DRILL_PLANE_HINT_Z_M,
-                }
+            parameters=SemicircleParameters(
+                centre_m=(0.61, 0.07),
+                radii_m=(0.05, 0.25),
+                heights_m=(0.34, 0.31),
+                height_slope=_SCAN_PLANE_SLOPE,
+                start_deg=42.0,
+                end_deg=222.0,
+                step_deg=20.0,
+                tilt_deg=29.0,
+                tool_yaw_deg=-102.0,
+                seed=765,
+                scan_plane_z_m=_DRILL_PLANE_HINT_Z_M,
             ),
             rod=RodLine(origin_m=np.array([0.0, 0.0, 0.15]), radius_m=0.005, length_m=0.10),
         ),
