@@ -21,7 +21,7 @@ from lasercal_hw.session import read_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
 
-WAYPOINTS = 8  # the 'quick' preset
+WAYPOINTS = 10  # the 'quick' preset
 
 
 def write_job(folder: Path) -> Path:

@@ -5,7 +5,7 @@ typical real set-up: a UR5 base at the origin on a table (z = 0) and the scanner
 ``T_base_laser`` translation (0.30, 0.50, 0.20) m, ZYX (5, 7, 3) deg, looking along
 base +x; its scan plane is about 0.12-0.22 m above the table over the reachable area,
 dropping towards +x. Every preset keeps, for every waypoint of that scene (tests check
-this): the rod crossing the scan plane between its ends, the crossing 0.35-1.5 m from
+this): the rod crossing the scan plane between its ends, the crossing 0.30-1.5 m from
 the scanner and inside its 270 degree field of view (with 5 degrees to spare), the line
 of sight clear of the robot base column, the TCP and both rod ends inside the default
 workspace box (rod end above the table), and a UR5 solution. See docs/kinematics.md
@@ -42,8 +42,10 @@ class Preset:
 
 
 # Both arcs wrap around the side of a centre in front of the robot that faces the robot
-# and the scanner (angles 80..260 deg), so every waypoint stays within the UR5's
-# comfortable reach (0.3-0.75 m from the base axis) and in front of the scanner.
+# and the scanner (angles 82..262 deg). Centre, radii, heights, start, tilt and tool yaw
+# minimise the Cramér-Rao bound of the solver's model (benchmarks/preset_design.py;
+# docs/kinematics.md): crossings 0.32-1.25 m from the scanner at bearings -35..-115 deg,
+# tilts of 30 deg, every waypoint on one elbow-up branch with room to spare.
 _PAPER = SemicircleParameters(
     centre_m=(0.59, -0.19),
     radii_m=(0.35, 0.45),
@@ -67,8 +69,8 @@ PRESETS: dict[str, Preset] = {
         Preset(
             name="paper",
             description=(
-                "The paper's procedure: two semicircles (r 0.25 and 0.35 m, TCP at 0.36 and 0.32 m), "
-                "a 3 s stop every 20 deg (20 waypoints), tool tilted 25 deg in a new direction at each."
+                "The paper's procedure: two semicircles (r 0.35 and 0.45 m, TCP at 0.335 and 0.275 m), "
+                "a 3 s stop every 20 deg (20 waypoints), tool tilted 30 deg in a new direction at each."
             ),
             parameters=_PAPER,
         ),
