@@ -25,6 +25,7 @@ from lasercal_hw.errors import (
     InterruptedRunError,
     LasercalError,
     ProtectiveStopError,
+    RobotError,
     TransportError,
 )
 from lasercal_hw.extraction import RodCentre, RodNotFoundError, find_rod_centre
@@ -558,8 +559,25 @@ class Sequencer:
                 self._robot.move_joint(q_rad, motion.joint_speed_rad_s, motion.joint_accel_rad_s2)
             else:
                 self._robot.move_linear(pose, motion.speed_m_s, motion.accel_m_s2)
+        except ProtectiveStopError:
+            raise
+        except RobotError as exc:
+            self._raise_if_safety_stop(exc)
+            raise
         finally:
             self._timings.motion_s += self._clock() - started_s
+
+    def _raise_if_safety_stop(self, cause: RobotError) -> None:
+        """A failed move may be a safety stop reported late: ask the robot, and say so."""
+        try:
+            state = self._robot.state()
+        except LasercalError as exc:
+            logger.warning("could not read the robot state after a failed move: %s", exc)
+            return
+        if state.protective_stop or state.emergency_stop or state.safety_status.upper() != "NORMAL":
+            raise ProtectiveStopError(
+                f"{cause} (the robot reports safety status {state.safety_status})"
+            ) from cause
 
     def _settle(self) -> float:
         started_s = self._clock()

@@ -139,23 +139,42 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
 def test_protective_stop_aborts_with_device_error_and_no_further_motion(tmp_path: Path) -> None:
     job = write_job(tmp_path)
     scene = tmp_path / "scene.toml"
-    scene.write_text("[faults]\nprotective_stop_at_waypoint = 2\n")
+    scene.write_text("[faults]\nprotective_stop_at_waypoint = 1\n")
     out = tmp_path / "out"
     result = subprocess.run(
         lasercal("--dry-run", "--config", str(job), "--scene", str(scene), "--out", str(out)),
         capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
     )
     assert result.returncode == ExitCode.DEVICE_ERROR, result.stderr[-3000:]
-    assert "protective stop at waypoint 2" in result.stderr
+    assert "protective stop at waypoint 1" in result.stderr
     assert "will not resume by itself" in result.stderr
     assert f"lasercal run --resume {out / 'session.mcap'}" in result.stderr.replace("\n", "")
     recording = read_session(out / "session.mcap")
-    assert max(event["index"] for event in recording.events_of("dwell_start")) == 1
+    assert [event["index"] for event in recording.events_of("dwell_start")] == [0]
     abort = recording.events_of("abort")
-    assert len(abort) == 1 and abort[0]["cause"] == "protective_stop" and abort[0]["index"] == 2
+    assert len(abort) == 1 and abort[0]["cause"] == "protective_stop" and abort[0]["index"] == 1
 
 
-def test_operator_declining_at_the_prompt_moves_nothing(tmp_path: Path) -> None:
+def _read_until(fd: int, text: str, timeout_s: float) -> str:
+    """Bytes from ``fd`` until ``text`` appears (the prompt has no line end)."""
+    import selectors
+    import time
+
+    seen = b""
+    deadline = time.monotonic() + timeout_s
+    with selectors.DefaultSelector() as selector:
+        selector.register(fd, selectors.EVENT_READ)
+        while text.encode() not in seen and time.monotonic() < deadline:
+            if selector.select(timeout=deadline - time.monotonic()):
+                chunk = os.read(fd, 4096)
+                if not chunk:
+                    break
+                seen += chunk
+    return seen.decode(errors="replace")
+
+
+@pytest.mark.parametrize("answer", ["no", "sigterm"])
+def test_operator_declining_or_terminating_at_the_prompt_moves_nothing(tmp_path: Path, answer: str) -> None:
     job = write_job(tmp_path)
     out = tmp_path / "out"
     with FakeCellProcess() as cell:
@@ -164,15 +183,25 @@ def test_operator_declining_at_the_prompt_moves_nothing(tmp_path: Path) -> None:
             process = subprocess.Popen(
                 lasercal("--robot", cell.robot_host, "--scanner", cell.scanner_url, "--config", str(job),
                          "--out", str(out)),
-                stdin=terminal, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                stdin=terminal, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path,
             )
             os.close(terminal)
-            os.write(controller, b"n\n")
-            _, stderr = process.communicate(timeout=120)
+            assert process.stderr is not None
+            stderr = _read_until(process.stderr.fileno(), "Start the motion?", 90)
+            if answer == "no":
+                os.write(controller, b"n\n")
+            else:
+                process.send_signal(signal.SIGTERM)
+            rest = process.communicate(timeout=60)[1].decode(errors="replace")
         finally:
             os.close(controller)
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+    stderr += rest
     assert process.returncode == ExitCode.INTERRUPTED, stderr[-3000:]
-    assert "Start the motion?" in stderr and "declined" in stderr
+    assert "Start the motion?" in stderr
+    assert ("declined" if answer == "no" else "interrupted at the confirmation prompt") in stderr
     recording = read_session(out / "session.mcap")
     assert recording.events_of("dwell_start") == []
     assert recording.events_of("background") == []

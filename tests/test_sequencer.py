@@ -132,6 +132,14 @@ def test_protective_stop_aborts_without_further_motion() -> None:
     assert not scanner.streaming
 
 
+def test_failed_move_during_a_protective_stop_counts_as_one() -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(job, protective_stop_at_move=2, stop_reported_late=True)
+    with pytest.raises(ProtectiveStopError, match="safety status PROTECTIVE_STOP"):
+        Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(6), clock=clock).run()
+    assert len(robot.moves) == 3
+
+
 def test_interrupt_from_progress_stops_the_robot_and_keeps_a_readable_recording(tmp_path: Path) -> None:
     job = fast_job()
     clock, robot, scanner = make_cell(job)

@@ -125,7 +125,11 @@ def _confirm(
                 f"{motion.move} moves capped at {motion.speed_m_s} m/s and {motion.accel_m_s2} m/s^2, "
                 f"dwelling {job.dwell_s:g} s each. Keep clear of the arm."
             )
-            if not typer.confirm("Start the motion?", default=False, err=True):
+            try:
+                agreed = typer.confirm("Start the motion?", default=False, err=True)
+            except typer.Abort:  # Ctrl-C, SIGTERM or end of input at the prompt
+                raise InterruptedRunError("interrupted at the confirmation prompt; nothing moved") from None
+            if not agreed:
                 raise InterruptedRunError("the operator declined at the confirmation prompt; nothing moved")
 
     return ask
