@@ -131,6 +131,8 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
     assert document["observations"] == len(observed)
     assert document["observations"] + len(document["skipped"]) == WAYPOINTS
     assert final.meta["dry_run"] is True and not final.truncated
+    assert final.meta["scanner"]["url"] == f"scip+tcp://{final.meta['robot']['host']}:10940"
+    assert final.meta["scanner"]["product"] and final.meta["robot"]["model"]
     revisited = [e["index"] for e in final.events_of("dwell_start")]
     assert revisited.count(0) == 1, "a resumed run must not measure finished waypoints again"
     assert json.loads((out / "result.json").read_text())["run"]["resumed_after_waypoints"] == len(done)

@@ -8,6 +8,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 from types import FrameType
@@ -316,6 +317,8 @@ def run_command(
             "software_version": __version__,
             "dry_run": dry_run,
             "started_utc": datetime.now(UTC).isoformat(),
+            "robot": asdict(robot_device.identity()) | {"host": job.robot.host},
+            "scanner": asdict(scanner_device.identity()) | {"url": job.scanner.url},
         }
         if truth is not None:
             meta["ground_truth_T_base_laser"] = truth.tolist()
