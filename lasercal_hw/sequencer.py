@@ -180,16 +180,13 @@ def background_lift_m(job: JobConfig, pose: FloatArray) -> float:
     enough for both rod ends to clear its plane by ``NOMINAL_CLEARANCE_M``; else the rod
     length plus 5 cm (enough wherever the rod crossed the plane).
     """
-    if job.background.lift_m is not None:
-        return job.background.lift_m
     nominal = job.scanner.nominal
-    default_m = job.background_lift_m()
-    if nominal is None:
-        return default_m
+    if job.background.lift_m is not None or nominal is None:
+        return job.background_lift_m()
     T_base_laser = nominal.matrix()
     normal = T_base_laser[:3, 2]
     if normal[2] < 0.5:  # a scanner on its side: its plane is steep, lifting does not clear it
-        return default_m
+        return job.background_lift_m()
     heights_m = (rod_end_points_m(pose, job.rod.rod_line()) - T_base_laser[:3, 3]) @ normal
     return max(0.0, (NOMINAL_CLEARANCE_M - float(heights_m.min())) / float(normal[2]))
 
@@ -311,11 +308,11 @@ class Sequencer:
 
     def _run(self) -> RunOutcome:
         count = len(self._waypoints)
+        self._progress("preflight", f"checking devices and {count} waypoints")
         candidates = retract_candidates(self._job, self._waypoints)
         retract = first_clear_pose(self._robot, candidates, self._rod, self._job.workspace)
         if retract is None:  # preflight lists why the preferred one fails
             retract = candidates[0]
-        self._progress("preflight", f"checking devices and {count} waypoints")
         poses = {RETRACT: retract} | {f"waypoint {i}": w for i, w in enumerate(self._waypoints)}
         report = run_preflight(self._robot, self._scanner, poses, self._rod, self._job.workspace)
         retract_q, *waypoint_q = report.joint_solutions_rad
