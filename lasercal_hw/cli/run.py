@@ -151,6 +151,24 @@ def _connect(job: JobConfig, stack: contextlib.ExitStack) -> tuple[Robot, Scanne
     return robot, scanner
 
 
+def _warn_if_rods_differ(job: JobConfig, cell_rod: dict[str, Any] | None, ui: Console) -> None:
+    """A dry run only finds the rod the fake cell holds: say so when the job describes another."""
+    if cell_rod is None:
+        return
+    rod = job.rod.rod_line()
+    same = (
+        np.allclose(cell_rod["origin_m"], rod.origin_m, atol=1e-3)
+        and np.allclose(np.asarray(cell_rod["direction"]) / np.linalg.norm(cell_rod["direction"]),
+                        rod.unit_direction(), atol=1e-3)
+        and abs(cell_rod["radius_m"] - rod.radius_m) < 1e-4
+    )
+    if not same:
+        ui.print(
+            f"[yellow]warning:[/] the fake cell's rod {escape(str(cell_rod))} differs from the job's rod; "
+            "give the dry run a --scene whose \\[rod] matches the job (docs/extraction.md)"
+        )
+
+
 def _default_out_dir() -> Path:
     return Path("lasercal-out") / datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
 
@@ -307,6 +325,7 @@ def run_command(
             cell_info = {"address": cell.address, "pid": cell.pid}
             job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": cell.scanner_url})
             ui.print(f"fake cell on {cell.address} (pid {cell.pid}): scanner {cell.scanner_url}")
+            _warn_if_rods_differ(job, cell.info.get("rod"), ui)
         if job.robot.host is None:
             raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
         started_s = time.monotonic()
