@@ -5,6 +5,7 @@ from __future__ import annotations
 import signal
 import sys
 import threading
+from pathlib import Path
 from types import FrameType
 
 import typer
@@ -161,3 +162,16 @@ def fake_robot(
         ),
     )
     serve_until_signal(FakeRobot(address, config))
+
+
+@fake_app.command("cell")
+def fake_cell(
+    address: str = typer.Option(..., "--address", help="Loopback address to serve on, e.g. 127.0.0.7."),
+    scene: Path | None = typer.Option(None, "--scene", help="Scene file (TOML); default: the packaged one."),  # noqa: B008
+    seed: int = typer.Option(0, "--seed", help="Seed of the scanner's noise."),
+) -> None:
+    """Serve a fake UR controller and a fake UTM-30LX-EW sharing one simulated world; prints
+    'fake cell ready: {json}' (addresses and the ground-truth T_base_laser) when ready."""
+    from fakes.cell import FakeCell, serve_until_signal
+
+    serve_until_signal(FakeCell(address, scene, seed))

@@ -15,6 +15,7 @@ from lasercal_hw import __version__
 from lasercal_hw.cli.common import err_console
 from lasercal_hw.cli.fake import fake_app
 from lasercal_hw.cli.robot import robot_app
+from lasercal_hw.cli.run import run_command
 from lasercal_hw.cli.scanner import scanner_app
 from lasercal_hw.cli.session import session_app
 from lasercal_hw.cli.simulate import simulate_command
@@ -56,6 +57,7 @@ def _root(
 
 app.command("simulate")(simulate_command)
 app.command("solve")(solve_command)
+app.command("run")(run_command)
 app.add_typer(fake_app, name="fake")
 app.add_typer(scanner_app, name="scanner")
 app.add_typer(session_app, name="session")

@@ -1,0 +1,114 @@
+"""The fake cell: a fake UR controller and a fake UTM-30LX-EW on one loopback address,
+sharing one simulated world (``fakes.world``), so the scanner sees the rod wherever the
+fake robot holds it.
+
+Both fakes run in this process (the robot's servers and cycle as threads, the scanner's
+server as a thread); clients must run in another process (ur_rtde holds the GIL). When
+ready, one line goes to standard output::
+
+    fake cell ready: {"robot_host": ..., "scanner_url": ..., "T_base_laser": [[...]], ...}
+
+``lasercal run --dry-run`` reads it (``lasercal_hw.dry_run``) and compares its result with
+``T_base_laser``, the world's ground truth.
+
+Scene faults acted on here: ``protective_stop_at_waypoint = k`` stops the robot halfway
+through move ``k + 2`` (a run first moves to its retract pose for the background, then to
+waypoint 0, 1, ...).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import numpy as np
+
+from fakes.scip_server import DEFAULT_PORT, FakeScannerServer
+from fakes.ur_controller.controller import ControllerConfig, FaultPlan
+from fakes.ur_controller.process import FakeRobot
+from fakes.world import World, WorldRangeSource
+from lasercal_hw.models import FloatArray
+
+READY_PREFIX = "fake cell ready:"
+MOVES_BEFORE_FIRST_WAYPOINT = 1
+
+
+class FakeCell:
+    """A fake robot and a fake scanner on ``address`` looking at one world."""
+
+    def __init__(self, address: str, scene: Path | None = None, seed: int = 0) -> None:
+        self.world = World.from_scene(scene)
+        faults = self.world.scene.faults
+        stop_at = faults.protective_stop_at_waypoint
+        config = ControllerConfig(
+            faults=FaultPlan(
+                protective_stop_at_move=None if stop_at is None else stop_at + 1 + MOVES_BEFORE_FIRST_WAYPOINT
+            )
+        )
+        self.robot = FakeRobot(address, config)
+        source = WorldRangeSource(self.world, self._tcp_pose_at, seed)
+        self.scanner = FakeScannerServer(address, DEFAULT_PORT, source=source)
+        self.address = self.robot.address
+        self.scanner_url = ""
+
+    def _tcp_pose_at(self, time_s: float) -> FloatArray:
+        """The TCP pose the fake controller reports now (scans are cast as they start)."""
+        return self.robot.controller.tcp_pose_matrix()
+
+    def start(self) -> None:
+        """Bind every port and start serving; closes what was opened on failure."""
+        try:
+            self.robot.start()
+            self.scanner_url = self.scanner.start()
+        except BaseException:
+            self.close()
+            raise
+
+    def ready_document(self) -> dict[str, Any]:
+        """What the ready line announces."""
+        rod = self.world.rod
+        return {
+            "robot_host": self.address,
+            "scanner_url": self.scanner_url,
+            "T_base_laser": self.world.ground_truth_T_base_laser.tolist(),
+            "rod": {
+                "origin_m": np.asarray(rod.origin_m).tolist(),
+                "direction": np.asarray(rod.direction).tolist(),
+                "radius_m": rod.radius_m,
+                "length_m": rod.length_m,
+            },
+            "pid": os.getpid(),
+        }
+
+    def ready_line(self) -> str:
+        """The single line announcing readiness."""
+        return f"{READY_PREFIX} {json.dumps(self.ready_document())}"
+
+    def close(self) -> None:
+        """Stop both fakes; safe to call twice."""
+        self.scanner.stop()
+        self.robot.close()
+
+
+def serve_until_signal(cell: FakeCell) -> None:
+    """Start the cell, print its ready line, and serve until SIGINT or SIGTERM."""
+    stop = threading.Event()
+
+    def request_stop(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        cell.start()
+        print(cell.ready_line(), flush=True)
+        while not stop.wait(0.5):
+            pass
+    finally:
+        cell.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -1,0 +1,283 @@
+"""The job file: everything a calibration run needs besides the devices themselves.
+
+A job file is TOML (see ``examples/rod.toml``); every table is optional and every field
+has a default sized for the paper's setup (UR5, UTM-30LX-EW, a 20 mm rod on the flange).
+Unknown keys are refused, and every error names the file and the field.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from lasercal_hw.errors import ConfigError
+from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
+from lasercal_hw.models import FloatArray, RodLine
+
+Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+PoseVector = Annotated[list[float], Field(min_length=6, max_length=6)]
+
+DEFAULT_SCANNER_URL = "scip+tcp://192.168.0.10:10940"
+DEFAULT_PRESET = "paper"
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class RobotConfig(_Strict):
+    """Where the robot controller is (``--robot`` overrides ``host``)."""
+
+    host: str | None = None
+
+
+class NominalPose(_Strict):
+    """A rough guess of the scanner's mounting in the robot base frame (tape measure).
+
+    Used to predict where the rod should appear in each scan; the solver never uses it.
+    """
+
+    translation_m: Vector3
+    euler_zyx_deg: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+    def matrix(self) -> FloatArray:
+        """The nominal ``T_base_laser`` as a 4x4 matrix."""
+        yaw, pitch, roll = np.radians(self.euler_zyx_deg)
+        return make_transform(euler_zyx_to_matrix(yaw, pitch, roll), self.translation_m)
+
+
+class ScannerConfig(_Strict):
+    """How to reach the scanner (``--scanner`` overrides ``url``) and where it roughly is."""
+
+    url: str = DEFAULT_SCANNER_URL
+    timeout_s: float = Field(2.0, gt=0.0, le=60.0)
+    nominal: NominalPose | None = None
+
+    @field_validator("url")
+    @classmethod
+    def _known_scheme(cls, url: str) -> str:
+        if not url.startswith(("scip+tcp://", "scip+serial://")):
+            raise ValueError("must start with scip+tcp:// or scip+serial://")
+        return url
+
+
+class RodConfig(_Strict):
+    """The rod (or drill bit) axis in the TCP frame."""
+
+    radius_m: float = Field(0.02, gt=0.0, le=0.2)
+    length_m: float = Field(0.3, gt=0.0, le=2.0)
+    origin_m: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+    direction: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 1.0])
+
+    @field_validator("direction")
+    @classmethod
+    def _nonzero(cls, direction: list[float]) -> list[float]:
+        if float(np.linalg.norm(direction)) < 1e-9:
+            raise ValueError("must not be the zero vector")
+        return direction
+
+    def rod_line(self) -> RodLine:
+        """The rod as the value type the extraction and the solver use."""
+        return RodLine(
+            origin_m=np.asarray(self.origin_m, dtype=float),
+            direction=np.asarray(self.direction, dtype=float),
+            radius_m=self.radius_m,
+            length_m=self.length_m,
+        )
+
+
+class TrajectoryConfig(_Strict):
+    """Which waypoints to visit: a named preset with parameters, or a waypoint file.
+
+    A waypoint file is CSV with one UR pose per row (``x,y,z,rx,ry,rz``, metres and
+    rotation vector in the base frame; a header row is allowed). A relative path is taken
+    relative to the job file.
+    """
+
+    preset: str | None = None
+    parameters: dict[str, float | int | str | bool | list[float]] = Field(default_factory=dict)
+    waypoints_file: Path | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_preset(cls, data: Any) -> Any:
+        if isinstance(data, dict) and data.get("preset") is None and data.get("waypoints_file") is None:
+            return {**data, "preset": DEFAULT_PRESET}
+        return data
+
+    @model_validator(mode="after")
+    def _one_source(self) -> TrajectoryConfig:
+        if self.waypoints_file is not None and self.preset is not None:
+            raise ValueError("give either preset or waypoints_file, not both")
+        if self.waypoints_file is not None and self.parameters:
+            raise ValueError("parameters apply to a preset, not to a waypoints_file")
+        return self
+
+    @property
+    def uses_file(self) -> bool:
+        """True when the waypoints come from a file rather than a preset."""
+        return self.waypoints_file is not None
+
+
+class SettleConfig(_Strict):
+    """When the arm counts as steady after a move."""
+
+    timeout_s: float = Field(10.0, gt=0.0, le=120.0)
+    margin_s: float = Field(0.1, ge=0.0, le=5.0)
+    max_drift_mm: float = Field(0.5, gt=0.0, le=50.0)
+
+
+class AcquisitionConfig(_Strict):
+    """How scans are gathered at each waypoint."""
+
+    min_scan_fraction: float = Field(0.5, gt=0.0, le=1.0)
+    max_missed_scans: int = Field(4, ge=0)
+    max_attempts: int = Field(3, ge=1, le=10)
+    scan_timeout_s: float = Field(5.0, gt=0.0, le=60.0)
+
+
+class BackgroundConfig(_Strict):
+    """The view of the cell without the rod, taken at a retract pose above the scan plane.
+
+    ``pose`` is a UR pose; without it the first waypoint is lifted by ``lift_m`` (default:
+    the rod length plus 5 cm) along the base z axis.
+    """
+
+    pose: PoseVector | None = None
+    lift_m: float | None = Field(None, gt=0.0, le=1.5)
+    scans: int = Field(40, ge=1, le=2000)
+
+
+class MotionConfig(_Strict):
+    """Speed and acceleration caps, and how to move between waypoints.
+
+    ``joint`` (default) moves in joint space to each waypoint's preflight solution: no
+    singularity on the way can stop it. ``linear`` moves the TCP on straight lines, which
+    stay inside the (convex) workspace box but may pass near a singularity.
+    """
+
+    move: Literal["linear", "joint"] = "joint"
+    speed_m_s: float = Field(0.10, gt=0.0, le=0.5)
+    accel_m_s2: float = Field(0.30, gt=0.0, le=2.0)
+    joint_speed_rad_s: float = Field(0.50, gt=0.0, le=1.5)
+    joint_accel_rad_s2: float = Field(1.00, gt=0.0, le=4.0)
+
+
+class WorkspaceConfig(_Strict):
+    """Box in the robot base frame that the TCP and both rod ends must stay in."""
+
+    min_m: Vector3 = Field(default_factory=lambda: [-0.95, -0.95, -0.10])
+    max_m: Vector3 = Field(default_factory=lambda: [0.95, 0.95, 1.10])
+
+    @model_validator(mode="after")
+    def _ordered(self) -> WorkspaceConfig:
+        if any(lo >= hi for lo, hi in zip(self.min_m, self.max_m, strict=True)):
+            raise ValueError("every component of min_m must be below max_m")
+        return self
+
+    def contains(self, point_m: FloatArray) -> bool:
+        """True when the point lies inside the box (boundary included)."""
+        p = np.asarray(point_m, dtype=float)
+        return bool(np.all(p >= np.asarray(self.min_m)) and np.all(p <= np.asarray(self.max_m)))
+
+
+class QualityConfig(_Strict):
+    """Gates a result must pass to be accepted (exit code 1 otherwise)."""
+
+    max_rms_residual_mm: float = Field(10.0, gt=0.0)
+    max_std_translation_mm: float = Field(10.0, gt=0.0)
+    max_std_rotation_deg: float = Field(1.0, gt=0.0)
+    max_outlier_fraction: float = Field(0.2, ge=0.0, le=1.0)
+    min_observations: int = Field(8, ge=6)
+
+
+class OutputConfig(_Strict):
+    """Where results go (``--out`` overrides ``dir``; default ``./lasercal-out/<timestamp>``)."""
+
+    dir: Path | None = None
+    report: bool = True
+
+
+class JobConfig(_Strict):
+    """A whole calibration job."""
+
+    robot: RobotConfig = Field(default_factory=RobotConfig)
+    scanner: ScannerConfig = Field(default_factory=ScannerConfig)
+    rod: RodConfig = Field(default_factory=RodConfig)
+    trajectory: TrajectoryConfig = Field(default_factory=TrajectoryConfig)
+    dwell_s: float = Field(3.0, gt=0.0, le=60.0)
+    settle: SettleConfig = Field(default_factory=SettleConfig)
+    acquisition: AcquisitionConfig = Field(default_factory=AcquisitionConfig)
+    background: BackgroundConfig = Field(default_factory=BackgroundConfig)
+    motion: MotionConfig = Field(default_factory=MotionConfig)
+    workspace: WorkspaceConfig = Field(default_factory=WorkspaceConfig)
+    quality: QualityConfig = Field(default_factory=QualityConfig)
+    output: OutputConfig = Field(default_factory=OutputConfig)
+
+    def background_lift_m(self) -> float:
+        """How far above the first waypoint the background is taken."""
+        return self.background.lift_m if self.background.lift_m is not None else self.rod.length_m + 0.05
+
+
+def _describe(exc: ValidationError, source: str) -> str:
+    lines = []
+    for error in exc.errors():
+        field = ".".join(str(part) for part in error["loc"]) or "(top level)"
+        message = error["msg"]
+        if error["type"] == "extra_forbidden":
+            message = "unknown field (check the spelling; see docs/sequencer.md for the fields)"
+        lines.append(f"{source}: {field}: {message}")
+    return "invalid job configuration:\n  " + "\n  ".join(lines)
+
+
+def job_from_mapping(data: dict[str, Any], source: str = "job") -> JobConfig:
+    """Validate a parsed job document; ``source`` names it in error messages."""
+    try:
+        return JobConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(_describe(exc, source)) from None
+
+
+def load_job(path: Path | None) -> JobConfig:
+    """Read and validate a job file (``None``: all defaults).
+
+    A relative ``trajectory.waypoints_file`` is resolved against the job file's folder.
+    """
+    if path is None:
+        return JobConfig()
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"job file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read job file {path}: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    job = job_from_mapping(data, str(path))
+    waypoints_file = job.trajectory.waypoints_file
+    if waypoints_file is not None and not waypoints_file.is_absolute():
+        trajectory = job.trajectory.model_copy(
+            update={"waypoints_file": (Path(path).parent / waypoints_file).resolve()}
+        )
+        job = job.model_copy(update={"trajectory": trajectory})
+    return job
+
+
+def with_overrides(job: JobConfig, overrides: dict[str, Any], source: str = "command line") -> JobConfig:
+    """A copy of ``job`` with dotted-key overrides (``{"scanner.url": ...}``), re-validated."""
+    data = job.model_dump(mode="python")
+    for dotted, value in overrides.items():
+        if value is None:
+            continue
+        *parents, leaf = dotted.split(".")
+        node = data
+        for part in parents:
+            if not isinstance(node.get(part), dict):
+                node[part] = {}
+            node = node[part]
+        node[leaf] = value
+    return job_from_mapping(data, source)

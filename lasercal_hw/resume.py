@@ -1,0 +1,99 @@
+"""Recover what an interrupted run already measured from its ``session.mcap``.
+
+Each ``observation`` event carries the TCP pose, the rod centre and the dwell window
+(device-time stamps); the averaged scan is rebuilt from the recorded scans of that window
+by the same rule the live run used, so the second extraction pass treats old and new
+waypoints alike. ``waypoint_skipped`` events are kept as skipped; the background is
+rebuilt from its window. A waypoint whose scans are missing is simply measured again.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from lasercal_hw.config import JobConfig, job_from_mapping
+from lasercal_hw.errors import ConfigError
+from lasercal_hw.extraction import RodCentre, RodQuality
+from lasercal_hw.models import FloatArray, LaserScan
+from lasercal_hw.scan_average import AveragedScan, average_scans
+from lasercal_hw.sequencer import ResumeState, SkippedWaypoint, WaypointMeasurement
+from lasercal_hw.session import SessionRecording
+
+logger = logging.getLogger(__name__)
+
+META_JOB = "job"
+META_WAYPOINTS = "waypoints"
+
+
+def recorded_job(recording: SessionRecording) -> tuple[JobConfig, FloatArray]:
+    """The job and the waypoints an earlier run recorded in its meta."""
+    meta = recording.meta
+    if META_JOB not in meta or META_WAYPOINTS not in meta:
+        raise ConfigError(
+            f"{recording.path} has no recorded job or waypoints; it was not written by `lasercal run` "
+            "and cannot be resumed"
+        )
+    job = job_from_mapping(meta[META_JOB], f"{recording.path} (recorded job)")
+    waypoints = np.asarray(meta[META_WAYPOINTS], dtype=float).reshape(-1, 6)
+    return job, waypoints
+
+
+def _window_scans(scans: list[LaserScan], start_s: float, end_s: float) -> list[LaserScan]:
+    return [scan for scan in scans if start_s <= scan.device_time_s < end_s]
+
+
+def _average_or_none(scans: list[LaserScan], expected: int, what: str) -> AveragedScan | None:
+    if len(scans) != expected or not scans:
+        logger.warning("%s: %d scans recorded, %d were used; measuring again", what, len(scans), expected)
+        return None
+    return average_scans(scans)
+
+
+def _measurement(event: dict[str, Any], scans: list[LaserScan]) -> WaypointMeasurement | None:
+    index = int(event["index"])
+    window = _window_scans(scans, float(event["window_start_s"]), float(event["window_end_s"]))
+    averaged = _average_or_none(window, int(event["scans"]), f"waypoint {index}")
+    if averaged is None:
+        return None
+    centre = RodCentre(
+        centre_uv_m=np.asarray(event["centre_uv_m"], dtype=float),
+        covariance_uv_m2=np.asarray(event["covariance_uv_m2"], dtype=float),
+        quality=RodQuality(**event["quality"]),
+    )
+    return WaypointMeasurement(index, np.asarray(event["tcp_pose"], dtype=float), averaged, centre)
+
+
+def _background(recording: SessionRecording) -> AveragedScan | None:
+    events = recording.events_of("background")
+    if not events:
+        return None
+    event = events[-1]
+    window = [
+        scan
+        for scan in recording.scans
+        if float(event["window_start_s"]) <= scan.device_time_s <= float(event["window_end_s"])
+    ]
+    return _average_or_none(window[: int(event["scans"])], int(event["scans"]), "background")
+
+
+def resume_state(recording: SessionRecording) -> ResumeState:
+    """The measured and skipped waypoints of an interrupted run, and its background."""
+    observed: dict[int, WaypointMeasurement] = {}
+    for event in recording.events_of("observation"):
+        measurement = _measurement(event, recording.scans)
+        if measurement is not None:
+            observed[measurement.index] = measurement
+    skipped = {
+        int(event["index"]): SkippedWaypoint(int(event["index"]), str(event["reason"]))
+        for event in recording.events_of("waypoint_skipped")
+        if int(event["index"]) not in observed
+    }
+    logger.info("resuming %s: %d waypoints measured, %d skipped", recording.path, len(observed), len(skipped))
+    return ResumeState(
+        measurements=[observed[i] for i in sorted(observed)],
+        skipped=[skipped[i] for i in sorted(skipped)],
+        background=_background(recording),
+    )

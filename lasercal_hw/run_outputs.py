@@ -1,0 +1,140 @@
+"""The files a run leaves in its output folder (besides ``session.mcap``, which the
+recorder writes while the run goes): ``observations.csv``, ``result.json``, the report PNG
+and the ROS exports."""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lasercal_hw.config import JobConfig
+from lasercal_hw.errors import ConfigError
+from lasercal_hw.exports import exports, static_transform_publisher_args, urdf_joint
+from lasercal_hw.geometry import rotation_angle_rad
+from lasercal_hw.models import FloatArray
+from lasercal_hw.observations import write_observations_csv
+from lasercal_hw.report import ReportData, render_report
+from lasercal_hw.sequencer import RunOutcome
+from lasercal_hw.solver_model import plane_crossing, rod_lines_in_base
+
+logger = logging.getLogger(__name__)
+
+SESSION_FILE = "session.mcap"
+OBSERVATIONS_FILE = "observations.csv"
+RESULT_FILE = "result.json"
+REPORT_FILE = "report.png"
+URDF_FILE = "base_to_laser.urdf.xml"
+TF_ARGS_FILE = "static_transform_publisher.args"
+
+
+def transform_error(T_estimate: FloatArray, T_truth: FloatArray) -> dict[str, float]:
+    """Translation (mm) and rotation (deg) between an estimate and a known transform."""
+    estimate, truth = np.asarray(T_estimate, dtype=float), np.asarray(T_truth, dtype=float)
+    rotation = truth[:3, :3].T @ estimate[:3, :3]
+    return {
+        "translation_mm": 1000.0 * float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])),
+        "rotation_deg": float(np.degrees(rotation_angle_rad(rotation))),
+    }
+
+
+def result_document(
+    outcome: RunOutcome, job: JobConfig, *, ground_truth: FloatArray | None = None
+) -> dict[str, Any]:
+    """``result.json``: the solver's result plus the run's verdict, skips and timings."""
+    result = outcome.result
+    document = result.to_json_dict()
+    document["verdict"] = outcome.verdict.as_dict()
+    document["run"] = {
+        "waypoints_planned": len(outcome.measurements) + len(outcome.skipped),
+        "observations": len(outcome.observations),
+        "skipped": [{"index": s.index, "reason": s.reason} for s in outcome.skipped],
+        "refinement": outcome.refinement,
+        "first_pass": {
+            "T_base_laser": outcome.first_pass.T_base_laser,
+            "rms_residual_mm": outcome.first_pass.rms_residual_mm,
+        },
+        "resumed_after_waypoints": outcome.resumed_from,
+        "timings": {
+            "wall_s": outcome.timings.wall_s,
+            "motion_s": outcome.timings.motion_s,
+            "dwell_s": outcome.timings.dwell_s,
+            "overhead_s": outcome.timings.overhead_s,
+            "overhead_fraction": outcome.timings.overhead_fraction,
+        },
+        "robot": asdict(outcome.preflight.robot),
+        "scanner": asdict(outcome.preflight.scanner),
+        "job": job.model_dump(mode="json"),
+    }
+    document["exports"] = exports(result.matrix())
+    if ground_truth is not None:
+        document["ground_truth"] = {
+            "T_base_laser": np.asarray(ground_truth, dtype=float).tolist(),
+            "error": transform_error(result.matrix(), ground_truth),
+            "first_pass_error": transform_error(outcome.first_pass.matrix(), ground_truth),
+        }
+    return document
+
+
+def report_data(outcome: RunOutcome, job: JobConfig, title: str) -> ReportData:
+    """What the report PNG shows for this run."""
+    result = outcome.result
+    T = result.matrix()
+    poses = np.array([o.tcp_pose for o in outcome.observations])
+    origins, directions = rod_lines_in_base(poses, job.rod.rod_line())
+    predicted, _, _ = plane_crossing(T[:3, :3], T[:3, 3], origins, directions)
+    used = {r.index: r.used for r in result.residuals}
+    notes = [outcome.refinement, *outcome.verdict.failures()]
+    notes += [f"waypoint {s.index} skipped: {s.reason}" for s in outcome.skipped]
+    background = outcome.background
+    return ReportData(
+        title=title,
+        T_base_laser=result.T_base_laser,
+        std_translation_mm=result.std_translation_mm,
+        std_rotation_deg=result.std_rotation_deg,
+        indices=[o.index for o in outcome.observations],
+        measured_uv_m=np.array([o.centre_uv_m for o in outcome.observations]),
+        predicted_uv_m=predicted,
+        used=[used.get(o.index, False) for o in outcome.observations],
+        tcp_poses=poses,
+        background_angles_rad=background.angles_rad if background is not None else [],
+        background_ranges_m=background.ranges_m if background is not None else [],
+        notes=notes,
+    )
+
+
+def _write_text(path: Path, text: str) -> None:
+    try:
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
+def write_outputs(
+    out_dir: Path,
+    outcome: RunOutcome,
+    job: JobConfig,
+    *,
+    ground_truth: FloatArray | None = None,
+    title: str = "lasercal calibration",
+) -> dict[str, Path]:
+    """Write every result file into ``out_dir``; returns them by name."""
+    files = {
+        "observations": out_dir / OBSERVATIONS_FILE,
+        "result": out_dir / RESULT_FILE,
+        "urdf": out_dir / URDF_FILE,
+        "static_transform_publisher": out_dir / TF_ARGS_FILE,
+    }
+    write_observations_csv(files["observations"], outcome.observations)
+    document = result_document(outcome, job, ground_truth=ground_truth)
+    _write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
+    T = outcome.result.matrix()
+    _write_text(files["urdf"], urdf_joint(T))
+    _write_text(files["static_transform_publisher"], " ".join(static_transform_publisher_args(T)) + "\n")
+    if job.output.report:
+        files["report"] = render_report(report_data(outcome, job, title), out_dir / REPORT_FILE)
+    return files

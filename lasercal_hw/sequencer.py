@@ -1,0 +1,657 @@
+"""The calibration run: preflight, background, move-settle-dwell at every waypoint, rod
+centres, solve, quality gates, and a second extraction pass with the solved rod axes.
+
+The sequencer talks to the ``Robot`` and ``Scanner`` protocols and to a recorder; it never
+prints (progress goes to a callback the CLI renders) and never imports a driver or a fake.
+Everything it sees is written to the recorder as it happens, so an interrupted run keeps
+its data and can be resumed (``ResumeState``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from lasercal_hw.config import JobConfig
+from lasercal_hw.devices import Robot, Scanner
+from lasercal_hw.dwell import DwellCapture, collect_count, collect_window
+from lasercal_hw.errors import (
+    DeviceError,
+    InterruptedRunError,
+    LasercalError,
+    ProtectiveStopError,
+    RobotError,
+    TransportError,
+)
+from lasercal_hw.extraction import RodCentre, RodNotFoundError, find_rod_centre
+from lasercal_hw.models import FloatArray, LaserScan, Observation, RodLine
+from lasercal_hw.preflight import PreflightReport, first_clear_pose, rod_end_points_m, run_preflight
+from lasercal_hw.quality import Verdict, evaluate_gates
+from lasercal_hw.result import CalibrationResult
+from lasercal_hw.scan_average import AveragedScan, average_scans
+from lasercal_hw.solver import solve
+from lasercal_hw.solver_model import lines_in_scanner, plane_crossing, rod_lines_in_base
+
+logger = logging.getLogger(__name__)
+
+RETRACT = "retract pose (for the background; see background.pose)"
+NOMINAL_CLEARANCE_M = 0.08
+
+
+class RunRecorder(Protocol):
+    """The part of ``SessionRecorder`` the sequencer writes to."""
+
+    def write_scan(self, scan: LaserScan) -> None: ...
+
+    def write_tcp_pose(self, host_time_s: float, pose: FloatArray) -> None: ...
+
+    def write_joint_state(self, host_time_s: float, q_rad: FloatArray) -> None: ...
+
+    def write_event(self, host_time_s: float, kind: str, **fields: Any) -> None: ...
+
+
+@dataclass(frozen=True)
+class Progress:
+    """One step of the run, for a live display. ``waypoint`` indexes the waypoint list."""
+
+    stage: str
+    message: str
+    waypoint: int | None = None
+    waypoint_count: int = 0
+    completed: int = 0
+    scans_averaged: int | None = None
+    centre_uv_m: tuple[float, float] | None = None
+    time_left_s: float | None = None
+
+
+ProgressCallback = Callable[[Progress], None]
+
+
+@dataclass(frozen=True)
+class WaypointMeasurement:
+    """A waypoint where the rod was found: the TCP pose, the averaged scan and the centre."""
+
+    index: int
+    tcp_pose: FloatArray
+    averaged: AveragedScan
+    centre: RodCentre
+
+    def observation(self) -> Observation:
+        """The solver's view of this waypoint."""
+        return Observation(
+            index=self.index,
+            tcp_pose=np.asarray(self.tcp_pose, dtype=float),
+            centre_uv_m=np.asarray(self.centre.centre_uv_m, dtype=float),
+            covariance_uv_m2=np.asarray(self.centre.covariance_uv_m2, dtype=float),
+        )
+
+
+@dataclass(frozen=True)
+class SkippedWaypoint:
+    """A waypoint that gave no observation, and why."""
+
+    index: int
+    reason: str
+
+
+@dataclass
+class Timings:
+    """Where the run's time went (seconds)."""
+
+    wall_s: float = 0.0
+    motion_s: float = 0.0
+    dwell_s: float = 0.0
+
+    @property
+    def overhead_s(self) -> float:
+        """Time spent neither moving nor dwelling (checks, averaging, fitting, solving)."""
+        return self.wall_s - self.motion_s - self.dwell_s
+
+    @property
+    def overhead_fraction(self) -> float:
+        """Overhead relative to the motion and dwell time (the target is under 0.10)."""
+        busy_s = self.motion_s + self.dwell_s
+        return self.overhead_s / busy_s if busy_s > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class ResumeState:
+    """What an interrupted run already measured (see ``lasercal_hw.resume``)."""
+
+    measurements: list[WaypointMeasurement] = field(default_factory=list)
+    skipped: list[SkippedWaypoint] = field(default_factory=list)
+    background: AveragedScan | None = None
+
+    @property
+    def finished_indices(self) -> set[int]:
+        """Waypoints that need no further visit."""
+        return {m.index for m in self.measurements} | {s.index for s in self.skipped}
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    """Everything a finished run produced."""
+
+    preflight: PreflightReport
+    measurements: list[WaypointMeasurement]
+    skipped: list[SkippedWaypoint]
+    observations: list[Observation]
+    first_pass: CalibrationResult
+    result: CalibrationResult
+    refinement: str
+    verdict: Verdict
+    timings: Timings
+    resumed_from: int
+    background: AveragedScan | None
+
+
+@dataclass(frozen=True)
+class RodPrediction:
+    """Where a transform says the rod should be in the scanner: its axis direction and,
+    when the rod actually reaches the scan plane, the crossing point."""
+
+    axis_in_scanner: FloatArray
+    expected_uv_m: FloatArray | None
+
+
+def predict_rod(T_base_laser: FloatArray, tcp_pose: FloatArray, rod: RodLine) -> RodPrediction:
+    """The rod axis direction and plane crossing in the scanner frame for one TCP pose."""
+    rotation = np.asarray(T_base_laser, dtype=float)[:3, :3]
+    translation_m = np.asarray(T_base_laser, dtype=float)[:3, 3]
+    origins, directions = rod_lines_in_base(np.asarray(tcp_pose, dtype=float)[None, :], rod)
+    _, axes = lines_in_scanner(rotation, translation_m, origins, directions)
+    axis = axes[0] if axes[0, 2] >= 0.0 else -axes[0]
+    if abs(axes[0, 2]) < 1e-9:
+        return RodPrediction(axis, None)
+    crossing, _, line_s = plane_crossing(rotation, translation_m, origins, directions)
+    on_rod = 0.0 <= line_s[0] <= rod.length_m
+    return RodPrediction(axis, crossing[0] if on_rod else None)
+
+
+def background_lift_m(job: JobConfig, pose: FloatArray) -> float:
+    """How far to lift a waypoint along base z so that the whole rod is above the scan plane.
+
+    The configured ``background.lift_m`` if any; else, with a nominal scanner mounting, just
+    enough for both rod ends to clear its plane by ``NOMINAL_CLEARANCE_M``; else the rod
+    length plus 5 cm (enough wherever the rod crossed the plane).
+    """
+    nominal = job.scanner.nominal
+    if job.background.lift_m is not None or nominal is None:
+        return job.background_lift_m()
+    T_base_laser = nominal.matrix()
+    normal = T_base_laser[:3, 2]
+    if normal[2] < 0.5:  # a scanner on its side: its plane is steep, lifting does not clear it
+        return job.background_lift_m()
+    heights_m = (rod_end_points_m(pose, job.rod.rod_line()) - T_base_laser[:3, 3]) @ normal
+    return max(0.0, (NOMINAL_CLEARANCE_M - float(heights_m.min())) / float(normal[2]))
+
+
+def retract_candidates(job: JobConfig, waypoints: FloatArray) -> list[FloatArray]:
+    """Where the background may be taken, best first: the configured ``background.pose``;
+    else each waypoint lifted clear of the plane, the first waypoint first, then the
+    others nearest the robot base first (a far waypoint lifted may be out of reach)."""
+    if job.background.pose is not None:
+        return [np.asarray(job.background.pose, dtype=float)]
+    order = sorted(range(len(waypoints)), key=lambda i: (i != 0, float(np.linalg.norm(waypoints[i][:3]))))
+    candidates = []
+    for i in order:
+        pose = np.asarray(waypoints[i], dtype=float).copy()
+        pose[2] += background_lift_m(job, pose)
+        candidates.append(pose)
+    return candidates
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if hasattr(value, "model_dump"):
+        return _jsonable(value.model_dump(mode="json"))
+    if hasattr(value, "__dataclass_fields__"):
+        return {name: _jsonable(getattr(value, name)) for name in value.__dataclass_fields__}
+    return value
+
+
+class _RetryError(Exception):
+    """One attempt at a waypoint failed in a way that repeating it may fix."""
+
+    def __init__(self, reason: str, scanner_fault: bool) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.scanner_fault = scanner_fault
+
+
+class Sequencer:
+    """Runs one calibration job against a robot and a scanner."""
+
+    def __init__(
+        self,
+        robot: Robot,
+        scanner: Scanner,
+        recorder: RunRecorder,
+        job: JobConfig,
+        waypoints: FloatArray,
+        *,
+        on_progress: ProgressCallback | None = None,
+        before_motion: Callable[[PreflightReport], None] | None = None,
+        resume: ResumeState | None = None,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        """``before_motion`` is called once preflight passed and before the first motion
+        (the CLI asks the operator there; raising from it aborts with nothing moved)."""
+        self._robot = robot
+        self._scanner = scanner
+        self._recorder = recorder
+        self._job = job
+        self._waypoints = np.asarray(waypoints, dtype=float).reshape(-1, 6)
+        self._rod = job.rod.rod_line()
+        self._on_progress = on_progress
+        self._before_motion = before_motion
+        self._resume = resume or ResumeState()
+        self._clock = clock
+        self._background: AveragedScan | None = self._resume.background
+        self._measurements: list[WaypointMeasurement] = list(self._resume.measurements)
+        self._skipped: list[SkippedWaypoint] = list(self._resume.skipped)
+        self._timings = Timings()
+        self._joint_targets: dict[int, FloatArray] = {}
+        self._current: int | None = None
+        self._moves = 0
+
+    # -- public -------------------------------------------------------------------------
+
+    def run(self) -> RunOutcome:
+        """Run the whole job; see the module docstring. Raises on abort, never hangs the arm."""
+        started_s = self._clock()
+        try:
+            outcome = self._run()
+        except (KeyboardInterrupt, InterruptedRunError) as exc:
+            reason = str(exc) or "Ctrl-C"
+            self._halt("interrupted", reason)
+            raise InterruptedRunError(
+                f"run interrupted{self._where()} ({reason}): the arm was stopped and the recording kept; "
+                "continue later with --resume"
+            ) from None
+        except ProtectiveStopError as exc:
+            # The controller already stopped the arm; no command is sent to it any more.
+            self._event("abort", cause="protective_stop", index=self._current, message=str(exc))
+            raise ProtectiveStopError(
+                f"protective stop{self._where()}: {exc}. The run is aborted and will not resume by "
+                "itself: find the cause, clear the stop on the teach pendant, then continue with --resume"
+            ) from exc
+        except BaseException as exc:
+            self._halt("error", f"{type(exc).__name__}: {exc}")
+            raise
+        finally:
+            self._stop_streaming()
+        outcome.timings.wall_s = self._clock() - started_s
+        self._event(
+            "run_end",
+            passed=outcome.verdict.passed,
+            wall_s=outcome.timings.wall_s,
+            motion_s=outcome.timings.motion_s,
+            dwell_s=outcome.timings.dwell_s,
+            overhead_fraction=outcome.timings.overhead_fraction,
+        )
+        return outcome
+
+    # -- the run ------------------------------------------------------------------------
+
+    def _run(self) -> RunOutcome:
+        count = len(self._waypoints)
+        self._progress("preflight", f"checking devices and {count} waypoints")
+        candidates = retract_candidates(self._job, self._waypoints)
+        retract = first_clear_pose(self._robot, candidates, self._rod, self._job.workspace)
+        if retract is None:  # preflight lists why the preferred one fails
+            retract = candidates[0]
+        poses = {RETRACT: retract} | {f"waypoint {i}": w for i, w in enumerate(self._waypoints)}
+        report = run_preflight(self._robot, self._scanner, poses, self._rod, self._job.workspace)
+        retract_q, *waypoint_q = report.joint_solutions_rad
+        self._joint_targets = dict(enumerate(waypoint_q))
+        self._event(
+            "preflight_ok",
+            robot=report.robot,
+            scanner=report.scanner,
+            waypoints=count,
+            already_done=sorted(self._resume.finished_indices),
+        )
+        if self._before_motion is not None:
+            self._before_motion(report)
+        self._scanner.start_streaming()
+        if self._background is None:
+            self._capture_background(retract, retract_q)
+        for index in range(count):
+            if index in self._resume.finished_indices:
+                continue
+            self._current = index
+            self._measure_waypoint(index)
+        self._current = None
+        return self._solve(report)
+
+    def _capture_background(self, pose: FloatArray, q_rad: FloatArray) -> None:
+        self._progress("background", "moving to the retract pose for the background")
+        attempts = self._job.acquisition.max_attempts
+        for attempt in range(1, attempts + 1):
+            # The arm may start anywhere: reach the retract pose in joint space (the preflight
+            # solution nearest the current joints), which no singularity can stop.
+            self._move(pose, q_rad, joint=True)
+            settled_s = self._settle()
+            count = self._job.background.scans
+            self._progress("background", f"averaging {count} background scans (rod out of the plane)")
+            dwell_started_s = self._clock()
+            try:
+                capture = collect_count(
+                    self._scanner,
+                    start_host_s=settled_s + self._job.settle.margin_s,
+                    count=count,
+                    scan_timeout_s=self._job.acquisition.scan_timeout_s,
+                    on_scan=self._recorder.write_scan,
+                )
+            except TransportError as exc:
+                self._event("fault", device="scanner", index=None, attempt=attempt, message=str(exc))
+                if attempt == attempts:
+                    raise DeviceError(
+                        f"background: the scanner failed {attempts} times ({exc}); check its cable and power"
+                    ) from exc
+                continue
+            finally:
+                self._timings.dwell_s += self._clock() - dwell_started_s
+            self._background = average_scans(capture.scans)
+            self._event(
+                "background",
+                tcp_pose=pose,
+                scans=len(capture.scans),
+                window_start_s=capture.window_start_host_s,
+                window_end_s=capture.window_end_host_s,
+            )
+            return
+
+    def _measure_waypoint(self, index: int) -> None:
+        attempts = self._job.acquisition.max_attempts
+        last: _RetryError | None = None
+        for attempt in range(1, attempts + 1):
+            try:
+                self._attempt_waypoint(index, attempt)
+                return
+            except _RetryError as retry:
+                last = retry
+                logger.warning("waypoint %d attempt %d: %s", index, attempt, retry.reason)
+                self._event("waypoint_retry", index=index, attempt=attempt, reason=retry.reason)
+                self._progress("retry", f"waypoint {index}: {retry.reason}; repeating", waypoint=index)
+        assert last is not None
+        if last.scanner_fault:
+            raise DeviceError(
+                f"waypoint {index}: the scanner failed {attempts} times ({last.reason}); "
+                "check its cable and power, then continue with --resume"
+            )
+        self._skip(index, f"{last.reason} ({attempts} attempts)")
+
+    def _attempt_waypoint(self, index: int, attempt: int) -> None:
+        count = len(self._waypoints)
+        self._progress("move", f"moving to waypoint {index} ({index + 1} of {count})", waypoint=index)
+        self._move(self._waypoints[index], self._joint_targets[index])
+        settled_s = self._settle()
+        tcp_start = self._read_tcp(settled_s)
+        self._progress("dwell", f"dwelling {self._job.dwell_s:g} s at waypoint {index}", waypoint=index)
+        capture = self._dwell(index, attempt, settled_s, tcp_start)
+        tcp_end = self._read_tcp(self._clock())
+        drift_mm = 1000.0 * float(np.linalg.norm(tcp_end[:3] - tcp_start[:3]))
+        self._event(
+            "dwell_end",
+            index=index,
+            attempt=attempt,
+            tcp_pose=tcp_end,
+            scans=len(capture.scans),
+            discarded=capture.discarded_before_start,
+            missed=capture.missed_scans,
+            dropped_total=self._scanner.dropped_scans(),
+            drift_mm=drift_mm,
+        )
+        self._check_capture(capture, drift_mm)
+        averaged = average_scans(capture.scans)
+        try:
+            centre = find_rod_centre(
+                averaged,
+                radius_m=self._rod.radius_m,
+                background=self._background,
+                expected_uv_m=self._nominal_expected_uv(tcp_start),
+            )
+        except RodNotFoundError as exc:
+            self._skip(index, str(exc))
+            return
+        self._measurements.append(WaypointMeasurement(index, tcp_start, averaged, centre))
+        u, v = (float(c) for c in centre.centre_uv_m)
+        self._event(
+            "observation",
+            index=index,
+            tcp_pose=tcp_start,
+            centre_uv_m=[u, v],
+            covariance_uv_m2=centre.covariance_uv_m2,
+            quality=centre.quality,
+            scans=len(capture.scans),
+            window_start_s=capture.window_start_host_s,
+            window_end_s=capture.window_end_host_s,
+        )
+        self._progress(
+            "centre",
+            f"waypoint {index}: rod at ({u:+.4f}, {v:+.4f}) m from {len(capture.scans)} scans",
+            waypoint=index,
+            scans_averaged=len(capture.scans),
+            centre_uv_m=(u, v),
+        )
+
+    def _check_capture(self, capture: DwellCapture, drift_mm: float) -> None:
+        """Raise ``_RetryError`` when the dwell's scans cannot be trusted."""
+        if capture.missed_scans > self._job.acquisition.max_missed_scans:
+            raise _RetryError(
+                f"the scanner stream had a gap ({capture.missed_scans} scans missed, e.g. a reconnect)",
+                scanner_fault=True,
+            )
+        expected = self._job.dwell_s / self._scanner.geometry().scan_period_s
+        if len(capture.scans) < self._job.acquisition.min_scan_fraction * expected:
+            arrived = len(capture.scans)
+            raise _RetryError(f"only {arrived} of ~{expected:.0f} scans arrived", scanner_fault=True)
+        if drift_mm > self._job.settle.max_drift_mm:
+            raise _RetryError(f"the arm moved {drift_mm:.2f} mm during the dwell", scanner_fault=False)
+
+    def _dwell(self, index: int, attempt: int, settled_s: float, tcp_pose: FloatArray) -> DwellCapture:
+        start_s = settled_s + self._job.settle.margin_s
+        self._event("dwell_start", index=index, attempt=attempt, tcp_pose=tcp_pose, window_start_s=start_s)
+        dwell_started_s = self._clock()
+        try:
+            return collect_window(
+                self._scanner,
+                start_host_s=start_s,
+                duration_s=self._job.dwell_s,
+                scan_timeout_s=self._job.acquisition.scan_timeout_s,
+                on_scan=self._recorder.write_scan,
+            )
+        except TransportError as exc:
+            self._event("fault", device="scanner", index=index, attempt=attempt, message=str(exc))
+            raise _RetryError(f"scanner stream failed: {exc}", scanner_fault=True) from exc
+        finally:
+            self._timings.dwell_s += self._clock() - dwell_started_s
+
+    # -- solving ------------------------------------------------------------------------
+
+    def _solve(self, report: PreflightReport) -> RunOutcome:
+        measurements = sorted(self._measurements, key=lambda m: m.index)
+        self._progress("solve", f"solving from {len(measurements)} observations")
+        first_observations = [m.observation() for m in measurements]
+        first = solve(first_observations, self._rod)
+        self._event("solve", pass_number=1, result=_summary(first))
+        self._progress("refine", "second pass: centres from each waypoint's solved rod axis")
+        observations, changed = self._reextract(measurements, first.matrix())
+        result = solve(observations, self._rod)
+        refinement = (
+            f"second pass: {changed} of {len(measurements)} centres re-extracted with the rod axis "
+            "predicted by the first solution (elliptical cross-section) and the transform re-solved"
+        )
+        self._event("solve", pass_number=2, result=_summary(result), refinement=refinement)
+        verdict = evaluate_gates(result, self._job.quality, len(self._waypoints))
+        self._event("verdict", **verdict.as_dict())
+        self._progress("done", "passed" if verdict.passed else "quality gate failed")
+        return RunOutcome(
+            preflight=report,
+            measurements=measurements,
+            skipped=sorted(self._skipped, key=lambda s: s.index),
+            observations=observations,
+            first_pass=first,
+            result=result,
+            refinement=refinement,
+            verdict=verdict,
+            timings=self._timings,
+            resumed_from=len(self._resume.measurements) + len(self._resume.skipped),
+            background=self._background,
+        )
+
+    def _reextract(
+        self, measurements: Sequence[WaypointMeasurement], T_base_laser: FloatArray
+    ) -> tuple[list[Observation], int]:
+        observations = []
+        changed = 0
+        for m in measurements:
+            predicted = predict_rod(T_base_laser, m.tcp_pose, self._rod)
+            try:
+                centre = find_rod_centre(
+                    m.averaged,
+                    radius_m=self._rod.radius_m,
+                    background=self._background,
+                    axis_in_scanner=predicted.axis_in_scanner,
+                    expected_uv_m=predicted.expected_uv_m,
+                )
+            except RodNotFoundError as exc:
+                self._event("refine_kept_first_pass", index=m.index, reason=str(exc))
+                observations.append(m.observation())
+                continue
+            changed += 1
+            observations.append(
+                Observation(
+                    index=m.index,
+                    tcp_pose=np.asarray(m.tcp_pose, dtype=float),
+                    centre_uv_m=np.asarray(centre.centre_uv_m, dtype=float),
+                    covariance_uv_m2=np.asarray(centre.covariance_uv_m2, dtype=float),
+                )
+            )
+        return observations, changed
+
+    # -- motion and bookkeeping ---------------------------------------------------------
+
+    def _move(self, pose: FloatArray, q_rad: FloatArray, *, joint: bool = False) -> None:
+        """Move to a pose: in joint space when asked (or configured), else on a TCP line."""
+        motion = self._job.motion
+        self._moves += 1
+        started_s = self._clock()
+        try:
+            if joint or motion.move == "joint":
+                self._robot.move_joint(q_rad, motion.joint_speed_rad_s, motion.joint_accel_rad_s2)
+            else:
+                self._robot.move_linear(pose, motion.speed_m_s, motion.accel_m_s2)
+        except ProtectiveStopError:
+            raise
+        except RobotError as exc:
+            self._raise_if_safety_stop(exc)
+            raise
+        finally:
+            self._timings.motion_s += self._clock() - started_s
+
+    def _raise_if_safety_stop(self, cause: RobotError) -> None:
+        """A failed move may be a safety stop reported late: ask the robot, and say so."""
+        try:
+            state = self._robot.state()
+        except LasercalError as exc:
+            logger.warning("could not read the robot state after a failed move: %s", exc)
+            return
+        if state.protective_stop or state.emergency_stop or state.safety_status.upper() != "NORMAL":
+            raise ProtectiveStopError(
+                f"{cause} (the robot reports safety status {state.safety_status})"
+            ) from cause
+
+    def _settle(self) -> float:
+        started_s = self._clock()
+        try:
+            self._robot.wait_until_steady(self._job.settle.timeout_s)
+        finally:
+            settled_s = self._clock()
+            self._timings.motion_s += settled_s - started_s
+        return settled_s
+
+    def _read_tcp(self, host_time_s: float) -> FloatArray:
+        pose = np.asarray(self._robot.tcp_pose(), dtype=float)
+        self._recorder.write_tcp_pose(host_time_s, pose)
+        q_rad = np.asarray(self._robot.joint_positions_rad(), dtype=float)
+        self._recorder.write_joint_state(host_time_s, q_rad)
+        return pose
+
+    def _nominal_expected_uv(self, tcp_pose: FloatArray) -> FloatArray | None:
+        """Where the nominal mounting (if configured) says the rod crosses the plane."""
+        nominal = self._job.scanner.nominal
+        if nominal is None:
+            return None
+        return predict_rod(nominal.matrix(), tcp_pose, self._rod).expected_uv_m
+
+    def _skip(self, index: int, reason: str) -> None:
+        self._skipped.append(SkippedWaypoint(index, reason))
+        self._event("waypoint_skipped", index=index, reason=reason)
+        self._progress("skip", f"waypoint {index} skipped: {reason}", waypoint=index)
+
+    def _halt(self, cause: str, message: str) -> None:
+        try:
+            self._robot.stop()
+        except LasercalError as exc:
+            logger.error("could not stop the robot: %s", exc)
+        self._event("abort", cause=cause, index=self._current, message=message)
+
+    def _stop_streaming(self) -> None:
+        try:
+            self._scanner.stop_streaming()
+        except LasercalError as exc:
+            logger.warning("could not stop the scanner stream: %s", exc)
+
+    def _where(self) -> str:
+        return f" at waypoint {self._current}" if self._current is not None else ""
+
+    def _event(self, kind: str, **fields: Any) -> None:
+        try:
+            self._recorder.write_event(self._clock(), kind, **_jsonable(fields))
+        except LasercalError as exc:
+            logger.error("could not record event %s: %s", kind, exc)
+
+    def _progress(self, stage: str, message: str, **fields: Any) -> None:
+        if self._on_progress is None:
+            return
+        done = len(self._measurements) + len(self._skipped)
+        remaining = len(self._waypoints) - done
+        per_waypoint_s = self._job.dwell_s + self._job.settle.margin_s + self._mean_motion_s()
+        self._on_progress(
+            Progress(
+                stage=stage,
+                message=message,
+                waypoint_count=len(self._waypoints),
+                completed=done,
+                time_left_s=remaining * per_waypoint_s,
+                **fields,
+            )
+        )
+
+    def _mean_motion_s(self) -> float:
+        return self._timings.motion_s / max(self._moves, 1)
+
+
+def _summary(result: CalibrationResult) -> dict[str, Any]:
+    return {
+        "T_base_laser": result.T_base_laser,
+        "rms_residual_mm": result.rms_residual_mm,
+        "std_translation_mm": result.std_translation_mm,
+        "std_rotation_deg": result.std_rotation_deg,
+        "outliers": len(result.outliers),
+    }

@@ -1,0 +1,46 @@
+"""``lasercal run``: refusals that must happen before anything connects or moves."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from lasercal_hw.errors import ExitCode
+
+
+def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", "run", *args],
+        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL, cwd=cwd,
+    )
+
+
+def test_refuses_to_move_without_yes_when_stdin_is_not_a_terminal(tmp_path: Path) -> None:
+    result = run_cli("--robot", "127.0.0.9", cwd=tmp_path)
+    assert result.returncode == ExitCode.BAD_INPUT
+    assert "standard input is not a terminal" in result.stderr
+    assert "--yes" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "lasercal-out").exists()
+
+
+def test_bad_job_file_is_reported_with_file_and_field(tmp_path: Path) -> None:
+    job = tmp_path / "job.toml"
+    job.write_text("[rod]\nradius_mm = 20\n")
+    result = run_cli("--robot", "127.0.0.9", "--yes", "--config", str(job), cwd=tmp_path)
+    assert result.returncode == ExitCode.BAD_INPUT
+    assert "rod.radius_mm: unknown field" in result.stderr
+    assert str(job) in result.stderr
+
+
+def test_resume_refuses_a_new_job(tmp_path: Path) -> None:
+    result = run_cli("--yes", "--resume", str(tmp_path / "session.mcap"), "--dwell", "1", cwd=tmp_path)
+    assert result.returncode == ExitCode.BAD_INPUT
+    assert "--resume continues the recorded job" in result.stderr
+
+
+def test_scene_needs_dry_run(tmp_path: Path) -> None:
+    result = run_cli("--yes", "--robot", "127.0.0.9", "--scene", "x.toml", cwd=tmp_path)
+    assert result.returncode == ExitCode.BAD_INPUT
+    assert "--scene only applies to --dry-run" in result.stderr

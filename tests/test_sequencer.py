@@ -1,0 +1,291 @@
+"""The sequencer end to end against the simulated robot and scanner (tests/doubles.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lasercal_hw.config import JobConfig, job_from_mapping
+from lasercal_hw.errors import (
+    ConfigError,
+    DeviceError,
+    InterruptedRunError,
+    ProtectiveStopError,
+    RobotError,
+)
+from lasercal_hw.geometry import matrix_to_euler_zyx
+from lasercal_hw.models import RobotState
+from lasercal_hw.preflight import rod_end_points_m
+from lasercal_hw.recorder import SessionRecorder
+from lasercal_hw.resume import resume_state
+from lasercal_hw.sequencer import NOMINAL_CLEARANCE_M, Progress, Sequencer, background_lift_m
+from lasercal_hw.session import read_session
+from tests.doubles import (
+    PAPER_T_BASE_LASER,
+    MemoryRecorder,
+    SimClock,
+    SimRobot,
+    SimScanner,
+    semicircle_waypoints,
+)
+
+FAST_JOB = {"dwell_s": 0.25, "background": {"scans": 10}, "settle": {"margin_s": 0.05}}
+
+
+def make_cell(job: JobConfig, **robot_options: object) -> tuple[SimClock, SimRobot, SimScanner]:
+    clock = SimClock()
+    robot = SimRobot(clock, **robot_options)  # type: ignore[arg-type]
+    scanner = SimScanner(clock, robot, job.rod.rod_line())
+    return clock, robot, scanner
+
+
+def fast_job(**changes: object) -> JobConfig:
+    return job_from_mapping({**FAST_JOB, **changes})
+
+
+def transform_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> tuple[float, float]:
+    translation_mm = 1000.0 * float(np.linalg.norm(T_estimate[:3, 3] - T_truth[:3, 3]))
+    relative = T_truth[:3, :3].T @ T_estimate[:3, :3]
+    angle_deg = float(np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1))))
+    return translation_mm, angle_deg
+
+
+def test_run_completes_records_and_recovers_the_transform() -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    recorder = MemoryRecorder()
+    progress: list[Progress] = []
+    waypoints = semicircle_waypoints(12)
+    outcome = Sequencer(robot, scanner, recorder, job, waypoints, on_progress=progress.append,
+                        clock=clock).run()
+
+    assert [m.index for m in outcome.measurements] == list(range(12))
+    assert outcome.skipped == []
+    translation_mm, angle_deg = transform_error(outcome.result.matrix(), PAPER_T_BASE_LASER)
+    assert translation_mm < 5.0
+    assert angle_deg < 0.5
+    assert outcome.verdict.passed, outcome.verdict.failures()
+    assert "second pass" in outcome.refinement
+    # Every waypoint was visited once, after the retract pose for the background.
+    assert len(robot.moves) == 13
+    assert robot.moves[0][2] == pytest.approx(waypoints[0][2] + job.background_lift_m())
+    kinds = recorder.kinds()
+    assert kinds.count("dwell_start") == 12 and kinds.count("observation") == 12
+    assert kinds[0] == "preflight_ok" and kinds[-1] == "run_end"
+    assert [e[2]["pass_number"] for e in recorder.events if e[1] == "solve"] == [1, 2]
+    # Only scans acquired after the arm settled were averaged.
+    for _, kind, fields in recorder.events:
+        if kind == "observation":
+            assert fields["window_start_s"] >= _settle_time(robot, fields["index"] + 1)
+    assert len(recorder.scans) > 12 * 10
+    stages = {p.stage for p in progress}
+    assert {"preflight", "background", "move", "dwell", "centre", "solve", "refine", "done"} <= stages
+    centre_events = [p for p in progress if p.stage == "centre"]
+    assert all(p.scans_averaged and p.scans_averaged >= 9 for p in centre_events)
+    assert progress[-1].time_left_s == pytest.approx(0.0)
+
+
+def _settle_time(robot: SimRobot, move_number: int) -> float:
+    """End of the robot's ``move_number``-th motion (0 is the retract move)."""
+    return robot._path[move_number][1]
+
+
+def test_scans_taken_while_moving_are_not_averaged() -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    recorder = MemoryRecorder()
+    outcome = Sequencer(robot, scanner, recorder, job, semicircle_waypoints(8), clock=clock).run()
+    windows = [f for _, k, f in recorder.events if k == "observation"]
+    for fields, measurement in zip(windows, outcome.measurements, strict=True):
+        assert measurement.averaged.scan_count == fields["scans"]
+    discarded = sum(f["discarded"] for _, k, f in recorder.events if k == "dwell_end")
+    assert discarded > 0, "the doubles queue scans during motion; the sequencer must have dropped them"
+
+
+def test_waypoint_with_rod_out_of_view_is_skipped_with_reason() -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    waypoints = semicircle_waypoints(12)
+    waypoints[4, 2] += 0.35  # the rod's lower end is now above the scan plane
+    recorder = MemoryRecorder()
+    outcome = Sequencer(robot, scanner, recorder, job, waypoints, clock=clock).run()
+    assert [s.index for s in outcome.skipped] == [4]
+    assert outcome.skipped[0].reason
+    assert 4 not in [m.index for m in outcome.measurements]
+    skipped_events = [f for _, k, f in recorder.events if k == "waypoint_skipped"]
+    assert skipped_events == [{"index": 4, "reason": outcome.skipped[0].reason}]
+
+
+def test_protective_stop_aborts_without_further_motion() -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(job, protective_stop_at_move=4)
+    recorder = MemoryRecorder()
+    with pytest.raises(ProtectiveStopError, match="protective stop at waypoint 3") as caught:
+        Sequencer(robot, scanner, recorder, job, semicircle_waypoints(12), clock=clock).run()
+    assert "will not resume by itself" in str(caught.value)
+    assert len(robot.moves) == 5  # retract + waypoints 0..3; the fourth raised
+    assert robot.stops == 0
+    abort = [f for _, k, f in recorder.events if k == "abort"]
+    assert abort and abort[0]["cause"] == "protective_stop" and abort[0]["index"] == 3
+    assert not scanner.streaming
+
+
+def test_failed_move_during_a_protective_stop_counts_as_one() -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(job, protective_stop_at_move=2, stop_reported_late=True)
+    with pytest.raises(ProtectiveStopError, match="safety status PROTECTIVE_STOP"):
+        Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(6), clock=clock).run()
+    assert len(robot.moves) == 3
+
+
+def test_interrupt_from_progress_stops_the_robot_and_keeps_a_readable_recording(tmp_path: Path) -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    waypoints = semicircle_waypoints(12)
+
+    def interrupt_at_waypoint_5(progress: Progress) -> None:
+        if progress.stage == "dwell" and progress.waypoint == 5:
+            raise KeyboardInterrupt
+
+    session = tmp_path / "session.mcap"
+    recorder = SessionRecorder(session, {"job": job.model_dump(mode="json"), "waypoints": waypoints.tolist()})
+    try:
+        with pytest.raises(InterruptedRunError, match="waypoint 5"):
+            Sequencer(robot, scanner, recorder, job, waypoints, on_progress=interrupt_at_waypoint_5,
+                      clock=clock).run()
+    finally:
+        recorder.close()
+    assert robot.stops == 1
+    moves_at_interrupt = len(robot.moves)
+    recording = read_session(session)
+    assert not recording.truncated
+    assert [e["index"] for e in recording.events_of("observation")] == [0, 1, 2, 3, 4]
+    assert recording.events_of("abort")[0]["cause"] == "interrupted"
+    assert len(recording.scans) > 0
+
+    # Resume: only waypoints 5.. are visited, the earlier ones come from the recording.
+    state = resume_state(recording)
+    assert sorted(state.finished_indices) == [0, 1, 2, 3, 4]
+    robot.moves.clear()
+    resumed = SessionRecorder.resume(session)
+    try:
+        outcome = Sequencer(robot, scanner, resumed, job, waypoints, resume=state, clock=clock).run()
+    finally:
+        resumed.close()
+    assert len(robot.moves) == 7  # waypoints 5..11, no new background
+    assert moves_at_interrupt == 7
+    assert [m.index for m in outcome.measurements] == list(range(12))
+    assert outcome.resumed_from == 5
+    translation_mm, angle_deg = transform_error(outcome.result.matrix(), PAPER_T_BASE_LASER)
+    assert translation_mm < 5.0 and angle_deg < 0.5
+    final = read_session(session)
+    assert [e["index"] for e in final.events_of("observation")] == list(range(12))
+
+
+def _read_number_in_dwell(waypoint: int) -> int:
+    """The scanner read that falls in the middle of ``waypoint``'s dwell in an undisturbed run."""
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    reads: list[int] = []
+
+    def note(progress: Progress) -> None:
+        if progress.stage == "centre" and progress.waypoint == waypoint:
+            reads.append(scanner.reads)
+
+    Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), on_progress=note,
+              clock=clock).run()
+    return reads[0] - 5  # the dwell's last ~10 reads come just before its centre
+
+
+@pytest.mark.parametrize("fault", ["timeout", "gap"])
+def test_scanner_drop_repeats_the_waypoint(fault: str) -> None:
+    read = _read_number_in_dwell(3)
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    if fault == "timeout":
+        scanner.fail_reads_at = {read}
+    else:
+        scanner.gap_at_reads = {read}
+    recorder = MemoryRecorder()
+    outcome = Sequencer(robot, scanner, recorder, job, semicircle_waypoints(8), clock=clock).run()
+    retries = [f for _, k, f in recorder.events if k == "waypoint_retry"]
+    assert [(r["index"], r["attempt"]) for r in retries] == [(3, 1)]
+    assert "scanner" in retries[0]["reason"]
+    assert [m.index for m in outcome.measurements] == list(range(8))
+    assert len(robot.moves) == 10  # retract, 8 waypoints, waypoint 3 once more
+
+
+def test_scanner_that_keeps_failing_aborts_with_a_device_error() -> None:
+    job = fast_job(acquisition={"max_attempts": 2})
+    clock, robot, scanner = make_cell(job)
+    scanner.fail_reads_at = set(range(30, 10_000))
+    with pytest.raises(DeviceError, match="scanner failed 2 times"):
+        Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), clock=clock).run()
+    assert robot.stops == 1
+
+
+def test_preflight_lists_every_problem_and_moves_nothing() -> None:
+    job = fast_job(workspace={"min_m": [-0.9, -0.9, 0.0], "max_m": [0.9, 0.9, 1.0]})
+    waypoints = semicircle_waypoints(8)
+    waypoints[2, :3] = [1.5, 0.0, 0.4]  # unreachable and outside the box
+    clock, robot, scanner = make_cell(job, forbidden_poses=[waypoints[5]])
+    with pytest.raises(ConfigError) as caught:
+        Sequencer(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock).run()
+    message = str(caught.value)
+    assert "waypoint 2: not reachable" in message
+    assert "waypoint 2: TCP" in message and "outside the workspace box" in message
+    assert "waypoint 5: outside the controller's safety limits" in message
+    assert robot.moves == []
+
+
+def test_preflight_refuses_a_robot_not_in_remote_control() -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(
+        job, state_value=RobotState("IDLE", "PROTECTIVE_STOP", False, False, True, False)
+    )
+    with pytest.raises(RobotError) as caught:
+        Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), clock=clock).run()
+    message = str(caught.value)
+    for expected in ("protective stop", "mode is IDLE", "safety status is PROTECTIVE_STOP", "remote control"):
+        assert expected in message
+    assert robot.moves == []
+
+
+def test_background_pose_falls_back_to_another_lifted_waypoint() -> None:
+    job = fast_job()
+    waypoints = semicircle_waypoints(8)
+    first_lifted = waypoints[0].copy()
+    first_lifted[2] += job.background_lift_m()
+    clock, robot, scanner = make_cell(job, forbidden_poses=[first_lifted])
+    Sequencer(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock).run()
+    nearest = min(range(1, 8), key=lambda i: np.linalg.norm(waypoints[i][:3]))
+    expected = waypoints[nearest].copy()
+    expected[2] += job.background_lift_m()
+    assert np.allclose(robot.moves[0], expected)
+
+
+def test_nominal_mounting_lifts_the_rod_just_clear_of_the_plane() -> None:
+    yaw, pitch, roll = np.degrees(matrix_to_euler_zyx(PAPER_T_BASE_LASER[:3, :3]))
+    nominal = {"translation_m": PAPER_T_BASE_LASER[:3, 3].tolist(), "euler_zyx_deg": [yaw, pitch, roll]}
+    job = fast_job(scanner={"nominal": nominal})
+    pose = semicircle_waypoints(8)[0]
+    lift_m = background_lift_m(job, pose)
+    assert 0.0 < lift_m < job.background_lift_m()
+    lifted = pose.copy()
+    lifted[2] += lift_m
+    ends = rod_end_points_m(lifted, job.rod.rod_line())
+    heights = (ends - PAPER_T_BASE_LASER[:3, 3]) @ PAPER_T_BASE_LASER[:3, 2]
+    assert heights.min() == pytest.approx(NOMINAL_CLEARANCE_M)
+
+
+def test_nominal_pose_predicts_where_to_look() -> None:
+    yaw, pitch, roll = np.degrees(matrix_to_euler_zyx(PAPER_T_BASE_LASER[:3, :3]))
+    nominal = {"translation_m": [0.32, 0.48, 0.21], "euler_zyx_deg": [yaw, pitch, roll]}
+    job = fast_job(scanner={"nominal": nominal})
+    clock, robot, scanner = make_cell(job)
+    outcome = Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(10), clock=clock).run()
+    assert len(outcome.measurements) == 10
+    translation_mm, _ = transform_error(outcome.result.matrix(), PAPER_T_BASE_LASER)
+    assert translation_mm < 5.0
