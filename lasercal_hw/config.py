@@ -30,9 +30,16 @@ class _Strict(BaseModel):
 
 
 class RobotConfig(_Strict):
-    """Where the robot controller is (``--robot`` overrides ``host``)."""
+    """Where the robot controller is (``--robot`` overrides ``host``) and how far its
+    reported TCP position may be from the real one."""
 
     host: str | None = None
+    position_accuracy_mm: float = Field(
+        1.0,
+        ge=0.0,
+        le=20.0,
+        description="absolute positioning accuracy (RMS per axis) the solver's noise model assumes",
+    )
 
 
 class NominalPose(_Strict):

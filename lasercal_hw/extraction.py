@@ -82,6 +82,10 @@ class ExtractionSettings:
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
     min_axis_cos_tilt: float = 0.2
+    #: Without ``axis_in_scanner`` the rod may still be tilted: segments up to the width of a
+    #: rod tilted this much are accepted (and fitted as circles; a second pass with the axis
+    #: fits the ellipse).
+    unknown_axis_max_tilt_deg: float = 35.0
 
 
 @dataclass(frozen=True)
@@ -90,6 +94,13 @@ class _Section:
 
     axis: FloatArray  # unit rod axis, scanner frame, pointing to +z
     radius_m: float
+    unknown_tilt_cos: float = 1.0  # axis unknown: cos of the largest tilt to allow for
+
+    @property
+    def widest_semi_axis_m(self) -> float:
+        """Largest half-width the cross-section may show (the semi-major axis, or with an
+        unknown axis that of the largest tilt allowed for)."""
+        return self.radius_m / min(self.cos_tilt, self.unknown_tilt_cos)
 
     @property
     def cos_tilt(self) -> float:
@@ -151,7 +162,10 @@ def find_rod_centre(
     settings = settings or ExtractionSettings()
     if not radius_m > 0.0:
         raise ConfigError(f"rod radius must be positive, got {radius_m} m; set the rod radius")
-    section = _Section(_unit_axis(axis_in_scanner), radius_m)
+    unknown_tilt_cos = 1.0
+    if axis_in_scanner is None:
+        unknown_tilt_cos = float(np.cos(np.radians(settings.unknown_axis_max_tilt_deg)))
+    section = _Section(_unit_axis(axis_in_scanner), radius_m, unknown_tilt_cos)
     if section.cos_tilt < settings.min_axis_cos_tilt:
         raise RodNotFoundError(
             f"rod axis is {np.degrees(np.arccos(section.cos_tilt)):.0f} deg from the scan plane normal: "
@@ -205,7 +219,7 @@ def _runs(mask: NDArray[np.bool_]) -> list[NDArray[np.int64]]:
 def _jump_threshold_m(section: _Section, sigma: FloatArray, settings: ExtractionSettings) -> FloatArray:
     """Largest range step between neighbouring beams that stays inside one rod."""
     pair_sigma = np.sqrt(sigma[:-1] ** 2 + sigma[1:] ** 2)
-    return section.semi_major_m + settings.min_jump_m + 5.0 * pair_sigma
+    return section.widest_semi_axis_m + settings.min_jump_m + 5.0 * pair_sigma
 
 
 def _candidate_segments(
@@ -293,10 +307,10 @@ def _size_mismatch(
     ``partial`` accepts any width up to the rod's (a rod cut by the field of view)."""
     step = _beam_step_rad(scan)
     centre_range = float(np.min(scan.ranges_m[beams])) + section.radius_m
-    if centre_range <= section.semi_major_m:
+    if centre_range <= section.widest_semi_axis_m:
         return None
     width_min = 2.0 * np.arcsin(section.radius_m / centre_range)
-    width_max = 2.0 * np.arcsin(min(1.0, section.semi_major_m / centre_range))
+    width_max = 2.0 * np.arcsin(min(1.0, section.widest_semi_axis_m / centre_range))
     width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]]))
     low = 0.0 if partial else settings.min_visible_fraction * width_min - 2.0 * step
     high = width_max + 2.0 * step

@@ -34,7 +34,7 @@ from lasercal_hw.preflight import PreflightReport, first_clear_pose, rod_end_poi
 from lasercal_hw.quality import Verdict, evaluate_gates
 from lasercal_hw.result import CalibrationResult
 from lasercal_hw.scan_average import AveragedScan, average_scans
-from lasercal_hw.solver import solve
+from lasercal_hw.solver import SolverOptions, solve
 from lasercal_hw.solver_model import lines_in_scanner, plane_crossing, rod_lines_in_base
 
 logger = logging.getLogger(__name__)
@@ -487,11 +487,12 @@ class Sequencer:
         measurements = sorted(self._measurements, key=lambda m: m.index)
         self._progress("solve", f"solving from {len(measurements)} observations")
         first_observations = [m.observation() for m in measurements]
-        first = solve(first_observations, self._rod)
+        options = SolverOptions(robot_sigma_m=self._job.robot.position_accuracy_mm / 1000.0)
+        first = solve(first_observations, self._rod, options=options)
         self._event("solve", pass_number=1, result=_summary(first))
         self._progress("refine", "second pass: centres from each waypoint's solved rod axis")
         observations, changed = self._reextract(measurements, first.matrix())
-        result = solve(observations, self._rod)
+        result = solve(observations, self._rod, options=options)
         refinement = (
             f"second pass: {changed} of {len(measurements)} centres re-extracted with the rod axis "
             "predicted by the first solution (elliptical cross-section) and the transform re-solved"

@@ -449,7 +449,10 @@ def _result(
     m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
     dof = 2 * int(used.sum()) - 6
     reduced = float(m2[used].sum() / dof) if dof > 0 else 1.0
-    covariance = crb * reduced
+    # The stated noise model is a floor: residuals smaller than it (a chi-square below 1 by
+    # chance, or robot errors that are smooth over the waypoints and partly absorbed by the
+    # fit) must not shrink the std below the bound.
+    covariance = crb * max(1.0, reduced)
     if reduced > 4.0:
         observability.notes.append(
             f"residuals are {np.sqrt(reduced):.1f} times the stated noise (reduced chi-square "

@@ -19,7 +19,7 @@ from .scene_geometry import FOV_HALF_RAD, T_BASE_LASER
 
 ALL = sorted(PRESETS)
 # Minimum clearances the presets promise (see trajectories/presets.py).
-MIN_RANGE_M, MAX_RANGE_M = 0.35, 1.5
+MIN_RANGE_M, MAX_RANGE_M = 0.30, 1.5
 FOV_MARGIN_RAD = np.deg2rad(5.0)
 BASE_COLUMN_CLEARANCE_M = 0.13
 

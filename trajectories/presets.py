@@ -45,13 +45,14 @@ class Preset:
 # and the scanner (angles 80..260 deg), so every waypoint stays within the UR5's
 # comfortable reach (0.3-0.75 m from the base axis) and in front of the scanner.
 _PAPER = SemicircleParameters(
-    centre_m=(0.65, -0.15),
-    radii_m=(0.25, 0.35),
-    heights_m=(0.36, 0.32),
-    start_deg=80.0,
-    end_deg=260.0,
+    centre_m=(0.59, -0.19),
+    radii_m=(0.35, 0.45),
+    heights_m=(0.335, 0.275),
+    start_deg=82.0,
+    end_deg=262.0,
     step_deg=20.0,
-    tilt_deg=25.0,
+    tilt_deg=30.0,
+    tool_yaw_deg=104.0,
     scan_plane_z_m=SCAN_PLANE_HINT_Z_M,
 )
 
@@ -97,6 +98,9 @@ PRESETS: dict[str, Preset] = {
                     "radii_m": (0.15, 0.25),
                     "heights_m": (0.34, 0.35),
                     "tilt_deg": 12.0,
+                    "start_deg": 80.0,
+                    "end_deg": 260.0,
+                    "tool_yaw_deg": 0.0,
                     "scan_plane_z_m": _DRILL_PLANE_HINT_Z_M,
                 }
             ),
@@ -105,10 +109,10 @@ PRESETS: dict[str, Preset] = {
         Preset(
             name="quick",
             description=(
-                "Few waypoints for CI and smoke tests: the paper's arcs with a stop every 60 deg "
-                "(8 waypoints), still tilted in changing directions."
+                "Few waypoints for CI and smoke tests: the paper's arcs with a stop every 40 deg "
+                "(10 waypoints), still tilted in changing directions."
             ),
-            parameters=_PAPER.model_copy(update={"step_deg": 60.0}),
+            parameters=_PAPER.model_copy(update={"step_deg": 40.0, "tool_yaw_deg": -40.0}),
         ),
     )
 }
