@@ -135,7 +135,18 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
     assert final.meta["scanner"]["product"] and final.meta["robot"]["model"]
     revisited = [e["index"] for e in final.events_of("dwell_start")]
     assert revisited.count(0) == 1, "a resumed run must not measure finished waypoints again"
-    assert json.loads((out / "result.json").read_text())["run"]["resumed_after_waypoints"] == len(done)
+    live = json.loads((out / "result.json").read_text())
+    assert live["run"]["resumed_after_waypoints"] == len(done)
+
+    # `lasercal solve session.mcap` replays extraction and solve: the live transform to 1e-9.
+    replay = subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", "solve", str(out / "session.mcap"), "--json"],
+        capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL, cwd=tmp_path,
+    )
+    assert replay.returncode == ExitCode.OK, replay.stderr[-3000:]
+    np.testing.assert_allclose(
+        np.array(json.loads(replay.stdout)["T_base_laser"]), np.array(live["T_base_laser"]), rtol=0, atol=1e-9
+    )
 
 
 def test_protective_stop_aborts_with_device_error_and_no_further_motion(tmp_path: Path) -> None:
