@@ -127,7 +127,7 @@ class FaultSettings(_Strict):
 
     protective_stop_at_waypoint: int | None = Field(None, ge=0)
     scanner_drop_at_waypoint: int | None = Field(None, ge=0)
-    corrupt_checksum_probability: Probability = 0.0
+    corrupt_checksum_every_scans: int = Field(0, ge=0)
 
 
 def _default_walls() -> list[WallSettings]:

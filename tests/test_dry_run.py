@@ -18,10 +18,11 @@ import pytest
 from lasercal_hw.dry_run import FakeCellProcess, free_loopback_address, ports_free
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.session import read_session
+from trajectories.presets import preset_waypoints
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
 
-WAYPOINTS = 8  # the 'quick' preset
+WAYPOINTS = len(preset_waypoints("quick"))
 
 
 def write_job(folder: Path) -> Path:
@@ -147,6 +148,25 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
     np.testing.assert_allclose(
         np.array(json.loads(replay.stdout)["T_base_laser"]), np.array(live["T_base_laser"]), rtol=0, atol=1e-9
     )
+
+
+def test_scanner_drop_at_a_waypoint_repeats_that_waypoint(tmp_path: Path) -> None:
+    """The scene fault drops the scanner's connection during waypoint 2's dwell: the driver
+    reconnects, the dwell is repeated and the run completes."""
+    job = write_job(tmp_path)
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[faults]\nscanner_drop_at_waypoint = 2\n")
+    out = tmp_path / "out"
+    result = subprocess.run(
+        lasercal("--dry-run", "--json", "--config", str(job), "--scene", str(scene), "--out", str(out)),
+        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
+    )
+    assert result.returncode == ExitCode.OK, result.stderr[-3000:]
+    recording = read_session(out / "session.mcap")
+    dwells = [event["index"] for event in recording.events_of("dwell_start")]
+    assert dwells.count(2) == 2, dwells
+    assert all(dwells.count(i) == 1 for i in set(dwells) - {2})
+    assert json.loads(result.stdout)["observations"] >= WAYPOINTS - 3
 
 
 def test_protective_stop_aborts_with_device_error_and_no_further_motion(tmp_path: Path) -> None:
