@@ -26,7 +26,6 @@ import numpy as np
 from benchmarks.dry_run_accuracy import crb_std
 from fakes.world import World
 from lasercal_hw.config import load_job
-from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_pose
 from lasercal_hw.models import RodLine
 from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
@@ -47,27 +46,27 @@ Q_START = np.array([np.pi, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
 RANGE_LIMITS_M = (0.3, 1.5)
 
 
-def layout_ok(
+def layout_violation(
     matrices: np.ndarray,
     rod: RodLine,
     T_base_laser: np.ndarray,
     end_margin_m: float,
     range_limits_m: tuple[float, float] = RANGE_LIMITS_M,
-) -> bool:
-    """The scanner-side rules: crossing on the rod, in range and view, not behind the column."""
+) -> float:
+    """How far (summed over waypoints, metres or radians) the scanner-side rules are broken:
+    crossing on the rod with a margin, in range and view, not behind the column; 0 when kept."""
     crossings = rod_plane_crossings(matrices, rod, T_base_laser)
-    s = crossings.along_rod_m
-    if not np.all((s >= end_margin_m) & (s <= rod.length_m - end_margin_m)):
-        return False
-    if np.any(crossings.range_m < range_limits_m[0]) or np.any(crossings.range_m > range_limits_m[1]):
-        return False
-    if np.any(np.abs(crossings.bearing_rad) > FOV_LIMIT_RAD):
-        return False
+    s = np.nan_to_num(crossings.along_rod_m, nan=-1.0, posinf=-1.0, neginf=-1.0)
+    excess = np.maximum(0.0, end_margin_m - s) + np.maximum(0.0, s - (rod.length_m - end_margin_m))
+    excess += np.maximum(0.0, range_limits_m[0] - crossings.range_m)
+    excess += np.maximum(0.0, crossings.range_m - range_limits_m[1])
+    excess += np.maximum(0.0, np.abs(crossings.bearing_rad) - FOV_LIMIT_RAD)
     points = crossings.uv_m @ T_base_laser[:2, :2].T + T_base_laser[:2, 3]
     scanner = T_base_laser[:2, 3]
     beam = points - scanner
     along = np.clip((-scanner @ beam.T) / np.sum(beam * beam, axis=1), 0.0, 1.0)
-    return bool(np.all(np.linalg.norm(scanner + along[:, None] * beam, axis=1) > COLUMN_CLEARANCE_M))
+    excess += np.maximum(0.0, COLUMN_CLEARANCE_M - np.linalg.norm(scanner + along[:, None] * beam, axis=1))
+    return float(np.nan_to_num(excess, nan=1.0).sum())
 
 
 def arm_ok(poses: np.ndarray, rods: list[RodLine]) -> bool:
@@ -104,24 +103,23 @@ def score(crb_t_mm: np.ndarray, crb_r_deg: np.ndarray) -> float:
 
 def evaluate(
     params: SemicircleParameters,
-    preset_rod: RodLine,
-    job_rod: RodLine,
+    rods: list[RodLine],
     T_base_laser: np.ndarray,
     end_margin_m: float,
     robot_sigma_m: float,
     range_limits_m: tuple[float, float] = RANGE_LIMITS_M,
-) -> tuple[float, np.ndarray, np.ndarray] | None:
-    """Score of a parameter set, or None when a rule fails."""
-    try:
-        waypoints = semicircle_waypoints(params.model_copy(update={"scan_plane_z_m": None}), preset_rod)
-    except ConfigError:
-        return None
+) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """(rule violation, score, CRB translation mm, CRB rotation deg) of a parameter set; the
+    CRB is that of the last rod (the job's) and only computed when no rule is broken."""
+    waypoints = semicircle_waypoints(params.model_copy(update={"scan_plane_z_m": None}))
     matrices = waypoint_matrices(waypoints)
-    for rod in {id(preset_rod): preset_rod, id(job_rod): job_rod}.values():
-        if not layout_ok(matrices, rod, T_base_laser, end_margin_m, range_limits_m):
-            return None
-    crb_t, crb_r = crb_std(matrix_to_pose(matrices), job_rod, T_base_laser, robot_sigma_m=robot_sigma_m)
-    return score(crb_t, crb_r), crb_t, crb_r
+    violation = sum(
+        layout_violation(matrices, rod, T_base_laser, end_margin_m, range_limits_m) for rod in rods
+    )
+    if violation > 0.0:
+        return violation, np.inf, np.full(3, np.inf), np.full(3, np.inf)
+    crb_t, crb_r = crb_std(matrix_to_pose(matrices), rods[-1], T_base_laser, robot_sigma_m=robot_sigma_m)
+    return 0.0, score(crb_t, crb_r), crb_t, crb_r
 
 
 def perturb(params: SemicircleParameters, rng: np.random.Generator, scale: float) -> SemicircleParameters:
@@ -198,18 +196,21 @@ def main() -> None:
     best = preset.parameters
     if args.start is not None:
         best = best.model_copy(update=json.loads(args.start))
-    found = evaluate(
-        best, preset.rod, job_rod, T_base_laser, args.end_margin, robot_sigma_m, tuple(args.range)
+    rods = [preset.rod, job_rod]
+    limits = (args.end_margin, robot_sigma_m, tuple(args.range))
+
+    def poses_of(params: SemicircleParameters) -> np.ndarray:
+        return matrix_to_pose(
+            waypoint_matrices(semicircle_waypoints(params.model_copy(update={"scan_plane_z_m": None})))
+        )
+
+    best_violation, best_score, crb_t, crb_r = evaluate(best, rods, T_base_laser, *limits)
+    if best_violation == 0.0 and not arm_ok(poses_of(best), rods):
+        best_violation = 1e-9  # the arm rules fail: any layout-clean, reachable candidate is better
+    print(
+        f"start: violation {best_violation:.3f}, score {best_score:.3f}, CRB t {np.round(crb_t, 2)} mm "
+        f"r {np.round(crb_r, 3)} deg"
     )
-    best_score = np.inf
-    start_poses = matrix_to_pose(
-        waypoint_matrices(semicircle_waypoints(best.model_copy(update={"scan_plane_z_m": None})))
-    )
-    if found is not None and arm_ok(start_poses, [preset.rod, job_rod]):
-        best_score = found[0]
-        print(f"start: score {found[0]:.3f}, CRB t {np.round(found[1], 2)} mm r {np.round(found[2], 3)} deg")
-    else:
-        print("start: the preset breaks a rule")
     for k in range(args.global_samples + args.samples):
         if k < args.global_samples:
             candidate = random_parameters(best, rng, args.max_tilt)
@@ -222,18 +223,17 @@ def main() -> None:
             or np.ptp(candidate.heights_m) < args.min_height_step
         ):
             continue
-        found = evaluate(
-            candidate, preset.rod, job_rod, T_base_laser, args.end_margin, robot_sigma_m, tuple(args.range)
-        )
-        if found is None or found[0] >= best_score:
+        violation, value, crb_t, crb_r = evaluate(candidate, rods, T_base_laser, *limits)
+        if violation > 0.0:
+            if violation < best_violation:
+                best, best_violation = candidate, violation
             continue
-        poses = matrix_to_pose(
-            waypoint_matrices(semicircle_waypoints(candidate.model_copy(update={"scan_plane_z_m": None})))
-        )
-        if not arm_ok(poses, [preset.rod, job_rod]):
+        if value >= best_score and best_violation == 0.0:
             continue
-        best, best_score = candidate, found[0]
-        print(f"{k}: score {found[0]:.3f}, CRB t {np.round(found[1], 2)} mm r {np.round(found[2], 3)} deg")
+        if not arm_ok(poses_of(candidate), rods):
+            continue
+        best, best_violation, best_score = candidate, 0.0, value
+        print(f"{k}: score {value:.3f}, CRB t {np.round(crb_t, 2)} mm r {np.round(crb_r, 3)} deg", flush=True)
     print("\nbest parameters:")
     print(best.model_dump_json(indent=1))
 

@@ -30,7 +30,7 @@ def test_list_names_every_preset_as_json() -> None:
     result = runner.invoke(app, ["trajectory", "list", "--json"])
     assert result.exit_code == 0, result.output
     listed = {entry["name"]: entry["waypoints"] for entry in json.loads(result.stdout)}
-    assert listed == {"paper": 20, "compact": 20, "drill": 20, "quick": 8}
+    assert listed == {"paper": 20, "compact": 20, "drill": 20, "quick": 10}
 
 
 def test_show_default_preset_json_matches_the_library() -> None:
@@ -46,7 +46,7 @@ def test_show_default_preset_json_matches_the_library() -> None:
 def test_show_table_lists_waypoints() -> None:
     result = runner.invoke(app, ["trajectory", "show", "quick"])
     assert result.exit_code == 0, result.output
-    assert "+0.6934" in result.stdout and "quick" in result.stdout
+    assert "+0.6387" in result.stdout and "quick" in result.stdout
 
 
 def test_show_and_check_a_waypoint_file(tmp_path: Path) -> None:

@@ -225,3 +225,17 @@ def test_rod_partly_hidden_behind_a_nearer_object_is_reported() -> None:
     truth = np.fmin(rod, np.where(np.isfinite(post), post, np.inf))  # inf: no return
     with pytest.raises(RodNotFoundError, match="partly hidden behind a nearer object"):
         find_rod_centre(AveragedScan.from_ranges(truth, ANGLES), radius_m=0.02)
+
+
+def test_a_tilted_rod_close_to_the_scanner_is_found_without_its_axis() -> None:
+    # Tilted 30 deg across the line of sight, a 20 mm rod at 0.35 m looks ~15 % wider than
+    # an upright one: the first pass (axis unknown) must still take it for the rod.
+    rng = np.random.default_rng(7)
+    tilt = np.radians(30.0)
+    axis = np.array([0.0, np.sin(tilt), np.cos(tilt)])
+    centre = np.array([0.35, 0.0])
+    scan = averaged(rod_ranges(centre, 0.02, axis=axis, wall_behind_m=0.5), SIGMA_MEAN_M, rng)
+    found = find_rod_centre(scan, radius_m=0.02)
+    assert np.linalg.norm(found.centre_uv_m - centre) < 0.01
+    with pytest.raises(RodNotFoundError, match="no segment matching"):
+        find_rod_centre(scan, radius_m=0.02, settings=ExtractionSettings(unknown_axis_max_tilt_deg=0.0))

@@ -13,6 +13,7 @@ from lasercal_hw.models import RodLine
 from trajectories.plane_crossing import horizontal_plane, rod_plane_crossings
 from trajectories.semicircles import (
     SemicircleParameters,
+    hint_plane,
     parse_semicircle_parameters,
     semicircle_waypoints,
     tool_orientation,
@@ -143,3 +144,32 @@ def test_bad_parameters_give_config_errors_naming_the_field(data: dict, expected
 def test_parameters_parse_from_plain_data() -> None:
     params = parse_semicircle_parameters({"centre_m": [0.5, 0.0], "radii_m": [0.2], "heights_m": [0.3]})
     assert len(semicircle_waypoints(params)) == 10
+
+
+def test_height_slope_lays_the_arcs_parallel_to_a_sloping_plane() -> None:
+    sloped = PARAMS.model_copy(update={"height_slope": (-0.12, 0.04), "scan_plane_z_m": 0.2})
+    positions = np.array([w.tcp_pose[:3] for w in semicircle_waypoints(sloped)])
+    flat = np.array([w.tcp_pose[:3] for w in semicircle_waypoints(PARAMS)])
+    np.testing.assert_allclose(positions[:, :2], flat[:, :2])
+    expected_z = flat[:, 2] - 0.12 * (flat[:, 0] - 0.6) + 0.04 * (flat[:, 1] + 0.1)
+    np.testing.assert_allclose(positions[:, 2], expected_z, atol=1e-12)
+    # The hint plane slopes with the arcs: every vertical rod of the sloped arcs crosses it at
+    # the same distance along the rod as the flat arcs' rods cross the flat plane.
+    plane = hint_plane(sloped)
+    normal = plane[:3, 2]
+    assert normal @ [0.12, -0.04, 1.0] / np.linalg.norm([0.12, -0.04, 1.0]) == pytest.approx(1.0)
+    assert normal @ (positions[0] - plane[:3, 3]) > 0.0
+    flat_plane = hint_plane(PARAMS.model_copy(update={"scan_plane_z_m": 0.2}))
+    np.testing.assert_allclose(flat_plane, horizontal_plane(0.2) @ _shift(0.6, -0.1))
+    down = RodLine(direction=np.array([0.0, 0.0, 1.0]))
+    plain = PARAMS.model_copy(update={"tilt_deg": 0.0})
+    sloped_plain = sloped.model_copy(update={"tilt_deg": 0.0})
+    along_flat = rod_plane_crossings(waypoint_matrices(semicircle_waypoints(plain)), down, flat_plane)
+    along_sloped = rod_plane_crossings(waypoint_matrices(semicircle_waypoints(sloped_plain)), down, plane)
+    np.testing.assert_allclose(along_sloped.along_rod_m, along_flat.along_rod_m, atol=1e-9)
+
+
+def _shift(x_m: float, y_m: float) -> np.ndarray:
+    shift = np.eye(4)
+    shift[:2, 3] = (x_m, y_m)
+    return shift

@@ -295,3 +295,17 @@ def test_nominal_pose_predicts_where_to_look() -> None:
     assert len(outcome.measurements) == 10
     translation_mm, _ = transform_error(outcome.result.matrix(), PAPER_T_BASE_LASER)
     assert translation_mm < 5.0
+
+
+def test_the_robots_stated_accuracy_is_in_the_solvers_noise_model() -> None:
+    results = {}
+    for accuracy_mm in (0.0, 3.0):
+        job = fast_job(robot={"position_accuracy_mm": accuracy_mm})
+        clock, robot, scanner = make_cell(job)
+        waypoints = semicircle_waypoints(12)
+        outcome = Sequencer(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock).run()
+        for solved in (outcome.first_pass, outcome.result):
+            assert solved.provenance.solver_options["robot_sigma_m"] == pytest.approx(accuracy_mm / 1000.0)
+        results[accuracy_mm] = outcome.result
+    # A less accurate robot widens the bound of the same waypoints.
+    assert results[3.0].crb_translation_mm[2] > 1.5 * results[0.0].crb_translation_mm[2]

@@ -29,7 +29,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.geometry import make_transform, matrix_to_pose, rotvec_to_matrix
+from lasercal_hw.geometry import FloatArray, make_transform, matrix_to_pose, rotvec_to_matrix
 from lasercal_hw.models import RodLine
 from trajectories.plane_crossing import horizontal_plane, rod_plane_crossings
 from trajectories.waypoint import Waypoint, waypoint_matrices
@@ -49,7 +49,12 @@ class SemicircleParameters(BaseModel):
 
     centre_m: tuple[float, float] = Field(description="arc centre (x, y) in the base frame")
     radii_m: tuple[float, ...] = Field(min_length=1, description="one radius per arc")
-    heights_m: tuple[float, ...] = Field(min_length=1, description="TCP z of each arc")
+    heights_m: tuple[float, ...] = Field(min_length=1, description="TCP z of each arc (at the centre)")
+    height_slope: tuple[float, float] = Field(
+        (0.0, 0.0),
+        description="rise of the TCP height per metre along base x and y "
+        "(arcs parallel to a sloping scan plane)",
+    )
     start_deg: float = Field(0.0, description="first angle of each arc about base +z from base +x")
     end_deg: float = Field(180.0, description="last angle of each arc")
     step_deg: float = Field(20.0, gt=0.0, le=180.0, description="angle between waypoints")
@@ -57,7 +62,9 @@ class SemicircleParameters(BaseModel):
     tool_yaw_deg: float = Field(0.0, description="turn of the tool x axis about base z")
     seed: int | None = Field(None, description="None: fixed tilt pattern; int: seeded random tilts")
     scan_plane_z_m: float | None = Field(
-        None, description="rough height of the scan plane; if set, every rod must cross it"
+        None,
+        description="rough height of the scan plane above the centre (sloping by height_slope); "
+        "if set, every rod must cross it",
     )
 
     @model_validator(mode="after")
@@ -139,10 +146,11 @@ def semicircle_waypoints(params: SemicircleParameters, rod: RodLine | None = Non
         tilts = _tilts_deg(params, arc, len(arc_angles), len(waypoints), rng)
         for angle_deg, (tilt_deg, tilt_dir_deg) in zip(arc_angles, tilts, strict=True):
             theta = math.radians(angle_deg)
+            offset = (radius * math.cos(theta), radius * math.sin(theta))
             position = [
-                params.centre_m[0] + radius * math.cos(theta),
-                params.centre_m[1] + radius * math.sin(theta),
-                height,
+                params.centre_m[0] + offset[0],
+                params.centre_m[1] + offset[1],
+                height + params.height_slope[0] * offset[0] + params.height_slope[1] * offset[1],
             ]
             rotation = tool_orientation(params.tool_yaw_deg, tilt_deg, tilt_dir_deg)
             pose = matrix_to_pose(make_transform(rotation, position))
@@ -154,13 +162,30 @@ def semicircle_waypoints(params: SemicircleParameters, rod: RodLine | None = Non
                 Waypoint(index=len(waypoints), tcp_pose=tuple(float(v) for v in pose), label=label)
             )
     if params.scan_plane_z_m is not None:
-        _require_plane_crossings(waypoints, rod or RodLine(), params.scan_plane_z_m)
+        _require_plane_crossings(waypoints, rod or RodLine(), params)
     logger.debug("generated %d semicircle waypoints", len(waypoints))
     return waypoints
 
 
-def _require_plane_crossings(waypoints: list[Waypoint], rod: RodLine, plane_z_m: float) -> None:
-    crossings = rod_plane_crossings(waypoint_matrices(waypoints), rod, horizontal_plane(plane_z_m))
+def hint_plane(params: SemicircleParameters) -> FloatArray:
+    """``T_base_plane`` of the scan plane the parameters assume: through the centre at height
+    ``scan_plane_z_m``, sloping like the arcs (``height_slope``)."""
+    if params.scan_plane_z_m is None:
+        raise ConfigError("the parameters give no scan_plane_z_m")
+    plane = horizontal_plane(params.scan_plane_z_m)
+    normal = np.array([-params.height_slope[0], -params.height_slope[1], 1.0])
+    normal /= np.linalg.norm(normal)
+    axis = np.cross([0.0, 0.0, 1.0], normal)
+    tilt_rad = math.atan2(float(np.linalg.norm(axis)), float(normal[2]))
+    rotvec = axis / np.linalg.norm(axis) * tilt_rad if tilt_rad > 0.0 else np.zeros(3)
+    plane[:3, :3] = rotvec_to_matrix(rotvec)
+    plane[:2, 3] = params.centre_m
+    return plane
+
+
+def _require_plane_crossings(waypoints: list[Waypoint], rod: RodLine, params: SemicircleParameters) -> None:
+    plane_z_m = params.scan_plane_z_m
+    crossings = rod_plane_crossings(waypoint_matrices(waypoints), rod, hint_plane(params))
     missing = [
         f"{w.index} ({'no crossing' if not np.isfinite(s) else f'crosses {s:.3f} m along the rod'})"
         for w, s, ok in zip(waypoints, crossings.along_rod_m, crossings.within_rod, strict=True)
