@@ -169,6 +169,24 @@ def _warn_if_rods_differ(job: JobConfig, cell_rod: dict[str, Any] | None, ui: Co
         )
 
 
+def _toml_floats(values: FloatArray) -> str:
+    """A TOML array of floats at full precision."""
+    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
+
+
+def _write_rod_scene(job: JobConfig, path: Path) -> Path:
+    """A scene file that changes only the default scene's rod to the job's rod (kept with
+    the outputs, so the dry run can be repeated with ``--scene``)."""
+    rod = job.rod.rod_line()
+    path.write_text(
+        "# Written by `lasercal run --dry-run`: the default scene, holding the job's rod.\n"
+        f"[rod]\norigin_m = {_toml_floats(rod.origin_m)}\ndirection = {_toml_floats(rod.direction)}\n"
+        f"radius_m = {rod.radius_m!r}\nlength_m = {rod.length_m!r}\n",
+        encoding="utf-8",
+    )
+    return path
+
+
 def _default_out_dir() -> Path:
     return Path("lasercal-out") / datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
 
@@ -320,6 +338,8 @@ def run_command(
     with _sigterm_as_interrupt(), contextlib.ExitStack() as stack:
         if dry_run:
             ui.print("starting a fake cell for the dry run ...")
+            if scene is None:  # the fake cell holds the rod the job describes
+                scene = _write_rod_scene(job, out_dir / "dry_run_scene.toml")
             cell = stack.enter_context(FakeCellProcess(scene=scene))
             truth = cell.ground_truth
             cell_info = {"address": cell.address, "pid": cell.pid}
