@@ -11,9 +11,13 @@ ready, one line goes to standard output::
 ``lasercal run --dry-run`` reads it (``lasercal_hw.dry_run``) and compares its result with
 ``T_base_laser``, the world's ground truth.
 
-Scene faults acted on here: ``protective_stop_at_waypoint = k`` stops the robot halfway
-through move ``k + 2`` (a run first moves to its retract pose for the background, then to
-waypoint 0, 1, ...).
+Scene faults acted on here (a run first moves to its retract pose for the background,
+then to waypoint 0, 1, ...):
+
+* ``protective_stop_at_waypoint = k`` stops the robot halfway through move ``k + 2``;
+* ``scanner_drop_at_waypoint = k`` drops the scanner's connection once,
+  ``SCANNER_DROP_DELAY_S`` after move ``k + 2`` has ended (during that waypoint's dwell);
+* ``corrupt_checksum_every_scans = N`` corrupts a data-line checksum in every N-th scan.
 """
 
 from __future__ import annotations
@@ -22,12 +26,14 @@ import json
 import os
 import signal
 import threading
+import time
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 import numpy as np
 
+from fakes.scip_faults import ScipFaults
 from fakes.scip_server import DEFAULT_PORT, FakeScannerServer
 from fakes.ur_controller.controller import ControllerConfig, FaultPlan
 from fakes.ur_controller.process import FakeRobot
@@ -36,6 +42,7 @@ from lasercal_hw.models import FloatArray
 
 READY_PREFIX = "fake cell ready:"
 MOVES_BEFORE_FIRST_WAYPOINT = 1
+SCANNER_DROP_DELAY_S = 0.3
 
 
 class FakeCell:
@@ -52,9 +59,29 @@ class FakeCell:
         )
         self.robot = FakeRobot(address, config)
         source = WorldRangeSource(self.world, self._tcp_pose_at, seed)
-        self.scanner = FakeScannerServer(address, DEFAULT_PORT, source=source)
+        self.scanner = FakeScannerServer(
+            address, DEFAULT_PORT, source=source,
+            faults=ScipFaults(corrupt_every_scans=faults.corrupt_checksum_every_scans),
+        )
         self.address = self.robot.address
         self.scanner_url = ""
+        drop_at = faults.scanner_drop_at_waypoint
+        self._drop_after_moves = None if drop_at is None else drop_at + 1 + MOVES_BEFORE_FIRST_WAYPOINT
+        self._drop_due_s: float | None = None
+        if self._drop_after_moves is not None:
+            self.robot.controller.add_tick_listener(self._maybe_drop_scanner)
+
+    def _maybe_drop_scanner(self, _snapshot: object) -> None:
+        """On the controller's cycle: drop the scanner link once, shortly after the move to
+        the configured waypoint has ended."""
+        if self._drop_after_moves is None:
+            return
+        if self._drop_due_s is None:
+            if self.robot.controller.moves_completed >= self._drop_after_moves:
+                self._drop_due_s = time.monotonic() + SCANNER_DROP_DELAY_S
+        elif time.monotonic() >= self._drop_due_s:
+            self._drop_after_moves = None
+            self.scanner.drop_connection()
 
     def _tcp_pose_at(self, time_s: float) -> FloatArray:
         """The TCP pose the fake controller reports now (scans are cast as they start)."""

@@ -117,7 +117,7 @@ class NoiseSettings(_Strict):
     edge_jump_m: float = Field(0.03, gt=0.0)
     mixed_pixel_probability: Probability = 0.5
     dropout_probability: Probability = 0.001
-    robot_position_error_m: float = Field(0.001, ge=0.0)
+    robot_position_error_m: float = Field(0.00058, ge=0.0)  # per axis: 1.0 mm RMS in 3D
     robot_rotation_error_deg: float = Field(0.02, ge=0.0)
     robot_error_seed: int = 0
 
@@ -127,7 +127,7 @@ class FaultSettings(_Strict):
 
     protective_stop_at_waypoint: int | None = Field(None, ge=0)
     scanner_drop_at_waypoint: int | None = Field(None, ge=0)
-    corrupt_checksum_probability: Probability = 0.0
+    corrupt_checksum_every_scans: int = Field(0, ge=0)
 
 
 def _default_walls() -> list[WallSettings]:

@@ -122,6 +122,7 @@ class FakeScannerServer:
         self._url: str | None = None
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
+        self._drop_requested = threading.Event()
         self._finished = threading.Event()
         self._failure: BaseException | None = None
         self._wake_r, self._wake_w = -1, -1
@@ -189,6 +190,11 @@ class FakeScannerServer:
             if self._thread.is_alive():
                 raise TransportError(f"fake scanner thread did not stop within {timeout_s} s")
         self._close_all()
+
+    def drop_connection(self) -> None:
+        """Drop the client's link at the next scan boundary, as a cable pulled out would
+        (thread-safe; the fake cell's scene fault ``scanner_drop_at_waypoint``)."""
+        self._drop_requested.set()
 
     def wait(self, timeout_s: float | None = None) -> bool:
         """Block until the serving thread ends by itself (or ``stop()``); True if it did."""
@@ -311,6 +317,10 @@ class FakeScannerServer:
                     self._revolution_complete(device, revolution)
                     revolution += 1
             self._answer_due(device, time.monotonic(), boundary_s=None)
+            if self._drop_requested.is_set():
+                self._drop_requested.clear()
+                if self._link_fd() is not None:
+                    self._drop_link("drop requested")
             if writable or self._out:
                 self._flush()
 

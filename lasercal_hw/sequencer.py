@@ -25,6 +25,7 @@ from lasercal_hw.errors import (
     InterruptedRunError,
     LasercalError,
     ProtectiveStopError,
+    RobotError,
     TransportError,
 )
 from lasercal_hw.extraction import RodCentre, RodNotFoundError, find_rod_centre
@@ -179,16 +180,13 @@ def background_lift_m(job: JobConfig, pose: FloatArray) -> float:
     enough for both rod ends to clear its plane by ``NOMINAL_CLEARANCE_M``; else the rod
     length plus 5 cm (enough wherever the rod crossed the plane).
     """
-    if job.background.lift_m is not None:
-        return job.background.lift_m
     nominal = job.scanner.nominal
-    default_m = job.background_lift_m()
-    if nominal is None:
-        return default_m
+    if job.background.lift_m is not None or nominal is None:
+        return job.background_lift_m()
     T_base_laser = nominal.matrix()
     normal = T_base_laser[:3, 2]
     if normal[2] < 0.5:  # a scanner on its side: its plane is steep, lifting does not clear it
-        return default_m
+        return job.background_lift_m()
     heights_m = (rod_end_points_m(pose, job.rod.rod_line()) - T_base_laser[:3, 3]) @ normal
     return max(0.0, (NOMINAL_CLEARANCE_M - float(heights_m.min())) / float(normal[2]))
 
@@ -231,6 +229,57 @@ class _RetryError(Exception):
         super().__init__(reason)
         self.reason = reason
         self.scanner_fault = scanner_fault
+
+
+@dataclass(frozen=True)
+class TwoPassSolution:
+    """The solve of a run: first pass on the circle-fit centres, then the second pass on
+    centres re-fitted as the ellipse each waypoint's solved rod axis cuts from the plane."""
+
+    first_pass: CalibrationResult
+    result: CalibrationResult
+    observations: list[Observation]
+    refinement: str
+    kept_first_pass: list[tuple[int, str]]
+
+
+def solve_two_pass(
+    measurements: Sequence[WaypointMeasurement],
+    job: JobConfig,
+    background: AveragedScan | None,
+    on_second_pass: Callable[[], None] | None = None,
+) -> TwoPassSolution:
+    """Solve a run's measurements as a live run does; ``lasercal solve session.mcap`` calls
+    this too, so a replay of the recording gives the live result to the last bit.
+    ``on_second_pass`` is called between the passes (progress display)."""
+    rod = job.rod.rod_line()
+    options = SolverOptions(robot_sigma_m=job.robot.position_accuracy_mm / 1000.0)
+    first = solve([m.observation() for m in measurements], rod, options=options)
+    if on_second_pass is not None:
+        on_second_pass()
+    observations: list[Observation] = []
+    kept: list[tuple[int, str]] = []
+    for m in measurements:
+        predicted = predict_rod(first.matrix(), m.tcp_pose, rod)
+        try:
+            centre = find_rod_centre(
+                m.averaged,
+                radius_m=rod.radius_m,
+                background=background,
+                axis_in_scanner=predicted.axis_in_scanner,
+                expected_uv_m=predicted.expected_uv_m,
+            )
+        except RodNotFoundError as exc:
+            kept.append((m.index, str(exc)))
+            observations.append(m.observation())
+            continue
+        observations.append(WaypointMeasurement(m.index, m.tcp_pose, m.averaged, centre).observation())
+    result = solve(observations, rod, options=options)
+    refinement = (
+        f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
+        "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
+    )
+    return TwoPassSolution(first, result, observations, refinement, kept)
 
 
 class Sequencer:
@@ -310,11 +359,11 @@ class Sequencer:
 
     def _run(self) -> RunOutcome:
         count = len(self._waypoints)
+        self._progress("preflight", f"checking devices and {count} waypoints")
         candidates = retract_candidates(self._job, self._waypoints)
         retract = first_clear_pose(self._robot, candidates, self._rod, self._job.workspace)
         if retract is None:  # preflight lists why the preferred one fails
             retract = candidates[0]
-        self._progress("preflight", f"checking devices and {count} waypoints")
         poses = {RETRACT: retract} | {f"waypoint {i}": w for i, w in enumerate(self._waypoints)}
         report = run_preflight(self._robot, self._scanner, poses, self._rod, self._job.workspace)
         retract_q, *waypoint_q = report.joint_solutions_rad
@@ -488,64 +537,30 @@ class Sequencer:
     def _solve(self, report: PreflightReport) -> RunOutcome:
         measurements = sorted(self._measurements, key=lambda m: m.index)
         self._progress("solve", f"solving from {len(measurements)} observations")
-        first_observations = [m.observation() for m in measurements]
-        options = SolverOptions(robot_sigma_m=self._job.robot.position_accuracy_mm / 1000.0)
-        first = solve(first_observations, self._rod, options=options)
-        self._event("solve", pass_number=1, result=_summary(first))
-        self._progress("refine", "second pass: centres from each waypoint's solved rod axis")
-        observations, changed = self._reextract(measurements, first.matrix())
-        result = solve(observations, self._rod, options=options)
-        refinement = (
-            f"second pass: {changed} of {len(measurements)} centres re-extracted with the rod axis "
-            "predicted by the first solution (elliptical cross-section) and the transform re-solved"
+        solution = solve_two_pass(
+            measurements, self._job, self._background,
+            on_second_pass=lambda: self._progress("refine", "second pass: centres from the solved rod axes"),
         )
-        self._event("solve", pass_number=2, result=_summary(result), refinement=refinement)
-        verdict = evaluate_gates(result, self._job.quality, len(self._waypoints))
+        self._event("solve", pass_number=1, result=_summary(solution.first_pass))
+        for index, reason in solution.kept_first_pass:
+            self._event("refine_kept_first_pass", index=index, reason=reason)
+        self._event("solve", pass_number=2, result=_summary(solution.result), refinement=solution.refinement)
+        verdict = evaluate_gates(solution.result, self._job.quality, len(self._waypoints))
         self._event("verdict", **verdict.as_dict())
         self._progress("done", "passed" if verdict.passed else "quality gate failed")
         return RunOutcome(
             preflight=report,
             measurements=measurements,
             skipped=sorted(self._skipped, key=lambda s: s.index),
-            observations=observations,
-            first_pass=first,
-            result=result,
-            refinement=refinement,
+            observations=solution.observations,
+            first_pass=solution.first_pass,
+            result=solution.result,
+            refinement=solution.refinement,
             verdict=verdict,
             timings=self._timings,
             resumed_from=len(self._resume.measurements) + len(self._resume.skipped),
             background=self._background,
         )
-
-    def _reextract(
-        self, measurements: Sequence[WaypointMeasurement], T_base_laser: FloatArray
-    ) -> tuple[list[Observation], int]:
-        observations = []
-        changed = 0
-        for m in measurements:
-            predicted = predict_rod(T_base_laser, m.tcp_pose, self._rod)
-            try:
-                centre = find_rod_centre(
-                    m.averaged,
-                    radius_m=self._rod.radius_m,
-                    background=self._background,
-                    axis_in_scanner=predicted.axis_in_scanner,
-                    expected_uv_m=predicted.expected_uv_m,
-                )
-            except RodNotFoundError as exc:
-                self._event("refine_kept_first_pass", index=m.index, reason=str(exc))
-                observations.append(m.observation())
-                continue
-            changed += 1
-            observations.append(
-                Observation(
-                    index=m.index,
-                    tcp_pose=np.asarray(m.tcp_pose, dtype=float),
-                    centre_uv_m=np.asarray(centre.centre_uv_m, dtype=float),
-                    covariance_uv_m2=np.asarray(centre.covariance_uv_m2, dtype=float),
-                )
-            )
-        return observations, changed
 
     # -- motion and bookkeeping ---------------------------------------------------------
 
@@ -559,8 +574,25 @@ class Sequencer:
                 self._robot.move_joint(q_rad, motion.joint_speed_rad_s, motion.joint_accel_rad_s2)
             else:
                 self._robot.move_linear(pose, motion.speed_m_s, motion.accel_m_s2)
+        except ProtectiveStopError:
+            raise
+        except RobotError as exc:
+            self._raise_if_safety_stop(exc)
+            raise
         finally:
             self._timings.motion_s += self._clock() - started_s
+
+    def _raise_if_safety_stop(self, cause: RobotError) -> None:
+        """A failed move may be a safety stop reported late: ask the robot, and say so."""
+        try:
+            state = self._robot.state()
+        except LasercalError as exc:
+            logger.warning("could not read the robot state after a failed move: %s", exc)
+            return
+        if state.protective_stop or state.emergency_stop or state.safety_status.upper() != "NORMAL":
+            raise ProtectiveStopError(
+                f"{cause} (the robot reports safety status {state.safety_status})"
+            ) from cause
 
     def _settle(self) -> float:
         started_s = self._clock()

@@ -61,6 +61,7 @@ class SimRobot:
     reach_m: float = 1.2
     settle_s: float = 0.2
     protective_stop_at_move: int | None = None
+    stop_reported_late: bool = False
     forbidden_poses: list[FloatArray] = field(default_factory=list)
     state_value: RobotState = field(
         default_factory=lambda: RobotState("RUNNING", "NORMAL", True, True, False, False)
@@ -100,6 +101,9 @@ class SimRobot:
         self.moves.append(np.asarray(pose, dtype=float).copy())
         if self.protective_stop_at_move is not None and len(self.moves) > self.protective_stop_at_move:
             self._stopped_for_good = True
+            self.state_value = RobotState("RUNNING", "PROTECTIVE_STOP", False, True, True, False)
+            if self.stop_reported_late:  # the move only sees its program end, like ur_rtde can
+                raise RobotError("moveJ: the control program stopped during the move")
             raise ProtectiveStopError("robot entered a protective stop (C153A1: collision detected)")
         start = self.tcp_pose()
         end = np.asarray(pose, dtype=float).copy()

@@ -6,6 +6,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from fakes.world import World
+from lasercal_hw.cli.run import _write_rod_scene
+from lasercal_hw.config import load_job
 from lasercal_hw.errors import ExitCode
 
 
@@ -44,3 +49,13 @@ def test_scene_needs_dry_run(tmp_path: Path) -> None:
     result = run_cli("--yes", "--robot", "127.0.0.9", "--scene", "x.toml", cwd=tmp_path)
     assert result.returncode == ExitCode.BAD_INPUT
     assert "--scene only applies to --dry-run" in result.stderr
+
+
+def test_dry_run_scene_gives_the_fake_cell_the_jobs_rod(tmp_path: Path) -> None:
+    job = load_job(Path(__file__).parents[1] / "examples" / "drill.toml")
+    scene = _write_rod_scene(job, tmp_path / "dry_run_scene.toml")
+    world_rod = World.from_scene(scene).rod
+    job_rod = job.rod.rod_line()
+    np.testing.assert_array_equal(world_rod.origin_m, job_rod.origin_m)
+    np.testing.assert_array_equal(world_rod.direction, job_rod.direction)
+    assert (world_rod.radius_m, world_rod.length_m) == (job_rod.radius_m, job_rod.length_m) == (0.005, 0.10)

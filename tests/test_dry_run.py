@@ -18,10 +18,11 @@ import pytest
 from lasercal_hw.dry_run import FakeCellProcess, free_loopback_address, ports_free
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.session import read_session
+from trajectories.presets import preset_waypoints
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
 
-WAYPOINTS = 10  # the 'quick' preset
+WAYPOINTS = len(preset_waypoints("quick"))
 
 
 def write_job(folder: Path) -> Path:
@@ -131,31 +132,82 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
     assert document["observations"] == len(observed)
     assert document["observations"] + len(document["skipped"]) == WAYPOINTS
     assert final.meta["dry_run"] is True and not final.truncated
+    assert final.meta["scanner"]["url"] == f"scip+tcp://{final.meta['robot']['host']}:10940"
+    assert final.meta["scanner"]["product"] and final.meta["robot"]["model"]
     revisited = [e["index"] for e in final.events_of("dwell_start")]
     assert revisited.count(0) == 1, "a resumed run must not measure finished waypoints again"
-    assert json.loads((out / "result.json").read_text())["run"]["resumed_after_waypoints"] == len(done)
+    live = json.loads((out / "result.json").read_text())
+    assert live["run"]["resumed_after_waypoints"] == len(done)
+
+    # `lasercal solve session.mcap` replays extraction and solve: the live transform to 1e-9.
+    replay = subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", "solve", str(out / "session.mcap"), "--json"],
+        capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL, cwd=tmp_path,
+    )
+    assert replay.returncode == ExitCode.OK, replay.stderr[-3000:]
+    np.testing.assert_allclose(
+        np.array(json.loads(replay.stdout)["T_base_laser"]), np.array(live["T_base_laser"]), rtol=0, atol=1e-9
+    )
+
+
+def test_scanner_drop_at_a_waypoint_repeats_that_waypoint(tmp_path: Path) -> None:
+    """The scene fault drops the scanner's connection during waypoint 2's dwell: the driver
+    reconnects, the dwell is repeated and the run completes."""
+    job = write_job(tmp_path)
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[faults]\nscanner_drop_at_waypoint = 2\n")
+    out = tmp_path / "out"
+    result = subprocess.run(
+        lasercal("--dry-run", "--json", "--config", str(job), "--scene", str(scene), "--out", str(out)),
+        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
+    )
+    assert result.returncode == ExitCode.OK, result.stderr[-3000:]
+    recording = read_session(out / "session.mcap")
+    dwells = [event["index"] for event in recording.events_of("dwell_start")]
+    assert dwells.count(2) == 2, dwells
+    assert all(dwells.count(i) == 1 for i in set(dwells) - {2})
+    assert json.loads(result.stdout)["observations"] >= WAYPOINTS - 3
 
 
 def test_protective_stop_aborts_with_device_error_and_no_further_motion(tmp_path: Path) -> None:
     job = write_job(tmp_path)
     scene = tmp_path / "scene.toml"
-    scene.write_text("[faults]\nprotective_stop_at_waypoint = 2\n")
+    scene.write_text("[faults]\nprotective_stop_at_waypoint = 1\n")
     out = tmp_path / "out"
     result = subprocess.run(
         lasercal("--dry-run", "--config", str(job), "--scene", str(scene), "--out", str(out)),
         capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
     )
     assert result.returncode == ExitCode.DEVICE_ERROR, result.stderr[-3000:]
-    assert "protective stop at waypoint 2" in result.stderr
+    assert "protective stop at waypoint 1" in result.stderr
     assert "will not resume by itself" in result.stderr
     assert f"lasercal run --resume {out / 'session.mcap'}" in result.stderr.replace("\n", "")
     recording = read_session(out / "session.mcap")
-    assert max(event["index"] for event in recording.events_of("dwell_start")) == 1
+    assert [event["index"] for event in recording.events_of("dwell_start")] == [0]
     abort = recording.events_of("abort")
-    assert len(abort) == 1 and abort[0]["cause"] == "protective_stop" and abort[0]["index"] == 2
+    assert len(abort) == 1 and abort[0]["cause"] == "protective_stop" and abort[0]["index"] == 1
 
 
-def test_operator_declining_at_the_prompt_moves_nothing(tmp_path: Path) -> None:
+def _read_until(fd: int, text: str, timeout_s: float) -> str:
+    """Bytes from ``fd`` until ``text`` appears (the prompt has no line end)."""
+    import selectors
+    import time
+
+    seen = b""
+    deadline = time.monotonic() + timeout_s
+    with selectors.DefaultSelector() as selector:
+        selector.register(fd, selectors.EVENT_READ)
+        while text.encode() not in seen and time.monotonic() < deadline:
+            if selector.select(timeout=deadline - time.monotonic()):
+                chunk = os.read(fd, 4096)
+                if not chunk:
+                    break
+                seen += chunk
+    return seen.decode(errors="replace")
+
+
+@pytest.mark.parametrize("answer", ["no", "sigterm"])
+def test_operator_declining_or_terminating_at_the_prompt_moves_nothing(tmp_path: Path, answer: str) -> None:
     job = write_job(tmp_path)
     out = tmp_path / "out"
     with FakeCellProcess() as cell:
@@ -164,15 +216,25 @@ def test_operator_declining_at_the_prompt_moves_nothing(tmp_path: Path) -> None:
             process = subprocess.Popen(
                 lasercal("--robot", cell.robot_host, "--scanner", cell.scanner_url, "--config", str(job),
                          "--out", str(out)),
-                stdin=terminal, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                stdin=terminal, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path,
             )
             os.close(terminal)
-            os.write(controller, b"n\n")
-            _, stderr = process.communicate(timeout=120)
+            assert process.stderr is not None
+            stderr = _read_until(process.stderr.fileno(), "Start the motion?", 90)
+            if answer == "no":
+                os.write(controller, b"n\n")
+            else:
+                process.send_signal(signal.SIGTERM)
+            rest = process.communicate(timeout=60)[1].decode(errors="replace")
         finally:
             os.close(controller)
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+    stderr += rest
     assert process.returncode == ExitCode.INTERRUPTED, stderr[-3000:]
-    assert "Start the motion?" in stderr and "declined" in stderr
+    assert "Start the motion?" in stderr
+    assert ("declined" if answer == "no" else "interrupted at the confirmation prompt") in stderr
     recording = read_session(out / "session.mcap")
     assert recording.events_of("dwell_start") == []
     assert recording.events_of("background") == []

@@ -17,6 +17,7 @@ from lasercal_hw.errors import (
 )
 from lasercal_hw.geometry import matrix_to_euler_zyx
 from lasercal_hw.models import RobotState
+from lasercal_hw.offline import solve_recording
 from lasercal_hw.preflight import rod_end_points_m
 from lasercal_hw.recorder import SessionRecorder
 from lasercal_hw.resume import resume_state
@@ -132,6 +133,14 @@ def test_protective_stop_aborts_without_further_motion() -> None:
     assert not scanner.streaming
 
 
+def test_failed_move_during_a_protective_stop_counts_as_one() -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(job, protective_stop_at_move=2, stop_reported_late=True)
+    with pytest.raises(ProtectiveStopError, match="safety status PROTECTIVE_STOP"):
+        Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(6), clock=clock).run()
+    assert len(robot.moves) == 3
+
+
 def test_interrupt_from_progress_stops_the_robot_and_keeps_a_readable_recording(tmp_path: Path) -> None:
     job = fast_job()
     clock, robot, scanner = make_cell(job)
@@ -174,6 +183,11 @@ def test_interrupt_from_progress_stops_the_robot_and_keeps_a_readable_recording(
     assert translation_mm < 5.0 and angle_deg < 0.5
     final = read_session(session)
     assert [e["index"] for e in final.events_of("observation")] == list(range(12))
+
+    # Offline, the same extraction and two-pass solve on the recording give the live result.
+    replay = solve_recording(session)
+    np.testing.assert_allclose(replay.solution.result.matrix(), outcome.result.matrix(), rtol=0, atol=1e-12)
+    assert replay.solution.refinement == outcome.refinement
 
 
 def _read_number_in_dwell(waypoint: int) -> int:

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from fakes.ur5_kinematics import inverse_kinematics_pose
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import RodLine
+from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
 from trajectories.checks import WorkspaceBox, check_waypoints, require_waypoints_ok
 from trajectories.waypoint import Waypoint
 

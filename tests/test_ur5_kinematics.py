@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fakes.ur5_kinematics import (
+from lasercal_hw.geometry import matrix_to_pose, pose_to_matrix, rotation_angle_rad
+from lasercal_hw.ur5_kinematics import (
     JOINT_LIMITS_RAD,
     JOINT_SPEED_LIMITS_RAD_S,
     UR5_DH,
@@ -18,7 +19,6 @@ from fakes.ur5_kinematics import (
     inverse_kinematics_all,
     inverse_kinematics_pose,
 )
-from lasercal_hw.geometry import matrix_to_pose, pose_to_matrix, rotation_angle_rad
 
 # Reference pairs q -> flange position (m) computed with Universal Robots' own DH
 # spreadsheet from the support article "DH parameters for calculations of kinematics and

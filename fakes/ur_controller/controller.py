@@ -19,17 +19,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fakes.ur5_kinematics import (
-    JOINT_LIMITS_RAD,
-    JOINT_SPEED_LIMITS_RAD_S,
-    forward_kinematics,
-    inverse_kinematics,
-)
 from fakes.ur_controller.control_script import ControlScript, ScriptRuntimeError
 from fakes.ur_controller.motion import JointPath, LinearPath, Motion, track_pose
 from fakes.ur_controller.rtde_protocol import REGISTER_COUNT
 from lasercal_hw.geometry import invert_transform, matrix_to_pose, pose_to_matrix
 from lasercal_hw.models import FloatArray
+from lasercal_hw.ur5_kinematics import (
+    JOINT_LIMITS_RAD,
+    JOINT_SPEED_LIMITS_RAD_S,
+    forward_kinematics,
+    inverse_kinematics,
+)
 
 logger = logging.getLogger(__name__)
 

@@ -8,6 +8,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
 from types import FrameType
@@ -125,7 +126,11 @@ def _confirm(
                 f"{motion.move} moves capped at {motion.speed_m_s} m/s and {motion.accel_m_s2} m/s^2, "
                 f"dwelling {job.dwell_s:g} s each. Keep clear of the arm."
             )
-            if not typer.confirm("Start the motion?", default=False, err=True):
+            try:
+                agreed = typer.confirm("Start the motion?", default=False, err=True)
+            except typer.Abort:  # Ctrl-C, SIGTERM or end of input at the prompt
+                raise InterruptedRunError("interrupted at the confirmation prompt; nothing moved") from None
+            if not agreed:
                 raise InterruptedRunError("the operator declined at the confirmation prompt; nothing moved")
 
     return ask
@@ -144,6 +149,42 @@ def _connect(job: JobConfig, stack: contextlib.ExitStack) -> tuple[Robot, Scanne
     scanner = HokuyoScanner.open(job.scanner.url, timeout_s=job.scanner.timeout_s)
     stack.callback(scanner.close)
     return robot, scanner
+
+
+def _warn_if_rods_differ(job: JobConfig, cell_rod: dict[str, Any] | None, ui: Console) -> None:
+    """A dry run only finds the rod the fake cell holds: say so when the job describes another."""
+    if cell_rod is None:
+        return
+    rod = job.rod.rod_line()
+    same = (
+        np.allclose(cell_rod["origin_m"], rod.origin_m, atol=1e-3)
+        and np.allclose(np.asarray(cell_rod["direction"]) / np.linalg.norm(cell_rod["direction"]),
+                        rod.unit_direction(), atol=1e-3)
+        and abs(cell_rod["radius_m"] - rod.radius_m) < 1e-4
+    )
+    if not same:
+        ui.print(
+            f"[yellow]warning:[/] the fake cell's rod {escape(str(cell_rod))} differs from the job's rod; "
+            "give the dry run a --scene whose \\[rod] matches the job (docs/extraction.md)"
+        )
+
+
+def _toml_floats(values: FloatArray) -> str:
+    """A TOML array of floats at full precision."""
+    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
+
+
+def _write_rod_scene(job: JobConfig, path: Path) -> Path:
+    """A scene file that changes only the default scene's rod to the job's rod (kept with
+    the outputs, so the dry run can be repeated with ``--scene``)."""
+    rod = job.rod.rod_line()
+    path.write_text(
+        "# Written by `lasercal run --dry-run`: the default scene, holding the job's rod.\n"
+        f"[rod]\norigin_m = {_toml_floats(rod.origin_m)}\ndirection = {_toml_floats(rod.direction)}\n"
+        f"radius_m = {rod.radius_m!r}\nlength_m = {rod.length_m!r}\n",
+        encoding="utf-8",
+    )
+    return path
 
 
 def _default_out_dir() -> Path:
@@ -297,11 +338,14 @@ def run_command(
     with _sigterm_as_interrupt(), contextlib.ExitStack() as stack:
         if dry_run:
             ui.print("starting a fake cell for the dry run ...")
+            if scene is None:  # the fake cell holds the rod the job describes
+                scene = _write_rod_scene(job, out_dir / "dry_run_scene.toml")
             cell = stack.enter_context(FakeCellProcess(scene=scene))
             truth = cell.ground_truth
             cell_info = {"address": cell.address, "pid": cell.pid}
             job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": cell.scanner_url})
             ui.print(f"fake cell on {cell.address} (pid {cell.pid}): scanner {cell.scanner_url}")
+            _warn_if_rods_differ(job, cell.info.get("rod"), ui)
         if job.robot.host is None:
             raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
         started_s = time.monotonic()
@@ -312,6 +356,8 @@ def run_command(
             "software_version": __version__,
             "dry_run": dry_run,
             "started_utc": datetime.now(UTC).isoformat(),
+            "robot": asdict(robot_device.identity()) | {"host": job.robot.host},
+            "scanner": asdict(scanner_device.identity()) | {"url": job.scanner.url},
         }
         if truth is not None:
             meta["ground_truth_T_base_laser"] = truth.tolist()

@@ -14,12 +14,15 @@ from lasercal_hw.cli.common import console, parse_vector, print_json
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import RodLine
 from lasercal_hw.observations import load_observations
+from lasercal_hw.offline import solve_recording
 from lasercal_hw.result import CalibrationResult
 from lasercal_hw.solver import SolverOptions, solve
 
 
 def solve_command(
-    input_path: Annotated[Path, typer.Argument(help="observations.csv", show_default=False)],
+    input_path: Annotated[
+        Path, typer.Argument(help="observations.csv, or the session.mcap of a run", show_default=False)
+    ],
     axis_origin: str = typer.Option("0,0,0", "--axis-origin", help="Rod axis origin in the TCP frame (m)."),
     axis_direction: str = typer.Option("0,0,1", "--axis-direction", help="Rod axis direction, TCP frame."),
     robust: bool = typer.Option(True, "--robust/--no-robust", help="Robust loss and outlier rejection."),
@@ -29,7 +32,8 @@ def solve_command(
     output: Annotated[Path | None, typer.Option("--output", "-o", help="Also write result.json.")] = None,
     as_json: bool = typer.Option(False, "--json", help="Print the result.json document instead of a table."),
 ) -> None:
-    """Solve for T_base_laser from observations (index,tcp_x..tcp_rz,u,v[,sigma_u,sigma_v])."""
+    """Solve for T_base_laser from observations (index,tcp_x..tcp_rz,u,v[,sigma_u,sigma_v]) or from
+    a run's session.mcap (same extraction and solver as the live run; rod and noise from its job)."""
     if formulation not in ("ours", "paper"):
         raise ConfigError(f"--formulation must be 'ours' or 'paper', got {formulation!r}")
     if sigma_mm <= 0 or robot_sigma_mm < 0:
@@ -37,11 +41,19 @@ def solve_command(
     direction = np.array(parse_vector(axis_direction, 3, "--axis-direction"))
     if np.linalg.norm(direction) < 1e-9:
         raise ConfigError("--axis-direction must not be the zero vector")
-    rod = RodLine(origin_m=np.array(parse_vector(axis_origin, 3, "--axis-origin")), direction=direction)
-    observations = load_observations(input_path)
-    options = SolverOptions(default_sigma_uv_m=sigma_mm / 1e3, robot_sigma_m=robot_sigma_mm / 1e3)
-    mode: Literal["ours", "paper"] = "paper" if formulation == "paper" else "ours"
-    result = solve(observations, rod, robust=robust, options=options, formulation=mode)
+    if input_path.suffix.lower() == ".mcap":
+        if (axis_origin, axis_direction, robust, formulation) != ("0,0,0", "0,0,1", True, "ours"):
+            raise ConfigError(
+                "--axis-origin, --axis-direction, --no-robust and --formulation apply to observations.csv; "
+                "a session.mcap is solved with the rod and settings of its recorded job"
+            )
+        result = solve_recording(input_path).solution.result
+    else:
+        rod = RodLine(origin_m=np.array(parse_vector(axis_origin, 3, "--axis-origin")), direction=direction)
+        observations = load_observations(input_path)
+        options = SolverOptions(default_sigma_uv_m=sigma_mm / 1e3, robot_sigma_m=robot_sigma_mm / 1e3)
+        mode: Literal["ours", "paper"] = "paper" if formulation == "paper" else "ours"
+        result = solve(observations, rod, robust=robust, options=options, formulation=mode)
     document = result.to_json_dict()
     if output is not None:
         try:

@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from drivers.ur.client import MotionLimits, URRobot, _trapezoid_duration_s
-from fakes.ur5_kinematics import forward_kinematics
 from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
 from lasercal_hw.errors import (
     ConfigError,
@@ -23,6 +22,7 @@ from lasercal_hw.errors import (
     TransportError,
 )
 from lasercal_hw.geometry import matrix_to_pose
+from lasercal_hw.ur5_kinematics import forward_kinematics
 from tests.ur.conftest import StartFake, eventually
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
