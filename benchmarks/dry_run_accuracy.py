@@ -10,9 +10,9 @@ and the fake world (``fakes.world``, default scene, the rod replaced by the job'
 each waypoint gets ``dwell_s / scan_period`` noisy scans cast at the pose the controller
 would report (the world applies its robot absolute-accuracy error field), which are
 averaged (``average_scans``) and searched for the rod (``find_rod_centre``, background
-from the sequencer's retract pose), then solved with the sequencer's two passes
-(``solve``; second pass: centres re-extracted with the rod axis ``predict_rod`` gives
-from the first solution). Each seed draws new range noise and a new robot error field.
+from the sequencer's retract pose), then solved with the sequencer's own two passes
+(``solve_two_pass``: second pass on centres re-extracted with the rod axis the first
+solution predicts). Each seed draws new range noise and a new robot error field.
 
 Printed: the Cramér-Rao bound of the trajectory (the solver's Fisher information with
 the job's noise model), then per seed the error against the ground truth and the
@@ -35,11 +35,10 @@ from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.extraction import RodNotFoundError, find_rod_centre
 from lasercal_hw.geometry import matrix_to_rotvec, pose_to_matrix
-from lasercal_hw.models import LaserScan, Observation, RodLine
+from lasercal_hw.models import LaserScan, RodLine
 from lasercal_hw.result import CalibrationResult
 from lasercal_hw.scan_average import AveragedScan, average_scans
-from lasercal_hw.sequencer import predict_rod, retract_candidates
-from lasercal_hw.solver import SolverOptions, solve
+from lasercal_hw.sequencer import WaypointMeasurement, predict_rod, retract_candidates, solve_two_pass
 from lasercal_hw.solver_model import fisher_information, rod_lines_in_base
 from lasercal_hw.waypoints import job_waypoints
 
@@ -100,13 +99,11 @@ def errors(result: CalibrationResult, truth: np.ndarray) -> tuple[np.ndarray, np
 def simulate(
     job: JobConfig, waypoints: np.ndarray, world: World, scans: int, rng: np.random.Generator
 ) -> Trial:
-    """One offline run of the sequencer's measurement chain and both solver passes."""
+    """One offline run of the sequencer's measurement chain and its two-pass solve."""
     rod = job.rod.rod_line()
-    options = SolverOptions(robot_sigma_m=job_robot_sigma_m(job))
     background = dwell(world, retract_candidates(job, waypoints)[0], job.background.scans, rng)
     nominal = job.scanner.nominal
-    measured: list[tuple[int, np.ndarray, AveragedScan]] = []
-    first: list[Observation] = []
+    measurements: list[WaypointMeasurement] = []
     for index, pose in enumerate(waypoints):
         averaged = dwell(world, pose, scans, rng)
         expected = None if nominal is None else predict_rod(nominal.matrix(), pose, rod).expected_uv_m
@@ -116,27 +113,10 @@ def simulate(
             )
         except RodNotFoundError:
             continue
-        measured.append((index, pose, averaged))
-        first.append(Observation(index, pose, centre.centre_uv_m, centre.covariance_uv_m2))
-    first_result = solve(first, rod, options=options)
-    second = []
-    for (index, pose, averaged), kept in zip(measured, first, strict=True):
-        predicted = predict_rod(first_result.matrix(), pose, rod)
-        try:
-            centre = find_rod_centre(
-                averaged,
-                radius_m=rod.radius_m,
-                background=background,
-                axis_in_scanner=predicted.axis_in_scanner,
-                expected_uv_m=predicted.expected_uv_m,
-            )
-        except RodNotFoundError:
-            second.append(kept)
-            continue
-        second.append(Observation(index, pose, centre.centre_uv_m, centre.covariance_uv_m2))
-    result = solve(second, rod, options=options)
+        measurements.append(WaypointMeasurement(index, pose, averaged, centre))
+    result = solve_two_pass(measurements, job, background).result
     dt_mm, de_deg = errors(result, world.ground_truth_T_base_laser)
-    return Trial(result, dt_mm, de_deg, len(measured))
+    return Trial(result, dt_mm, de_deg, len(measurements))
 
 
 def job_robot_sigma_m(job: JobConfig) -> float:
