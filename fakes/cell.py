@@ -24,11 +24,8 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import threading
 import time
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -121,21 +118,3 @@ class FakeCell:
         self.scanner.stop()
         self.robot.close()
 
-
-def serve_until_signal(cell: FakeCell) -> None:
-    """Start the cell, print its ready line, and serve until SIGINT or SIGTERM."""
-    stop = threading.Event()
-
-    def request_stop(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        cell.start()
-        print(cell.ready_line(), flush=True)
-        while not stop.wait(0.5):
-            pass
-    finally:
-        cell.close()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)

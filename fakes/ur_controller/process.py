@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import os
 import selectors
-import signal
 import subprocess
 import sys
 import tempfile
@@ -87,20 +86,6 @@ class FakeRobot:
                  tb: TracebackType | None) -> None:
         self.close()
 
-
-def serve_until_signal(robot: FakeRobot) -> None:
-    """Start ``robot``, print its ready line, and run until SIGINT or SIGTERM."""
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        robot.start()
-        print(robot.ready_line(), flush=True)
-        while not stop.wait(0.5):
-            pass
-    finally:
-        robot.close()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 class FakeRobotProcess:

@@ -136,8 +136,9 @@ def fake_robot(
                                        help="Report remote control off (ur_rtde control then refuses)."),
 ) -> None:
     """Serve a fake UR controller (dashboard 29999, RTDE 30004, script 30003) until Ctrl-C."""
+    from fakes.serving import serve_until_signal
     from fakes.ur_controller.controller import DEFAULT_START_Q_RAD, ControllerConfig, FaultPlan
-    from fakes.ur_controller.process import FakeRobot, serve_until_signal
+    from fakes.ur_controller.process import FakeRobot
 
     if version not in _VERSIONS:
         raise ConfigError(f"--version must be one of {', '.join(_VERSIONS)}, got {version!r}")
@@ -172,6 +173,7 @@ def fake_cell(
 ) -> None:
     """Serve a fake UR controller and a fake UTM-30LX-EW sharing one simulated world; prints
     'fake cell ready: {json}' (addresses and the ground-truth T_base_laser) when ready."""
-    from fakes.cell import FakeCell, serve_until_signal
+    from fakes.cell import FakeCell
+    from fakes.serving import serve_until_signal
 
     serve_until_signal(FakeCell(address, scene, seed))
