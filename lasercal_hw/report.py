@@ -166,7 +166,8 @@ def _draw_residuals(ax: Axes, data: ReportData) -> None:
     used = np.asarray(data.used, dtype=bool)
     positions = np.arange(len(data.indices))
     ax.bar(positions[used], norms[used], color=_USED_COLOUR, label="used")
-    ax.bar(positions[~used], norms[~used], color=_OUTLIER_COLOUR, hatch="//", label="outlier (not used)")
+    if not used.all():  # an empty bar series would show in the legend in the default colour
+        ax.bar(positions[~used], norms[~used], color=_OUTLIER_COLOUR, hatch="//", label="outlier (not used)")
     rms = data.rms_residual_mm()
     if math.isfinite(rms):
         ax.axhline(rms, color="black", linestyle="--", linewidth=1, label=f"RMS (used) {rms:.3f} mm")
