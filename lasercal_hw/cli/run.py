@@ -25,7 +25,7 @@ from drivers.hokuyo.client import HokuyoScanner
 from drivers.ur.client import MotionLimits, URRobot
 from lasercal_hw import __version__
 from lasercal_hw.cli.common import console, err_console, print_json
-from lasercal_hw.cli.solve import _print_result as print_result
+from lasercal_hw.cli.solve import print_result
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.devices import Robot, Scanner
 from lasercal_hw.dry_run import FakeCellProcess

@@ -66,10 +66,11 @@ def solve_command(
     if as_json:
         print_json(document)
     else:
-        _print_result(result)
+        print_result(result)
 
 
-def _print_result(result: CalibrationResult) -> None:
+def print_result(result: CalibrationResult) -> None:
+    """Print a calibration result as a readable table (solve and run share it)."""
     prov = result.provenance
     console.print(
         f"[bold]T_base_laser[/] ({prov.formulation} formulation, {result.waypoints_used} of "
