@@ -115,6 +115,11 @@ class RodLine:
         d = np.asarray(self.direction, dtype=float)
         return d / np.linalg.norm(d)
 
+    def end_points_m(self) -> FloatArray:
+        """The rod's two ends (origin, tip) in the TCP frame, shape (2, 3)."""
+        origin = np.asarray(self.origin_m, dtype=float)
+        return np.stack([origin, origin + self.length_m * self.unit_direction()])
+
 
 @dataclass(frozen=True)
 class Observation:

@@ -32,8 +32,7 @@ class PreflightReport:
 
 def rod_end_points_m(pose: FloatArray, rod: RodLine) -> FloatArray:
     """The rod's two ends in the base frame (2, 3) for a TCP pose."""
-    ends_tcp = np.stack([rod.origin_m, rod.origin_m + rod.length_m * rod.unit_direction()])
-    return transform_points(pose_to_matrix(pose)[None], ends_tcp)
+    return transform_points(pose_to_matrix(pose)[None], rod.end_points_m())
 
 
 def check_robot_state(robot: Robot) -> list[str]:

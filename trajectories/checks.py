@@ -123,10 +123,7 @@ def check_waypoints(
         for reason in box.violations(pose[:3], "TCP"):
             problem(reason)
         if rod is not None:
-            rod_ends = np.array(
-                [rod.origin_m, np.asarray(rod.origin_m) + rod.length_m * rod.unit_direction()]
-            )
-            ends_base = transform_points(waypoint.matrix(), rod_ends)
+            ends_base = transform_points(waypoint.matrix(), rod.end_points_m())
             for name, end in zip(("rod start", "rod end"), ends_base, strict=True):
                 for reason in box.violations(end, name):
                     problem(reason)
