@@ -20,15 +20,15 @@ import numpy as np  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
-from lasercal_hw.models import RodLine  # noqa: E402
-from lasercal_hw.simulate import (  # noqa: E402
+from lasercal_hw.calibration.simulate import (  # noqa: E402
     Protocol,
     crb_covariance,
     paper_ground_truth,
     pose_errors,
     simulate_observations,
 )
-from lasercal_hw.solver import SolverOptions, solve  # noqa: E402
+from lasercal_hw.calibration.solver import SolverOptions, solve  # noqa: E402
+from lasercal_hw.models import RodLine  # noqa: E402
 
 REPEATS = {20: 60, 75: 60, 1_000: 20, 10_000: 6}
 FORMULATIONS = ("ours", "paper")

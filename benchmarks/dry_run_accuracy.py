@@ -5,7 +5,7 @@ Run from the repository root::
     .venv/bin/python -m benchmarks.dry_run_accuracy [--config examples/drill.toml] [--seeds 20]
         [--dwell 3] [--crb-only]
 
-No devices and no sockets: for the job's waypoints (``lasercal_hw.waypoints.job_waypoints``)
+No devices and no sockets: for the job's waypoints (``lasercal_hw.run.waypoints.job_waypoints``)
 and the fake world (``fakes.world``, default scene, the rod replaced by the job's rod),
 each waypoint gets ``dwell_s / scan_period`` noisy scans cast at the pose the controller
 would report (the world applies its robot absolute-accuracy error field), which are
@@ -31,16 +31,16 @@ import numpy as np
 
 from fakes.scene import load_scene
 from fakes.world import World
+from lasercal_hw.calibration.model import fisher_information, rod_lines_in_base
+from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import LasercalError
-from lasercal_hw.extraction import RodNotFoundError, find_rod_centre
 from lasercal_hw.geometry import matrix_to_rotvec, pose_to_matrix
 from lasercal_hw.models import LaserScan, RodLine
-from lasercal_hw.result import CalibrationResult
-from lasercal_hw.scan_average import AveragedScan, average_scans
-from lasercal_hw.sequencer import WaypointMeasurement, predict_rod, retract_candidates, solve_two_pass
-from lasercal_hw.solver_model import fisher_information, rod_lines_in_base
-from lasercal_hw.waypoints import job_waypoints
+from lasercal_hw.run.sequencer import WaypointMeasurement, predict_rod, retract_candidates, solve_two_pass
+from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.scan.average import AveragedScan, average_scans
+from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 
 #: Centre noise assumed by the quick CRB (a 20 mm rod, 120 scans: about 0.5 mm per axis).
 CRB_SIGMA_UV_M = 0.0005

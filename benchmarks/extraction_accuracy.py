@@ -16,10 +16,10 @@ from __future__ import annotations
 import numpy as np
 
 from fakes.world import World
-from lasercal_hw.extraction import RodNotFoundError, find_rod_centre, seed_centre_pi4
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
 from lasercal_hw.models import LaserScan
-from lasercal_hw.scan_average import AveragedScan, average_scans
+from lasercal_hw.scan.average import AveragedScan, average_scans
+from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre, seed_centre_pi4
 from tests.synthetic_scans import averaged, rod_ranges
 
 SIGMA_MEAN_M = 0.010 / np.sqrt(120)

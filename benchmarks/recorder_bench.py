@@ -20,8 +20,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from lasercal_hw.recorder import SessionRecorder
-from lasercal_hw.session import read_session
+from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.recorder import SessionRecorder
 from tests.recorder_helpers import make_scan
 
 SCANNER_RATE_HZ = 40.0

@@ -14,10 +14,10 @@ from collections.abc import Callable
 import numpy as np
 
 from fakes.world import World
-from lasercal_hw.extraction import find_rod_centre
 from lasercal_hw.geometry import make_transform
 from lasercal_hw.models import LaserScan
-from lasercal_hw.scan_average import average_scans
+from lasercal_hw.scan.average import average_scans
+from lasercal_hw.scan.extraction import find_rod_centre
 
 
 def median_s(fn: Callable[[], object], repeats: int = 7, number: int = 200) -> float:

@@ -8,7 +8,7 @@ ready, one line goes to standard output::
 
     fake cell ready: {"robot_host": ..., "scanner_url": ..., "T_base_laser": [[...]], ...}
 
-``lasercal run --dry-run`` reads it (``lasercal_hw.dry_run``) and compares its result with
+``lasercal run --dry-run`` reads it (``lasercal_hw.run.dry_run``) and compares its result with
 ``T_base_laser``, the world's ground truth.
 
 Scene faults acted on here (a run first moves to its retract pose for the background,

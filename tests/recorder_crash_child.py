@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from lasercal_hw.recorder import SessionRecorder
+from lasercal_hw.session.recorder import SessionRecorder
 from tests.recorder_helpers import START_TIME_S, make_pose, make_scan
 
 MAX_SCANS = 20_000

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lasercal_hw.models import LaserScan, ScanGeometry
-from lasercal_hw.session_format import ranges_m_from_raw_mm
+from lasercal_hw.session.format import ranges_m_from_raw_mm
 
 UTM_GEOMETRY = ScanGeometry(
     first_step=0,

@@ -8,7 +8,7 @@ import numpy as np
 
 from fakes.raycast import ray_cylinder, ray_plane
 from lasercal_hw.models import LaserScan, ScanGeometry
-from lasercal_hw.scan_average import AveragedScan
+from lasercal_hw.scan.average import AveragedScan
 
 UTM_GEOMETRY = ScanGeometry(
     first_step=0, last_step=1080, cluster=1, front_step=540, steps_per_revolution=1440,

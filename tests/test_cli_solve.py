@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lasercal_hw.observations import write_observations_csv
+from lasercal_hw.calibration.observations import write_observations_csv
 from tests.cli_helpers import assert_one_line_error, run_cli
 from tests.test_solver_helpers import TRUTH, observations
 

@@ -9,7 +9,7 @@ import pytest
 
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.waypoints import job_waypoint_list, job_waypoints
+from lasercal_hw.run.waypoints import job_waypoint_list, job_waypoints
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lasercal_hw.dry_run import FakeCellProcess, free_loopback_address, ports_free
 from lasercal_hw.errors import ExitCode
-from lasercal_hw.session import read_session
+from lasercal_hw.run.dry_run import FakeCellProcess, free_loopback_address, ports_free
+from lasercal_hw.session.reader import read_session
 from trajectories.presets import preset_waypoints
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]

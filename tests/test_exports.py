@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.exports import exports, static_transform_publisher_args, urdf_joint
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, quat_to_matrix, rotvec_to_matrix
+from lasercal_hw.outputs.exports import exports, static_transform_publisher_args, urdf_joint
 
 PAPER_T = make_transform(euler_zyx_to_matrix(*np.radians([5.0, 7.0, 3.0])), [0.30, 0.50, 0.20])
 

@@ -8,13 +8,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lasercal_hw.errors import CalibrationError, ConfigError
-from lasercal_hw.extraction import (
+from lasercal_hw.scan.average import AveragedScan, average_scans
+from lasercal_hw.scan.extraction import (
     ExtractionSettings,
     RodNotFoundError,
     find_rod_centre,
     seed_centre_pi4,
 )
-from lasercal_hw.scan_average import AveragedScan, average_scans
 from tests.synthetic_scans import ANGLES, averaged, rod_ranges, scans
 
 # One beam averaged over a 3 s dwell (120 scans) of the UTM-30LX-EW's sigma of 10 mm.

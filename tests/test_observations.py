@@ -7,8 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lasercal_hw.calibration.observations import (
+    load_observations,
+    read_observations_csv,
+    write_observations_csv,
+)
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.observations import load_observations, read_observations_csv, write_observations_csv
 from tests.test_solver_helpers import observations
 
 HEADER = "index,tcp_x,tcp_y,tcp_z,tcp_rx,tcp_ry,tcp_rz,u,v"

@@ -13,9 +13,7 @@ from mcap_ros2.decoder import DecoderFactory
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import quat_to_rotvec, rotvec_to_matrix
 from lasercal_hw.models import LaserScan
-from lasercal_hw.recorder import SessionRecorder
-from lasercal_hw.session import read_session
-from lasercal_hw.session_format import (
+from lasercal_hw.session.format import (
     TOPIC_JOINT_STATES,
     TOPIC_SCAN,
     TOPIC_TCP_POSE,
@@ -23,6 +21,8 @@ from lasercal_hw.session_format import (
     raw_mm_to_ros_ranges,
     ros_ranges_to_raw_mm,
 )
+from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.recorder import SessionRecorder
 from tests.recorder_helpers import START_TIME_S, UTM_GEOMETRY, assert_scans_equal, make_pose, make_scan
 
 META = {"config": {"rod": {"radius_m": 0.02}, "dwell_s": 3.0}, "scanner": {"serial": "H1234"}}
@@ -247,7 +247,7 @@ def test_scan_type_is_the_product_scan(tmp_path):
 
 
 def test_fast_scan_decoder_matches_the_reference_decoder(tmp_path):
-    from lasercal_hw.session import _laser_scan_arrays
+    from lasercal_hw.session.reader import _laser_scan_arrays
 
     path = tmp_path / "session.mcap"
     _record(path, [make_scan(1), make_scan(2, intensities=False)])

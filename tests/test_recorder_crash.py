@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.recorder import SessionRecorder
-from lasercal_hw.session import read_session
+from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.recorder import SessionRecorder
 from tests.recorder_helpers import START_TIME_S, assert_scans_equal, make_pose, make_scan
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

@@ -9,7 +9,7 @@ import pytest
 from pydantic import ValidationError
 
 from lasercal_hw.geometry import euler_zyx_to_matrix, invert_transform, make_transform, pose_to_matrix
-from lasercal_hw.report import ReportData, _residual_scale, render_report
+from lasercal_hw.outputs.report import ReportData, _residual_scale, render_report
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lasercal_hw.errors import CalibrationError
-from lasercal_hw.scan_average import average_scans
+from lasercal_hw.scan.average import average_scans
 from tests.synthetic_scans import ANGLES, UTM_GEOMETRY, rod_ranges, scans
 
 

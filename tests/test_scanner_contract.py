@@ -17,8 +17,8 @@ from drivers.hokuyo.codec import TIMESTAMP_MODULUS, ResponseFramer
 from drivers.hokuyo.transport import parse_url
 from fakes.scip_faults import ScipFaults
 from fakes.scip_server import FakeScannerServer
-from lasercal_hw.devices import Scanner
 from lasercal_hw.errors import ConfigError, ScannerStatusError, TransportError
+from lasercal_hw.run.devices import Scanner
 
 pytestmark = pytest.mark.timeout(60)
 

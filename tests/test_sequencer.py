@@ -17,12 +17,12 @@ from lasercal_hw.errors import (
 )
 from lasercal_hw.geometry import matrix_to_euler_zyx
 from lasercal_hw.models import RobotState
-from lasercal_hw.offline import solve_recording
-from lasercal_hw.preflight import rod_end_points_m
-from lasercal_hw.recorder import SessionRecorder
-from lasercal_hw.resume import resume_state
-from lasercal_hw.sequencer import NOMINAL_CLEARANCE_M, Progress, Sequencer, background_lift_m
-from lasercal_hw.session import read_session
+from lasercal_hw.run.preflight import rod_end_points_m
+from lasercal_hw.run.replay import solve_recording
+from lasercal_hw.run.resume import resume_state
+from lasercal_hw.run.sequencer import NOMINAL_CLEARANCE_M, Progress, Sequencer, background_lift_m
+from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.recorder import SessionRecorder
 from tests.doubles import (
     PAPER_T_BASE_LASER,
     MemoryRecorder,

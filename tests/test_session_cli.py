@@ -6,8 +6,8 @@ import json
 
 from mcap.reader import make_reader
 
-from lasercal_hw.recorder import SessionRecorder
-from lasercal_hw.session import read_session
+from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.recorder import SessionRecorder
 from tests.cli_helpers import assert_one_line_error, run_cli
 from tests.recorder_helpers import START_TIME_S, assert_scans_equal, make_pose, make_scan
 

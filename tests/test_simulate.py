@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, pose_to_matrix
-from lasercal_hw.models import RodLine
-from lasercal_hw.simulate import (
+from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base
+from lasercal_hw.calibration.simulate import (
     Protocol,
     crb_covariance,
     metric_table,
@@ -15,7 +14,8 @@ from lasercal_hw.simulate import (
     protocol_tcp_poses,
     simulate_observations,
 )
-from lasercal_hw.solver_model import plane_crossing, rod_lines_in_base
+from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, pose_to_matrix
+from lasercal_hw.models import RodLine
 
 
 def test_ground_truth_is_the_papers() -> None:

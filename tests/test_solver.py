@@ -7,13 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from lasercal_hw.errors import DegenerateDataError
-from lasercal_hw.geometry import matrix_to_pose, pose_to_matrix
-from lasercal_hw.models import Observation, RodLine
-from lasercal_hw.simulate import Protocol, monte_carlo
-from lasercal_hw.solver import SolverOptions, solve
-from lasercal_hw.solver_init import linear_initial_pose
-from lasercal_hw.solver_model import (
+from lasercal_hw.calibration.initial import linear_initial_pose
+from lasercal_hw.calibration.model import (
     effective_covariance,
     plane_crossing,
     residuals_and_jacobian,
@@ -21,6 +16,11 @@ from lasercal_hw.solver_model import (
     whiten,
     whitening,
 )
+from lasercal_hw.calibration.simulate import Protocol, monte_carlo
+from lasercal_hw.calibration.solver import SolverOptions, solve
+from lasercal_hw.errors import DegenerateDataError
+from lasercal_hw.geometry import matrix_to_pose, pose_to_matrix
+from lasercal_hw.models import Observation, RodLine
 from tests.test_solver_helpers import TRUTH, observations, translation_error_mm
 
 PAPER_OPTIONS = SolverOptions(default_sigma_uv_m=0.01, robot_sigma_m=0.001)

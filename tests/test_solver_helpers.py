@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lasercal_hw.calibration.simulate import Protocol, paper_ground_truth, simulate_observations
 from lasercal_hw.models import Observation, RodLine
-from lasercal_hw.simulate import Protocol, paper_ground_truth, simulate_observations
 
 TRUTH = paper_ground_truth()
 

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lasercal_hw.geometry import rotvec_to_matrix
-from lasercal_hw.models import RodLine
-from lasercal_hw.solver_model import (
+from lasercal_hw.calibration.model import (
     fisher_information,
     left_jacobian_so3,
     plane_crossing,
@@ -14,6 +12,8 @@ from lasercal_hw.solver_model import (
     rod_lines_in_base,
     whitening,
 )
+from lasercal_hw.geometry import rotvec_to_matrix
+from lasercal_hw.models import RodLine
 from tests.test_solver_helpers import TRUTH, observations
 
 

@@ -6,9 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lasercal_hw.calibration.solver import solve
 from lasercal_hw.geometry import make_transform, matrix_to_pose, rotvec_to_matrix
 from lasercal_hw.models import Observation, RodLine
-from lasercal_hw.solver import solve
 
 
 def _rods_through_plane(truth: np.ndarray, rng: np.random.Generator, count: int) -> list[Observation]:

@@ -12,7 +12,6 @@ from fakes.scene import Scene, load_scene, parse_scene
 from fakes.scip_device import ScipDevice
 from fakes.world import DROPOUT_CODE, NO_RETURN_CODE, TOO_NEAR_CODE, World, WorldRangeSource
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.extraction import find_rod_centre
 from lasercal_hw.geometry import (
     euler_zyx_to_matrix,
     invert_transform,
@@ -21,7 +20,8 @@ from lasercal_hw.geometry import (
     matrix_to_pose,
 )
 from lasercal_hw.models import LaserScan
-from lasercal_hw.scan_average import AveragedScan, average_scans
+from lasercal_hw.scan.average import AveragedScan, average_scans
+from lasercal_hw.scan.extraction import find_rod_centre
 
 QUIET = """
 [noise]

@@ -4,7 +4,7 @@
 stream left running by an earlier client does not confuse it), reads VV/PP/II and
 synchronises the clock with TM. Single scans use BM + GD/GE; streams use MD/ME with a
 reader thread, a bounded queue and automatic reconnection. Implements
-``lasercal_hw.devices.Scanner``.
+``lasercal_hw.run.devices.Scanner``.
 """
 
 from __future__ import annotations

@@ -27,17 +27,17 @@ from lasercal_hw import __version__
 from lasercal_hw.cli.common import console, err_console, print_json
 from lasercal_hw.cli.solve import print_result
 from lasercal_hw.config import JobConfig, load_job, with_overrides
-from lasercal_hw.devices import Robot, Scanner
-from lasercal_hw.dry_run import FakeCellProcess
 from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError, LasercalError
 from lasercal_hw.models import FloatArray
-from lasercal_hw.preflight import PreflightReport
-from lasercal_hw.recorder import SessionRecorder
-from lasercal_hw.resume import META_JOB, META_WAYPOINTS, recorded_job, resume_state
-from lasercal_hw.run_outputs import SESSION_FILE, transform_error, write_outputs
-from lasercal_hw.sequencer import Progress, ResumeState, RunOutcome, Sequencer
-from lasercal_hw.session import read_session
-from lasercal_hw.waypoints import job_waypoints
+from lasercal_hw.run.devices import Robot, Scanner
+from lasercal_hw.run.dry_run import FakeCellProcess
+from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
+from lasercal_hw.run.preflight import PreflightReport
+from lasercal_hw.run.resume import META_JOB, META_WAYPOINTS, recorded_job, resume_state
+from lasercal_hw.run.sequencer import Progress, ResumeState, RunOutcome, Sequencer
+from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.recorder import SessionRecorder
 
 OVERHEAD_TARGET = 0.10
 

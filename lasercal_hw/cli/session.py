@@ -10,8 +10,8 @@ import typer
 from rich.markup import escape
 
 from lasercal_hw.cli.common import console, print_json
-from lasercal_hw.recorder import repair_session
-from lasercal_hw.session import SessionRecording, read_session
+from lasercal_hw.session.reader import SessionRecording, read_session
+from lasercal_hw.session.recorder import repair_session
 
 session_app = typer.Typer(
     help="Inspect and repair session recordings (session.mcap).", no_args_is_help=True

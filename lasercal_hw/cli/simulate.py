@@ -6,9 +6,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from lasercal_hw.cli.common import console, err_console, print_json
-from lasercal_hw.errors import ConfigError
-from lasercal_hw.simulate import (
+from lasercal_hw.calibration.simulate import (
     METRICS,
     PAPER_TABLE1_MEAN,
     PAPER_TABLE1_STD,
@@ -16,6 +14,8 @@ from lasercal_hw.simulate import (
     Protocol,
     monte_carlo,
 )
+from lasercal_hw.cli.common import console, err_console, print_json
+from lasercal_hw.errors import ConfigError
 
 _LABELS = {
     "x": "|e_x| mm", "y": "|e_y| mm", "z": "|e_z| mm", "xyz": "|e_xyz| mm",

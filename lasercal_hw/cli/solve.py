@@ -10,13 +10,13 @@ import numpy as np
 import typer
 from rich.table import Table
 
+from lasercal_hw.calibration.observations import load_observations
+from lasercal_hw.calibration.result import CalibrationResult
+from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.cli.common import console, parse_vector, print_json
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import RodLine
-from lasercal_hw.observations import load_observations
-from lasercal_hw.offline import solve_recording
-from lasercal_hw.result import CalibrationResult
-from lasercal_hw.solver import SolverOptions, solve
+from lasercal_hw.run.replay import solve_recording
 
 
 def solve_command(

@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.config import QualityConfig
-from lasercal_hw.result import CalibrationResult
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,13 @@ from typing import Literal
 
 import numpy as np
 
+from lasercal_hw.calibration.model import (
+    euler_zyx_axes,
+    fisher_information,
+    plane_crossing,
+    rod_lines_in_base,
+)
+from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.geometry import (
     FloatArray,
     euler_zyx_to_matrix,
@@ -38,8 +45,6 @@ from lasercal_hw.geometry import (
     matrix_to_pose,
 )
 from lasercal_hw.models import Observation, RodLine
-from lasercal_hw.solver import SolverOptions, solve
-from lasercal_hw.solver_model import euler_zyx_axes, fisher_information, plane_crossing, rod_lines_in_base
 
 PAPER_TRANSLATION_M = (0.30, 0.50, 0.20)
 PAPER_EULER_ZYX_DEG = (5.0, 7.0, 3.0)

@@ -2,8 +2,8 @@
 
 The recording holds the job, every scan and the ``observation`` events of the live run.
 The averaged scans and the background are rebuilt from the recorded scans by the same rule
-the live run used (``lasercal_hw.resume``) and solved by the same two-pass function
-(``lasercal_hw.sequencer.solve_two_pass``), so the replay reproduces the live result.
+the live run used (``lasercal_hw.run.resume``) and solved by the same two-pass function
+(``lasercal_hw.run.sequencer.solve_two_pass``), so the replay reproduces the live result.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from pathlib import Path
 
 from lasercal_hw.config import JobConfig
 from lasercal_hw.errors import CalibrationError, ConfigError
-from lasercal_hw.resume import recorded_job, resume_state
-from lasercal_hw.sequencer import TwoPassSolution, solve_two_pass
-from lasercal_hw.session import read_session
+from lasercal_hw.run.resume import recorded_job, resume_state
+from lasercal_hw.run.sequencer import TwoPassSolution, solve_two_pass
+from lasercal_hw.session.reader import read_session
 
 logger = logging.getLogger(__name__)
 

@@ -12,15 +12,15 @@ from typing import Any
 
 import numpy as np
 
+from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base
+from lasercal_hw.calibration.observations import write_observations_csv
 from lasercal_hw.config import JobConfig
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.exports import exports, static_transform_publisher_args, urdf_joint
 from lasercal_hw.geometry import rotation_angle_rad
 from lasercal_hw.models import FloatArray
-from lasercal_hw.observations import write_observations_csv
-from lasercal_hw.report import ReportData, render_report
-from lasercal_hw.sequencer import RunOutcome
-from lasercal_hw.solver_model import plane_crossing, rod_lines_in_base
+from lasercal_hw.outputs.exports import exports, static_transform_publisher_args, urdf_joint
+from lasercal_hw.outputs.report import ReportData, render_report
+from lasercal_hw.run.sequencer import RunOutcome
 
 logger = logging.getLogger(__name__)
 

@@ -3,7 +3,7 @@
 Every ``write_*`` call ends with the MCAP writer's ``flush()``: the records of that call
 form one complete (zstd-compressed) chunk that is in the operating system's hands when the
 call returns, so a process killed by SIGKILL or Ctrl-C leaves a file that
-``lasercal_hw.session.read_session`` reads up to the last call. Events are also
+``lasercal_hw.session.reader.read_session`` reads up to the last call. Events are also
 ``fsync``-ed, so the run's milestones survive a power cut too. ``close()`` writes the
 MCAP summary and footer (indexes for fast seeking in Foxglove).
 
@@ -37,8 +37,7 @@ from lasercal_hw import __version__
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import rotvec_to_quat
 from lasercal_hw.models import LaserScan
-from lasercal_hw.session import McapRecords, SessionRecording, read_session
-from lasercal_hw.session_format import (
+from lasercal_hw.session.format import (
     FORMAT_NAME,
     FORMAT_VERSION,
     FRAME_BASE,
@@ -69,6 +68,7 @@ from lasercal_hw.session_format import (
     ros_stamp,
     time_ns,
 )
+from lasercal_hw.session.reader import McapRecords, SessionRecording, read_session
 
 logger = logging.getLogger(__name__)
 

@@ -13,8 +13,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import pairwise
 
-from lasercal_hw.devices import Scanner
 from lasercal_hw.models import LaserScan
+from lasercal_hw.run.devices import Scanner
 
 
 @dataclass(frozen=True)

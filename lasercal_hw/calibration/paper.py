@@ -16,8 +16,8 @@ import numpy as np
 from scipy import sparse
 from scipy.optimize import least_squares
 
+from lasercal_hw.calibration.model import euler_zyx_axes
 from lasercal_hw.geometry import FloatArray, euler_zyx_to_matrix
-from lasercal_hw.solver_model import euler_zyx_axes
 
 TRANSLATION_BOUND_M = 2.0
 ANGLE_BOUND_RAD = 2.0 * np.pi

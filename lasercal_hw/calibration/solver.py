@@ -27,26 +27,8 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from lasercal_hw import __version__
-from lasercal_hw.errors import CalibrationError, ConfigError, DegenerateDataError
-from lasercal_hw.geometry import (
-    FloatArray,
-    invert_transform,
-    make_transform,
-    matrix_to_euler_zyx,
-    matrix_to_quat,
-    matrix_to_rotvec,
-    rotvec_to_matrix,
-)
-from lasercal_hw.models import Observation, RodLine
-from lasercal_hw.result import (
-    CalibrationResult,
-    Observability,
-    Outlier,
-    Provenance,
-    WaypointResidual,
-)
-from lasercal_hw.solver_init import linear_initial_pose
-from lasercal_hw.solver_model import (
+from lasercal_hw.calibration.initial import linear_initial_pose
+from lasercal_hw.calibration.model import (
     effective_covariance,
     euler_zyx_axes,
     fisher_information,
@@ -58,7 +40,25 @@ from lasercal_hw.solver_model import (
     whiten_residual,
     whitening,
 )
-from lasercal_hw.solver_paper import solve_paper
+from lasercal_hw.calibration.paper import solve_paper
+from lasercal_hw.calibration.result import (
+    CalibrationResult,
+    Observability,
+    Outlier,
+    Provenance,
+    WaypointResidual,
+)
+from lasercal_hw.errors import CalibrationError, ConfigError, DegenerateDataError
+from lasercal_hw.geometry import (
+    FloatArray,
+    invert_transform,
+    make_transform,
+    matrix_to_euler_zyx,
+    matrix_to_quat,
+    matrix_to_rotvec,
+    rotvec_to_matrix,
+)
+from lasercal_hw.models import Observation, RodLine
 
 logger = logging.getLogger(__name__)
 

@@ -17,9 +17,11 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from lasercal_hw.calibration.model import lines_in_scanner, plane_crossing, rod_lines_in_base
+from lasercal_hw.calibration.quality import Verdict, evaluate_gates
+from lasercal_hw.calibration.result import CalibrationResult
+from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig
-from lasercal_hw.devices import Robot, Scanner
-from lasercal_hw.dwell import DwellCapture, collect_count, collect_window
 from lasercal_hw.errors import (
     DeviceError,
     InterruptedRunError,
@@ -28,14 +30,12 @@ from lasercal_hw.errors import (
     RobotError,
     TransportError,
 )
-from lasercal_hw.extraction import RodCentre, RodNotFoundError, find_rod_centre
 from lasercal_hw.models import FloatArray, LaserScan, Observation, RodLine
-from lasercal_hw.preflight import PreflightReport, first_clear_pose, rod_end_points_m, run_preflight
-from lasercal_hw.quality import Verdict, evaluate_gates
-from lasercal_hw.result import CalibrationResult
-from lasercal_hw.scan_average import AveragedScan, average_scans
-from lasercal_hw.solver import SolverOptions, solve
-from lasercal_hw.solver_model import lines_in_scanner, plane_crossing, rod_lines_in_base
+from lasercal_hw.run.devices import Robot, Scanner
+from lasercal_hw.run.dwell import DwellCapture, collect_count, collect_window
+from lasercal_hw.run.preflight import PreflightReport, first_clear_pose, rod_end_points_m, run_preflight
+from lasercal_hw.scan.average import AveragedScan, average_scans
+from lasercal_hw.scan.extraction import RodCentre, RodNotFoundError, find_rod_centre
 
 logger = logging.getLogger(__name__)
 
@@ -121,7 +121,7 @@ class Timings:
 
 @dataclass(frozen=True)
 class ResumeState:
-    """What an interrupted run already measured (see ``lasercal_hw.resume``)."""
+    """What an interrupted run already measured (see ``lasercal_hw.run.resume``)."""
 
     measurements: list[WaypointMeasurement] = field(default_factory=list)
     skipped: list[SkippedWaypoint] = field(default_factory=list)

@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import FloatArray
-from lasercal_hw.scan_average import AveragedScan
+from lasercal_hw.scan.average import AveragedScan
 
 logger = logging.getLogger(__name__)
 

@@ -10,10 +10,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from lasercal_hw.config import WorkspaceConfig
-from lasercal_hw.devices import Robot, Scanner
 from lasercal_hw.errors import ConfigError, RobotError
 from lasercal_hw.geometry import pose_to_matrix, transform_points
 from lasercal_hw.models import FloatArray, RobotIdentity, RodLine, ScannerIdentity
+from lasercal_hw.run.devices import Robot, Scanner
 
 logger = logging.getLogger(__name__)
 

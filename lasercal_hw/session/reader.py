@@ -2,7 +2,7 @@
 
 A file whose writer was killed has no summary or footer and may end inside a record:
 ``read_session`` reads every complete record, drops the incomplete tail and reports it
-with ``SessionRecording.truncated``. Layout: ``lasercal_hw.session_format``.
+with ``SessionRecording.truncated``. Layout: ``lasercal_hw.session.format``.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, LaserScan
-from lasercal_hw.session_format import (
+from lasercal_hw.session.format import (
     TOPIC_EVENT,
     TOPIC_JOINT_STATES_EXACT,
     TOPIC_META,

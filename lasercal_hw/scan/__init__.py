@@ -1,0 +1,1 @@
+"""Scans: beam-by-beam averaging and finding the rod's centre in an averaged scan."""
