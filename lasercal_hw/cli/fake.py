@@ -16,10 +16,7 @@ from fakes.scip_server import DEFAULT_PORT, REPLY_TIMINGS, FakeScannerServer
 from lasercal_hw.cli.common import err_console, parse_vector
 from lasercal_hw.errors import ConfigError, DeviceError
 
-fake_app = typer.Typer(
-    help="Run fake devices (scanner, robot) that speak the exact wire protocols, for dry runs and CI.",
-    no_args_is_help=True,
-)
+fake_app = typer.Typer(no_args_is_help=True)  # its help is in cli/main.py, where it is listed
 
 
 def parse_listen(text: str) -> tuple[str, int]:

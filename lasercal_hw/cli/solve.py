@@ -16,7 +16,6 @@ from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.cli.common import console, parse_vector, print_json
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import RodLine
-from lasercal_hw.run.replay import solve_recording
 
 
 def solve_command(
@@ -47,6 +46,8 @@ def solve_command(
                 "--axis-origin, --axis-direction, --no-robust and --formulation apply to observations.csv; "
                 "a session.mcap is solved with the rod and settings of its recorded job"
             )
+        from lasercal_hw.run.replay import solve_recording  # its recording reader is not needed for a CSV
+
         result = solve_recording(input_path).solution.result
     else:
         rod = RodLine(origin_m=np.array(parse_vector(axis_origin, 3, "--axis-origin")), direction=direction)

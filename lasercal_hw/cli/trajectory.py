@@ -19,9 +19,7 @@ from trajectories.presets import DEFAULT_PRESET, PRESETS, get_preset, preset_nam
 from trajectories.waypoint import Waypoint
 from trajectories.waypoint_file import load_waypoints
 
-trajectory_app = typer.Typer(
-    help="List trajectory presets, show their waypoints, check waypoints offline.", no_args_is_help=True
-)
+trajectory_app = typer.Typer(no_args_is_help=True)  # its help is in cli/main.py, where it is listed
 
 _PRESET_ARG = typer.Argument(DEFAULT_PRESET, help=f"Preset name ({', '.join(preset_names())}).")
 _FILE_OPT = typer.Option(None, "--file", "-f", help="A waypoint file (.csv or .toml) instead of a preset.")
