@@ -170,11 +170,8 @@ def _observations(table: FloatArray) -> list[Observation]:
     if table.shape[1] > len(REQUIRED_COLUMNS):
         covariances = np.zeros((count, 2, 2))
         covariances[:, [0, 1], [0, 1]] = np.square(table[:, 9:11])
-    return [
-        Observation(index=int(index), tcp_pose=pose, centre_uv_m=centre, covariance_uv_m2=covariance)
-        for index, pose, centre, covariance in zip(table[:, 0].tolist(), poses, centres, covariances,
-                                                     strict=True)
-    ]
+    rows = zip(table[:, 0].tolist(), poses, centres, covariances, strict=True)
+    return [Observation(int(index), pose, centre, covariance) for index, pose, centre, covariance in rows]
 
 
 def write_observations_csv(path: str | Path, observations: Sequence[Observation]) -> None:
