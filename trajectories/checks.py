@@ -3,7 +3,7 @@ the workspace box (TCP and, when a rod is given, both rod ends).
 
 The reachability and safety tests are callables so the same check runs against the
 robot controller on a real cell (``getInverseKinematics``, ``isPoseWithinSafetyLimits``
-through the driver) and offline against ``lasercal_hw.ur5_kinematics``.
+through the driver) and offline against ``lasercal_hw.ur_kinematics``.
 """
 
 from __future__ import annotations

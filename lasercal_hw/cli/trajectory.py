@@ -13,7 +13,7 @@ from rich.table import Table
 from lasercal_hw.cli.common import console, parse_vector, print_json
 from lasercal_hw.errors import ConfigError, ExitCode
 from lasercal_hw.models import RodLine
-from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
+from lasercal_hw.ur_kinematics import inverse_kinematics_pose
 from trajectories.checks import WorkspaceBox, check_waypoints
 from trajectories.presets import DEFAULT_PRESET, PRESETS, get_preset, preset_names
 from trajectories.waypoint import Waypoint
