@@ -268,7 +268,8 @@ def inverse_kinematics_branches(
     of NaN where that branch cannot reach the pose (or does not reproduce it)."""
     flange = _flange_targets(T_base_tcp, tcp_offset_pose).reshape(-1, 4, 4)
     with np.errstate(invalid="ignore", divide="ignore"):
-        q = _wrap_pi(_candidate_solutions(flange, np.broadcast_to(theta6_if_singular_rad, len(flange)), model.dh))
+        theta6_free = np.broadcast_to(np.asarray(theta6_if_singular_rad, dtype=float), len(flange))
+        q = _wrap_pi(_candidate_solutions(flange, theta6_free, model.dh))
         finite = np.all(np.isfinite(q), axis=-1)
         reached = forward_kinematics(np.where(finite[..., None], q, 0.0), model=model)
     position_error = np.linalg.norm(reached[..., :3, 3] - flange[:, None, :3, 3], axis=-1)

@@ -77,7 +77,7 @@ def test_dh_table_is_the_published_ur5e_table() -> None:
 
 def test_models_are_chosen_by_name_or_by_the_controller() -> None:
     assert robot_model("UR5e") is UR5E and robot_model(" ur5 ") is UR5
-    with pytest.raises(ConfigError, match="unknown robot model 'ur10'.*ur5, ur5e"):
+    with pytest.raises(ConfigError, match=r"unknown robot model 'ur10'.*ur5, ur5e"):
         robot_model("ur10")
     # The dashboard says "UR5" on both generations; e-Series controllers run software 5.x.
     assert model_of_controller("UR5", (5, 11, 6, 108949)) is UR5E
