@@ -30,10 +30,15 @@ class _Strict(BaseModel):
 
 
 class RobotConfig(_Strict):
-    """Where the robot controller is (``--robot`` overrides ``host``) and how far its
-    reported TCP position may be from the real one."""
+    """Where the robot controller is (``--robot`` overrides ``host``), which model it is,
+    and how far its reported TCP position may be from the real one."""
 
     host: str | None = None
+    model: Literal["ur5", "ur5e"] | None = Field(
+        None,
+        description="robot model for offline kinematics (trajectory design and check); "
+        "unset: the connected robot's model, or ur5 offline",
+    )
     position_accuracy_mm: float = Field(
         1.0,
         ge=0.0,

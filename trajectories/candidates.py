@@ -52,8 +52,10 @@ TILT_RANGE_DEG = (10.0, 30.0)
 #: Turn of the tool about the rod around its reference heading (deg): keeps joint 6 calm.
 TOOL_TURN_SPREAD_DEG = 30.0
 #: Elbow (|theta3|) and wrist (|theta5|) kept this far from stretched, folded or flipped (rad).
-ELBOW_RANGE_RAD = (0.45, np.pi - 0.55)
+ELBOW_RANGE_RAD = (0.45, np.pi - 0.8)
 WRIST_MARGIN_RAD = 0.5
+#: Least distance (largest joint, rad) from a pose's solution to that of another branch.
+BRANCH_GAP_RAD = 1.0
 #: Posture the designs start from: UR's home (the branch every waypoint must be on).
 HOME_Q_RAD = np.array([0.0, -np.pi / 2, np.pi / 2, -np.pi / 2, -np.pi / 2, 0.0])
 #: Slack on the linearised plane shift (second-order terms at 5 cm / 5 deg).
@@ -72,6 +74,10 @@ class PoseUncertainty:
     def rotation_rad(self) -> float:
         """The rotation bound in radians."""
         return float(np.deg2rad(self.rotation_deg))
+
+
+#: The default: 5 cm and 5 degrees, a careful tape measure.
+DEFAULT_UNCERTAINTY = PoseUncertainty()
 
 
 @dataclass(frozen=True)
@@ -98,6 +104,8 @@ class CandidatePool:
     crossing_base_m: FloatArray
     crossing_range_m: FloatArray
     crossing_bearing_rad: FloatArray
+    #: +1 where the TCP is on the side the plane normal points to, -1 on the other side.
+    side: FloatArray
     drawn: int = 0
     removed: dict[str, int] = field(default_factory=dict)
 
@@ -132,7 +140,9 @@ def robust_max_range_m(rod: RodLine, uncertainty: PoseUncertainty, rules: CellRu
     return rules.max_range_m() if spare_m >= 0.0 else MIN_RANGE_M
 
 
-def _orientations(direction: FloatArray, heading: FloatArray, turn_rad: FloatArray, rod: RodLine) -> FloatArray:
+def _orientations(
+    direction: FloatArray, heading: FloatArray, turn_rad: FloatArray, rod: RodLine
+) -> FloatArray:
     """Rotations base-to-TCP (n, 3, 3) putting the rod axis along ``direction`` and the
     tool's reference axis along ``heading`` turned by ``turn_rad`` about the rod."""
     u = rod.unit_direction()
@@ -146,6 +156,16 @@ def _orientations(direction: FloatArray, heading: FloatArray, turn_rad: FloatArr
     x_base = np.cos(turn_rad)[:, None] * h + np.sin(turn_rad)[:, None] * side
     base_frame = np.stack([x_base, np.cross(direction, x_base), direction], axis=2)
     return base_frame @ tool_frame.T
+
+
+def _gap_to_other_branches(solutions: FloatArray, branch: int) -> FloatArray:
+    """Largest-joint distance (rad) from each pose's solution on ``branch`` to its nearest
+    solution on another branch (inf when there is none)."""
+    own = solutions[:, branch : branch + 1]
+    others = np.delete(solutions, branch, axis=1)
+    with np.errstate(invalid="ignore"):
+        distance = np.abs((others - own + np.pi) % (2 * np.pi) - np.pi).max(axis=2)
+    return np.nan_to_num(distance, nan=np.inf).min(axis=1)
 
 
 def _column_distance_m(scanner_xy: FloatArray, points_xy: FloatArray) -> FloatArray:
@@ -214,12 +234,18 @@ def draw_candidates(
     transforms = make_transform(tcp_rotation[index], tcp[index])
     joints = np.full((len(index), 6), np.nan)
     chunks = np.array_split(np.arange(len(index)), max(1, min(10, len(index) // 200)))
+    branch_gap = np.zeros(len(index))
     for done, chunk in enumerate(chunks, start=1):
-        joints[chunk] = inverse_kinematics_branches(transforms[chunk], model=rules.model)[:, rules.branch]
+        solutions = inverse_kinematics_branches(transforms[chunk], model=rules.model)
+        joints[chunk] = solutions[:, rules.branch]
+        branch_gap[chunk] = _gap_to_other_branches(solutions, rules.branch)
         if on_progress is not None:
             on_progress(done / len(chunks))
     reachable = np.all(np.isfinite(joints), axis=1)
     keep(reachable, f"not reachable on IK branch {rules.branch}")
+    apart = branch_gap >= BRANCH_GAP_RAD
+    keep(apart | ~reachable, "another IK branch too close (the controller might switch to it)")
+    reachable &= apart
     with np.errstate(invalid="ignore"):
         elbow = np.abs(joints[:, 2])
         wrist = np.abs(joints[:, 4])
@@ -235,6 +261,7 @@ def draw_candidates(
         crossing_base_m=crossing[index][final],
         crossing_range_m=range_m[index][final],
         crossing_bearing_rad=bearing_rad[index][final],
+        side=side[index][final],
         drawn=count,
         removed=removed,
     )

@@ -23,14 +23,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from lasercal_hw.config import JobConfig
 from lasercal_hw.geometry import FloatArray, matrix_to_pose
-from lasercal_hw.ur_kinematics import inverse_kinematics
+from lasercal_hw.ur_kinematics import URModel, inverse_kinematics
 from trajectories.candidates import (
+    DEFAULT_UNCERTAINTY,
     HOME_Q_RAD,
     CandidatePool,
     CellRules,
     PoseUncertainty,
     draw_candidates,
+    home_branch,
 )
 from trajectories.waypoint import Waypoint
 
@@ -44,8 +47,12 @@ ProgressCallback = Callable[[str, float], None]
 MIN_SEPARATION_M = 0.05
 #: Largest joint move between consecutive waypoints (rad), on every joint.
 MAX_JOINT_STEP_RAD = 1.6
+#: Joint distance within which a candidate counts as linked to a chosen one (rad).
+LINK_STEP_RAD = 0.8 * MAX_JOINT_STEP_RAD
 #: Exchange passes after the greedy pass.
 EXCHANGE_PASSES = 3
+#: Scan period of the UTM-30LX-EW (s): the scans a dwell averages.
+SCAN_PERIOD_S = 0.025
 #: Rounds of "drop the waypoint that breaks the walk and choose again".
 _WALK_ROUNDS = 12
 # Weak prior that keeps the first greedy steps invertible (1 m, 1 rad): not in the reported CRB.
@@ -87,8 +94,8 @@ class DesignRequest:
     T_base_laser: FloatArray
     rules: CellRules
     targets: Targets
-    uncertainty: PoseUncertainty = PoseUncertainty()
-    noise: NoiseModel = NoiseModel()
+    uncertainty: PoseUncertainty = DEFAULT_UNCERTAINTY
+    noise: NoiseModel = field(default_factory=NoiseModel)
     waypoints: int = 20
     seed: int = 0
     candidates: int = 6000
@@ -113,6 +120,40 @@ class Design:
     notes: list[str] = field(default_factory=list)
     candidates_kept: int = 0
     candidates_drawn: int = 0
+
+
+def request_for_job(
+    job: JobConfig,
+    T_base_laser: FloatArray,
+    model: URModel,
+    *,
+    uncertainty: PoseUncertainty = DEFAULT_UNCERTAINTY,
+    waypoints: int = 20,
+    seed: int = 0,
+) -> DesignRequest:
+    """The design request of a job: its rod, workspace box, quality gates, robot accuracy
+    and dwell, for a scanner roughly at ``T_base_laser`` and the robot ``model``."""
+    rules = CellRules(
+        rod=job.rod.rod_line(),
+        box_min_m=tuple(job.workspace.min_m),
+        box_max_m=tuple(job.workspace.max_m),
+        model=model,
+        branch=home_branch(model),
+    )
+    noise = NoiseModel(
+        robot_sigma_m=job.robot.position_accuracy_mm / 1000.0,
+        scans=max(1, round(job.dwell_s / SCAN_PERIOD_S)),
+    )
+    targets = Targets(job.quality.max_std_translation_mm, job.quality.max_std_rotation_deg)
+    return DesignRequest(
+        T_base_laser=np.asarray(T_base_laser, dtype=float),
+        rules=rules,
+        targets=targets,
+        uncertainty=uncertainty,
+        noise=noise,
+        waypoints=waypoints,
+        seed=seed,
+    )
 
 
 def std_of(information: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -152,56 +193,100 @@ def candidate_information(
     for i in range(len(pool)):
         covariance = np.eye(2)[None] * sigma[i] ** 2
         blocks[i] = information(
-            rotation, translation, origins[i : i + 1], directions[i : i + 1], covariance, request.noise.robot_sigma_m
+            rotation,
+            translation,
+            origins[i : i + 1],
+            directions[i : i + 1],
+            covariance,
+            request.noise.robot_sigma_m,
         )
     return blocks
 
 
-def _far_from(points: FloatArray, others: FloatArray) -> np.ndarray:
-    """True where a point is at least ``MIN_SEPARATION_M`` from every one of ``others``."""
-    if len(others) == 0:
-        return np.ones(len(points), dtype=bool)
-    distance = np.linalg.norm(points[:, None, :] - others[None, :, :], axis=2)
-    return np.all(distance >= MIN_SEPARATION_M, axis=1)
+def _rank_two_factors(blocks: FloatArray) -> FloatArray:
+    """``L`` (n, 6, 2) with ``L L^T`` = each block (a waypoint gives two residual rows)."""
+    values, vectors = np.linalg.eigh(blocks)
+    return vectors[:, :, -2:] * np.sqrt(np.clip(values[:, None, -2:], 0.0, None))
+
+
+def _scores_with_each(total: FloatArray, factors: FloatArray, scale: FloatArray) -> FloatArray:
+    """The objective of ``total`` plus each candidate's block, by the Woodbury identity
+    (no 6 x 6 inverse per candidate)."""
+    covariance = np.linalg.inv(total)
+    cl = np.einsum("ij,kja->kia", covariance, factors)
+    inner = np.eye(2) + np.einsum("kja,kjb->kab", factors, cl)
+    diagonal = np.diag(covariance)[None, :] - np.einsum("kia,kab,kib->ki", cl, np.linalg.inv(inner), cl)
+    return (np.sqrt(np.clip(diagonal, 0.0, None)) / scale).max(axis=1)
+
+
+@dataclass
+class _Neighbours:
+    """For every candidate, how many chosen ones are too close (crossing) and how many are
+    within a joint step (so the chosen set stays one connected region of joint space)."""
+
+    crossings_m: FloatArray
+    joints_rad: FloatArray
+    crowded: np.ndarray = field(init=False)
+    linked: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.crowded = np.zeros(len(self.crossings_m), dtype=int)
+        self.linked = np.zeros(len(self.crossings_m), dtype=int)
+
+    def near(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Candidates too close to ``index``'s crossing, and those a joint step away."""
+        close = np.linalg.norm(self.crossings_m - self.crossings_m[index], axis=1) < MIN_SEPARATION_M
+        difference = np.abs((self.joints_rad - self.joints_rad[index] + np.pi) % (2 * np.pi) - np.pi)
+        return close, difference.max(axis=1) <= LINK_STEP_RAD
+
+    def add(self, index: int, sign: int = 1) -> None:
+        """Count ``index`` as chosen (``sign`` -1: no longer chosen)."""
+        close, link = self.near(index)
+        self.crowded += sign * close
+        self.linked += sign * link
+
+    def allowed(self, chosen: int) -> np.ndarray:
+        """Candidates that may join ``chosen`` others: apart from all, linked to one."""
+        return (self.crowded == 0) & ((self.linked > 0) | (chosen == 0))
 
 
 def select(
     blocks: FloatArray,
-    crossings_m: FloatArray,
+    pool: CandidatePool,
     count: int,
     scale: FloatArray,
     prior: FloatArray,
-    visited_m: FloatArray,
-    excluded: np.ndarray,
+    usable: np.ndarray,
 ) -> list[int]:
-    """Greedy choice of ``count`` candidates, then exchange passes; indices into ``blocks``."""
-    base = prior + _REGULARISER
-    usable = ~excluded & _far_from(crossings_m, visited_m)
+    """Greedy choice of ``count`` candidates, then exchange passes; indices into the pool."""
+    factors = _rank_two_factors(blocks)
+    neighbours = _Neighbours(pool.crossing_base_m, pool.joints_rad)
     chosen: list[int] = []
-    total = base.copy()
+    total = prior + _REGULARISER
     for _ in range(count):
-        options = np.flatnonzero(usable & _far_from(crossings_m, crossings_m[chosen]))
+        options = np.flatnonzero(usable & neighbours.allowed(len(chosen)))
         if options.size == 0:
             break
-        best = int(options[np.argmin(_scores(total + blocks[options], scale))])
+        best = int(options[np.argmin(_scores_with_each(total, factors[options], scale))])
         chosen.append(best)
-        total += blocks[best]
+        neighbours.add(best)
+        total = total + blocks[best]
     for _ in range(EXCHANGE_PASSES):
         improved = False
         for position in range(len(chosen)):
             current = float(_scores(total[None], scale)[0])
-            others = chosen[:position] + chosen[position + 1 :]
-            without = total - blocks[chosen[position]]
-            allowed = usable & _far_from(crossings_m, crossings_m[others])
+            leaving = chosen[position]
+            neighbours.add(leaving, -1)
+            without = total - blocks[leaving]
+            allowed = usable & neighbours.allowed(len(chosen) - 1)
             allowed[chosen] = False
             options = np.flatnonzero(allowed)
-            if options.size == 0:
-                continue
-            scores = _scores(without + blocks[options], scale)
-            if scores.min() < current * (1.0 - 1e-6):
+            scores = _scores_with_each(without, factors[options], scale) if options.size else np.zeros(0)
+            if scores.size and scores.min() < current * (1.0 - 1e-6):
                 chosen[position] = int(options[np.argmin(scores)])
-                total = without + blocks[chosen[position]]
                 improved = True
+            neighbours.add(chosen[position])
+            total = without + blocks[chosen[position]]
         if not improved:
             break
     return chosen
@@ -232,8 +317,10 @@ def visiting_order(joints: FloatArray, start_q: FloatArray) -> list[int]:
         improved = False
         for i in range(1, n - 1):
             for j in range(i + 1, n):
-                before = distance[order[i - 1], order[i]] + (distance[order[j], order[j + 1]] if j + 1 < n else 0.0)
-                after = distance[order[i - 1], order[j]] + (distance[order[i], order[j + 1]] if j + 1 < n else 0.0)
+                tail_before = distance[order[j], order[j + 1]] if j + 1 < n else 0.0
+                tail_after = distance[order[i], order[j + 1]] if j + 1 < n else 0.0
+                before = distance[order[i - 1], order[i]] + tail_before
+                after = distance[order[i - 1], order[j]] + tail_after
                 if after < before - 1e-9:
                     order[i : j + 1] = order[i : j + 1][::-1]
                     improved = True
@@ -268,7 +355,7 @@ def describe_weakness(
     except np.linalg.LinAlgError:
         covariance = np.linalg.pinv(information)
     normalised = covariance / np.outer(scale, scale)
-    values, vectors = np.linalg.eigh(normalised)
+    _, vectors = np.linalg.eigh(normalised)
     vector = vectors[:, -1] / np.abs(vectors[:, -1]).max()
     parts = [_AXES[k] for k in np.argsort(-np.abs(vector)) if abs(vector[k]) >= 0.35]
     worst = (
@@ -289,6 +376,36 @@ def describe_weakness(
     )
 
 
+def _search_one_side(
+    blocks: FloatArray,
+    pool: CandidatePool,
+    request: DesignRequest,
+    prior: FloatArray,
+    usable: np.ndarray,
+    on_progress: Callable[[float], None] | None,
+) -> tuple[list[int], FloatArray, bool]:
+    """Choose and order waypoints among ``usable``; a waypoint that breaks the walk is
+    dropped and the choice repeated. Returns the chosen indices in visiting order, the
+    joints walked, and whether the whole choice could be walked."""
+    usable = usable.copy()
+    chosen: list[int] = []
+    walked = np.zeros((0, 6))
+    for round_index in range(_WALK_ROUNDS):
+        if on_progress is not None:
+            on_progress(round_index / _WALK_ROUNDS)
+        chosen = select(blocks, pool, request.waypoints, _scale(request.targets), prior, usable)
+        order = visiting_order(pool.joints_rad[chosen], HOME_Q_RAD)
+        chosen = [chosen[k] for k in order]
+        start = HOME_Q_RAD if not chosen else pool.joints_rad[chosen[0]]
+        failed_at, walked = walk_problem(
+            pool.T_base_tcp[chosen], pool.joints_rad[chosen], request.rules, start
+        )
+        if failed_at is None:
+            return chosen, walked, True
+        usable[chosen[failed_at]] = False
+    return chosen[: len(walked)], walked, False
+
+
 def design(
     request: DesignRequest, information: InformationModel, on_progress: ProgressCallback | None = None
 ) -> Design:
@@ -307,25 +424,27 @@ def design(
         on_progress("information", 0.0)
     blocks = candidate_information(pool, request, information)
     prior = np.zeros((6, 6)) if request.prior_information is None else np.asarray(request.prior_information)
-    visited = np.zeros((0, 3)) if request.visited_crossings_m is None else np.asarray(request.visited_crossings_m)
+    visited = (
+        np.zeros((0, 3)) if request.visited_crossings_m is None else np.asarray(request.visited_crossings_m)
+    )
     scale = _scale(request.targets)
     excluded = np.zeros(len(pool), dtype=bool)
+    if len(visited):
+        distance = np.linalg.norm(pool.crossing_base_m[:, None, :] - visited[None, :, :], axis=2)
+        excluded |= np.any(distance < MIN_SEPARATION_M, axis=1)
     notes: list[str] = []
-    chosen: list[int] = []
-    walked = np.zeros((0, 6))
-    for round_index in range(_WALK_ROUNDS):
-        if on_progress is not None:
-            on_progress("search", round_index / _WALK_ROUNDS)
-        chosen = select(blocks, pool.crossing_base_m, request.waypoints, scale, prior, visited, excluded)
-        order = visiting_order(pool.joints_rad[chosen], HOME_Q_RAD)
-        chosen = [chosen[k] for k in order]
-        start = HOME_Q_RAD if not chosen else pool.joints_rad[chosen[0]]
-        failed_at, walked = walk_problem(pool.T_base_tcp[chosen], pool.joints_rad[chosen], rules, start)
-        if failed_at is None:
-            break
-        excluded[chosen[failed_at]] = True
-    else:
-        chosen = chosen[: len(walked)]
+    best: tuple[float, list[int], FloatArray, bool] | None = None
+    sides = [side for side in (1.0, -1.0) if np.any(~excluded & (pool.side == side))]
+    for k, side in enumerate(sides):
+        chosen, walked, complete = _search_one_side(
+            blocks, pool, request, prior, ~excluded & (pool.side == side),
+            None if on_progress is None else (lambda f, k=k: on_progress("search", (k + f) / len(sides))),
+        )
+        score = float(_scores((prior + _REGULARISER + blocks[chosen].sum(axis=0))[None], scale)[0])
+        if best is None or (len(chosen), -score) > (len(best[1]), -best[0]):
+            best = (score, chosen, walked, complete)
+    chosen, walked, complete = ([], np.zeros((0, 6)), True) if best is None else best[1:]
+    if not complete:
         notes.append("the visiting order still broke the joint-jump rule; the design was cut short there")
     if on_progress is not None:
         on_progress("search", 1.0)
@@ -336,7 +455,8 @@ def design(
         )
     total = prior + blocks[chosen].sum(axis=0)
     std_t, std_r = std_of(total)
-    score = max(float(std_t.max()) / request.targets.translation_mm, float(std_r.max()) / request.targets.rotation_deg)
+    targets = request.targets
+    score = max(float(std_t.max()) / targets.translation_mm, float(std_r.max()) / targets.rotation_deg)
     weak = describe_weakness(total, request.targets, pool, std_t, std_r) if score > 1.0 else None
     poses = matrix_to_pose(pool.T_base_tcp[chosen]) if chosen else np.zeros((0, 6))
     waypoints = [
