@@ -223,7 +223,9 @@ def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeSt
         job = with_overrides(recorded, devices)  # the recording decides all but where the devices are
         return job, waypoints, request.resume.parent, resume_state(previous), False
     job = with_overrides(request.job, devices)
-    waypoints = request.waypoints if request.waypoints is not None else job_waypoints(job)
+    waypoints = (
+        request.waypoints if request.waypoints is not None else job_waypoints(job, live=not request.dry_run)
+    )
     out_dir = request.out_dir
     created = not out_dir.exists()
     try:
