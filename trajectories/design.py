@@ -349,6 +349,10 @@ def describe_weakness(
     information: FloatArray, targets: Targets, pool: CandidatePool, std_t: FloatArray, std_r: FloatArray
 ) -> str:
     """Which combination of parameters the design leaves weakest, and what limited it."""
+    removed = sorted(pool.removed.items(), key=lambda item: -item[1])[:2]
+    limits = "; ".join(f"{rule}: {count}" for rule, count in removed if count)
+    if len(pool) == 0:
+        return f"no pose passes every rule (of {pool.drawn} drawn, most removed by {limits})"
     scale = _scale(targets)
     try:
         covariance = np.linalg.inv(information)
@@ -363,11 +367,7 @@ def describe_weakness(
         if std_t.max() / targets.translation_mm >= std_r.max() / targets.rotation_deg
         else f"rotation std {std_r.max():.3f} deg (target {targets.rotation_deg:g} deg)"
     )
-    if len(pool) == 0:
-        return f"{' with '.join(parts)} stays weak ({worst}): no drawn pose passes every rule"
     bearings = np.degrees(pool.crossing_bearing_rad)
-    removed = sorted(pool.removed.items(), key=lambda item: -item[1])[:2]
-    limits = "; ".join(f"{rule}: {count}" for rule, count in removed if count)
     return (
         f"{' with '.join(parts)} stays weak ({worst}): the arm reaches the scan plane only at bearings "
         f"{bearings.min():+.0f}..{bearings.max():+.0f} deg and {pool.crossing_range_m.min():.2f}-"
