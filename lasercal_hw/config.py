@@ -113,6 +113,14 @@ class TrajectoryConfig(_Strict):
     preset: str | None = None
     parameters: dict[str, float | int | str | bool | list[float]] = Field(default_factory=dict)
     waypoints_file: Path | None = None
+    adaptive: bool = Field(
+        False, description="design a short robust first part from scanner.nominal, solve, design the rest"
+    )
+    first_waypoints: int = Field(8, ge=6, le=100, description="adaptive: waypoints of the first design")
+    design_waypoints: int = Field(20, ge=6, le=200, description="adaptive: waypoints in all")
+    pose_uncertainty: tuple[float, float] = Field(
+        (0.05, 5.0), description="adaptive: how far off scanner.nominal may be (m, deg)"
+    )
 
     @model_validator(mode="before")
     @classmethod
@@ -127,6 +135,10 @@ class TrajectoryConfig(_Strict):
             raise ValueError("give either preset or waypoints_file, not both")
         if self.waypoints_file is not None and self.parameters:
             raise ValueError("parameters apply to a preset, not to a waypoints_file")
+        if self.adaptive and self.waypoints_file is not None:
+            raise ValueError("an adaptive run designs its own waypoints: leave out waypoints_file")
+        if self.adaptive and self.first_waypoints >= self.design_waypoints:
+            raise ValueError("first_waypoints must be fewer than design_waypoints")
         return self
 
     @property

@@ -35,6 +35,7 @@ from trajectories.candidates import (
     draw_candidates,
     home_branch,
 )
+from trajectories.plane_crossing import rod_plane_crossings
 from trajectories.waypoint import Waypoint
 
 #: ``information(rotation, translation_m, origins, directions, covariance_uv_m2, robot_sigma_m)``
@@ -179,18 +180,19 @@ def _scores(information: FloatArray, scale: FloatArray) -> FloatArray:
     return (np.sqrt(np.clip(diagonal, 0.0, None)) / scale).max(axis=-1)
 
 
-def candidate_information(
-    pool: CandidatePool, request: DesignRequest, information: InformationModel
+def information_blocks(
+    T_base_tcp: FloatArray, range_m: FloatArray, request: DesignRequest, information: InformationModel
 ) -> FloatArray:
-    """Fisher information block (n, 6, 6) of each candidate at the rough scanner pose."""
+    """Fisher information block (n, 6, 6) of each TCP pose at the request's scanner pose,
+    the crossing ``range_m`` setting its centre noise."""
     rod = request.rules.rod
     rotation, translation = request.T_base_laser[:3, :3], request.T_base_laser[:3, 3]
-    tcp_rotation = pool.T_base_tcp[:, :3, :3]
-    origins = tcp_rotation @ np.asarray(rod.origin_m, dtype=float) + pool.T_base_tcp[:, :3, 3]
+    tcp_rotation = T_base_tcp[:, :3, :3]
+    origins = tcp_rotation @ np.asarray(rod.origin_m, dtype=float) + T_base_tcp[:, :3, 3]
     directions = tcp_rotation @ rod.unit_direction()
-    sigma = request.noise.centre_sigma_of(pool.crossing_range_m, rod.radius_m)
-    blocks = np.empty((len(pool), 6, 6))
-    for i in range(len(pool)):
+    sigma = request.noise.centre_sigma_of(range_m, rod.radius_m)
+    blocks = np.empty((len(T_base_tcp), 6, 6))
+    for i in range(len(T_base_tcp)):
         covariance = np.eye(2)[None] * sigma[i] ** 2
         blocks[i] = information(
             rotation,
@@ -201,6 +203,16 @@ def candidate_information(
             request.noise.robot_sigma_m,
         )
     return blocks
+
+
+def visited_crossings(
+    T_base_tcp: FloatArray, request: DesignRequest
+) -> tuple[FloatArray, FloatArray]:
+    """Where the rod held at each TCP pose crosses the request's scan plane: base-frame
+    points (n, 3) and ranges from the scanner (n,)."""
+    crossings = rod_plane_crossings(T_base_tcp, request.rules.rod, request.T_base_laser)
+    points = np.column_stack([crossings.uv_m, np.zeros(len(crossings.uv_m)), np.ones(len(crossings.uv_m))])
+    return (points @ request.T_base_laser.T)[:, :3], crossings.range_m
 
 
 def _rank_two_factors(blocks: FloatArray) -> FloatArray:
@@ -422,7 +434,7 @@ def design(
     )
     if on_progress is not None:
         on_progress("information", 0.0)
-    blocks = candidate_information(pool, request, information)
+    blocks = information_blocks(pool.T_base_tcp, pool.crossing_range_m, request, information)
     prior = np.zeros((6, 6)) if request.prior_information is None else np.asarray(request.prior_information)
     visited = (
         np.zeros((0, 3)) if request.visited_crossings_m is None else np.asarray(request.visited_crossings_m)

@@ -46,7 +46,12 @@ def require_scanner_pose(job: JobConfig) -> None:
 
 def job_waypoints(job: JobConfig, *, live: bool = False) -> FloatArray:
     """The job's waypoints as UR pose vectors (N, 6); ``live``: for a run on a real cell,
-    which needs the job to say where the scanner is (``require_scanner_pose``)."""
+    which needs the job to say where the scanner is (``require_scanner_pose``). An adaptive
+    job's are those of its first design (``lasercal_hw.run.adaptive``)."""
+    if job.trajectory.adaptive:  # the first design; the rest follows from its estimate
+        from lasercal_hw.run.adaptive import first_design
+
+        return matrix_to_pose(waypoint_matrices(first_design(job).waypoints))
     if live:
         require_scanner_pose(job)
     return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))
