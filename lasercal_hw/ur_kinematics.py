@@ -70,32 +70,23 @@ class URModel:
     tool_speed_limit_m_s: float
 
 
-#: UR5 CB3: +-360 deg on every joint, 180 deg/s on every joint (technical specification;
-#: ur_description's joint_limits.yaml uses the same values), 1 m/s at the TCP.
-UR5 = URModel(
-    name="ur5",
-    dh=DHParameters(
-        d_m=(0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823),
-        a_m=(0.0, -0.425, -0.39225, 0.0, 0.0, 0.0),
-        alpha_rad=_UR_ALPHA_RAD,
-    ),
-    joint_limits_rad=np.array([[-TWO_PI, TWO_PI]] * 6),
-    joint_speed_limits_rad_s=np.full(6, np.pi),
-    tool_speed_limit_m_s=1.0,
-)
+def _ur_arm(name: str, d_m: tuple[float, ...], a_m: tuple[float, ...]) -> URModel:
+    """A UR arm with the limits the UR5 and the UR5e share (their technical specifications;
+    ur_description's joint_limits.yaml uses the same values): +-360 deg and 180 deg/s on
+    every joint, 1 m/s at the TCP."""
+    return URModel(
+        name=name,
+        dh=DHParameters(d_m=d_m, a_m=a_m, alpha_rad=_UR_ALPHA_RAD),  # type: ignore[arg-type]
+        joint_limits_rad=np.array([[-TWO_PI, TWO_PI]] * 6),
+        joint_speed_limits_rad_s=np.full(6, np.pi),
+        tool_speed_limit_m_s=1.0,
+    )
 
-#: UR5e: the same limits as the UR5 (+-360 deg and 180 deg/s per joint, 1 m/s at the TCP).
-UR5E = URModel(
-    name="ur5e",
-    dh=DHParameters(
-        d_m=(0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996),
-        a_m=(0.0, -0.425, -0.3922, 0.0, 0.0, 0.0),
-        alpha_rad=_UR_ALPHA_RAD,
-    ),
-    joint_limits_rad=np.array([[-TWO_PI, TWO_PI]] * 6),
-    joint_speed_limits_rad_s=np.full(6, np.pi),
-    tool_speed_limit_m_s=1.0,
-)
+
+#: UR5 CB3.
+UR5 = _ur_arm("ur5", (0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823), (0.0, -0.425, -0.39225, 0.0, 0.0, 0.0))
+#: UR5e.
+UR5E = _ur_arm("ur5e", (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996), (0.0, -0.425, -0.3922, 0.0, 0.0, 0.0))
 
 #: The models this module knows, by the name a job's ``robot.model`` uses.
 MODELS: dict[str, URModel] = {model.name: model for model in (UR5, UR5E)}

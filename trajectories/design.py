@@ -374,6 +374,8 @@ def describe_weakness(
     _, vectors = np.linalg.eigh(normalised)
     vector = vectors[:, -1] / np.abs(vectors[:, -1]).max()
     parts = [_AXES[k] for k in np.argsort(-np.abs(vector)) if abs(vector[k]) >= 0.35]
+    direction = parts[0] if len(parts) == 1 else ", ".join(parts[:-1]) + " and " + parts[-1]
+    verb = "stays" if len(parts) == 1 else "together stay"
     worst = (
         f"translation std {std_t.max():.2f} mm (target {targets.translation_mm:g} mm)"
         if std_t.max() / targets.translation_mm >= std_r.max() / targets.rotation_deg
@@ -381,7 +383,7 @@ def describe_weakness(
     )
     bearings = np.degrees(pool.crossing_bearing_rad)
     return (
-        f"{' with '.join(parts)} stays weak ({worst}): the arm reaches the scan plane only at bearings "
+        f"{direction} {verb} weak ({worst}): the arm reaches the scan plane only at bearings "
         f"{bearings.min():+.0f}..{bearings.max():+.0f} deg and {pool.crossing_range_m.min():.2f}-"
         f"{pool.crossing_range_m.max():.2f} m from the scanner ({len(pool)} of {pool.drawn} drawn poses pass "
         f"every rule; most removed by {limits}), a short lever for that direction"
