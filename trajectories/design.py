@@ -8,8 +8,9 @@ greedy pass adds the candidate that lowers the objective most, exchange passes s
 chosen waypoint for a better one until none helps. Chosen crossings keep
 ``MIN_SEPARATION_M`` apart (the robot's error is smooth, so neighbours would not add
 independent information). The visiting order is a nearest-neighbour tour in joint space
-improved by 2-opt, walked from UR's home posture with the nearest IK solution: every step
-must stay on the design's branch and below ``MAX_JOINT_STEP_RAD`` on every joint.
+from the waypoint nearest the start posture (UR's home unless given), improved by 2-opt,
+then walked with the nearest IK solution: every step must stay on the design's branch (that
+of the home posture) and below ``MAX_JOINT_STEP_RAD`` on every joint.
 
 The information model (``lasercal_hw.calibration.model.fisher_information``) is passed in,
 as the IK is to ``trajectories.checks``: this package depends only on the ground of
@@ -105,6 +106,8 @@ class DesignRequest:
     #: Crossings already visited, kept ``MIN_SEPARATION_M`` away from.
     visited_crossings_m: FloatArray | None = None
     first_index: int = 0
+    #: Joints the arm starts from: the tour begins at the waypoint nearest them (home if None).
+    start_q_rad: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -408,7 +411,8 @@ def _search_one_side(
         if on_progress is not None:
             on_progress(round_index / _WALK_ROUNDS)
         chosen = select(blocks, pool, request.waypoints, _scale(request.targets), prior, usable)
-        order = visiting_order(pool.joints_rad[chosen], HOME_Q_RAD)
+        start_q = HOME_Q_RAD if request.start_q_rad is None else np.asarray(request.start_q_rad)
+        order = visiting_order(pool.joints_rad[chosen], start_q)
         chosen = [chosen[k] for k in order]
         start = HOME_Q_RAD if not chosen else pool.joints_rad[chosen[0]]
         failed_at, walked = walk_problem(

@@ -29,7 +29,7 @@ from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
 from lasercal_hw.run.resume import DESIGN_EVENT
 from lasercal_hw.run.sequencer import ProgressCallback, ResumeState, RunOutcome, RunRecorder, Sequencer
-from lasercal_hw.ur_kinematics import URModel, robot_model
+from lasercal_hw.ur_kinematics import URModel, inverse_kinematics_branches, robot_model
 from trajectories.candidates import PoseUncertainty
 from trajectories.design import Design, design, information_blocks, request_for_job, visited_crossings
 
@@ -74,7 +74,7 @@ def first_design(job: JobConfig) -> Design:
 def second_design(job: JobConfig, estimate: FloatArray, estimate_std: tuple[float, float],
                   measured_poses: FloatArray, first_index: int) -> Design:
     """The rest of the waypoints, designed around ``estimate`` (``T_base_laser``) together
-    with the information of the waypoints already measured."""
+    with the information of the waypoints already measured, starting near the last of them."""
     std_mm, std_deg = estimate_std
     uncertainty = PoseUncertainty(
         translation_m=max(LEAST_UNCERTAINTY.translation_m, ESTIMATE_SIGMAS * std_mm / 1000.0),
@@ -91,8 +91,13 @@ def second_design(job: JobConfig, estimate: FloatArray, estimate_std: tuple[floa
     measured = pose_to_matrix(np.asarray(measured_poses, dtype=float).reshape(-1, 6))
     points_m, range_m = visited_crossings(measured, request)
     prior = information_blocks(measured, range_m, request, fisher_information).sum(axis=0)
+    last_q = inverse_kinematics_branches(measured[-1:], model=request.rules.model)[0, request.rules.branch]
     request = dataclasses.replace(
-        request, prior_information=prior, visited_crossings_m=points_m, first_index=first_index
+        request,
+        prior_information=prior,
+        visited_crossings_m=points_m,
+        first_index=first_index,
+        start_q_rad=last_q if np.all(np.isfinite(last_q)) else None,
     )
     return design(request, fisher_information)
 
