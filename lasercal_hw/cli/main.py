@@ -51,7 +51,7 @@ class _Commands(LazyGroup):
         ),
         "trajectory": LazyCommand(
             "lasercal_hw.cli.trajectory:trajectory_app",
-            "List trajectory presets, show their waypoints, check waypoints offline.",
+            "List trajectory presets, show their waypoints, check waypoints offline, design them for a cell.",
         ),
         "robot": LazyCommand(
             "lasercal_hw.cli.robot:robot_app",

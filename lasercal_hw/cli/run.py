@@ -178,6 +178,7 @@ def run_command(
     dry_run: DryRunOption = False,
     resume: ResumeOption = None,
     scene: SceneOption = None,
+    adaptive: Annotated[bool, typer.Option("--adaptive", help="Design waypoints as the run goes.")] = False,
 ) -> None:
     """Run a calibration: preflight, background, waypoints, solve, quality gates, outputs.
 
@@ -191,7 +192,8 @@ def run_command(
     ui = err_console if as_json else console
     if resume is not None and (config is not None or dwell is not None or out is not None):
         raise ConfigError("--resume continues the recorded job: leave out --config, --dwell and --out")
-    job = with_overrides(load_job(config), {"dwell_s": dwell, "output.dir": out})
+    flags = {"trajectory.adaptive": True} if adaptive else {}
+    job = with_overrides(load_job(config), {"dwell_s": dwell, "output.dir": out} | flags)
     request = RunRequest(
         job=job,
         out_dir=job.output.dir or default_out_dir(),

@@ -24,6 +24,7 @@ from lasercal_hw import __version__
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import ConfigError, LasercalError
 from lasercal_hw.models import FloatArray
+from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
 from lasercal_hw.run.events import EventSink, RunEvent
@@ -191,6 +192,11 @@ def calibrate(
                 cancel=cancel,
             )
             outcome = sequencer.run()
+            if job.trajectory.adaptive:  # design the rest from this estimate, measure it, solve all
+                progress = sink.progress_listener(job.rod.radius_m)
+                outcome = run_second_design(
+                    robot, scanner, recorder, job, waypoints, outcome, on_progress=progress, cancel=cancel
+                )
             sink.emit("stage", "writing the outputs", stage="outputs")
             files = {"session": session_path} | write_outputs(
                 out_dir, outcome, job, ground_truth=ground_truth, title=request.title
@@ -223,7 +229,9 @@ def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeSt
         job = with_overrides(recorded, devices)  # the recording decides all but where the devices are
         return job, waypoints, request.resume.parent, resume_state(previous), False
     job = with_overrides(request.job, devices)
-    waypoints = request.waypoints if request.waypoints is not None else job_waypoints(job)
+    waypoints = (
+        request.waypoints if request.waypoints is not None else job_waypoints(job, live=not request.dry_run)
+    )
     out_dir = request.out_dir
     created = not out_dir.exists()
     try:
