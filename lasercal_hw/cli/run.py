@@ -27,7 +27,7 @@ from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, 
 OVERHEAD_TARGET = 0.10
 
 
-_LINE_COLOURS = {"centre": "green", "skip": "yellow", "warning": "yellow", "stopped": "default"}
+_LINE_COLOURS = {"centre": "green", "skip": "yellow", "warning": "yellow"}
 
 
 class ProgressView:
@@ -83,6 +83,8 @@ class ProgressView:
             self._progress.console.print(f"[{_LINE_COLOURS[event.kind]}]{escape(event.message)}[/]")
         elif event.kind == "stage":
             self._progress.console.print(escape(event.message))
+        elif event.kind == "stopped":  # where the recording is: with the error, on stderr
+            err_console.print(escape(event.message))
 
 
 @contextlib.contextmanager
