@@ -111,14 +111,21 @@ def test_parameter_values_may_contain_colons_and_semicolons(caplog: pytest.LogCa
     assert parse_time_field("4991D0") == 0x4991D0
 
 
-def test_parameter_checksum_mismatch_is_logged_not_raised(caplog: pytest.LogCaptureFixture) -> None:
+def test_parameter_checksum_variants_are_accepted_and_a_mismatch_names_the_line() -> None:
     with_semicolon = b"PROT:SCIP 2.0;" + checksum(b"PROT:SCIP 2.0;")
-    parsed = parse_parameter_lines([b"SERI:00903971;X", with_semicolon, b"garbage"])
-    assert parsed == {"SERI": "00903971", "PROT": "SCIP 2.0"}
-    messages = " ".join(r.getMessage() for r in caplog.records)
-    assert "SERI" in messages and "checksum mismatch" in messages
-    assert "PROT" not in messages  # the ';'-included variant is accepted silently
-    assert "garbage" in messages
+    commented = b"SCSP:Initial(600[rpm])<-Default setting by user;A"
+    parsed = parse_parameter_lines([with_semicolon, commented], "II")
+    assert parsed["PROT"] == "SCIP 2.0" and parsed["SCSP"].startswith("Initial(600[rpm])")
+    with pytest.raises(ChecksumError, match=r"PP reply line 'AFRT:560;0' fails its checksum"):
+        parse_parameter_lines([b"AMAX:1080;Z", b"AFRT:560;0"], "PP")
+
+
+@pytest.mark.parametrize(
+    ("line", "problem"), [(b"SERI:00903971", "no ';' \\+ checksum"), (b"garbage", "no key")]
+)
+def test_parameter_line_without_checksum_or_key_is_an_error(line: bytes, problem: str) -> None:
+    with pytest.raises(ChecksumError, match=problem):
+        parse_parameter_lines([line], "VV")
 
 
 def test_time_field_rejects_other_widths() -> None:

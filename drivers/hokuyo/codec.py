@@ -286,29 +286,36 @@ def _parameter_checksum_ok(text: bytes, received: bytes) -> bool:
     return any(checksum(c) == received for c in candidates)
 
 
-def parse_parameter_lines(lines: Iterable[bytes]) -> dict[str, str]:
-    """Parse VV/PP/II lines into ``{key: value}``.
+def parse_parameter_lines(lines: Iterable[bytes], command: str = "parameter") -> dict[str, str]:
+    """Parse the VV/PP/II lines of a ``command`` reply into ``{key: value}``.
 
     Key = text before the first ``:``; checksum = last char; the ``;`` before it is the
-    separator; the value may itself contain ``:`` and ``;``. A checksum mismatch is
-    logged, not raised (real firmware differs, scip2.md 2.3, P-4); a line without ``:``
-    is logged and skipped."""
+    separator; the value may itself contain ``:`` and ``;`` (scip2.md 2.3, P-4). The
+    checksum may cover the ``;`` or stop before a ``<-`` comment (real firmware differs).
+    A line whose checksum is wrong or missing, or that has no key, raises
+    ``ChecksumError`` naming the line: these values decide every scan angle, so they
+    are checked like scan data."""
     result: dict[str, str] = {}
     for raw in lines:
         colon = raw.find(b":")
         if colon <= 0:
-            logger.warning("skipping parameter line without a key: %r", raw)
-            continue
-        if len(raw) >= colon + 3 and raw[-2:-1] == b";":
-            text, received = raw[:-2], raw[-1:]
-            if not _parameter_checksum_ok(text, received):
-                logger.warning("parameter line %r: checksum mismatch (kept)", raw)
-        else:
-            text = raw
-            logger.warning("parameter line %r has no ';' + checksum (kept)", raw)
+            raise ChecksumError(f"{command} reply line {_shown(raw)} has no key (no ':')")
+        if len(raw) < colon + 3 or raw[-2:-1] != b";":
+            raise ChecksumError(f"{command} reply line {_shown(raw)} has no ';' + checksum")
+        text, received = raw[:-2], raw[-1:]
+        if not _parameter_checksum_ok(text, received):
+            raise ChecksumError(
+                f"{command} reply line {_shown(raw)} fails its checksum "
+                f"(received {_shown(received)}, expected {_shown(checksum(text))})"
+            )
         key = text[:colon].decode("ascii", errors="replace")
         result[key] = text[colon + 1 :].decode("ascii", errors="replace")
     return result
+
+
+def _shown(data: bytes) -> str:
+    """``data`` quoted for a one-line message (non-ASCII bytes escaped)."""
+    return repr(data.decode("ascii", errors="backslashreplace"))
 
 
 def parse_time_field(value: str) -> int:

@@ -81,8 +81,65 @@ class ScannerParameters:
         )
 
 
+@dataclass(frozen=True)
+class StepLayout:
+    """The step numbers a scanner model's PP reply must carry (ARES, AMIN, AMAX, AFRT)."""
+
+    steps_per_revolution: int
+    first_step: int
+    last_step: int
+    front_step: int
+
+
+KNOWN_LAYOUTS: dict[str, StepLayout] = {
+    "UTM-30LX": StepLayout(1440, 0, 1080, 540),
+    "URG-04LX": StepLayout(1024, 44, 725, 384),
+}
+"""Data sheet values by PP ``MODL`` prefix (UTM-30LX and UTM-30LX-EW share theirs;
+scip_captures.md A.1, B.2, B.3)."""
+
+
+def known_layout(model: str) -> tuple[str, StepLayout] | None:
+    """The known layout whose model name ``model`` starts with (longest match), if any."""
+    matches = [name for name in KNOWN_LAYOUTS if model.startswith(name)]
+    if not matches:
+        return None
+    name = max(matches, key=len)
+    return name, KNOWN_LAYOUTS[name]
+
+
+def check_plausible(parameters: ScannerParameters) -> None:
+    """``ProtocolError`` when the PP values cannot describe a real scanner, or differ from
+    the known values of its model: a wrong front step turns every angle (issue 14)."""
+    p = parameters
+    if not (0 <= p.first_step <= p.front_step <= p.last_step < p.steps_per_revolution):
+        raise ProtocolError(
+            f"PP steps are impossible: AMIN {p.first_step} <= AFRT {p.front_step} <= AMAX {p.last_step} "
+            f"< ARES {p.steps_per_revolution} does not hold; the reply is corrupted"
+        )
+    if not 0 <= p.min_range_mm < p.max_range_mm:
+        raise ProtocolError(f"PP ranges are impossible: DMIN {p.min_range_mm} >= DMAX {p.max_range_mm}")
+    known = known_layout(p.model)
+    if known is None:
+        return
+    name, layout = known
+    found = StepLayout(p.steps_per_revolution, p.first_step, p.last_step, p.front_step)
+    keys = {"steps_per_revolution": "ARES", "first_step": "AMIN", "last_step": "AMAX", "front_step": "AFRT"}
+    differ = [
+        f"{key} {getattr(found, field_name)} (a {name} has {getattr(layout, field_name)})"
+        for field_name, key in keys.items()
+        if getattr(found, field_name) != getattr(layout, field_name)
+    ]
+    if differ:
+        raise ProtocolError(
+            f"PP of a {p.model} reports {', '.join(differ)}; every scan angle would be wrong, so the "
+            "scanner is refused: check the link for corruption and that MODL names the real model"
+        )
+
+
 def parse_parameters(params: dict[str, str]) -> ScannerParameters:
-    """Typed PP reply; a missing or non-numeric key is a ``ProtocolError``."""
+    """Typed PP reply; a missing or non-numeric key, or implausible values, are a
+    ``ProtocolError`` (``check_plausible``)."""
     parameters = ScannerParameters(
         model=_required(params, "MODL", "PP"),
         min_range_mm=_integer(params, "DMIN"),
@@ -94,12 +151,9 @@ def parse_parameters(params: dict[str, str]) -> ScannerParameters:
         motor_speed_rpm=_integer(params, "SCAN"),
         raw=dict(params),
     )
-    if (
-        parameters.steps_per_revolution <= 0
-        or parameters.motor_speed_rpm <= 0
-        or (parameters.first_step > parameters.last_step)
-    ):
-        raise ProtocolError(f"PP values are inconsistent: {params}")
+    if parameters.motor_speed_rpm <= 0:
+        raise ProtocolError(f"PP SCAN {parameters.motor_speed_rpm} rpm is impossible; the reply is corrupted")
+    check_plausible(parameters)
     return parameters
 
 
