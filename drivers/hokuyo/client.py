@@ -684,6 +684,7 @@ class HokuyoScanner:
             old.close()
         deadline = time.monotonic() + self.reconnect_timeout_s
         delay_s = 0.05
+        reported = False
         while not self._stop_reader.is_set():
             try:
                 transport = open_transport(self.url, min(self.connect_timeout_s, self.reconnect_timeout_s))
@@ -710,6 +711,14 @@ class HokuyoScanner:
                     )
                     self._stop_reader.set()
                     return
+                if not reported and isinstance(exc.__cause__, ConnectionRefusedError):
+                    # Nothing listens where the scanner was: it restarted or is gone. Say so
+                    # now (the consumer decides), and keep trying until the deadline.
+                    reported = True
+                    self._enqueue(TransportError(
+                        f"{self.url}: connection lost ({reason}) and refused on reconnect: the scanner "
+                        f"restarted or is gone; still retrying for {self.reconnect_timeout_s:g} s"
+                    ))
                 logger.info("%s: reconnect failed (%s); retrying in %.2f s", self.url, exc, delay_s)
                 self._stop_reader.wait(delay_s)
                 delay_s = min(2 * delay_s, 1.0)
