@@ -112,12 +112,22 @@ def test_parameter_values_may_contain_colons_and_semicolons(caplog: pytest.LogCa
 
 
 def test_parameter_checksum_variants_are_accepted_and_a_mismatch_names_the_line() -> None:
-    with_semicolon = b"PROT:SCIP 2.0;" + checksum(b"PROT:SCIP 2.0;")
+    texts = (b"PROT:SCIP 2.0", b"SERI:H0123456")
+    with_semicolon = [text + b";" + checksum(text + b";") for text in texts]
+    assert parse_parameter_lines(with_semicolon, "VV") == {"PROT": "SCIP 2.0", "SERI": "H0123456"}
     commented = b"SCSP:Initial(600[rpm])<-Default setting by user;A"
-    parsed = parse_parameter_lines([with_semicolon, commented], "II")
-    assert parsed["PROT"] == "SCIP 2.0" and parsed["SCSP"].startswith("Initial(600[rpm])")
+    assert parse_parameter_lines([commented], "II")["SCSP"].startswith("Initial(600[rpm])")
     with pytest.raises(ChecksumError, match=r"PP reply line 'AFRT:560;0' fails its checksum"):
         parse_parameter_lines([b"AMAX:1080;Z", b"AFRT:560;0"], "PP")
+
+
+def test_a_line_matching_only_the_other_checksum_convention_is_refused() -> None:
+    """'MODL:UTM-35LX-EW' under the old checksum passes if the ';' is summed too: one
+    firmware sums one way, so a reply mixing the two is damaged."""
+    with pytest.raises(ChecksumError, match="'MODL:UTM-35LX-EW;I' fails its checksum"):
+        parse_parameter_lines([b"DMIN:23;7", b"MODL:UTM-35LX-EW;I"], "PP")
+    with pytest.raises(ChecksumError, match="not printable"):
+        parse_parameter_lines([b"MODL:UTM-3\xb0LX-EW;I"], "PP")
 
 
 @pytest.mark.parametrize(

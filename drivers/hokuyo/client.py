@@ -121,14 +121,18 @@ class HokuyoScanner:
         first_step: int | None = None,
         last_step: int | None = None,
         cluster: int = 1,
+        transport: Transport | None = None,
+        quiet_s: float = QUIET_S,
     ) -> HokuyoScanner:
         """Connect to ``url`` (``scip+tcp://...`` or ``scip+serial://...``) and read its info.
 
         ``timeout_s`` bounds every command reply; ``first_step``/``last_step``/``cluster``
-        choose the scan layout (default: all measurable steps)."""
+        choose the scan layout (default: all measurable steps). ``transport`` replaces the
+        connection opened from ``url`` (an in-memory peer for fuzzing); ``quiet_s`` is the
+        silence that ends the initial drain."""
         scanner = cls(
             url,
-            open_transport(url, connect_timeout_s),
+            transport if transport is not None else open_transport(url, connect_timeout_s),
             timeout_s=timeout_s,
             connect_timeout_s=connect_timeout_s,
             queue_size=queue_size,
@@ -136,7 +140,7 @@ class HokuyoScanner:
             reconnect_timeout_s=reconnect_timeout_s,
         )
         try:
-            scanner._resynchronise()
+            scanner._resynchronise(quiet_s=quiet_s)
             scanner.refresh_info()
             scanner._geometry = scanner.parameters().geometry(first_step, last_step, cluster)
             if sync_clock:

@@ -10,6 +10,8 @@ from lasercal_hw.models import ScanGeometry, ScannerIdentity
 
 HEALTHY_DIAGNOSTICS = ("Sensor works well.", "Stable 000 no error.", "sensor is working normally")
 """II STAT strings of a healthy URG/UTM-30LX, UTM-30LX-EW and UST (scip2.md 4.3, P-7)."""
+II_KEYS = ("MODL", "LASR", "SCSP", "MESM", "SBPS", "TIME", "STAT")
+"""Keys every II reply carries (scip2.md 4.3; the URG-04LX, UTM-30LX and UXM captures)."""
 
 
 def _required(params: dict[str, str], key: str, command: str) -> str:
@@ -177,17 +179,20 @@ class ScannerStatus:
 
 
 def parse_status(params: dict[str, str]) -> ScannerStatus:
-    """Typed II reply; TIME may be 6 hex digits or the 4-char encoding (P-6)."""
-    laser = params.get("LASR", "").strip().upper()
-    time_text = params.get("TIME")
+    """Typed II reply; TIME may be 6 hex digits or the 4-char encoding (P-6). Every key
+    of scip2.md 4.3 must be there (a reply that lost a line is refused, not read as a
+    blank status)."""
+    for key in II_KEYS:
+        _required(params, key, "II")
+    laser = params["LASR"].strip().upper()
     return ScannerStatus(
-        model=params.get("MODL", ""),
+        model=params["MODL"],
         laser_on=True if laser.startswith("ON") else False if laser.startswith("OFF") else None,
-        motor_speed=params.get("SCSP", ""),
-        measurement_mode=params.get("MESM", ""),
-        link=params.get("SBPS", ""),
-        time_ms=parse_time_field(time_text) if time_text else None,
-        diagnostic=params.get("STAT", ""),
+        motor_speed=params["SCSP"],
+        measurement_mode=params["MESM"],
+        link=params["SBPS"],
+        time_ms=parse_time_field(params["TIME"]),
+        diagnostic=params["STAT"],
         raw=dict(params),
     )
 
