@@ -3,6 +3,7 @@ and port 0 are named as what they are, corrupted-scan warnings are summarised.""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import struct
 
@@ -90,3 +91,22 @@ def test_corrupted_scans_are_counted_and_summarised_not_warned_one_by_one(
     assert corrupted >= 4
     assert len([w for w in warnings if "corrupted scan dropped" in w]) == 1
     assert any(f"{corrupted} corrupted scans dropped in this stream" in w for w in warnings)
+
+
+def test_a_failed_quality_gate_writes_no_ros_files(tmp_path) -> None:
+    from lasercal_hw.calibration.quality import GateCheck, Verdict
+    from lasercal_hw.run.outputs import TF_ARGS_FILE, URDF_FILE, write_outputs
+    from lasercal_hw.run.sequencer import Sequencer
+    from tests.doubles import MemoryRecorder, semicircle_waypoints
+    from tests.test_sequencer import fast_job, make_cell
+
+    job = fast_job(output={"report": False})
+    clock, robot, scanner = make_cell(job)
+    passed = Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), clock=clock).run()
+    failed = dataclasses.replace(passed, verdict=Verdict([GateCheck("residual RMS", 9.0, 1.0, "mm", False)]))
+    assert passed.verdict.passed
+    for outcome, written in ((passed, True), (failed, False)):
+        files = write_outputs(tmp_path, outcome, job)
+        for name in (URDF_FILE, TF_ARGS_FILE):
+            assert (tmp_path / name).exists() is written  # the failed pass also removed the earlier pair
+        assert ("urdf" in files) is written and (tmp_path / "result.json").exists()

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from fakes.cell import READY_PREFIX
-from lasercal_hw.errors import DeviceTimeoutError, TransportError
+from lasercal_hw.errors import DeviceTimeoutError, InterruptedRunError, TransportError
 from lasercal_hw.models import FloatArray
 
 logger = logging.getLogger(__name__)
@@ -135,7 +135,17 @@ class FakeCellProcess:
             self.args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
             start_new_session=True,
         )
-        assert self.process.stdout is not None
+        try:
+            return self._await_ready()
+        except KeyboardInterrupt:
+            self.close()
+            raise InterruptedRunError(
+                "interrupted while the fake cell was starting; nothing was connected or moved"
+            ) from None
+
+    def _await_ready(self) -> FakeCellProcess:
+        """Wait for the child's ready line (its document goes to ``info``)."""
+        assert self.process is not None and self.process.stdout is not None
         deadline = time.monotonic() + self.startup_timeout_s
         with selectors.DefaultSelector() as selector:
             selector.register(self.process.stdout, selectors.EVENT_READ)
