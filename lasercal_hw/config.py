@@ -26,7 +26,9 @@ DEFAULT_PRESET = "paper"
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # nan and inf are refused as what they are ("should be a finite number"), not
+    # reported against whichever bound a nan comparison happens to fail first.
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class RobotConfig(_Strict):

@@ -41,6 +41,7 @@ from lasercal_hw.calibration.model import (
     whitening,
 )
 from lasercal_hw.calibration.paper import solve_paper
+from lasercal_hw.calibration.plausible import check_physical
 from lasercal_hw.calibration.result import (
     CalibrationResult,
     Observability,
@@ -116,10 +117,12 @@ def solve(
     opts = options or SolverOptions()
     if formulation is not None:
         opts = opts.model_copy(update={"formulation": formulation})
+    check_physical(observations)
     data = _arrays(observations, rod, opts)
     _check_rod_directions(data.directions, opts)
     weights = 1.0 / np.sqrt(0.5 * np.trace(data.covariance, axis1=1, axis2=2))
-    rotation, translation = linear_initial_pose(data.origins, data.directions, data.centres, weights)
+    initial = linear_initial_pose(data.origins, data.directions, data.centres, weights)
+    rotation, translation = initial.rotation, initial.translation
     usable, outliers = _usable_by_incidence(rotation, translation, data, opts)
     _check_observability(rotation, translation, data, usable, opts, stage="initial")
 
@@ -128,7 +131,11 @@ def solve(
         rotation, translation = paper.rotation, paper.translation_m
         used, converged, evaluations, message = usable, paper.converged, paper.evaluations, paper.message
     else:
-        rotation, translation, used, evaluations = _fit(rotation, translation, data, usable, robust, opts)
+        agreeing = usable & initial.agreeing
+        start = agreeing if robust and agreeing.sum() >= MIN_WAYPOINTS else usable
+        rotation, translation, used, evaluations = _fit(
+            rotation, translation, data, usable, start, robust, opts
+        )
         outliers += _rejected(rotation, translation, data, usable & ~used, opts)
         converged, message = True, "converged"
     try:
@@ -237,12 +244,14 @@ def _fit(
     translation: FloatArray,
     data: _Data,
     usable: np.ndarray,
+    start: np.ndarray,
     robust: bool,
     opts: SolverOptions,
 ) -> tuple[FloatArray, FloatArray, np.ndarray, int]:
-    """Robust refinement with iterated rejection, then plain least squares on the inliers
-    (weights re-evaluated at the robust estimate, so the answer does not depend on the path)."""
-    used = usable.copy()
+    """Robust refinement with iterated rejection (from the ``start`` rows; any usable row
+    may be re-admitted), then plain least squares on the inliers (weights re-evaluated at
+    the robust estimate, so the answer does not depend on the path)."""
+    used = start.copy()
     evaluations = 0
     threshold = _chi2_2dof_quantile(opts.outlier_confidence)
     knee = opts.loss_scale or float(np.sqrt(threshold))
