@@ -88,17 +88,25 @@ class ProgressView:
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """Turn SIGTERM into KeyboardInterrupt so it stops the arm like Ctrl-C does."""
+def _interrupt_once() -> Iterator[None]:
+    """Ctrl-C (SIGINT) and SIGTERM stop the run as KeyboardInterrupt; later ones are ignored
+    until the run has stopped the arm and closed its recording (a terminal sends SIGINT to
+    the whole process group, and an impatient operator presses Ctrl-C twice)."""
+    stopping = (signal.SIGINT, signal.SIGTERM)
 
     def interrupt(signum: int, frame: FrameType | None) -> None:
-        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+        for each in stopping:
+            signal.signal(each, signal.SIG_IGN)
+        raise KeyboardInterrupt() if signum == signal.SIGINT else KeyboardInterrupt(
+            f"signal {signal.Signals(signum).name}"
+        )
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    previous = {each: signal.signal(each, interrupt) for each in stopping}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for each, handler in previous.items():
+            signal.signal(each, handler)
 
 
 def _require_confirmation_possible(yes: bool, dry_run: bool) -> None:
@@ -206,7 +214,7 @@ def run_command(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    with _sigterm_as_interrupt(), ProgressView(ui) as view:
+    with _interrupt_once(), ProgressView(ui) as view:
         report = calibrate(
             request, on_event=view, confirm=None if yes or dry_run else _confirm(view, ui)
         )

@@ -22,7 +22,7 @@ import numpy as np
 
 from lasercal_hw import __version__
 from lasercal_hw.config import JobConfig, with_overrides
-from lasercal_hw.errors import ConfigError, LasercalError
+from lasercal_hw.errors import ConfigError, DeviceError, LasercalError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
@@ -170,7 +170,7 @@ def calibrate(
             ground_truth: FloatArray | None = None
             fake_cell: dict[str, Any] | None = None
             if request.dry_run:
-                job, ground_truth, fake_cell = _start_fake_cell(request, job, out_dir, stack, sink)
+                job, ground_truth, fake_cell = _start_fake_cell(request, job, out_dir, stack, sink, cancel)
             cancel.raise_if_cancelled()
             if job.robot.host is None:
                 raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
@@ -244,9 +244,15 @@ def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeSt
 
 
 def _start_fake_cell(
-    request: RunRequest, job: JobConfig, out_dir: Path, stack: contextlib.ExitStack, sink: EventSink
+    request: RunRequest,
+    job: JobConfig,
+    out_dir: Path,
+    stack: contextlib.ExitStack,
+    sink: EventSink,
+    cancel: CancelToken,
 ) -> tuple[JobConfig, FloatArray, dict[str, Any]]:
-    """Start the dry run's fake cell and point the job at it."""
+    """Start the dry run's fake cell and point the job at it; if the cell dies during the
+    run, the run stops at once with a DeviceError that says so."""
     from lasercal_hw.run.dry_run import FakeCellProcess
     from lasercal_hw.run.dry_run_scene import rods_differ, write_rod_scene
 
@@ -254,7 +260,10 @@ def _start_fake_cell(
     scene = request.scene
     if scene is None:  # the fake cell holds the rod the job describes
         scene = write_rod_scene(job.rod.rod_line(), out_dir / DRY_RUN_SCENE_FILE)
-    cell = stack.enter_context(FakeCellProcess(scene=scene))
+    def died(death: str) -> None:
+        cancel.fail(DeviceError(f"the dry run's fake cell died: {death}"))
+
+    cell = stack.enter_context(FakeCellProcess(scene=scene, on_death=died))
     job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": cell.scanner_url})
     sink.emit(
         "stage",
