@@ -60,6 +60,30 @@ class Provenance(BaseModel):
     message: str = ""
 
 
+class RodAxisEstimate(BaseModel):
+    """The rod's line in the TCP frame: the job's nominal one and the one estimated with the
+    transform (or the nominal one again, with the reason, when it was not estimated)."""
+
+    estimated: bool
+    nominal_origin_m: list[float]
+    nominal_direction: list[float]
+    origin_m: list[float] = Field(description="point of the estimated line nearest the nominal origin")
+    direction: list[float] = Field(description="unit direction of the estimated line")
+    basis_tcp: list[list[float]] = Field(description="e1, e2: TCP-frame unit vectors across the nominal axis")
+    offset_mm: list[float] = Field(description="line moved along e1, e2")
+    offset_std_mm: list[float]
+    tilt_deg: list[float] = Field(description="line tilted towards e1, e2")
+    tilt_std_deg: list[float]
+    note: str = ""
+
+
+class RangeOffset(BaseModel):
+    """The scanner's range offset (measured minus true range), estimated with the transform."""
+
+    offset_mm: float
+    std_mm: float
+
+
 class CalibrationResult(BaseModel):
     """Pose of the scanner in the robot base frame, with its uncertainty and diagnostics."""
 
@@ -85,6 +109,8 @@ class CalibrationResult(BaseModel):
     waypoints_used: int
     observability: Observability
     provenance: Provenance
+    rod_axis: RodAxisEstimate | None = None
+    range_offset: RangeOffset | None = None
 
     def matrix(self) -> FloatArray:
         """``T_base_laser`` as a 4x4 numpy array."""
