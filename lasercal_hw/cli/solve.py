@@ -13,7 +13,7 @@ from rich.table import Table
 from lasercal_hw.calibration.observations import load_observations
 from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.calibration.solver import SolverOptions, solve
-from lasercal_hw.cli.common import console, parse_vector, print_json
+from lasercal_hw.cli.common import console, err_console, parse_vector, print_json
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import RodLine
 from lasercal_hw.run.replay import solve_recording
@@ -31,6 +31,15 @@ def solve_command(
     robot_sigma_mm: float = typer.Option(0.5, "--robot-sigma-mm", help="Robot TCP position noise per axis."),
     output: Annotated[Path | None, typer.Option("--output", "-o", help="Also write result.json.")] = None,
     as_json: bool = typer.Option(False, "--json", help="Print the result.json document instead of a table."),
+    estimate_axis: bool = typer.Option(
+        False, "--estimate-axis", help="Estimate the rod axis (2 offsets, 2 tilts) from the given one."
+    ),
+    estimate_range_offset: bool = typer.Option(
+        False, "--estimate-range-offset", help="Estimate the scanner's range offset."
+    ),
+    use_recorded_centres: bool = typer.Option(
+        False, "--use-recorded-centres", help="session.mcap: keep recorded centres where re-extraction fails."
+    ),
 ) -> None:
     """Solve for T_base_laser from observations (index,tcp_x..tcp_rz,u,v[,sigma_u,sigma_v]) or from
     a run's session.mcap (same extraction and solver as the live run; rod and noise from its job)."""
@@ -47,11 +56,28 @@ def solve_command(
                 "--axis-origin, --axis-direction, --no-robust and --formulation apply to observations.csv; "
                 "a session.mcap is solved with the rod and settings of its recorded job"
             )
-        result = solve_recording(input_path).solution.result
+        overrides: dict[str, object] = {}
+        if estimate_axis:
+            overrides["rod.estimate_axis"] = True
+        if estimate_range_offset:
+            overrides["scanner.estimate_range_offset"] = True
+        replay = solve_recording(
+            input_path, use_recorded_centres=use_recorded_centres, job_overrides=overrides
+        )
+        for message in replay.messages:
+            err_console.print(f"[yellow]replay:[/] {message}")
+        result = replay.solution.result
     else:
         rod = RodLine(origin_m=np.array(parse_vector(axis_origin, 3, "--axis-origin")), direction=direction)
         observations = load_observations(input_path)
-        options = SolverOptions(default_sigma_uv_m=sigma_mm / 1e3, robot_sigma_m=robot_sigma_mm / 1e3)
+        if use_recorded_centres:
+            raise ConfigError("--use-recorded-centres applies to a session.mcap, not to observations.csv")
+        options = SolverOptions(
+            default_sigma_uv_m=sigma_mm / 1e3,
+            robot_sigma_m=robot_sigma_mm / 1e3,
+            estimate_axis=estimate_axis,
+            estimate_range_offset=estimate_range_offset,
+        )
         mode: Literal["ours", "paper"] = "paper" if formulation == "paper" else "ours"
         result = solve(observations, rod, robust=robust, options=options, formulation=mode)
     document = result.to_json_dict()
@@ -67,6 +93,14 @@ def solve_command(
         print_json(document)
     else:
         print_result(result)
+
+
+def _vector(values: list[float], scale: float = 1.0) -> str:
+    return "(" + ", ".join(f"{v * scale:+.4g}" for v in values) + ")"
+
+
+def _pm(values: list[float], stds: list[float], digits: int = 2) -> str:
+    return ", ".join(f"{v:+.{digits}f} ± {s:.{digits}f}" for v, s in zip(values, stds, strict=True))
 
 
 def print_result(result: CalibrationResult) -> None:
@@ -103,6 +137,20 @@ def print_result(result: CalibrationResult) -> None:
     )
     for note in result.observability.notes:
         console.print(f"[yellow]note:[/] {note}")
+    axis = result.rod_axis
+    if axis is not None:
+        if axis.estimated:
+            console.print(
+                f"rod axis (TCP frame): origin {_vector(axis.origin_m, 1e3)} mm, direction "
+                f"{_vector(axis.direction)}; nominal {_vector(axis.nominal_origin_m, 1e3)} mm, "
+                f"{_vector(axis.nominal_direction)}; moved {_pm(axis.offset_mm, axis.offset_std_mm)} mm, "
+                f"tilted {_pm(axis.tilt_deg, axis.tilt_std_deg, 3)} deg (along e1, e2)"
+            )
+        else:
+            console.print(f"[yellow]note:[/] {axis.note}")
+    if result.range_offset is not None:
+        offset = result.range_offset
+        console.print(f"scanner range offset: {offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm")
     if result.outliers:
         outliers = Table(title="Waypoints left out")
         for name in ("index", "residual (mm)", "reason"):

@@ -25,7 +25,7 @@ Steps (docs/extraction.md has the reasoning):
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -165,12 +165,15 @@ def find_rod_centre(
     axis_in_scanner: FloatArray | None = None,
     expected_uv_m: FloatArray | None = None,
     settings: ExtractionSettings | None = None,
+    range_offset_m: float = 0.0,
 ) -> RodCentre:
     """Find the rod's centre (u, v) in an averaged scan (scanner frame, metres).
 
     ``background``: the same view without the rod, for segmentation against clutter;
     ``axis_in_scanner``: the rod axis (unit 3-vector, scanner frame) to fit the tilted
-    cross-section; ``expected_uv_m``: where the rod should be, to pick among candidates.
+    cross-section; ``expected_uv_m``: where the rod should be, to pick among candidates;
+    ``range_offset_m``: the scanner's range offset (measured minus true), removed from every
+    range before the fit.
     Raises ``RodNotFoundError`` saying why when there is no usable rod in the scan, and
     ``ConfigError`` for a non-positive radius or a zero axis.
     """
@@ -191,6 +194,8 @@ def find_rod_centre(
             f"background has {background.ranges_m.size} beams but the scan has {scan.ranges_m.size}; "
             "record the background with the same scanner settings"
         )
+    if range_offset_m:
+        scan = replace(scan, ranges_m=scan.ranges_m - range_offset_m)
     sigma = _range_sigma(scan, settings)
     expected = None if expected_uv_m is None else np.asarray(expected_uv_m, dtype=float)
     candidates, notes = _candidate_segments(scan, sigma, section, background, settings)
