@@ -89,7 +89,8 @@ def test_wrong_axis_biases_the_pose_and_estimating_it_removes_the_bias() -> None
     assert np.all(np.abs(np.asarray(axis.offset_mm) - true_offset) < 2.5 * np.asarray(axis.offset_std_mm))
     assert np.all(np.abs(np.asarray(axis.tilt_deg) - true_tilt) < 2.5 * np.asarray(axis.tilt_std_deg))
     assert np.all(np.asarray(axis.offset_std_mm) < 0.5)
-    assert fixed.rod_axis is None
+    assert fixed.rod_axis is None and fixed.estimate_lines() == []
+    assert estimated.estimate_lines()[0].startswith("rod axis (TCP frame): estimated origin")
 
 
 def test_range_offset_is_estimated_with_its_std() -> None:

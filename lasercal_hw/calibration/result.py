@@ -120,6 +120,39 @@ class CalibrationResult(BaseModel):
         """``T_laser_base`` as a 4x4 numpy array."""
         return np.asarray(self.T_laser_base, dtype=float)
 
+    def estimate_lines(self) -> list[str]:
+        """The estimated rod axis next to the nominal one and the range offset, one line each
+        (empty when neither was asked for); the CLI and the report print them."""
+        lines = []
+        axis = self.rod_axis
+        if axis is not None and axis.estimated:
+            estimated = f"estimated origin {_mm(axis.origin_m)} mm, direction {_vec(axis.direction)}"
+            nominal = f"nominal {_mm(axis.nominal_origin_m)} mm, {_vec(axis.nominal_direction)}"
+            moved = f"moved {_pm(axis.offset_mm, axis.offset_std_mm, 2)} mm"
+            tilted = f"tilted {_pm(axis.tilt_deg, axis.tilt_std_deg, 3)} deg"
+            basis = f"{_vec(axis.basis_tcp[0])}, {_vec(axis.basis_tcp[1])}"
+            lines.append(f"rod axis (TCP frame): {estimated}; {nominal}; {moved} and {tilted} along {basis}")
+        elif axis is not None:
+            lines.append(axis.note)
+        if self.range_offset is not None:
+            offset = self.range_offset
+            lines.append(
+                f"scanner range offset (measured - true): {offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm"
+            )
+        return lines
+
     def to_json_dict(self) -> dict[str, Any]:
         """The ``result.json`` document (plain JSON types, matrices row-major)."""
         return self.model_dump(mode="json")
+
+
+def _vec(values: list[float]) -> str:
+    return "(" + ", ".join(f"{v:+.4f}" for v in values) + ")"
+
+
+def _mm(values: list[float]) -> str:
+    return "(" + ", ".join(f"{v * 1e3:+.2f}" for v in values) + ")"
+
+
+def _pm(values: list[float], stds: list[float], digits: int) -> str:
+    return ", ".join(f"{v:+.{digits}f} ± {s:.{digits}f}" for v, s in zip(values, stds, strict=True))

@@ -95,14 +95,6 @@ def solve_command(
         print_result(result)
 
 
-def _vector(values: list[float], scale: float = 1.0) -> str:
-    return "(" + ", ".join(f"{v * scale:+.4g}" for v in values) + ")"
-
-
-def _pm(values: list[float], stds: list[float], digits: int = 2) -> str:
-    return ", ".join(f"{v:+.{digits}f} ± {s:.{digits}f}" for v, s in zip(values, stds, strict=True))
-
-
 def print_result(result: CalibrationResult) -> None:
     """Print a calibration result as a readable table (solve and run share it)."""
     prov = result.provenance
@@ -123,7 +115,10 @@ def print_result(result: CalibrationResult) -> None:
     ):
         table.add_row(f"t_{axis} (mm)", f"{value * 1e3:.2f}", f"{std:.3f}", f"{crb:.3f}")
     for name, value, std, crb in zip(
-        ("yaw", "pitch", "roll"), result.euler_zyx_deg, result.std_euler_zyx_deg, result.crb_euler_zyx_deg,
+        ("yaw", "pitch", "roll"),
+        result.euler_zyx_deg,
+        result.std_euler_zyx_deg,
+        result.crb_euler_zyx_deg,
         strict=True,
     ):
         table.add_row(f"{name} (deg, ZYX)", f"{value:.4f}", f"{std:.4f}", f"{crb:.4f}")
@@ -137,20 +132,8 @@ def print_result(result: CalibrationResult) -> None:
     )
     for note in result.observability.notes:
         console.print(f"[yellow]note:[/] {note}")
-    axis = result.rod_axis
-    if axis is not None:
-        if axis.estimated:
-            console.print(
-                f"rod axis (TCP frame): origin {_vector(axis.origin_m, 1e3)} mm, direction "
-                f"{_vector(axis.direction)}; nominal {_vector(axis.nominal_origin_m, 1e3)} mm, "
-                f"{_vector(axis.nominal_direction)}; moved {_pm(axis.offset_mm, axis.offset_std_mm)} mm, "
-                f"tilted {_pm(axis.tilt_deg, axis.tilt_std_deg, 3)} deg (along e1, e2)"
-            )
-        else:
-            console.print(f"[yellow]note:[/] {axis.note}")
-    if result.range_offset is not None:
-        offset = result.range_offset
-        console.print(f"scanner range offset: {offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm")
+    for line in result.estimate_lines():
+        console.print(line)
     if result.outliers:
         outliers = Table(title="Waypoints left out")
         for name in ("index", "residual (mm)", "reason"):
