@@ -650,14 +650,18 @@ def _extras(
     if opts.formulation == "paper" and (wanted_axis or opts.estimate_range_offset):
         raise ConfigError("the paper formulation cannot estimate the rod axis or the range offset; use ours")
     if opts.estimate_range_offset:
-        _require_observable(rotation, translation, data, usable, opts, _Extras(offset=True))
+        offset_only = _Extras(offset=True)
+        _require_observable(
+            _extended_fisher(rotation, translation, data, usable, opts, offset_only), opts, offset_only
+        )
     if not wanted_axis:
         return _Extras(offset=opts.estimate_range_offset)
     extras = _Extras(axis=True, offset=opts.estimate_range_offset)
+    fisher = _extended_fisher(rotation, translation, data, usable, opts, extras)
     if opts.estimate_axis is True:
-        _require_observable(rotation, translation, data, usable, opts, extras)
+        _require_observable(fisher, opts, extras)
         return extras
-    std = np.sqrt(np.clip(np.diag(_pinv_crb(rotation, translation, data, usable, opts, extras)), 0.0, None))
+    std = _crb_std(fisher)
     offset_std_m, tilt_std_deg = std[6:8], np.degrees(std[8:10])
     if (
         offset_std_m.max() <= opts.auto_axis_max_offset_std_m
@@ -673,38 +677,21 @@ def _extras(
     return _Extras(offset=opts.estimate_range_offset, axis_note=note)
 
 
-def _pinv_crb(
-    rotation: FloatArray,
-    translation: FloatArray,
-    data: _Data,
-    usable: np.ndarray,
-    opts: SolverOptions,
-    extras: _Extras,
-) -> FloatArray:
-    fisher = _extended_fisher(rotation, translation, data, usable, opts, extras)
-    return (
-        np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)
-        if np.all(np.isfinite(fisher))
-        else np.full_like(fisher, np.inf)
-    )
+def _crb_std(fisher: FloatArray) -> FloatArray:
+    """Cramér-Rao std of every parameter (infinite where the information is not finite)."""
+    if not np.all(np.isfinite(fisher)):
+        return np.full(fisher.shape[0], np.inf)
+    return np.sqrt(np.clip(np.diag(np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)), 0.0, None))
 
 
-def _require_observable(
-    rotation: FloatArray,
-    translation: FloatArray,
-    data: _Data,
-    usable: np.ndarray,
-    opts: SolverOptions,
-    extras: _Extras,
-) -> None:
+def _require_observable(fisher: FloatArray, opts: SolverOptions, extras: _Extras) -> None:
     """Refuse (``DegenerateDataError``) extra parameters the waypoints cannot separate from the pose."""
-    fisher = _extended_fisher(rotation, translation, data, usable, opts, extras)
     scale = 1.0 / np.sqrt(np.clip(np.diag(fisher), 1e-300, None))
     eigenvalues = np.linalg.eigvalsh(fisher * np.outer(scale, scale))
     ratio = float(np.sqrt(max(eigenvalues[0], 0.0) / eigenvalues[-1])) if eigenvalues[-1] > 0 else 0.0
     if ratio >= opts.min_condition_ratio * 10.0:
         return
-    std = np.sqrt(np.clip(np.diag(_pinv_crb(rotation, translation, data, usable, opts, extras)), 0.0, None))
+    std = _crb_std(fisher)
     parts = []
     if extras.axis:
         parts.append(_axis_advice(std[6:8], np.degrees(std[8:10]), opts))
