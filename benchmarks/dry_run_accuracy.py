@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fakes.scene import load_scene
+from fakes.scene import Scene, load_scene
 from fakes.world import World
 from lasercal_hw.calibration.model import fisher_information, rod_lines_in_base
 from lasercal_hw.calibration.result import CalibrationResult
@@ -58,8 +58,12 @@ class Trial:
 
 def world_for(job: JobConfig, scene_path: Path | None, robot_error_seed: int) -> World:
     """The fake world of a scene with the job's rod in the gripper and the given error field."""
-    scene = load_scene(scene_path)
-    rod = job.rod.rod_line()
+    return world_with(load_scene(scene_path), job.rod.rod_line(), robot_error_seed)
+
+
+def world_with(scene: Scene, rod: RodLine, robot_error_seed: int, **noise: float) -> World:
+    """The fake world of ``scene`` with ``rod`` in the gripper, the given robot error field
+    and other ``[noise]`` settings (e.g. ``bias_offset_m``)."""
     scene = scene.model_copy(
         update={
             "rod": scene.rod.model_copy(
@@ -70,7 +74,7 @@ def world_for(job: JobConfig, scene_path: Path | None, robot_error_seed: int) ->
                     "length_m": rod.length_m,
                 }
             ),
-            "noise": scene.noise.model_copy(update={"robot_error_seed": robot_error_seed}),
+            "noise": scene.noise.model_copy(update={"robot_error_seed": robot_error_seed, **noise}),
         }
     )
     return World(scene)

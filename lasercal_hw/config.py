@@ -70,6 +70,10 @@ class ScannerConfig(_Strict):
     url: str = DEFAULT_SCANNER_URL
     timeout_s: float = Field(2.0, gt=0.0, le=60.0)
     nominal: NominalPose | None = None
+    estimate_range_offset: bool = Field(
+        False,
+        description="estimate the scanner's range offset (measured minus true range) with the transform",
+    )
 
     @field_validator("url")
     @classmethod
@@ -86,6 +90,12 @@ class RodConfig(_Strict):
     length_m: float = Field(0.3, gt=0.0, le=2.0)
     origin_m: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
     direction: Vector3 = Field(default_factory=lambda: [0.0, 0.0, 1.0])
+    estimate_axis: bool | Literal["auto"] = Field(
+        False,
+        description="estimate the line across (2) and its tilt (2) from origin_m/direction with the "
+        "transform; "
+        "auto: when the trajectory makes it observable",
+    )
 
     @field_validator("direction")
     @classmethod

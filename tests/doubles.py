@@ -167,6 +167,7 @@ class SimScanner:
     fail_reads_at: set[int] = field(default_factory=set)
     gap_at_reads: set[int] = field(default_factory=set)
     seed: int = 1
+    geometry_used: ScanGeometry = UTM_GEOMETRY
     reads: int = 0
     streaming: bool = False
     closed: bool = False
@@ -175,18 +176,18 @@ class SimScanner:
 
     def __post_init__(self) -> None:
         self._rng = np.random.default_rng(self.seed)
-        self._angles = UTM_GEOMETRY.angles_rad()
+        self._angles = self.geometry_used.angles_rad()
         self._rays = np.stack([np.cos(self._angles), np.sin(self._angles), np.zeros_like(self._angles)], 1)
 
     def identity(self) -> ScannerIdentity:
         return ScannerIdentity("Hokuyo", "UTM-30LX-EW", "1.0", "SCIP 2.0", "sim-9", "UTM-30LX-EW")
 
     def geometry(self) -> ScanGeometry:
-        return UTM_GEOMETRY
+        return self.geometry_used
 
     def start_streaming(self, *, intensities: bool = False) -> None:
         self.streaming = True
-        self._next_k = int(np.ceil(self.clock() / UTM_GEOMETRY.scan_period_s))
+        self._next_k = int(np.ceil(self.clock() / self.geometry_used.scan_period_s))
 
     def ranges_at(self, t_s: float) -> FloatArray:
         """Noise-free ranges for the scene at time ``t_s``."""
@@ -203,7 +204,7 @@ class SimScanner:
         if self.reads in self.fail_reads_at:
             self.clock.advance_to(self.clock() + timeout_s)
             raise DeviceTimeoutError("no scan within the timeout (simulated drop)")
-        period = UTM_GEOMETRY.scan_period_s
+        period = self.geometry_used.scan_period_s
         if self.reads in self.gap_at_reads:  # a reconnect: half a second of scans never arrives
             self._next_k += 20
             self.clock.advance_to(self._next_k * period)
@@ -220,7 +221,7 @@ class SimScanner:
         raw = np.round(ranges * 1000).astype(np.int64)
         return LaserScan(
             sequence=k,
-            geometry=UTM_GEOMETRY,
+            geometry=self.geometry_used,
             ranges_m=raw / 1000.0,
             raw_ranges_mm=raw,
             intensities=None,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -19,6 +21,9 @@ from tests.synthetic_scans import ANGLES, averaged, rod_ranges, scans
 
 # One beam averaged over a 3 s dwell (120 scans) of the UTM-30LX-EW's sigma of 10 mm.
 SIGMA_MEAN_M = 0.010 / np.sqrt(120)
+# The synthetic scans cast each beam as one exact ray: no spot straddles the silhouette.
+THIN_BEAMS = ExtractionSettings(beam_footprint_rad=0.0)
+Z_AXIS = np.array([0.0, 0.0, 1.0])
 
 
 def _centre(range_m: float, bearing_rad: float) -> np.ndarray:
@@ -31,7 +36,11 @@ def _trials(range_m: float, radius_m: float, count: int, seed: int):
     for _ in range(count):
         centre = _centre(range_m, rng.uniform(-2.0, 2.0))
         scan = averaged(rod_ranges(centre, radius_m, wall_behind_m=0.5), SIGMA_MEAN_M, rng)
-        yield centre, scan, find_rod_centre(scan, radius_m=radius_m)
+        yield (
+            centre,
+            scan,
+            find_rod_centre(scan, radius_m=radius_m, axis_in_scanner=Z_AXIS, settings=THIN_BEAMS),
+        )
 
 
 @pytest.mark.parametrize(
@@ -67,9 +76,7 @@ def test_fit_beats_the_pi_over_4_seed(range_m: float, radius_m: float) -> None:
     bearing_rad=st.floats(-2.2, 2.2),
     radius_m=st.floats(0.01, 0.025),
 )
-def test_noise_free_arc_gives_the_exact_centre(
-    range_m: float, bearing_rad: float, radius_m: float
-) -> None:
+def test_noise_free_arc_gives_the_exact_centre(range_m: float, bearing_rad: float, radius_m: float) -> None:
     centre = _centre(range_m, bearing_rad)
     scan = AveragedScan.from_ranges(rod_ranges(centre, radius_m, wall_behind_m=0.4), ANGLES)
     result = find_rod_centre(scan, radius_m=radius_m)
@@ -157,9 +164,21 @@ def test_end_to_end_from_quantised_scans() -> None:
     rng = np.random.default_rng(26)
     centre = np.array([1.2, 0.5])
     dwell = scans(rod_ranges(centre, 0.02, wall_behind_m=0.8), 0.010, 120, rng)
-    result = find_rod_centre(average_scans(dwell), radius_m=0.02)
+    result = find_rod_centre(average_scans(dwell), radius_m=0.02, axis_in_scanner=Z_AXIS)
     assert np.linalg.norm(result.centre_uv_m - centre) < 1e-3
     assert np.all(np.sqrt(np.linalg.eigvalsh(result.covariance_uv_m2)) < 1.5e-3)
+
+
+def test_unknown_axis_widens_the_covariance_by_the_possible_tilt_bias() -> None:
+    rng = np.random.default_rng(26)
+    scan = averaged(rod_ranges([1.2, 0.5], 0.02, wall_behind_m=0.8), SIGMA_MEAN_M, rng)
+    known = find_rod_centre(scan, radius_m=0.02, axis_in_scanner=Z_AXIS)
+    unknown = find_rod_centre(scan, radius_m=0.02)
+    tilt = np.radians(ExtractionSettings().unknown_axis_typical_tilt_deg)
+    added_m2 = 0.5 * (0.02 * (1.0 / np.cos(tilt) ** 2 - 1.0)) ** 2
+    np.testing.assert_allclose(
+        unknown.covariance_uv_m2 - known.covariance_uv_m2, np.eye(2) * added_m2, atol=1e-9
+    )
 
 
 def test_empty_scan_is_reported() -> None:
@@ -239,3 +258,29 @@ def test_a_tilted_rod_close_to_the_scanner_is_found_without_its_axis() -> None:
     assert np.linalg.norm(found.centre_uv_m - centre) < 0.01
     with pytest.raises(RodNotFoundError, match="no segment matching"):
         find_rod_centre(scan, radius_m=0.02, settings=ExtractionSettings(unknown_axis_max_tilt_deg=0.0))
+
+
+def test_edge_beams_flipping_during_a_short_dwell_are_trimmed() -> None:
+    """A 0.5 s dwell (20 scans) in which the beams at both rod edges return the rod in some
+    scans and a rod-wall blend in the others: their averages lie between rod and wall and
+    joined the rod's segment, which then failed its fit."""
+    rng = np.random.default_rng(27)
+    centre = np.array([0.75, -0.2])
+    truth = rod_ranges(centre, 0.02, wall_behind_m=1.2)
+    blended, edges = _with_mixed_edges(truth, 0.4)
+    insides = (edges[0] + 1, edges[1] - 1)
+    flips = rng.random((20, 2)) < 0.5
+    dwell = []
+    for k, scan in enumerate(scans(truth, 0.010, 20, rng)):
+        raw = scan.ranges_m.copy()
+        for j, (beam, inside) in enumerate(zip(edges, insides, strict=True)):
+            raw[beam] = (blended[beam] if flips[k, j] else truth[inside]) + rng.normal(0.0, 0.010)
+        dwell.append(replace(scan, ranges_m=raw))
+    averaged_scan = average_scans(dwell)
+    background = averaged(rod_ranges(centre, 1e-9, wall_behind_m=1.2), SIGMA_MEAN_M, rng)
+    result = find_rod_centre(averaged_scan, radius_m=0.02, background=background, axis_in_scanner=Z_AXIS)
+    assert not set(edges) & set(result.beam_indices.tolist())
+    assert np.linalg.norm(result.centre_uv_m - centre) < 3e-3
+    untrimmed = ExtractionSettings(min_stable_fraction=0.0, max_spread_ratio=np.inf)
+    with pytest.raises(RodNotFoundError):
+        find_rod_centre(averaged_scan, radius_m=0.02, background=background, settings=untrimmed)

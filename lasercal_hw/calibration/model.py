@@ -124,11 +124,7 @@ def left_jacobian_so3(rotvec: FloatArray) -> FloatArray:
     k = skew(rotvec)
     if angle < 1e-8:
         return np.eye(3) + 0.5 * k
-    return (
-        np.eye(3)
-        + (1.0 - np.cos(angle)) / angle**2 * k
-        + (angle - np.sin(angle)) / angle**3 * (k @ k)
-    )
+    return np.eye(3) + (1.0 - np.cos(angle)) / angle**2 * k + (angle - np.sin(angle)) / angle**3 * (k @ k)
 
 
 def fisher_information(
@@ -155,3 +151,77 @@ def euler_zyx_axes(yaw_rad: float, pitch_rad: float) -> FloatArray:
     cy, sy = np.cos(yaw_rad), np.sin(yaw_rad)
     cp, sp = np.cos(pitch_rad), np.sin(pitch_rad)
     return np.array([[0.0, -sy, cy * cp], [0.0, cy, sy * cp], [1.0, 0.0, -sp]])
+
+
+# -- extra parameters: the rod axis in the TCP frame and the scanner's range offset --------
+#
+# The rod line is moved across itself by ``a = (a1, a2)`` (metres) and tilted by
+# ``b = (b1, b2)`` (radians, small) along two unit vectors ``e1, e2`` perpendicular to its
+# direction ``d`` (``axis_basis``): ``o' = o + a1 e1 + a2 e2``, ``d' = unit(d + b1 e1 + b2 e2)``.
+# Moving the line's base-frame origin by ``do`` moves the crossing by ``-J_t do`` (``J_t`` the
+# Jacobian in the scanner translation), turning its direction by ``dd`` moves it by
+# ``-s J_t dd`` (``s`` the crossing's line parameter). A range offset ``k`` (measured minus
+# true range) moves a centre seen at ``p`` to ``p + k p/|p|``.
+
+
+def axis_basis(direction: FloatArray) -> FloatArray:
+    """Two unit vectors (3, 2) perpendicular to ``direction``: the TCP x axis made
+    perpendicular to it (y when it is along x), and their cross product."""
+    d = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+    x = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = x - (x @ d) * d
+    e1 /= np.linalg.norm(e1)
+    return np.column_stack([e1, np.cross(d, e1)])
+
+
+def moved_rod(rod: RodLine, axis_step: FloatArray) -> RodLine:
+    """The rod moved across its axis by ``axis_step[:2]`` (m) and tilted by ``axis_step[2:]``
+    (rad) along ``axis_basis`` of its direction."""
+    basis = axis_basis(rod.direction)
+    direction = rod.unit_direction() + basis @ np.asarray(axis_step[2:], dtype=float)
+    return RodLine(
+        origin_m=np.asarray(rod.origin_m, dtype=float) + basis @ np.asarray(axis_step[:2], dtype=float),
+        direction=direction / np.linalg.norm(direction),
+        radius_m=rod.radius_m,
+        length_m=rod.length_m,
+    )
+
+
+def extended_residuals_and_jacobian(
+    rotation: FloatArray,
+    translation_m: FloatArray,
+    tcp_transforms: FloatArray,
+    rod: RodLine,
+    centres_uv_m: FloatArray,
+    range_offset_m: float,
+    *,
+    with_axis: bool,
+    with_offset: bool,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Predicted minus measured centre (N, 2), the Jacobian (N, 2, 6 [+4] [+1]) in
+    (dt, e[, a1, a2, b1, b2][, k]) at ``axis_step = 0``, and the slopes (N, 2)."""
+    rotations = tcp_transforms[:, :3, :3]
+    origins = rotations @ np.asarray(rod.origin_m, dtype=float) + tcp_transforms[:, :3, 3]
+    directions = rotations @ rod.unit_direction()
+    residual, jac, slope = residuals_and_jacobian(rotation, translation_m, origins, directions, centres_uv_m)
+    blocks = [jac]
+    if with_axis:
+        _, _, line_s = plane_crossing(rotation, translation_m, origins, directions)
+        moves = rotations @ axis_basis(rod.direction)  # (N, 3, 2): e1, e2 in the base frame
+        along_origin = -jac[:, :, :3] @ moves
+        # d' = unit(d + B b): at b = 0 the direction turns by B b (perpendicular to d already).
+        blocks += [along_origin, line_s[:, None, None] * along_origin]
+    full = np.concatenate(blocks, axis=2)
+    crossing = residual + centres_uv_m
+    if range_offset_m != 0.0 or with_offset:
+        distance = np.linalg.norm(crossing, axis=1)
+        unit = crossing / distance[:, None]
+        stretch = (
+            np.eye(2)
+            + range_offset_m * (np.eye(2) - unit[:, :, None] * unit[:, None, :]) / distance[:, None, None]
+        )
+        full = stretch @ full
+        residual = residual + range_offset_m * unit
+        if with_offset:
+            full = np.concatenate([full, unit[:, :, None]], axis=2)
+    return residual, full, slope

@@ -60,6 +60,30 @@ class Provenance(BaseModel):
     message: str = ""
 
 
+class RodAxisEstimate(BaseModel):
+    """The rod's line in the TCP frame: the job's nominal one and the one estimated with the
+    transform (or the nominal one again, with the reason, when it was not estimated)."""
+
+    estimated: bool
+    nominal_origin_m: list[float]
+    nominal_direction: list[float]
+    origin_m: list[float] = Field(description="point of the estimated line nearest the nominal origin")
+    direction: list[float] = Field(description="unit direction of the estimated line")
+    basis_tcp: list[list[float]] = Field(description="e1, e2: TCP-frame unit vectors across the nominal axis")
+    offset_mm: list[float] = Field(description="line moved along e1, e2")
+    offset_std_mm: list[float]
+    tilt_deg: list[float] = Field(description="line tilted towards e1, e2")
+    tilt_std_deg: list[float]
+    note: str = ""
+
+
+class RangeOffset(BaseModel):
+    """The scanner's range offset (measured minus true range), estimated with the transform."""
+
+    offset_mm: float
+    std_mm: float
+
+
 class CalibrationResult(BaseModel):
     """Pose of the scanner in the robot base frame, with its uncertainty and diagnostics."""
 
@@ -85,6 +109,8 @@ class CalibrationResult(BaseModel):
     waypoints_used: int
     observability: Observability
     provenance: Provenance
+    rod_axis: RodAxisEstimate | None = None
+    range_offset: RangeOffset | None = None
 
     def matrix(self) -> FloatArray:
         """``T_base_laser`` as a 4x4 numpy array."""
@@ -94,6 +120,39 @@ class CalibrationResult(BaseModel):
         """``T_laser_base`` as a 4x4 numpy array."""
         return np.asarray(self.T_laser_base, dtype=float)
 
+    def estimate_lines(self) -> list[str]:
+        """The estimated rod axis next to the nominal one and the range offset, one line each
+        (empty when neither was asked for); the CLI and the report print them."""
+        lines = []
+        axis = self.rod_axis
+        if axis is not None and axis.estimated:
+            estimated = f"estimated origin {_mm(axis.origin_m)} mm, direction {_vec(axis.direction)}"
+            nominal = f"nominal {_mm(axis.nominal_origin_m)} mm, {_vec(axis.nominal_direction)}"
+            moved = f"moved {_pm(axis.offset_mm, axis.offset_std_mm, 2)} mm"
+            tilted = f"tilted {_pm(axis.tilt_deg, axis.tilt_std_deg, 3)} deg"
+            basis = f"{_vec(axis.basis_tcp[0])}, {_vec(axis.basis_tcp[1])}"
+            lines.append(f"rod axis (TCP frame): {estimated}; {nominal}; {moved} and {tilted} along {basis}")
+        elif axis is not None:
+            lines.append(axis.note)
+        if self.range_offset is not None:
+            offset = self.range_offset
+            lines.append(
+                f"scanner range offset (measured - true): {offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm"
+            )
+        return lines
+
     def to_json_dict(self) -> dict[str, Any]:
         """The ``result.json`` document (plain JSON types, matrices row-major)."""
         return self.model_dump(mode="json")
+
+
+def _vec(values: list[float]) -> str:
+    return "(" + ", ".join(f"{v:+.4f}" for v in values) + ")"
+
+
+def _mm(values: list[float]) -> str:
+    return "(" + ", ".join(f"{v * 1e3:+.2f}" for v in values) + ")"
+
+
+def _pm(values: list[float], stds: list[float], digits: int) -> str:
+    return ", ".join(f"{v:+.{digits}f} ± {s:.{digits}f}" for v, s in zip(values, stds, strict=True))

@@ -18,7 +18,7 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -29,12 +29,14 @@ from scipy.spatial.transform import Rotation
 from lasercal_hw import __version__
 from lasercal_hw.calibration.initial import linear_initial_pose
 from lasercal_hw.calibration.model import (
+    axis_basis,
     effective_covariance,
     euler_zyx_axes,
+    extended_residuals_and_jacobian,
     fisher_information,
     left_jacobian_so3,
+    moved_rod,
     plane_crossing,
-    residuals_and_jacobian,
     rod_lines_in_base,
     whiten,
     whiten_residual,
@@ -47,6 +49,8 @@ from lasercal_hw.calibration.result import (
     Observability,
     Outlier,
     Provenance,
+    RangeOffset,
+    RodAxisEstimate,
     WaypointResidual,
 )
 from lasercal_hw.errors import CalibrationError, ConfigError, DegenerateDataError
@@ -57,6 +61,7 @@ from lasercal_hw.geometry import (
     matrix_to_euler_zyx,
     matrix_to_quat,
     matrix_to_rotvec,
+    pose_to_matrix,
     rotvec_to_matrix,
 )
 from lasercal_hw.models import Observation, RodLine
@@ -86,17 +91,68 @@ class SolverOptions(BaseModel):
     parallel_tolerance_deg: float = Field(0.5, ge=0, description="all rod axes within this are 'parallel'")
     min_condition_ratio: float = Field(1e-6, gt=0, description="refuse below this singular-value ratio")
     weak_condition_ratio: float = Field(1e-2, gt=0, description="note directions below this ratio")
+    estimate_axis: bool | Literal["auto"] = Field(
+        False,
+        description="estimate the rod line in the TCP frame (2 offsets, 2 tilts); auto: when observable",
+    )
+    estimate_range_offset: bool = Field(False, description="estimate the scanner's range offset")
+    range_offset_applied_m: float = Field(
+        0.0, description="range offset already removed from the centres (added to the reported offset)"
+    )
+    auto_axis_max_offset_std_m: float = Field(
+        0.001, gt=0, description="auto: estimate the axis when its offsets' Cramér-Rao std is below this"
+    )
+    auto_axis_max_tilt_std_deg: float = Field(
+        0.5, gt=0, description="auto: ... and its tilts' Cramér-Rao std below this"
+    )
 
 
 @dataclass
 class _Data:
-    """The observations as arrays, rod lines in the base frame."""
+    """The observations as arrays, rod lines in the base frame (for the current rod line
+    ``rod`` and range offset ``range_offset_m``: ``with_line`` moves them)."""
 
     index: np.ndarray
     origins: FloatArray
     directions: FloatArray
     centres: FloatArray
     covariance: FloatArray
+    tcp_transforms: FloatArray
+    rod: RodLine
+    nominal_rod: RodLine
+    range_offset_m: float = 0.0
+
+    def with_line(self, rod: RodLine, range_offset_m: float) -> _Data:
+        """The same observations for another rod line and range offset."""
+        origins, directions = _lines(self.tcp_transforms, rod)
+        return replace(self, origins=origins, directions=directions, rod=rod, range_offset_m=range_offset_m)
+
+    def predicted(self, rotation: FloatArray, translation: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Where the centres should be seen (N, 2), with the range offset, and the slopes."""
+        crossing, slope, _ = plane_crossing(rotation, translation, self.origins, self.directions)
+        if self.range_offset_m:
+            crossing = crossing * (1.0 + self.range_offset_m / np.linalg.norm(crossing, axis=1))[:, None]
+        return crossing, slope
+
+
+@dataclass(frozen=True)
+class _Extras:
+    """Which parameters besides the six of the pose are estimated."""
+
+    axis: bool = False
+    offset: bool = False
+    axis_note: str = ""
+
+    @property
+    def count(self) -> int:
+        return 4 * self.axis + self.offset
+
+
+def _lines(tcp_transforms: FloatArray, rod: RodLine) -> tuple[FloatArray, FloatArray]:
+    rotations = tcp_transforms[:, :3, :3]
+    return rotations @ np.asarray(rod.origin_m, dtype=float) + tcp_transforms[
+        :, :3, 3
+    ], rotations @ rod.unit_direction()
 
 
 def solve(
@@ -125,6 +181,7 @@ def solve(
     rotation, translation = initial.rotation, initial.translation
     usable, outliers = _usable_by_incidence(rotation, translation, data, opts)
     _check_observability(rotation, translation, data, usable, opts, stage="initial")
+    extras = _extras(rotation, translation, data, usable, opts)
 
     if opts.formulation == "paper":
         paper = solve_paper(data.origins[usable], data.directions[usable], data.centres[usable])
@@ -133,13 +190,13 @@ def solve(
     else:
         agreeing = usable & initial.agreeing
         start = agreeing if robust and agreeing.sum() >= MIN_WAYPOINTS else usable
-        rotation, translation, used, evaluations = _fit(
-            rotation, translation, data, usable, start, robust, opts
+        rotation, translation, data, used, evaluations = _fit(
+            rotation, translation, data, usable, start, robust, opts, extras
         )
         outliers += _rejected(rotation, translation, data, usable & ~used, opts)
         converged, message = True, "converged"
     try:
-        result = _result(rotation, translation, data, used, outliers, opts, robust)
+        result = _result(rotation, translation, data, used, outliers, opts, robust, extras)
     except DegenerateDataError as exc:
         if opts.formulation != "paper":
             raise
@@ -152,7 +209,11 @@ def solve(
     result.provenance.solve_time_s = time.perf_counter() - started
     logger.info(
         "solved (%s): %d of %d waypoints used, RMS residual %.2f mm, %d evaluations, %.1f ms",
-        opts.formulation, result.waypoints_used, len(observations), result.rms_residual_mm, evaluations,
+        opts.formulation,
+        result.waypoints_used,
+        len(observations),
+        result.rms_residual_mm,
+        evaluations,
         result.provenance.solve_time_s * 1e3,
     )
     return result
@@ -197,7 +258,8 @@ def _arrays(observations: Sequence[Observation], rod: RodLine, opts: SolverOptio
             "give positive sigma_u, sigma_v"
         )
     origins, directions = rod_lines_in_base(poses, rod)
-    return _Data(index, origins, directions, centres, covariance)
+    transforms = pose_to_matrix(poses)
+    return _Data(index, origins, directions, centres, covariance, transforms, rod, rod)
 
 
 def _check_rod_directions(directions: FloatArray, opts: SolverOptions) -> None:
@@ -247,7 +309,8 @@ def _fit(
     start: np.ndarray,
     robust: bool,
     opts: SolverOptions,
-) -> tuple[FloatArray, FloatArray, np.ndarray, int]:
+    extras: _Extras,
+) -> tuple[FloatArray, FloatArray, _Data, np.ndarray, int]:
     """Robust refinement with iterated rejection (from the ``start`` rows; any usable row
     may be re-admitted), then plain least squares on the inliers (weights re-evaluated at
     the robust estimate, so the answer does not depend on the path)."""
@@ -257,14 +320,18 @@ def _fit(
     knee = opts.loss_scale or float(np.sqrt(threshold))
     if robust:
         for _ in range(opts.max_rejection_rounds):
-            rotation, translation, nfev = _refine(rotation, translation, data, used, opts.loss, knee, opts)
+            rotation, translation, data, nfev = _refine(
+                rotation, translation, data, used, opts.loss, knee, opts, extras
+            )
             evaluations += nfev
             m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
             scale2 = max(1.0, float(np.median(m2[used])) / _MEDIAN_CHI2_2DOF)
             accepted = usable & (m2 <= threshold * scale2)
             logger.debug(
                 "rejection round: %d of %d accepted (robust scale %.2f)",
-                accepted.sum(), usable.sum(), np.sqrt(scale2),
+                accepted.sum(),
+                usable.sum(),
+                np.sqrt(scale2),
             )
             if np.array_equal(accepted, used):
                 break
@@ -277,8 +344,10 @@ def _fit(
                 f"{opts.max_outlier_fraction:.0%}): the centres or TCP poses are inconsistent; check the rod "
                 "definition (--axis-origin/--axis-direction) and the centre noise (sigma_u, sigma_v)"
             )
-    rotation, translation, nfev = _refine(rotation, translation, data, used, "linear", knee, opts)
-    return rotation, translation, used, evaluations + nfev
+    rotation, translation, data, nfev = _refine(
+        rotation, translation, data, used, "linear", knee, opts, extras
+    )
+    return rotation, translation, data, used, evaluations + nfev
 
 
 def _refine(
@@ -289,29 +358,44 @@ def _refine(
     loss: str,
     knee: float,
     opts: SolverOptions,
-) -> tuple[FloatArray, FloatArray, int]:
+    extras: _Extras,
+) -> tuple[FloatArray, FloatArray, _Data, int]:
     """One least-squares run on the masked waypoints, parameterised as a translation
-    increment and a base-frame rotation vector increment from the given pose."""
-    origins, directions = data.origins[mask], data.directions[mask]
-    centres, covariance = data.centres[mask], data.covariance[mask]
-    _, _, slope = residuals_and_jacobian(rotation0, translation0, origins, directions, centres)
-    white = whitening(effective_covariance(covariance, slope, opts.robot_sigma_m))
+    increment, a base-frame rotation vector increment from the given pose and, with
+    ``extras``, increments of the rod line (``moved_rod``) and of the range offset."""
+    tcp, centres, covariance = data.tcp_transforms[mask], data.centres[mask], data.covariance[mask]
+    _, slope = data.predicted(rotation0, translation0)
+    white = whitening(effective_covariance(covariance, slope[mask], opts.robot_sigma_m))
     cache: dict[bytes, tuple[FloatArray, FloatArray]] = {}
+
+    def line(x: FloatArray) -> tuple[RodLine, float]:
+        rod = moved_rod(data.rod, x[6:10]) if extras.axis else data.rod
+        return rod, data.range_offset_m + (float(x[-1]) if extras.offset else 0.0)
 
     def evaluate(x: FloatArray) -> tuple[FloatArray, FloatArray]:
         key = x.tobytes()
         if key not in cache:
             cache.clear()
-            rotation = Rotation.from_rotvec(x[3:]).as_matrix() @ rotation0  # 3x faster than geometry's
+            rotation = Rotation.from_rotvec(x[3:6]).as_matrix() @ rotation0  # 3x faster than geometry's
             translation = translation0 + x[:3]
-            residual, jac, _ = residuals_and_jacobian(rotation, translation, origins, directions, centres)
-            jac[:, :, 3:] = (jac[:, :, 3:].reshape(-1, 3) @ left_jacobian_so3(x[3:])).reshape(-1, 2, 3)
+            rod, offset = line(x)
+            residual, jac, _ = extended_residuals_and_jacobian(
+                rotation,
+                translation,
+                tcp,
+                rod,
+                centres,
+                offset,
+                with_axis=extras.axis,
+                with_offset=extras.offset,
+            )
+            jac[:, :, 3:6] = (jac[:, :, 3:6].reshape(-1, 3) @ left_jacobian_so3(x[3:6])).reshape(-1, 2, 3)
             cache[key] = whiten(white, residual, jac)
         return cache[key]
 
     fit = least_squares(
         lambda x: evaluate(x)[0],
-        np.zeros(6),
+        np.zeros(6 + extras.count),
         jac=lambda x: evaluate(x)[1],
         method="lm" if loss == "linear" else "trf",
         loss=loss,
@@ -320,12 +404,14 @@ def _refine(
         xtol=1e-12,
         ftol=1e-12,
     )
-    return rotvec_to_matrix(fit.x[3:]) @ rotation0, translation0 + fit.x[:3], int(fit.nfev)
+    rod, offset = line(fit.x)
+    moved = data.with_line(rod, offset) if extras.count else data
+    return rotvec_to_matrix(fit.x[3:6]) @ rotation0, translation0 + fit.x[:3], moved, int(fit.nfev)
 
 
 def _whitened(rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions) -> FloatArray:
     """Whitened residual of every waypoint (N, 2); non-finite ones become infinite."""
-    crossing, slope, _ = plane_crossing(rotation, translation, data.origins, data.directions)
+    crossing, slope = data.predicted(rotation, translation)
     white = whitening(effective_covariance(data.covariance, slope, opts.robot_sigma_m))
     return np.nan_to_num(whiten_residual(white, crossing - data.centres), nan=np.inf)
 
@@ -342,7 +428,7 @@ def _rejected(
     if not rejected.any():
         return []
     m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
-    crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
+    crossing, _ = data.predicted(rotation, translation)
     norm_mm = np.linalg.norm(crossing - data.centres, axis=1) * 1e3
     threshold = _chi2_2dof_quantile(opts.outlier_confidence)
     return [
@@ -458,11 +544,13 @@ def _result(
     outliers: list[Outlier],
     opts: SolverOptions,
     robust: bool,
+    extras: _Extras,
 ) -> CalibrationResult:
-    fisher, observability = _check_observability(rotation, translation, data, used, opts, stage="final")
-    crb = np.linalg.inv(fisher)
+    _, observability = _check_observability(rotation, translation, data, used, opts, stage="final")
+    crb_full = np.linalg.inv(_extended_fisher(rotation, translation, data, used, opts, extras))
+    crb = crb_full[:6, :6]
     m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
-    dof = 2 * int(used.sum()) - 6
+    dof = 2 * int(used.sum()) - 6 - extras.count
     reduced = float(m2[used].sum() / dof) if dof > 0 else 1.0
     # The stated noise model is a floor: residuals smaller than it (a chi-square below 1 by
     # chance, or robot errors that are smooth over the waypoints and partly absorbed by the
@@ -485,13 +573,18 @@ def _result(
 
     std_t, std_r, std_e = std_parts(covariance)
     crb_t, crb_r, crb_e = std_parts(crb)
-    crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
+    crossing, _ = data.predicted(rotation, translation)
     delta_mm = np.nan_to_num((data.centres - crossing) * 1e3, nan=1e12, posinf=1e12, neginf=-1e12)
     norm_mm = np.linalg.norm(delta_mm, axis=1)
     whitened_norm = np.nan_to_num(np.sqrt(m2), posinf=1e12)
     columns = zip(
-        data.index.tolist(), delta_mm[:, 0].tolist(), delta_mm[:, 1].tolist(), norm_mm.tolist(),
-        whitened_norm.tolist(), used.tolist(), strict=True,
+        data.index.tolist(),
+        delta_mm[:, 0].tolist(),
+        delta_mm[:, 1].tolist(),
+        norm_mm.tolist(),
+        whitened_norm.tolist(),
+        used.tolist(),
+        strict=True,
     )
     residuals = [  # values computed here: skip validation (10k waypoints would cost ~50 ms)
         WaypointResidual.model_construct(index=i, du_mm=du, dv_mm=dv, norm_mm=nm, whitened_norm=wn, used=u)
@@ -528,6 +621,154 @@ def _result(
             iterations=0,
             solve_time_s=0.0,
         ),
+        rod_axis=_axis_estimate(data, extras, crb_full * max(1.0, reduced)),
+        range_offset=_range_offset(data, extras, crb_full * max(1.0, reduced), opts),
+    )
+
+
+def _extended_fisher(
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    used: np.ndarray,
+    opts: SolverOptions,
+    extras: _Extras,
+) -> FloatArray:
+    """Fisher information of the pose and the extra parameters over the used waypoints."""
+    tcp, covariance = data.tcp_transforms[used], data.covariance[used]
+    zeros = np.zeros((int(used.sum()), 2))
+    _, slope = data.predicted(rotation, translation)
+    _, jac, _ = extended_residuals_and_jacobian(
+        rotation,
+        translation,
+        tcp,
+        data.rod,
+        zeros,
+        data.range_offset_m,
+        with_axis=extras.axis,
+        with_offset=extras.offset,
+    )
+    white = whitening(effective_covariance(covariance, slope[used], opts.robot_sigma_m))
+    _, j = whiten(white, zeros, jac)
+    return j.T @ j
+
+
+def _extras(
+    rotation: FloatArray, translation: FloatArray, data: _Data, usable: np.ndarray, opts: SolverOptions
+) -> _Extras:
+    """Which extra parameters to estimate: refuses a requested one the waypoints cannot
+    determine; with ``estimate_axis="auto"`` leaves the axis out (with a note) unless the
+    Cramér-Rao bound at the start pins it down."""
+    wanted_axis = opts.estimate_axis is True or opts.estimate_axis == "auto"
+    if opts.formulation == "paper" and (wanted_axis or opts.estimate_range_offset):
+        raise ConfigError("the paper formulation cannot estimate the rod axis or the range offset; use ours")
+    if opts.estimate_range_offset:
+        offset_only = _Extras(offset=True)
+        _require_observable(
+            _extended_fisher(rotation, translation, data, usable, opts, offset_only), opts, offset_only
+        )
+    if not wanted_axis:
+        return _Extras(offset=opts.estimate_range_offset)
+    extras = _Extras(axis=True, offset=opts.estimate_range_offset)
+    fisher = _extended_fisher(rotation, translation, data, usable, opts, extras)
+    if opts.estimate_axis is True:
+        _require_observable(fisher, opts, extras)
+        return extras
+    std = _crb_std(fisher)
+    offset_std_m, tilt_std_deg = std[6:8], np.degrees(std[8:10])
+    if (
+        offset_std_m.max() <= opts.auto_axis_max_offset_std_m
+        and tilt_std_deg.max() <= opts.auto_axis_max_tilt_std_deg
+    ):
+        return extras
+    note = (
+        f"rod axis not estimated (auto): its Cramér-Rao std would be {offset_std_m.max() * 1e3:.2g} mm "
+        f"across "
+        f"and {tilt_std_deg.max():.2g} deg of tilt (limits {opts.auto_axis_max_offset_std_m * 1e3:g} mm, "
+        f"{opts.auto_axis_max_tilt_std_deg:g} deg); {_axis_advice(offset_std_m, tilt_std_deg, opts)}"
+    )
+    return _Extras(offset=opts.estimate_range_offset, axis_note=note)
+
+
+def _crb_std(fisher: FloatArray) -> FloatArray:
+    """Cramér-Rao std of every parameter (infinite where the information is not finite)."""
+    if not np.all(np.isfinite(fisher)):
+        return np.full(fisher.shape[0], np.inf)
+    return np.sqrt(np.clip(np.diag(np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)), 0.0, None))
+
+
+def _require_observable(fisher: FloatArray, opts: SolverOptions, extras: _Extras) -> None:
+    """Refuse (``DegenerateDataError``) extra parameters the waypoints cannot separate from the pose."""
+    scale = 1.0 / np.sqrt(np.clip(np.diag(fisher), 1e-300, None))
+    eigenvalues = np.linalg.eigvalsh(fisher * np.outer(scale, scale))
+    ratio = float(np.sqrt(max(eigenvalues[0], 0.0) / eigenvalues[-1])) if eigenvalues[-1] > 0 else 0.0
+    if ratio >= opts.min_condition_ratio * 10.0:
+        return
+    std = _crb_std(fisher)
+    parts = []
+    if extras.axis:
+        parts.append(_axis_advice(std[6:8], np.degrees(std[8:10]), opts))
+    if extras.offset:
+        parts.append(
+            "for the range offset, vary the crossings' distance from the scanner (0.3 m or more apart)"
+        )
+    raise DegenerateDataError(
+        f"the {'rod axis' if extras.axis else 'range offset'} cannot be told apart from the scanner pose "
+        f"with these waypoints (singular-value ratio {ratio:.1e}): {'; '.join(parts)}"
+    )
+
+
+def _axis_advice(offset_std_m: FloatArray, tilt_std_deg: FloatArray, opts: SolverOptions) -> str:
+    """Which tool motion the trajectory lacks to observe the rod axis."""
+    advice = []
+    if not offset_std_m.max() <= opts.auto_axis_max_offset_std_m:
+        advice.append(
+            "to see the axis offset, turn the tool about the rod axis between waypoints (spin it 90 deg or "
+            "more) and tilt it about two different axes"
+        )
+    if not tilt_std_deg.max() <= opts.auto_axis_max_tilt_std_deg:
+        advice.append(
+            "to see the axis tilt, vary where along the rod it crosses the scan plane (crossings spread "
+            "5 cm or more along the rod)"
+        )
+    return "; ".join(advice) or "the trajectory is too short"
+
+
+def _axis_estimate(data: _Data, extras: _Extras, covariance: FloatArray) -> RodAxisEstimate | None:
+    """The estimated rod line next to the nominal one (None when the axis was never asked for)."""
+    nominal = data.nominal_rod
+    if not extras.axis and not extras.axis_note:
+        return None
+    basis = axis_basis(nominal.direction)
+    direction = data.rod.unit_direction()
+    origin = np.asarray(data.rod.origin_m, dtype=float)
+    origin = origin + ((np.asarray(nominal.origin_m, dtype=float) - origin) @ direction) * direction
+    offset = (origin - np.asarray(nominal.origin_m, dtype=float)) @ basis
+    tilt = np.arctan2(direction @ basis, direction @ nominal.unit_direction())
+    std = np.sqrt(np.diag(covariance))[6:10] if extras.axis else np.zeros(4)
+    return RodAxisEstimate(
+        estimated=extras.axis,
+        nominal_origin_m=_list(nominal.origin_m),
+        nominal_direction=_list(nominal.unit_direction()),
+        origin_m=_list(origin),
+        direction=_list(direction),
+        basis_tcp=basis.T.tolist(),
+        offset_mm=_list(offset * 1e3),
+        offset_std_mm=_list(std[:2] * 1e3),
+        tilt_deg=_list(np.degrees(tilt)),
+        tilt_std_deg=_list(np.degrees(std[2:])),
+        note=extras.axis_note,
+    )
+
+
+def _range_offset(
+    data: _Data, extras: _Extras, covariance: FloatArray, opts: SolverOptions
+) -> RangeOffset | None:
+    if not extras.offset:
+        return None
+    return RangeOffset(
+        offset_mm=(data.range_offset_m + opts.range_offset_applied_m) * 1e3,
+        std_mm=float(np.sqrt(covariance[-1, -1])) * 1e3,
     )
 
 

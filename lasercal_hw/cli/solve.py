@@ -33,6 +33,15 @@ def solve_command(
     robot_sigma_mm: float = typer.Option(0.5, "--robot-sigma-mm", help="Robot TCP position noise per axis."),
     output: Annotated[Path | None, typer.Option("--output", "-o", help="Also write result.json.")] = None,
     as_json: bool = typer.Option(False, "--json", help="Print the result.json document instead of a table."),
+    estimate_axis: bool = typer.Option(
+        False, "--estimate-axis", help="Estimate the rod axis (2 offsets, 2 tilts) from the given one."
+    ),
+    estimate_range_offset: bool = typer.Option(
+        False, "--estimate-range-offset", help="Estimate the scanner's range offset."
+    ),
+    use_recorded_centres: bool = typer.Option(
+        False, "--use-recorded-centres", help="session.mcap: keep recorded centres where re-extraction fails."
+    ),
 ) -> None:
     """Solve for T_base_laser from observations (index,tcp_x..tcp_rz,u,v[,sigma_u,sigma_v]) or from
     a run's session.mcap (same extraction and solver as the live run; rod and noise from its job).
@@ -53,12 +62,28 @@ def solve_command(
             )
         from lasercal_hw.run.replay import solve_recording  # its recording reader is not needed for a CSV
 
-        recording = solve_recording(input_path)
-        result, gates = recording.solution.result, recording.job.quality
+        overrides: dict[str, object] = {}
+        if estimate_axis:
+            overrides["rod.estimate_axis"] = True
+        if estimate_range_offset:
+            overrides["scanner.estimate_range_offset"] = True
+        replay = solve_recording(
+            input_path, use_recorded_centres=use_recorded_centres, job_overrides=overrides
+        )
+        for message in replay.messages:
+            err_console.print(f"[yellow]replay:[/] {message}")
+        result, gates = replay.solution.result, replay.job.quality
     else:
         rod = RodLine(origin_m=np.array(parse_vector(axis_origin, 3, "--axis-origin")), direction=direction)
         observations = load_observations(input_path)
-        options = SolverOptions(default_sigma_uv_m=sigma_mm / 1e3, robot_sigma_m=robot_sigma_mm / 1e3)
+        if use_recorded_centres:
+            raise ConfigError("--use-recorded-centres applies to a session.mcap, not to observations.csv")
+        options = SolverOptions(
+            default_sigma_uv_m=sigma_mm / 1e3,
+            robot_sigma_m=robot_sigma_mm / 1e3,
+            estimate_axis=estimate_axis,
+            estimate_range_offset=estimate_range_offset,
+        )
         mode: Literal["ours", "paper"] = "paper" if formulation == "paper" else "ours"
         result = solve(observations, rod, robust=robust, options=options, formulation=mode)
         gates = QualityConfig()
@@ -103,7 +128,10 @@ def print_result(result: CalibrationResult) -> None:
     ):
         table.add_row(f"t_{axis} (mm)", f"{value * 1e3:.2f}", f"{std:.3f}", f"{crb:.3f}")
     for name, value, std, crb in zip(
-        ("yaw", "pitch", "roll"), result.euler_zyx_deg, result.std_euler_zyx_deg, result.crb_euler_zyx_deg,
+        ("yaw", "pitch", "roll"),
+        result.euler_zyx_deg,
+        result.std_euler_zyx_deg,
+        result.crb_euler_zyx_deg,
         strict=True,
     ):
         table.add_row(f"{name} (deg, ZYX)", f"{value:.4f}", f"{std:.4f}", f"{crb:.4f}")
@@ -117,6 +145,8 @@ def print_result(result: CalibrationResult) -> None:
     )
     for note in result.observability.notes:
         console.print(f"[yellow]note:[/] {note}")
+    for line in result.estimate_lines():
+        console.print(line)
     if result.outliers:
         outliers = Table(title="Waypoints left out")
         for name in ("index", "residual (mm)", "reason"):

@@ -88,7 +88,7 @@ def report_data(outcome: RunOutcome, job: JobConfig, title: str) -> ReportData:
     origins, directions = rod_lines_in_base(poses, job.rod.rod_line())
     predicted, _, _ = plane_crossing(T[:3, :3], T[:3, 3], origins, directions)
     used = {r.index: r.used for r in result.residuals}
-    notes = [outcome.refinement, *outcome.verdict.failures()]
+    notes = [outcome.refinement, *outcome.result.estimate_lines(), *outcome.verdict.failures()]
     notes += [f"waypoint {s.index} skipped: {s.reason}" for s in outcome.skipped]
     background = outcome.background
     return ReportData(

@@ -1,9 +1,13 @@
 """Solve a recorded run again, offline: ``lasercal solve session.mcap``.
 
-The recording holds the job, every scan and the ``observation`` events of the live run.
-The averaged scans and the background are rebuilt from the recorded scans by the same rule
-the live run used (``lasercal_hw.run.resume``) and solved by the same two-pass function
-(``lasercal_hw.run.sequencer.solve_two_pass``), so the replay reproduces the live result.
+A replay never guesses. The recording holds the job, every scan and the ``observation``
+events of the live run; every waypoint's averaged scan and the background are rebuilt
+from the recorded scans by the rule the live run used (``lasercal_hw.run.resume``), every
+centre is extracted again from them as the live run did, and the result is solved by the
+same two-pass function (``solve_two_pass``), so the replay reproduces the live result.
+Where a centre cannot be re-extracted (its scans are missing, no rod is found, or the rod
+found is not where the live run saw it) the replay says so per waypoint and drops the
+waypoint, unless ``use_recorded_centres`` keeps the centre the live run recorded.
 """
 
 from __future__ import annotations
@@ -11,14 +15,30 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from lasercal_hw.config import JobConfig
+import numpy as np
+
+from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import CalibrationError, ConfigError
-from lasercal_hw.run.resume import recorded_job, resume_state
-from lasercal_hw.run.sequencer import TwoPassSolution, solve_two_pass
-from lasercal_hw.session.reader import read_session
+from lasercal_hw.run.resume import (
+    check_observation_events,
+    recorded_centre,
+    recorded_job,
+    resume_state,
+    window_average,
+)
+from lasercal_hw.run.sequencer import TwoPassSolution, WaypointMeasurement, predict_rod, solve_two_pass
+from lasercal_hw.scan.average import AveragedScan
+from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
+from lasercal_hw.session.reader import SessionRecording, read_session
 
 logger = logging.getLogger(__name__)
+
+#: A re-extracted centre further than this from the recorded one (and beyond
+#: ``AGREEMENT_SIGMAS`` of its covariance) is not the rod the live run saw.
+AGREEMENT_M = 0.005
+AGREEMENT_SIGMAS = 5.0
 
 
 @dataclass(frozen=True)
@@ -29,27 +49,115 @@ class RecordingSolution:
     solution: TwoPassSolution
     skipped: dict[int, str]
     truncated: bool
+    messages: list[str]
 
 
-def solve_recording(path: str | Path) -> RecordingSolution:
-    """Re-run extraction and the solver on a ``session.mcap`` written by ``lasercal run``."""
+def solve_recording(
+    path: str | Path, *, use_recorded_centres: bool = False, job_overrides: dict[str, Any] | None = None
+) -> RecordingSolution:
+    """Re-extract and re-solve a ``session.mcap`` written by ``lasercal run``.
+
+    ``job_overrides`` changes the recorded job (``{"rod.estimate_axis": True}``).
+    Raises ``ConfigError`` (one line) for a recording that lacks what a replay needs and
+    ``CalibrationError`` when no waypoint can be re-extracted."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"recording {str(path)!r} does not exist; pass the session.mcap of a run")
     recording = read_session(path)
     job, _ = recorded_job(recording)
-    state = resume_state(recording)
-    if not state.measurements:
-        raise CalibrationError(
-            f"{path} holds no completed waypoint observation; nothing to solve (resume the run with "
-            f"`lasercal run --resume {path}`)"
+    if job_overrides:
+        job = with_overrides(job, job_overrides, "command line")
+    events = check_observation_events(recording)
+    if not recording.scans:
+        raise ConfigError(
+            f"{path} holds no usable scans (a /scan message with its /lasercal/scan_info companion); the "
+            "centres cannot be re-extracted (docs/recorder.md: what a recording holds)"
         )
+    background = _background(recording)
+    measurements, messages = _reextract(events, recording, job, background, use_recorded_centres)
+    for message in messages:
+        logger.warning("%s", message)
+    if not measurements:
+        raise CalibrationError(f"{path}: no waypoint could be re-extracted from its scans: {messages[0]}")
     if recording.truncated:
         logger.warning("%s was not closed (%s); solving what it holds", path, recording.truncation_reason)
-    solution = solve_two_pass(state.measurements, job, state.background)
+    state = resume_state(recording)
+    solution = solve_two_pass(measurements, job, background)
     return RecordingSolution(
         job=job,
         solution=solution,
         skipped={s.index: s.reason for s in state.skipped},
         truncated=recording.truncated,
+        messages=messages,
+    )
+
+
+def _background(recording: SessionRecording) -> AveragedScan | None:
+    """The live run's background, or None when it took none; refuses one whose scans are gone."""
+    if not recording.events_of("background"):
+        return None
+    background = resume_state(recording).background
+    if background is None:
+        raise ConfigError(
+            f"{recording.path}: the scans of the background are not all in the recording; without them the "
+            "centres cannot be extracted as the live run did"
+        )
+    return background
+
+
+def _reextract(
+    events: list[dict[str, Any]],
+    recording: SessionRecording,
+    job: JobConfig,
+    background: AveragedScan | None,
+    use_recorded: bool,
+) -> tuple[list[WaypointMeasurement], list[str]]:
+    """Every observation's centre extracted again from its scans, as the live run did; a
+    message per waypoint where that fails (the waypoint dropped, or its recorded centre kept)."""
+    rod = job.rod.rod_line()
+    nominal = job.scanner.nominal
+    latest = {int(event["index"]): event for event in events}
+    measurements, messages = [], []
+    for index in sorted(latest):
+        event = latest[index]
+        tcp_pose = np.asarray(event["tcp_pose"], dtype=float)
+        recorded = recorded_centre(event)
+        averaged = window_average(event, recording.scans)
+        problem = None
+        if isinstance(averaged, str):
+            problem = averaged
+        else:
+            expected = None if nominal is None else predict_rod(nominal.matrix(), tcp_pose, rod).expected_uv_m
+            try:
+                centre = find_rod_centre(
+                    averaged, radius_m=rod.radius_m, background=background, expected_uv_m=expected
+                )
+            except RodNotFoundError as exc:
+                problem = f"no rod found in its scans ({exc})"
+            else:
+                problem = _disagreement(centre.centre_uv_m, recorded.centre_uv_m, recorded.covariance_uv_m2)
+                if problem is None:
+                    measurements.append(WaypointMeasurement(index, tcp_pose, averaged, centre))
+                    continue
+        if use_recorded and not isinstance(averaged, str):
+            messages.append(
+                f"waypoint {index}: {problem}; the recorded centre is used (--use-recorded-centres)"
+            )
+            measurements.append(WaypointMeasurement(index, tcp_pose, averaged, recorded))
+        else:
+            messages.append(f"waypoint {index}: {problem}; dropped")
+    return measurements, messages
+
+
+def _disagreement(found: np.ndarray, recorded: np.ndarray, covariance: np.ndarray) -> str | None:
+    """Why a re-extracted centre is not the one the live run recorded (None when it is)."""
+    delta = np.asarray(found, dtype=float) - np.asarray(recorded, dtype=float)
+    distance = float(np.linalg.norm(delta))
+    sigmas = float(np.sqrt(delta @ np.linalg.solve(covariance, delta))) if distance > 0 else 0.0
+    if distance <= AGREEMENT_M or sigmas <= AGREEMENT_SIGMAS:
+        return None
+    return (
+        f"the rod found in its scans at ({found[0]:.4f}, {found[1]:.4f}) m is {distance * 1e3:.1f} mm "
+        f"({sigmas:.0f} sigma) from the recorded centre ({recorded[0]:.4f}, {recorded[1]:.4f}) m: the scans "
+        "do not show what the live run saw"
     )

@@ -49,29 +49,70 @@ def recorded_job(recording: SessionRecording) -> tuple[JobConfig, FloatArray]:
     return job, waypoints
 
 
+#: What an ``observation`` event must hold for the waypoint to be rebuilt from the recording.
+OBSERVATION_FIELDS = (
+    "index",
+    "tcp_pose",
+    "centre_uv_m",
+    "covariance_uv_m2",
+    "quality",
+    "scans",
+    "window_start_s",
+    "window_end_s",
+)
+
+
+def check_observation_events(recording: SessionRecording) -> list[dict[str, Any]]:
+    """The recording's ``observation`` events, or a one-line ``ConfigError`` naming what is missing."""
+    events = recording.events_of("observation")
+    if not events:
+        raise ConfigError(
+            f"{recording.path} holds no 'observation' events (/lasercal/event): it does not say which scans "
+            "each waypoint averaged; record with `lasercal run` (docs/recorder.md: what a recording holds)"
+        )
+    for event in events:
+        missing = [name for name in OBSERVATION_FIELDS if name not in event]
+        if missing:
+            which = f"waypoint {event['index']}" if "index" in event else "an observation event"
+            raise ConfigError(
+                f"{recording.path}: {which} lacks {', '.join(missing)} in its 'observation' event; the "
+                "recording "
+                "is incomplete or from an older version (docs/recorder.md: what a recording holds)"
+            )
+    return events
+
+
 def _window_scans(scans: list[LaserScan], start_s: float, end_s: float) -> list[LaserScan]:
     return [scan for scan in scans if start_s <= scan.device_time_s < end_s]
 
 
-def _average_or_none(scans: list[LaserScan], expected: int, what: str) -> AveragedScan | None:
-    if len(scans) != expected or not scans:
-        logger.warning("%s: %d scans recorded, %d were used; measuring again", what, len(scans), expected)
-        return None
-    return average_scans(scans)
-
-
-def _measurement(event: dict[str, Any], scans: list[LaserScan]) -> WaypointMeasurement | None:
-    index = int(event["index"])
+def window_average(event: dict[str, Any], scans: list[LaserScan]) -> AveragedScan | str:
+    """The averaged scan of an observation's dwell window, or why it cannot be rebuilt."""
     window = _window_scans(scans, float(event["window_start_s"]), float(event["window_end_s"]))
-    averaged = _average_or_none(window, int(event["scans"]), f"waypoint {index}")
-    if averaged is None:
-        return None
-    centre = RodCentre(
+    expected = int(event["scans"])
+    if len(window) != expected or not window:
+        return f"{len(window)} scans recorded in its dwell window, the live run averaged {expected}"
+    return average_scans(window)
+
+
+def recorded_centre(event: dict[str, Any]) -> RodCentre:
+    """The centre the live run extracted, as its ``observation`` event recorded it."""
+    return RodCentre(
         centre_uv_m=np.asarray(event["centre_uv_m"], dtype=float),
         covariance_uv_m2=np.asarray(event["covariance_uv_m2"], dtype=float),
         quality=RodQuality(**event["quality"]),
     )
-    return WaypointMeasurement(index, np.asarray(event["tcp_pose"], dtype=float), averaged, centre)
+
+
+def _measurement(event: dict[str, Any], scans: list[LaserScan]) -> WaypointMeasurement | None:
+    index = int(event["index"])
+    averaged = window_average(event, scans)
+    if isinstance(averaged, str):
+        logger.warning("waypoint %d: %s; measuring again", index, averaged)
+        return None
+    return WaypointMeasurement(
+        index, np.asarray(event["tcp_pose"], dtype=float), averaged, recorded_centre(event)
+    )
 
 
 def _background(recording: SessionRecording) -> AveragedScan | None:
@@ -83,14 +124,19 @@ def _background(recording: SessionRecording) -> AveragedScan | None:
         scan
         for scan in recording.scans
         if float(event["window_start_s"]) <= scan.device_time_s <= float(event["window_end_s"])
-    ]
-    return _average_or_none(window[: int(event["scans"])], int(event["scans"]), "background")
+    ][: int(event["scans"])]
+    if len(window) != int(event["scans"]) or not window:
+        logger.warning(
+            "background: %d scans recorded, %d were used; measuring again", len(window), event["scans"]
+        )
+        return None
+    return average_scans(window)
 
 
 def resume_state(recording: SessionRecording) -> ResumeState:
     """The measured and skipped waypoints of an interrupted run, and its background."""
     observed: dict[int, WaypointMeasurement] = {}
-    for event in recording.events_of("observation"):
+    for event in check_observation_events(recording) if recording.events_of("observation") else []:
         measurement = _measurement(event, recording.scans)
         if measurement is not None:
             observed[measurement.index] = measurement

@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -177,6 +177,24 @@ def predict_rod(T_base_laser: FloatArray, tcp_pose: FloatArray, rod: RodLine) ->
     return RodPrediction(axis, crossing[0] if on_rod else None)
 
 
+def _without_range_offset(observation: Observation, range_offset_m: float) -> Observation:
+    """A first-pass centre moved back along its bearing by the range offset (the solver's
+    first-order model of what the offset does to a centre)."""
+    if not range_offset_m:
+        return observation
+    centre = np.asarray(observation.centre_uv_m, dtype=float)
+    moved = centre * (1.0 - range_offset_m / float(np.linalg.norm(centre)))
+    return replace(observation, centre_uv_m=moved)
+
+
+def estimated_rod(result: CalibrationResult, nominal: RodLine) -> RodLine:
+    """The rod line a result estimated (the nominal one when it did not estimate it)."""
+    axis = result.rod_axis
+    if axis is None or not axis.estimated:
+        return nominal
+    return replace(nominal, origin_m=np.asarray(axis.origin_m), direction=np.asarray(axis.direction))
+
+
 def background_lift_m(job: JobConfig, pose: FloatArray) -> float:
     """How far to lift a waypoint along base z so that the whole rod is above the scan plane.
 
@@ -257,14 +275,20 @@ def solve_two_pass(
     this too, so a replay of the recording gives the live result to the last bit.
     ``on_second_pass`` is called between the passes (progress display)."""
     rod = job.rod.rod_line()
-    options = SolverOptions(robot_sigma_m=job.robot.position_accuracy_mm / 1000.0)
+    options = SolverOptions(
+        robot_sigma_m=job.robot.position_accuracy_mm / 1000.0,
+        estimate_axis=job.rod.estimate_axis,
+        estimate_range_offset=job.scanner.estimate_range_offset,
+    )
     first = solve([m.observation() for m in measurements], rod, options=options)
     if on_second_pass is not None:
         on_second_pass()
+    solved_rod = estimated_rod(first, rod)
+    range_offset_m = first.range_offset.offset_mm / 1000.0 if first.range_offset is not None else 0.0
     observations: list[Observation] = []
     kept: list[tuple[int, str]] = []
     for m in measurements:
-        predicted = predict_rod(first.matrix(), m.tcp_pose, rod)
+        predicted = predict_rod(first.matrix(), m.tcp_pose, solved_rod)
         try:
             centre = find_rod_centre(
                 m.averaged,
@@ -272,13 +296,15 @@ def solve_two_pass(
                 background=background,
                 axis_in_scanner=predicted.axis_in_scanner,
                 expected_uv_m=predicted.expected_uv_m,
+                range_offset_m=range_offset_m,
             )
         except RodNotFoundError as exc:
             kept.append((m.index, str(exc)))
-            observations.append(m.observation())
+            observations.append(_without_range_offset(m.observation(), range_offset_m))
             continue
         observations.append(WaypointMeasurement(m.index, m.tcp_pose, m.averaged, centre).observation())
-    result = solve(observations, rod, options=options)
+    applied = options.model_copy(update={"range_offset_applied_m": range_offset_m})
+    result = solve(observations, rod, options=applied)
     refinement = (
         f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
         "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"

@@ -15,15 +15,17 @@ Steps (docs/extraction.md has the reasoning):
    (semi-minor r, semi-major r/|cos tilt|); without it the line is the scanner z axis
    and the cross-section a circle.  Each residual is weighted by the range noise
    projected on the surface normal plus a small lateral (beam-angle) term.
-4. Mixed pixels: edge beams lying significantly behind the fitted surface are dropped
-   and the fit repeated.
+4. Mixed pixels: unstable beams (their readings flipped between rod and background
+   during the dwell: a low inlier count or a reading spread far above the scan's) are
+   trimmed off the ends of every segment before it is judged; after the fit, edge beams
+   lying significantly behind the fitted surface are dropped and the fit repeated.
 5. Radius: a free-radius fit when enough beams over a wide enough arc hit the rod.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,6 +73,10 @@ class ExtractionSettings:
     default_range_sigma_m: float = 0.01
     range_sigma_floor_m: float = 1e-4
     beam_angle_sigma_rad: float = 2e-4
+    #: Width of one beam's spot (UTM-30LX-EW: one 0.25 deg step). At the rod's silhouette a
+    #: partly covered spot returns from anywhere across its covered part, so the two edge
+    #: beams' lateral position has an extra ``footprint / sqrt(12)`` of uncertainty.
+    beam_footprint_rad: float = float(np.radians(0.25))
     min_jump_m: float = 0.01
     min_visible_fraction: float = 0.6
     min_beams: int = 3
@@ -78,6 +84,11 @@ class ExtractionSettings:
     min_arc_span_for_radius_deg: float = 100.0
     edge_residual_sigmas: float = 4.0
     max_edge_drops_per_side: int = 1
+    #: A beam of an averaged scan is *unstable* (it flipped between surfaces during the dwell:
+    #: a mixed pixel at a depth edge) when fewer than this fraction of the scans agreed on it ...
+    min_stable_fraction: float = 0.8
+    #: ... or when its reading spread exceeds this many times the scan's median reading spread.
+    max_spread_ratio: float = 4.0
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -86,6 +97,10 @@ class ExtractionSettings:
     #: rod tilted this much are accepted (and fitted as circles; a second pass with the axis
     #: fits the ellipse).
     unknown_axis_max_tilt_deg: float = 35.0
+    #: ... and the centre of such a circle fit is off by up to ``r (1/cos^2 tilt - 1)`` (the
+    #: ellipse's flattest arc fitted as a circle): its covariance gets that much per axis
+    #: (divided by sqrt 2) for a rod tilted this much, so that it stays honest.
+    unknown_axis_typical_tilt_deg: float = 20.0
 
 
 @dataclass(frozen=True)
@@ -150,12 +165,15 @@ def find_rod_centre(
     axis_in_scanner: FloatArray | None = None,
     expected_uv_m: FloatArray | None = None,
     settings: ExtractionSettings | None = None,
+    range_offset_m: float = 0.0,
 ) -> RodCentre:
     """Find the rod's centre (u, v) in an averaged scan (scanner frame, metres).
 
     ``background``: the same view without the rod, for segmentation against clutter;
     ``axis_in_scanner``: the rod axis (unit 3-vector, scanner frame) to fit the tilted
-    cross-section; ``expected_uv_m``: where the rod should be, to pick among candidates.
+    cross-section; ``expected_uv_m``: where the rod should be, to pick among candidates;
+    ``range_offset_m``: the scanner's range offset (measured minus true), removed from every
+    range before the fit.
     Raises ``RodNotFoundError`` saying why when there is no usable rod in the scan, and
     ``ConfigError`` for a non-positive radius or a zero axis.
     """
@@ -176,6 +194,8 @@ def find_rod_centre(
             f"background has {background.ranges_m.size} beams but the scan has {scan.ranges_m.size}; "
             "record the background with the same scanner settings"
         )
+    if range_offset_m:
+        scan = replace(scan, ranges_m=scan.ranges_m - range_offset_m)
     sigma = _range_sigma(scan, settings)
     expected = None if expected_uv_m is None else np.asarray(expected_uv_m, dtype=float)
     candidates, notes = _candidate_segments(scan, sigma, section, background, settings)
@@ -247,13 +267,16 @@ def _candidate_segments(
     with np.errstate(invalid="ignore"):  # inf - inf where a caller passed inf for no return
         jumps = np.abs(np.diff(ranges)) > _jump_threshold_m(section, sigma, settings)
     split = np.concatenate([[False], jumps])
+    unstable = _unstable_beams(scan, settings)
     segments: list[NDArray[np.int64]] = []
     for run in _runs(foreground):
         cuts = np.flatnonzero(split[run[1:]]) + 1
-        segments.extend(np.split(run, cuts))
+        segments.extend(_trim_unstable(part, unstable) for part in np.split(run, cuts))
     scored, notes = [], []
     last_beam = ranges.size - 1
     for beams in segments:
+        if beams.size == 0:
+            continue
         if beams[0] == 0 or beams[-1] == last_beam:
             if _size_mismatch(scan, beams, section, settings, partial=True) is not None:
                 problem = "is cut by the edge of the field of view; move the rod inward"
@@ -269,6 +292,36 @@ def _candidate_segments(
         scored.append((fit, beams))
     scored.sort(key=lambda item: item[0])
     return [beams for _, beams in scored], notes
+
+
+def _unstable_beams(scan: AveragedScan, settings: ExtractionSettings) -> NDArray[np.bool_]:
+    """Beams whose readings did not settle on one surface during the dwell.
+
+    At a depth edge a beam's footprint straddles rod and background and each scan returns
+    one of them or a blend; the dwell average of such a beam is a value between the two with
+    a spread far above the range noise, or (when the robust average rejected one mode) a
+    value kept by few scans. A single scan (``scan_count`` 1) has no such evidence.
+    """
+    if scan.scan_count < 2:
+        return np.zeros(scan.ranges_m.size, dtype=bool)
+    few = scan.count < settings.min_stable_fraction * scan.scan_count
+    spread = scan.reading_std_m
+    finite = np.isfinite(spread) & np.isfinite(scan.ranges_m)
+    if not finite.any():
+        return few
+    typical = float(np.median(spread[finite]))
+    with np.errstate(invalid="ignore"):
+        wide = spread > settings.max_spread_ratio * typical
+    return few | wide
+
+
+def _trim_unstable(beams: NDArray[np.int64], unstable: NDArray[np.bool_]) -> NDArray[np.int64]:
+    """The segment without the unstable beams at its ends (mixed pixels joining the rod to
+    the background); unstable beams inside it are kept."""
+    stable = np.flatnonzero(~unstable[beams])
+    if stable.size == 0:
+        return beams[:0]
+    return beams[stable[0] : stable[-1] + 1]
 
 
 def _note_if_rod(
@@ -416,7 +469,8 @@ def _residuals(
 def _residual_sigma(
     points: FloatArray, sigma: FloatArray, normals: FloatArray, radius_m: float, settings: ExtractionSettings
 ) -> FloatArray:
-    """Sigma of each orthogonal residual from range noise and lateral beam uncertainty.
+    """Sigma of each orthogonal residual from range noise and lateral beam uncertainty
+    (``points`` in beam order: the first and last are the silhouette's edge beams).
 
     The last term is the second-order effect of a range error at grazing incidence
     (``dr**2 / 2R``), which dominates where the beam is nearly tangent to a thin rod.
@@ -426,6 +480,11 @@ def _residual_sigma(
     along = normals[:, 0] * beam[:, 0] + normals[:, 1] * beam[:, 1]
     across = -normals[:, 0] * beam[:, 1] + normals[:, 1] * beam[:, 0]
     lateral = ranges * settings.beam_angle_sigma_rad
+    # The first and last beam's spots straddle the silhouette: the return comes from anywhere
+    # across the covered part of the spot.
+    lateral[[0, -1]] = ranges[[0, -1]] * float(
+        np.hypot(settings.beam_angle_sigma_rad, settings.beam_footprint_rad / np.sqrt(12.0))
+    )
     curvature = sigma**2 / (np.sqrt(2.0) * radius_m)
     return np.sqrt((sigma * along) ** 2 + (lateral * across) ** 2 + curvature**2)
 
@@ -496,8 +555,18 @@ def _fit_centre(
     residuals, _ = _residuals(points, centre, section, section.radius_m)
     dof = max(points.shape[0] - 2, 1)
     variance_factor = max(1.0, float(whitened @ whitened) / dof)
-    covariance = np.linalg.inv(normal) * variance_factor
+    covariance = np.linalg.inv(normal) * variance_factor + np.eye(2) * _unknown_tilt_variance_m2(
+        section, settings
+    )
     return _Fit(centre, covariance, residuals, whitened)
+
+
+def _unknown_tilt_variance_m2(section: _Section, settings: ExtractionSettings) -> float:
+    """Variance per axis of the bias of fitting a circle to a rod whose axis is unknown."""
+    if section.unknown_tilt_cos >= 1.0:
+        return 0.0
+    cos_typical = float(np.cos(np.radians(settings.unknown_axis_typical_tilt_deg)))
+    return 0.5 * (section.radius_m * (1.0 / cos_typical**2 - 1.0)) ** 2
 
 
 def _drop_mixed_edges(
@@ -565,7 +634,12 @@ def _fit_segment(
     dropped = int(beams.size - keep.size)
     logger.debug(
         "rod centre (%.4f, %.4f) m from %d beams, rms %.2f mm, span %.0f deg, %d edge beams dropped",
-        fit.centre_uv_m[0], fit.centre_uv_m[1], keep.size, rms * 1000, span, dropped,
+        fit.centre_uv_m[0],
+        fit.centre_uv_m[1],
+        keep.size,
+        rms * 1000,
+        span,
+        dropped,
     )
     return RodCentre(
         centre_uv_m=fit.centre_uv_m,

@@ -1,0 +1,124 @@
+"""Estimating the rod axis in the TCP frame and the scanner's range offset with the transform."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lasercal_hw.calibration.model import (
+    axis_basis,
+    extended_residuals_and_jacobian,
+    moved_rod,
+    plane_crossing,
+    rod_lines_in_base,
+)
+from lasercal_hw.calibration.simulate import Protocol, protocol_tcp_poses
+from lasercal_hw.calibration.solver import SolverOptions, solve
+from lasercal_hw.geometry import pose_to_matrix, rotvec_to_matrix
+from lasercal_hw.models import Observation, RodLine
+from tests.test_solver_helpers import TRUTH, translation_error_mm
+
+NOMINAL = RodLine(origin_m=np.array([0.0, 0.0, 0.05]), direction=np.array([0.0, 0.0, 1.0]))
+# The real bit: 2 mm off the nominal axis and tilted 1 degree.
+REAL = moved_rod(NOMINAL, np.array([0.0015, -0.0013, np.radians(0.8), np.radians(-0.6)]))
+OPTIONS = SolverOptions(default_sigma_uv_m=0.0005, robot_sigma_m=0.0002)
+
+
+def _observations(
+    rod: RodLine, *, range_offset_m: float = 0.0, noise_m: float = 0.0005, seed: int = 3, **protocol: float
+) -> list[Observation]:
+    rng = np.random.default_rng(seed)
+    poses = protocol_tcp_poses(Protocol(points=40, **protocol), rng)
+    origins, directions = rod_lines_in_base(poses, rod)
+    crossing, _, _ = plane_crossing(TRUTH[:3, :3], TRUTH[:3, 3], origins, directions)
+    seen = crossing * (1.0 + range_offset_m / np.linalg.norm(crossing, axis=1))[:, None]
+    seen = seen + rng.normal(0.0, noise_m, seen.shape)
+    return [Observation(i, poses[i], seen[i], np.eye(2) * max(noise_m, 1e-4) ** 2) for i in range(len(poses))]
+
+
+def test_extended_jacobian_matches_finite_differences() -> None:
+    poses = protocol_tcp_poses(Protocol(points=8), np.random.default_rng(1))
+    tcp = pose_to_matrix(poses)
+    centres = np.random.default_rng(2).normal(0.5, 0.2, (8, 2))
+    offset = 0.02
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        rotation = rotvec_to_matrix(x[3:6]) @ TRUTH[:3, :3]
+        res, _, _ = extended_residuals_and_jacobian(
+            rotation,
+            TRUTH[:3, 3] + x[:3],
+            tcp,
+            moved_rod(NOMINAL, x[6:10]),
+            centres,
+            offset + x[10],
+            with_axis=False,
+            with_offset=False,
+        )
+        return res
+
+    _, jac, _ = extended_residuals_and_jacobian(
+        TRUTH[:3, :3], TRUTH[:3, 3], tcp, NOMINAL, centres, offset, with_axis=True, with_offset=True
+    )
+    step = 1e-7
+    numeric = np.stack(
+        [(residual(step * np.eye(11)[k]) - residual(-step * np.eye(11)[k])) / (2 * step) for k in range(11)],
+        axis=2,
+    )
+    np.testing.assert_allclose(jac, numeric, atol=1e-6)
+
+
+def test_axis_basis_is_orthonormal_and_across_the_axis() -> None:
+    for direction in ([0, 0, 1], [1, 0, 0], [0.3, -0.2, 0.9]):
+        basis = axis_basis(np.asarray(direction, dtype=float))
+        np.testing.assert_allclose(basis.T @ basis, np.eye(2), atol=1e-12)
+        np.testing.assert_allclose(basis.T @ direction, 0.0, atol=1e-12)
+
+
+def test_wrong_axis_biases_the_pose_and_estimating_it_removes_the_bias() -> None:
+    obs = _observations(REAL)
+    fixed = solve(obs, NOMINAL, options=OPTIONS)
+    estimated = solve(obs, NOMINAL, options=OPTIONS.model_copy(update={"estimate_axis": True}))
+    assert translation_error_mm(fixed.matrix()) > 1.0
+    assert translation_error_mm(estimated.matrix()) < 0.5
+    axis = estimated.rod_axis
+    assert axis is not None and axis.estimated
+    true_offset = (np.asarray(REAL.origin_m) - NOMINAL.origin_m) @ axis_basis(NOMINAL.direction) * 1e3
+    true_tilt = np.degrees(
+        np.arctan2(REAL.unit_direction() @ axis_basis(NOMINAL.direction), REAL.unit_direction()[2])
+    )
+    assert np.all(np.abs(np.asarray(axis.offset_mm) - true_offset) < 2.5 * np.asarray(axis.offset_std_mm))
+    assert np.all(np.abs(np.asarray(axis.tilt_deg) - true_tilt) < 2.5 * np.asarray(axis.tilt_std_deg))
+    assert np.all(np.asarray(axis.offset_std_mm) < 0.5)
+    assert fixed.rod_axis is None and fixed.estimate_lines() == []
+    assert estimated.estimate_lines()[0].startswith("rod axis (TCP frame): estimated origin")
+
+
+def test_range_offset_is_estimated_with_its_std() -> None:
+    obs = _observations(NOMINAL, range_offset_m=0.02)
+    plain = solve(obs, NOMINAL, options=OPTIONS)
+    result = solve(obs, NOMINAL, options=OPTIONS.model_copy(update={"estimate_range_offset": True}))
+    assert result.range_offset is not None
+    assert abs(result.range_offset.offset_mm - 20.0) < 2.5 * result.range_offset.std_mm
+    assert result.range_offset.std_mm < 1.0
+    assert translation_error_mm(result.matrix()) < 0.5 < translation_error_mm(plain.matrix())
+
+
+def test_auto_leaves_an_unobservable_axis_out_and_says_which_motion_is_missing() -> None:
+    obs = _observations(REAL, tilt_deg=2.0, noise_m=0.002)  # nearly one tool orientation
+    result = solve(obs, NOMINAL, options=OPTIONS.model_copy(update={"estimate_axis": "auto"}))
+    assert result.rod_axis is not None and not result.rod_axis.estimated
+    assert "turn the tool about the rod axis" in result.rod_axis.note
+    observable = solve(
+        _observations(REAL), NOMINAL, options=OPTIONS.model_copy(update={"estimate_axis": "auto"})
+    )
+    assert observable.rod_axis is not None and observable.rod_axis.estimated
+
+
+def test_paper_formulation_refuses_extra_parameters() -> None:
+    with pytest.raises(Exception, match="paper formulation cannot estimate"):
+        solve(
+            _observations(NOMINAL),
+            NOMINAL,
+            options=OPTIONS.model_copy(update={"estimate_axis": True}),
+            formulation="paper",
+        )
