@@ -21,6 +21,7 @@ from lasercal_hw.cli.session import session_app
 from lasercal_hw.cli.simulate import simulate_command
 from lasercal_hw.cli.solve import solve_command
 from lasercal_hw.cli.trajectory import trajectory_app
+from lasercal_hw.cli.verify import verify_command  # light: imports the verify code when it runs
 from lasercal_hw.errors import ExitCode, LasercalError
 
 app = typer.Typer(
@@ -58,6 +59,7 @@ def _root(
 app.command("simulate")(simulate_command)
 app.command("solve")(solve_command)
 app.command("run")(run_command)
+app.command("verify")(verify_command)
 app.add_typer(fake_app, name="fake")
 app.add_typer(scanner_app, name="scanner")
 app.add_typer(session_app, name="session")

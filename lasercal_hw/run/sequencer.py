@@ -13,7 +13,7 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -39,6 +39,8 @@ from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodCentre, RodNotFoundError, find_rod_centre
 
 logger = logging.getLogger(__name__)
+
+_T = TypeVar("_T")
 
 RETRACT = "retract pose (for the background; see background.pose)"
 NOMINAL_CLEARANCE_M = 0.08
@@ -152,6 +154,17 @@ class RunOutcome:
     timings: Timings
     resumed_from: int
     background: AveragedScan | None
+
+
+@dataclass(frozen=True)
+class Measured:
+    """What ``Sequencer.measure`` gathered (no solve)."""
+
+    preflight: PreflightReport
+    measurements: list[WaypointMeasurement]
+    skipped: list[SkippedWaypoint]
+    background: AveragedScan | None
+    timings: Timings
 
 
 @dataclass(frozen=True)
@@ -331,9 +344,46 @@ class Sequencer:
     def run(self) -> RunOutcome:
         """Run the whole job; see the module docstring. Raises on abort, never hangs the arm."""
         started_s = self._clock()
+        outcome = self._guarded(lambda: self._solve(self._measure_all()))
+        outcome.timings.wall_s = self._clock() - started_s
+        self._event(
+            "run_end",
+            passed=outcome.verdict.passed,
+            wall_s=outcome.timings.wall_s,
+            motion_s=outcome.timings.motion_s,
+            dwell_s=outcome.timings.dwell_s,
+            overhead_fraction=outcome.timings.overhead_fraction,
+        )
+        return outcome
+
+    def measure(self) -> Measured:
+        """Preflight, background and every waypoint as ``run`` does them, but no solve
+        (``lasercal verify`` compares the centres with a calibration instead)."""
+        started_s = self._clock()
+        report = self._guarded(self._measure_all)
+        self._timings.wall_s = self._clock() - started_s
+        self._event(
+            "measure_end",
+            measured=len(self._measurements),
+            skipped=len(self._skipped),
+            wall_s=self._timings.wall_s,
+            motion_s=self._timings.motion_s,
+            dwell_s=self._timings.dwell_s,
+        )
+        return Measured(
+            preflight=report,
+            measurements=sorted(self._measurements, key=lambda m: m.index),
+            skipped=sorted(self._skipped, key=lambda s: s.index),
+            background=self._background,
+            timings=self._timings,
+        )
+
+    def _guarded(self, body: Callable[[], _T]) -> _T:
+        """Run ``body`` so that any way out of it stops the arm and says where (Ctrl-C,
+        cancel, protective stop, errors) and the scanner stream is closed."""
         remove_listener = self._cancel.on_cancel(self._stop_arm)
         try:
-            outcome = self._run()
+            return body()
         except (KeyboardInterrupt, InterruptedRunError) as exc:
             reason = str(exc) or "Ctrl-C"
             self._halt("interrupted", reason)
@@ -354,20 +404,10 @@ class Sequencer:
         finally:
             remove_listener()
             self._stop_streaming()
-        outcome.timings.wall_s = self._clock() - started_s
-        self._event(
-            "run_end",
-            passed=outcome.verdict.passed,
-            wall_s=outcome.timings.wall_s,
-            motion_s=outcome.timings.motion_s,
-            dwell_s=outcome.timings.dwell_s,
-            overhead_fraction=outcome.timings.overhead_fraction,
-        )
-        return outcome
 
     # -- the run ------------------------------------------------------------------------
 
-    def _run(self) -> RunOutcome:
+    def _measure_all(self) -> PreflightReport:
         count = len(self._waypoints)
         self._progress("preflight", f"checking devices and {count} waypoints")
         candidates = retract_candidates(self._job, self._waypoints)
@@ -396,7 +436,7 @@ class Sequencer:
             self._current = index
             self._measure_waypoint(index)
         self._current = None
-        return self._solve(report)
+        return report
 
     def _capture_background(self, pose: FloatArray, q_rad: FloatArray) -> None:
         self._progress("background", "moving to the retract pose for the background")

@@ -72,6 +72,7 @@ class DriftTest:
     """The outcome of the test for N measured waypoints (arrays in waypoint order)."""
 
     indices: list[int]
+    tcp_poses: FloatArray
     predicted_uv_m: FloatArray
     measured_uv_m: FloatArray
     whitened_norm: FloatArray
@@ -208,6 +209,7 @@ def run_drift_test(
     alpha = model.false_alarm_rate
     return DriftTest(
         indices=list(indices),
+        tcp_poses=poses,
         predicted_uv_m=predicted,
         measured_uv_m=measured,
         whitened_norm=np.sqrt(per_waypoint),
