@@ -19,8 +19,8 @@ Printed: per seed the chi-square values; the false-alarm rate (unmoved scanner f
 with a 95 % Clopper-Pearson interval) against the stated rate; the detection rates (the
 test flags the moved scanner); the coverage of the estimated move (|error| / std per
 component) and the verdict counts; and the time of the verify (motion + settle margin +
-dwell, from the fake controller's joint trapezoid profile between the UR5 inverse
-kinematics solutions) against the calibration's, the same way for both.
+dwell: ``verify.timing.visit_time_s``, joint trapezoid profiles at the job's caps between
+UR5 inverse kinematics solutions) against the calibration's, estimated the same way.
 """
 
 from __future__ import annotations
@@ -33,8 +33,6 @@ import numpy as np
 from scipy.stats import beta
 
 from benchmarks.dry_run_accuracy import dwell, simulate, world_for
-from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
-from fakes.ur_controller.motion import TrapezoidProfile
 from fakes.world import World
 from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import LasercalError
@@ -42,11 +40,11 @@ from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_t
 from lasercal_hw.run.sequencer import WaypointMeasurement, predict_rod, retract_candidates
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
-from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
 from lasercal_hw.verify.active import recorded_residuals
 from lasercal_hw.verify.centres import refit_centres
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
 from lasercal_hw.verify.selection import select_waypoints
+from lasercal_hw.verify.timing import visit_time_s
 from lasercal_hw.verify.verdict import decide
 
 SHIFT_M = 0.003
@@ -77,8 +75,14 @@ def moved_world(world: World, rng: np.random.Generator, shift_m: float, turn_deg
 
 
 def visit(
-    job: JobConfig, world: World, poses: np.ndarray, indices: list[int], model: DriftModel,
-    reference: np.ndarray, scans: int, rng: np.random.Generator,
+    job: JobConfig,
+    world: World,
+    poses: np.ndarray,
+    indices: list[int],
+    model: DriftModel,
+    reference: np.ndarray,
+    scans: int,
+    rng: np.random.Generator,
 ) -> DriftTest | None:
     """One offline verify: background, dwell at each chosen waypoint, extraction, test."""
     rod = job.rod.rod_line()
@@ -89,7 +93,9 @@ def visit(
         averaged = dwell(world, pose, scans, rng)
         expected = predict_rod(model.T_base_laser, pose, rod).expected_uv_m
         try:
-            centre = find_rod_centre(averaged, radius_m=rod.radius_m, background=background, expected_uv_m=expected)
+            centre = find_rod_centre(
+                averaged, radius_m=rod.radius_m, background=background, expected_uv_m=expected
+            )
         except RodNotFoundError:
             continue
         measurements.append(WaypointMeasurement(index, pose, averaged, centre))
@@ -104,25 +110,6 @@ def visit(
         np.array([m.centre.covariance_uv_m2 for m in refitted]),
         reference[[m.index for m in refitted]],
     )
-
-
-def visit_time_s(job: JobConfig, poses: np.ndarray) -> float:
-    """Background scans, then per pose the joint move at the job's caps (as the fake
-    controller times it, to the preflight's solution near the start posture), the settle
-    margin and the dwell; the retract pose is the first reachable candidate, as the
-    sequencer's preflight picks it."""
-    reachable = (inverse_kinematics_pose(c, DEFAULT_START_Q_RAD) for c in retract_candidates(job, poses))
-    q = next((solution for solution in reachable if solution is not None), None)
-    total_s = job.background.scans * 0.025
-    for pose in poses:
-        target = inverse_kinematics_pose(pose, DEFAULT_START_Q_RAD)  # preflight solves near the start
-        if target is None or q is None:
-            raise LasercalError(f"pose {np.round(pose, 3).tolist()} is out of reach")
-        length = float(np.max(np.abs(target - q)))
-        total_s += TrapezoidProfile(length, job.motion.joint_speed_rad_s, job.motion.joint_accel_rad_s2).duration_s
-        total_s += job.settle.margin_s + job.dwell_s
-        q = target
-    return total_s
 
 
 def clopper_pearson(hits: int, trials: int) -> tuple[float, float]:
@@ -140,7 +127,8 @@ def main() -> None:
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--waypoints", type=int, default=None, help="default: the job's verify.waypoints")
     parser.add_argument(
-        "--no-reference", action="store_true",
+        "--no-reference",
+        action="store_true",
         help="ignore the calibration's residuals at its own waypoints (model prediction only)",
     )
     args = parser.parse_args()
@@ -160,6 +148,8 @@ def main() -> None:
     truths: dict[str, list[np.ndarray]] = {name: [] for name in outcomes}
     verdicts: dict[str, dict[str, int]] = {name: {} for name in outcomes}
     ratios = []
+    calibration_s = visit_time_s(job, poses)
+    budget_s = None if calibration_s is None else settings.max_time_fraction * calibration_s
     started = time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         rng = np.random.default_rng(seed)
@@ -180,7 +170,14 @@ def main() -> None:
             prior_turn_rad=float(np.radians(settings.prior_turn_deg)),
         )
         reference = recorded_residuals(calibration.residuals, None if args.no_reference else poses, poses)
-        selection = select_waypoints(model, poses, count, np.isfinite(reference).all(axis=1))
+        selection = select_waypoints(
+            model,
+            poses,
+            count,
+            np.isfinite(reference).all(axis=1),
+            time_of=lambda indices: visit_time_s(job, poses[indices]),
+            budget_s=budget_s,
+        )
         shifted = moved_world(world, rng, SHIFT_M, 0.0)
         turned = moved_world(world, rng, 0.0, TURN_DEG)
         line = [f"seed {seed:3d}: waypoints {selection.indices}"]
@@ -194,7 +191,7 @@ def main() -> None:
             before = model.T_base_laser if args.no_reference else world.ground_truth_T_base_laser
             truths[name].append(move_between(before, case_world.ground_truth_T_base_laser))
             line.append(f"{name} chi2 {test.chi_square:6.1f}" if test else f"{name} not measured")
-        ratios.append(visit_time_s(job, poses[selection.indices]) / visit_time_s(job, poses))
+        ratios.append((selection.estimated_time_s or np.nan) / (calibration_s or np.nan))
         print(" | ".join(line), f"| time ratio {ratios[-1]:.3f}")
 
     print(f"\n{len(outcomes['unmoved'])} seeds in {time.perf_counter() - started:.0f} s")
@@ -203,8 +200,10 @@ def main() -> None:
         flagged = sum(1 for t in tests if t is None or t.changed)
         low, high = clopper_pearson(flagged, len(tests))
         label = "false-alarm rate (unmoved)" if name == "unmoved" else f"detection rate ({name})"
-        print(f"  {label}: {flagged}/{len(tests)} = {flagged / len(tests):.1%} (95 % CI {low:.1%}-{high:.1%})"
-              f"; verdicts {verdicts[name]}")
+        print(
+            f"  {label}: {flagged}/{len(tests)} = {flagged / len(tests):.1%} (95 % CI {low:.1%}-{high:.1%})"
+            f"; verdicts {verdicts[name]}"
+        )
     print("  estimated move against the true move:")
     for name, truth_list in truths.items():
         coverage = [
@@ -214,9 +213,16 @@ def main() -> None:
         ]
         errors = np.array(
             [
-                [np.linalg.norm(t.correction[:3] - truth[:3]) * 1e3,
-                 np.degrees(np.linalg.norm(matrix_to_rotvec(rotvec_to_matrix(t.correction[3:]).T
-                                                              @ rotvec_to_matrix(truth[3:]))))]
+                [
+                    np.linalg.norm(t.correction[:3] - truth[:3]) * 1e3,
+                    np.degrees(
+                        np.linalg.norm(
+                            matrix_to_rotvec(
+                                rotvec_to_matrix(t.correction[3:]).T @ rotvec_to_matrix(truth[3:])
+                            )
+                        )
+                    ),
+                ]
                 for t, truth in zip(outcomes[name], truth_list, strict=True)
                 if t is not None
             ]
@@ -228,7 +234,10 @@ def main() -> None:
             f"within 2 std {np.mean(values < 2.0):.1%}"
         )
     ratio = np.array(ratios)
-    print(f"  verify time / calibration time: median {np.median(ratio):.3f}, max {ratio.max():.3f} (target <= 0.25)")
+    print(
+        f"  verify time / calibration time: median {np.median(ratio):.3f}, max {ratio.max():.3f} "
+        "(target <= 0.25)"
+    )
 
 
 if __name__ == "__main__":

@@ -226,6 +226,9 @@ class VerifyConfig(_Strict):
     repeatability_mm: float = Field(
         0.1, ge=0.0, le=20.0, description="robot's return to a pose the calibration visited (RMS per axis)"
     )
+    max_time_fraction: float = Field(
+        0.25, gt=0.0, le=1.0, description="motion and dwell budget, as a share of the calibration's"
+    )
     prior_shift_mm: float = Field(
         20.0, gt=0.0, le=1000.0, description="std of a plausible bump (prior of the correction)"
     )

@@ -26,9 +26,22 @@ def test_cli_unmoved_scanner_is_ok(tmp_path: Path) -> None:
     calibration = write_calibration(tmp_path / "calibration", fast_job())
     out = tmp_path / "verify"
     completed = subprocess.run(
-        [sys.executable, "-m", "lasercal_hw.cli.main", "verify", "--calibration", str(calibration),
-         "--dry-run", "--json", "--out", str(out)],
-        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL,
+        [
+            sys.executable,
+            "-m",
+            "lasercal_hw.cli.main",
+            "verify",
+            "--calibration",
+            str(calibration),
+            "--dry-run",
+            "--json",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=200,
+        stdin=subprocess.DEVNULL,
     )
     assert completed.returncode == ExitCode.OK, completed.stderr[-2000:]
     document = json.loads(completed.stdout)
@@ -49,7 +62,9 @@ def test_moved_scanner_needs_recalibration_and_the_move_is_estimated(tmp_path: P
     scene = moved_scene(tmp_path / "moved.toml", SHIFT_M, TURN_RAD)
     events = []
     report = verify(
-        VerifyRequest(out_dir=tmp_path / "verify", dry_run=True, scene=scene), calibration, on_event=events.append
+        VerifyRequest(out_dir=tmp_path / "verify", dry_run=True, scene=scene),
+        calibration,
+        on_event=events.append,
     )
     assert report.verdict.status == "recalibrate", report.verdict.reason
     test = report.outcome.test

@@ -22,19 +22,24 @@ ScannerOption = Annotated[
     str | None, typer.Option("--scanner", help="Scanner URL (default: the job's scanner.url).")
 ]
 ConfigOption = Annotated[
-    Path | None, typer.Option("--config", help="Job file (TOML); default: the job recorded with the calibration.")
+    Path | None,
+    typer.Option("--config", help="Job file (TOML); default: the job recorded with the calibration."),
 ]
 WaypointsOption = Annotated[
-    int | None, typer.Option("--waypoints", min=2, max=20, help="Waypoints to visit (default verify.waypoints, 4).")
+    int | None,
+    typer.Option("--waypoints", min=2, max=20, help="Waypoints to visit (default verify.waypoints, 4)."),
 ]
 YesOption = Annotated[bool, typer.Option("--yes", "-y", help="Do not ask before moving the robot.")]
 JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON document (progress on stderr).")]
-OutOption = Annotated[Path | None, typer.Option("--out", help="Output folder (./lasercal-out/verify-<time>).")]
+OutOption = Annotated[
+    Path | None, typer.Option("--out", help="Output folder (./lasercal-out/verify-<time>).")
+]
 DryRunOption = Annotated[
     bool, typer.Option("--dry-run", help="Verify against a fake cell started on a free loopback address.")
 ]
 SceneOption = Annotated[
-    Path | None, typer.Option("--scene", help="Scene file for the --dry-run fake cell (e.g. a moved scanner).")
+    Path | None,
+    typer.Option("--scene", help="Scene file for the --dry-run fake cell (e.g. a moved scanner)."),
 ]
 
 _VERDICT_COLOURS = {"ok": "bold green", "degraded": "bold yellow", "recalibrate": "bold red"}
@@ -74,7 +79,9 @@ def _print_summary(report: VerifyReport) -> None:
     for name, path in report.files.items():
         console.print(f"  {name}: {escape(str(path))}")
     status = outcome.verdict.status
-    console.print(f"verdict: [{_VERDICT_COLOURS[status]}]{status.upper()}[/]: {escape(outcome.verdict.reason)}")
+    console.print(
+        f"verdict: [{_VERDICT_COLOURS[status]}]{status.upper()}[/]: {escape(outcome.verdict.reason)}"
+    )
 
 
 def verify_command(
@@ -100,7 +107,12 @@ def verify_command(
     from rich.markup import escape
 
     from lasercal_hw.cli.common import console, err_console, print_json
-    from lasercal_hw.cli.run import ProgressView, _confirm, _require_confirmation_possible, _sigterm_as_interrupt
+    from lasercal_hw.cli.run import (
+        ProgressView,
+        _confirm,
+        _require_confirmation_possible,
+        _sigterm_as_interrupt,
+    )
     from lasercal_hw.config import load_job
     from lasercal_hw.run.engine import default_out_dir
     from lasercal_hw.verify.procedure import VerifyRequest, verify
@@ -120,7 +132,9 @@ def verify_command(
         scene=scene,
     )
     with _sigterm_as_interrupt(), ProgressView(ui) as view:
-        report = verify(request, calibration, on_event=view, confirm=None if yes or dry_run else _confirm(view, ui))
+        report = verify(
+            request, calibration, on_event=view, confirm=None if yes or dry_run else _confirm(view, ui)
+        )
     if as_json:
         print_json(report.document())
     else:

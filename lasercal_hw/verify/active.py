@@ -59,7 +59,9 @@ def load_active_calibration(path: Path) -> ActiveCalibration:
     try:
         document = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise ConfigError(f"calibration file {path} does not exist; pass the result.json of a calibration") from None
+        raise ConfigError(
+            f"calibration file {path} does not exist; pass the result.json of a calibration"
+        ) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(f"cannot read calibration file {path}: {exc}") from None
     if not isinstance(document, dict):

@@ -130,10 +130,14 @@ class DriftTest:
         """Angle of the turn and its std about the turn's axis (deg)."""
         return _norm_and_std(self.correction[3:], self.correction_covariance[3:, 3:], float(np.degrees(1.0)))
 
-    def corrected_T_base_laser(self, T_base_laser: FloatArray) -> FloatArray:
+    def corrected_T_base_laser(  # noqa: N802 (the transform's name everywhere)
+        self, T_base_laser: FloatArray
+    ) -> FloatArray:
         """The active transform with the correction applied."""
         T = np.asarray(T_base_laser, dtype=float)
-        return make_transform(rotvec_to_matrix(self.correction[3:]) @ T[:3, :3], T[:3, 3] + self.correction[:3])
+        return make_transform(
+            rotvec_to_matrix(self.correction[3:]) @ T[:3, :3], T[:3, 3] + self.correction[:3]
+        )
 
 
 def _norm_and_std(vector: FloatArray, covariance: FloatArray, unit: float) -> tuple[float, float]:
@@ -169,7 +173,11 @@ def noise_blocks(
 
 
 def residual_covariance(
-    model: DriftModel, jac: FloatArray, slope: FloatArray, covariance_uv_m2: FloatArray, visited: NDArray[np.bool_]
+    model: DriftModel,
+    jac: FloatArray,
+    slope: FloatArray,
+    covariance_uv_m2: FloatArray,
+    visited: NDArray[np.bool_],
 ) -> FloatArray:
     """``S`` (2N, 2N) of the module docstring."""
     j = (jac * (~visited)[:, None, None]).reshape(-1, 6)
@@ -193,7 +201,9 @@ def run_drift_test(
     measured = np.asarray(measured_uv_m, dtype=float).reshape(-1, 2)
     poses = np.asarray(tcp_poses, dtype=float).reshape(-1, 6)
     n = len(measured)
-    recorded = np.full((n, 2), np.nan) if recorded_residual_uv_m is None else np.asarray(recorded_residual_uv_m)
+    recorded = (
+        np.full((n, 2), np.nan) if recorded_residual_uv_m is None else np.asarray(recorded_residual_uv_m)
+    )
     visited = np.isfinite(recorded).all(axis=1)
     crossing, jac, slope = predictions(model.T_base_laser, poses, model.rod)
     predicted = crossing + np.where(visited[:, None], recorded, 0.0)
@@ -203,8 +213,12 @@ def run_drift_test(
     chi_square = float(d @ cho_solve(factor, d))
     dof = d.size
     blocks = total.reshape(n, 2, n, 2)[np.arange(n), :, np.arange(n)]
-    per_waypoint = np.array([float(r @ np.linalg.solve(b, r)) for r, b in zip(d.reshape(-1, 2), blocks, strict=True)])
-    correction, correction_cov, post_fit = _correction(model, poses, measured - (predicted - crossing), factor)
+    per_waypoint = np.array(
+        [float(r @ np.linalg.solve(b, r)) for r, b in zip(d.reshape(-1, 2), blocks, strict=True)]
+    )
+    correction, correction_cov, post_fit = _correction(
+        model, poses, measured - (predicted - crossing), factor
+    )
     post_dof = dof - _RIGID_PARAMETERS
     alpha = model.false_alarm_rate
     return DriftTest(

@@ -47,7 +47,8 @@ def _text(record: dict[str, Any] | None, key: str) -> str | None:
 def _rod_text(rod: RodLine) -> str:
     origin = ", ".join(f"{v * 1e3:.1f}" for v in np.asarray(rod.origin_m, dtype=float))
     direction = ", ".join(f"{v:.3f}" for v in rod.unit_direction())
-    return f"r {rod.radius_m * 1e3:.1f} mm, length {rod.length_m * 1e3:.0f} mm, origin ({origin}) mm, axis ({direction})"
+    size = f"r {rod.radius_m * 1e3:.1f} mm, length {rod.length_m * 1e3:.0f} mm"
+    return f"{size}, origin ({origin}) mm, axis ({direction})"
 
 
 def _same_rod(a: RodLine, b: RodLine) -> bool:

@@ -132,7 +132,9 @@ def verify_document(outcome: VerifyOutcome, *, ground_truth: FloatArray | None =
         },
     }
     if test is not None:
-        document["T_base_laser_corrected"] = _floats(test.corrected_T_base_laser(outcome.calibration.T_base_laser))
+        document["T_base_laser_corrected"] = _floats(
+            test.corrected_T_base_laser(outcome.calibration.T_base_laser)
+        )
     if ground_truth is not None:
         truth = np.asarray(ground_truth, dtype=float)
         document["ground_truth"] = {
@@ -151,9 +153,12 @@ def _report_data(outcome: VerifyOutcome) -> ReportData:
     turn_deg, turn_std = test.turn_norm_deg()
     notes = [
         f"verdict: {outcome.verdict.status.upper()}: {outcome.verdict.reason}",
-        f"estimated move: shift {shift_mm:.2f} +- {shift_std:.2f} mm, turn {turn_deg:.3f} +- {turn_std:.3f} deg",
-        f"shift (x, y, z) mm: {np.round(test.shift_mm, 2).tolist()}; turn deg: {np.round(test.turn_deg, 3).tolist()}",
-        f"red: waypoint residual beyond {single_limit:.2f} sigma (chi-square 2 dof, {test.false_alarm_rate:.0%})",
+        f"estimated move: shift {shift_mm:.2f} +- {shift_std:.2f} mm, "
+        f"turn {turn_deg:.3f} +- {turn_std:.3f} deg",
+        f"shift (x, y, z) mm: {np.round(test.shift_mm, 2).tolist()}; "
+        f"turn deg: {np.round(test.turn_deg, 3).tolist()}",
+        f"red: waypoint residual beyond {single_limit:.2f} sigma "
+        f"(chi-square 2 dof, {test.false_alarm_rate:.0%})",
         *(c.describe() for c in outcome.identity),
     ]
     fraction = outcome.time_fraction()

@@ -31,6 +31,7 @@ from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
 from lasercal_hw.verify.identity import IdentityCheck, check_identity
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
 from lasercal_hw.verify.selection import Selection, select_waypoints
+from lasercal_hw.verify.timing import visit_time_s
 from lasercal_hw.verify.verdict import Verdict, decide
 
 MIN_MEASURED = 2
@@ -86,7 +87,10 @@ def verify_job(active: ActiveCalibration, job: JobConfig | None) -> JobConfig:
             f"{active.path} does not record the job it was made with: pass the job file with --config"
         )
     T = active.T_base_laser
-    nominal = {"translation_m": T[:3, 3].tolist(), "euler_zyx_deg": np.degrees(matrix_to_euler_zyx(T[:3, :3])).tolist()}
+    nominal = {
+        "translation_m": T[:3, 3].tolist(),
+        "euler_zyx_deg": np.degrees(matrix_to_euler_zyx(T[:3, :3])).tolist(),
+    }
     return with_overrides(chosen, {"scanner.nominal": nominal}, source="verify job")
 
 
@@ -103,6 +107,16 @@ def drift_model(active: ActiveCalibration, job: JobConfig) -> DriftModel:
         prior_shift_m=settings.prior_shift_mm / 1000.0,
         prior_turn_rad=float(np.radians(settings.prior_turn_deg)),
     )
+
+
+def time_budget_s(active: ActiveCalibration, job: JobConfig) -> float | None:
+    """``verify.max_time_fraction`` of the calibration's motion and dwell (estimated the
+    same way as the verify's); None when its trajectory was not recorded or not reachable."""
+    calibration_waypoints = active.waypoints()
+    if active.job is None or calibration_waypoints is None:
+        return None
+    estimate_s = visit_time_s(active.job, calibration_waypoints)
+    return None if estimate_s is None else job.verify.max_time_fraction * estimate_s
 
 
 def verify(
@@ -126,7 +140,14 @@ def verify(
     waypoints = job_waypoints(job)
     reference = recorded_residuals(active.result.residuals, active.waypoints(), waypoints)
     count = request.waypoints or job.verify.waypoints
-    selection = select_waypoints(model, waypoints, count, np.isfinite(reference).all(axis=1))
+    selection = select_waypoints(
+        model,
+        waypoints,
+        count,
+        np.isfinite(reference).all(axis=1),
+        time_of=lambda indices: visit_time_s(job, waypoints[indices]),
+        budget_s=time_budget_s(active, job),
+    )
     sink.emit(
         "stage",
         f"verifying {active.path} at waypoints {selection.indices} of {len(waypoints)}",
@@ -134,6 +155,7 @@ def verify(
         waypoints=selection.indices,
         expected_std_shift_mm=selection.expected_std_shift_mm,
         expected_std_turn_deg=selection.expected_std_turn_deg,
+        estimated_time_s=selection.estimated_time_s,
     )
     run_request = RunRequest(
         job=job,
@@ -155,12 +177,14 @@ def verify(
         )
         found["identity"] = identity
         if not all(check.matches for check in identity):
-            raise _OtherDevices()  # the verdict is known: nothing moves
+            raise _OtherDevicesError()  # the verdict is known: nothing moves
         if confirm is not None:
             confirm(plan)
 
     try:
-        with open_sequencer(run_request, sink, cancel or CancelToken(), before_motion, resumable=False) as session:
+        with open_sequencer(
+            run_request, sink, cancel or CancelToken(), before_motion, resumable=False
+        ) as session:
             found["session"] = session
             session.recorder.write_event(
                 time.time(), "verify_start", calibration=str(active.path), waypoints=selection.indices
@@ -170,7 +194,7 @@ def verify(
             session.recorder.write_event(
                 time.time(), "verify_verdict", verdict=outcome.verdict.status, reason=outcome.verdict.reason
             )
-    except _OtherDevices:
+    except _OtherDevicesError:
         session = found["session"]
         verdict = decide(found["identity"], None, job.verify.tolerance_mm, job.verify.tolerance_deg)
         outcome = VerifyOutcome(
@@ -193,7 +217,7 @@ def verify(
     return report
 
 
-class _OtherDevices(Exception):
+class _OtherDevicesError(Exception):
     """Preflight met another scanner, robot or rod than the calibration's: stop before
     anything moves (not an error: the verdict is recalibrate)."""
 

@@ -6,20 +6,22 @@ waypoints under the verify's noise model, ``P`` the correction's prior (``drift`
 large determinant means a small confidence ellipsoid in every direction at once, so the
 chosen waypoints spread over the scan plane and the tool tilts by themselves: a subset
 that left one direction of the transform untested would have a near-zero factor there.
-Greedy selection, then exchanges until no swap improves the determinant.
+Greedy selection, then exchanges until no swap improves the determinant; with a time
+budget (``verify.max_time_fraction`` of the calibration's own motion and dwell, estimated
+by ``verify.timing``), the exchanges keep the subset inside it.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-
 from numpy.typing import NDArray
 
 from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base, whitening
 from lasercal_hw.errors import CalibrationError
-from lasercal_hw.models import FloatArray, RodLine
+from lasercal_hw.models import FloatArray
 from lasercal_hw.verify.drift import DriftModel, noise_blocks, predictions
 
 #: Centre noise the design assumes (a 20 mm rod over a 3 s dwell: about 0.5 mm per axis).
@@ -37,6 +39,7 @@ class Selection:
     candidates: int
     expected_std_shift_mm: list[float]
     expected_std_turn_deg: list[float]
+    estimated_time_s: float | None = None
 
 
 def _crosses_plane(model: DriftModel, waypoints: FloatArray) -> np.ndarray:
@@ -77,10 +80,16 @@ def select_waypoints(
     waypoints: FloatArray,
     count: int,
     visited: NDArray[np.bool_] | None = None,
+    *,
+    time_of: Callable[[list[int]], float | None] | None = None,
+    budget_s: float | None = None,
     sigma_uv_m: float = DESIGN_SIGMA_UV_M,
 ) -> Selection:
-    """The D-optimal subset of ``count`` waypoints (all usable ones if fewer);
-    ``visited`` (N,) marks the waypoints the calibration measured (None: none)."""
+    """The D-optimal subset of ``count`` waypoints (all usable ones if fewer), visited in
+    trajectory order; ``visited`` (N,) marks the waypoints the calibration measured (None:
+    none). With ``time_of`` (waypoint indices -> seconds, None if unknown) and
+    ``budget_s``, exchanges first bring the subset within the budget, then improve it
+    inside the budget only."""
     poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     seen = np.zeros(len(poses), dtype=bool) if visited is None else np.asarray(visited, dtype=bool)
     usable = np.flatnonzero(_crosses_plane(model, poses))
@@ -91,21 +100,35 @@ def select_waypoints(
         )
     information = waypoint_information(model, poses[usable], seen[usable], sigma_uv_m)
     base = np.linalg.inv(model.prior())
+
+    def score(subset: list[int]) -> float:
+        return _log_det(base + information[subset].sum(axis=0))
+
+    def seconds(subset: list[int]) -> float:
+        if time_of is None or budget_s is None:
+            return 0.0
+        value = time_of(sorted(int(usable[k]) for k in subset))
+        return 0.0 if value is None else value
+
+    def better(trial: list[int], current: list[int]) -> bool:
+        limit = np.inf if budget_s is None else budget_s
+        trial_s, current_s = seconds(trial), seconds(current)
+        if current_s > limit:  # over budget: any faster subset is better
+            return trial_s < current_s - 1e-9
+        return trial_s <= limit and score(trial) > score(current) + 1e-9
+
     chosen: list[int] = []
     for _ in range(min(count, len(usable))):
-        current = base + information[chosen].sum(axis=0)
-        scores = [-np.inf if k in chosen else _log_det(current + information[k]) for k in range(len(usable))]
+        scores = [-np.inf if k in chosen else score([*chosen, k]) for k in range(len(usable))]
         chosen.append(int(np.argmax(scores)))
     improved = True
     while improved:
         improved = False
-        best = _log_det(base + information[chosen].sum(axis=0))
         for slot in range(len(chosen)):
-            for k in set(range(len(usable))) - set(chosen):
-                trial = chosen[:slot] + [k] + chosen[slot + 1:]
-                value = _log_det(base + information[trial].sum(axis=0))
-                if value > best + 1e-9:
-                    chosen, best, improved = trial, value, True
+            for k in sorted(set(range(len(usable))) - set(chosen)):
+                trial = [*chosen[:slot], k, *chosen[slot + 1:]]
+                if better(trial, chosen):
+                    chosen, improved = trial, True
     covariance = np.linalg.inv(base + information[chosen].sum(axis=0))
     std = np.sqrt(np.diag(covariance))
     return Selection(
@@ -113,4 +136,5 @@ def select_waypoints(
         candidates=len(usable),
         expected_std_shift_mm=[float(v) for v in std[:3] * 1e3],
         expected_std_turn_deg=[float(v) for v in np.degrees(std[3:])],
+        estimated_time_s=time_of(sorted(int(usable[k]) for k in chosen)) if time_of is not None else None,
     )

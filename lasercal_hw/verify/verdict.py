@@ -21,7 +21,10 @@ class Verdict:
 
 
 def decide(
-    identity: list[IdentityCheck], test: DriftTest | None, tolerance_mm: float, tolerance_deg: float,
+    identity: list[IdentityCheck],
+    test: DriftTest | None,
+    tolerance_mm: float,
+    tolerance_deg: float,
     missing_reason: str | None = None,
 ) -> Verdict:
     """The verdict; ``test`` is None when too few waypoints were measured
@@ -37,14 +40,17 @@ def decide(
     )
     shift_mm, shift_std = test.shift_norm_mm()
     turn_deg, turn_std = test.turn_norm_deg()
-    move = f"scanner moved {shift_mm:.2f} +- {shift_std:.2f} mm and turned {turn_deg:.3f} +- {turn_std:.3f} deg"
+    move = (
+        f"scanner moved {shift_mm:.2f} +- {shift_std:.2f} mm and turned {turn_deg:.3f} +- {turn_std:.3f} deg"
+    )
     if not test.changed:
         return Verdict("ok", f"measurements agree with the calibration: {statistic}")
     if not test.rigid:
         return Verdict(
             "recalibrate",
             f"measurements disagree ({statistic}) in a way no rigid scanner move explains (post-fit "
-            f"chi-square {test.post_fit_chi_square:.1f} > {test.post_fit_threshold:.1f}): check the rod or tool",
+            f"chi-square {test.post_fit_chi_square:.1f} > {test.post_fit_threshold:.1f}): "
+            "check the rod or tool",
         )
     inside = shift_mm <= tolerance_mm and turn_deg <= tolerance_deg
     tolerance = f"tolerance {tolerance_mm:g} mm, {tolerance_deg:g} deg"
