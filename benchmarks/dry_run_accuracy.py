@@ -96,10 +96,12 @@ def errors(result: CalibrationResult, truth: np.ndarray) -> tuple[np.ndarray, np
     return dt_mm, de_deg
 
 
-def simulate(
+def measure_waypoints(
     job: JobConfig, waypoints: np.ndarray, world: World, scans: int, rng: np.random.Generator
-) -> Trial:
-    """One offline run of the sequencer's measurement chain and its two-pass solve."""
+) -> tuple[list[WaypointMeasurement], AveragedScan]:
+    """The sequencer's measurement chain offline: the background at the retract pose, then
+    each waypoint's averaged scans and rod centre (looking where the job's nominal
+    scanner pose predicts); waypoints without a rod are left out."""
     rod = job.rod.rod_line()
     background = dwell(world, retract_candidates(job, waypoints)[0], job.background.scans, rng)
     nominal = job.scanner.nominal
@@ -114,6 +116,14 @@ def simulate(
         except RodNotFoundError:
             continue
         measurements.append(WaypointMeasurement(index, pose, averaged, centre))
+    return measurements, background
+
+
+def simulate(
+    job: JobConfig, waypoints: np.ndarray, world: World, scans: int, rng: np.random.Generator
+) -> Trial:
+    """One offline run of the sequencer's measurement chain and its two-pass solve."""
+    measurements, background = measure_waypoints(job, waypoints, world, scans, rng)
     result = solve_two_pass(measurements, job, background).result
     dt_mm, de_deg = errors(result, world.ground_truth_T_base_laser)
     return Trial(result, dt_mm, de_deg, len(measurements))

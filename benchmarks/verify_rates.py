@@ -32,17 +32,16 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import beta
 
-from benchmarks.dry_run_accuracy import dwell, simulate, world_for
+from benchmarks.dry_run_accuracy import measure_waypoints, simulate, world_for
 from fakes.world import World
 from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_to_matrix
-from lasercal_hw.run.sequencer import WaypointMeasurement, predict_rod, retract_candidates
+from lasercal_hw.run.sequencer import refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
-from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 from lasercal_hw.verify.active import recorded_residuals
-from lasercal_hw.verify.centres import refit_centres
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
+from lasercal_hw.verify.procedure import drift_model, verify_job
 from lasercal_hw.verify.selection import select_waypoints
 from lasercal_hw.verify.timing import visit_time_s
 from lasercal_hw.verify.verdict import decide
@@ -75,7 +74,7 @@ def moved_world(world: World, rng: np.random.Generator, shift_m: float, turn_deg
 
 
 def visit(
-    job: JobConfig,
+    verify_job: JobConfig,
     world: World,
     poses: np.ndarray,
     indices: list[int],
@@ -84,31 +83,20 @@ def visit(
     scans: int,
     rng: np.random.Generator,
 ) -> DriftTest | None:
-    """One offline verify: background, dwell at each chosen waypoint, extraction, test."""
-    rod = job.rod.rod_line()
-    chosen = poses[indices]
-    background = dwell(world, retract_candidates(job, chosen)[0], job.background.scans, rng)
-    measurements = []
-    for index, pose in zip(indices, chosen, strict=True):
-        averaged = dwell(world, pose, scans, rng)
-        expected = predict_rod(model.T_base_laser, pose, rod).expected_uv_m
-        try:
-            centre = find_rod_centre(
-                averaged, radius_m=rod.radius_m, background=background, expected_uv_m=expected
-            )
-        except RodNotFoundError:
-            continue
-        measurements.append(WaypointMeasurement(index, pose, averaged, centre))
+    """One offline verify: background, dwell at each chosen waypoint, extraction looking
+    where the calibration predicts (the verify job's nominal pose), re-fit, test."""
+    measurements, background = measure_waypoints(verify_job, poses[indices], world, scans, rng)
     if len(measurements) < 2:
         return None
-    refitted, _ = refit_centres(measurements, model.T_base_laser, rod, background)
+    refitted, _ = refit_centres(measurements, model.T_base_laser, verify_job.rod.rod_line(), background)
+    job_index = [indices[m.index] for m in refitted]
     return run_drift_test(
         model,
-        [m.index for m in refitted],
+        job_index,
         np.array([m.tcp_pose for m in refitted]),
         np.array([m.centre.centre_uv_m for m in refitted]),
         np.array([m.centre.covariance_uv_m2 for m in refitted]),
-        reference[[m.index for m in refitted]],
+        reference[job_index],
     )
 
 
@@ -136,7 +124,6 @@ def main() -> None:
     job = load_job(args.config)
     count = args.waypoints or job.verify.waypoints
     poses = job_waypoints(job)
-    rod = job.rod.rod_line()
     scans = round(job.dwell_s / World.from_scene(args.scene).geometry.scan_period_s)
     settings = job.verify
     print(
@@ -159,16 +146,8 @@ def main() -> None:
         except LasercalError as exc:
             print(f"seed {seed}: calibration failed: {exc}")
             continue
-        model = DriftModel(
-            T_base_laser=calibration.matrix(),
-            covariance=np.asarray(calibration.covariance),
-            rod=rod,
-            robot_sigma_m=job.robot.position_accuracy_mm / 1000.0,
-            repeatability_m=settings.repeatability_mm / 1000.0,
-            false_alarm_rate=settings.false_alarm_rate,
-            prior_shift_m=settings.prior_shift_mm / 1000.0,
-            prior_turn_rad=float(np.radians(settings.prior_turn_deg)),
-        )
+        checking = verify_job(job, calibration.matrix())
+        model = drift_model(calibration.matrix(), np.asarray(calibration.covariance), checking)
         reference = recorded_residuals(calibration.residuals, None if args.no_reference else poses, poses)
         selection = select_waypoints(
             model,
@@ -182,7 +161,7 @@ def main() -> None:
         turned = moved_world(world, rng, 0.0, TURN_DEG)
         line = [f"seed {seed:3d}: waypoints {selection.indices}"]
         for name, case_world in (("unmoved", world), ("shifted", shifted), ("turned", turned)):
-            test = visit(job, case_world, poses, selection.indices, model, reference, scans, rng)
+            test = visit(checking, case_world, poses, selection.indices, model, reference, scans, rng)
             outcomes[name].append(test)
             verdict = decide([], test, settings.tolerance_mm, settings.tolerance_deg)
             verdicts[name][verdict.status] = verdicts[name].get(verdict.status, 0) + 1

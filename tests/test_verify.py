@@ -33,7 +33,7 @@ def setup(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriftModel, np.ndar
     job = fast_job()
     path = write_calibration(tmp_path_factory.mktemp("calibration"), job)
     active = load_active_calibration(path)
-    return drift_model(active, job), job_waypoints(job), path
+    return drift_model(active.T_base_laser, active.covariance, job), job_waypoints(job), path
 
 
 def moved(T: np.ndarray, correction: np.ndarray) -> np.ndarray:

@@ -107,7 +107,8 @@ def report_data(outcome: RunOutcome, job: JobConfig, title: str) -> ReportData:
     )
 
 
-def _write_text(path: Path, text: str) -> None:
+def write_text(path: Path, text: str) -> None:
+    """Write an output file; a failure is a ConfigError naming the file."""
     try:
         path.write_text(text, encoding="utf-8")
     except OSError as exc:
@@ -131,10 +132,10 @@ def write_outputs(
     }
     write_observations_csv(files["observations"], outcome.observations)
     document = result_document(outcome, job, ground_truth=ground_truth)
-    _write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
+    write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
     T = outcome.result.matrix()
-    _write_text(files["urdf"], urdf_joint(T))
-    _write_text(files["static_transform_publisher"], " ".join(static_transform_publisher_args(T)) + "\n")
+    write_text(files["urdf"], urdf_joint(T))
+    write_text(files["static_transform_publisher"], " ".join(static_transform_publisher_args(T)) + "\n")
     if job.output.report:
         files["report"] = render_report(report_data(outcome, job, title), out_dir / REPORT_FILE)
     return files

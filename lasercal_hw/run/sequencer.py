@@ -274,10 +274,30 @@ def solve_two_pass(
     first = solve([m.observation() for m in measurements], rod, options=options)
     if on_second_pass is not None:
         on_second_pass()
-    observations: list[Observation] = []
+    refitted, kept = refit_centres(measurements, first.matrix(), rod, background)
+    observations = [m.observation() for m in refitted]
+    result = solve(observations, rod, options=options)
+    refinement = (
+        f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
+        "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
+    )
+    return TwoPassSolution(first, result, observations, refinement, kept)
+
+
+def refit_centres(
+    measurements: Sequence[WaypointMeasurement],
+    T_base_laser: FloatArray,
+    rod: RodLine,
+    background: AveragedScan | None,
+) -> tuple[list[WaypointMeasurement], list[tuple[int, str]]]:
+    """The measurements with each centre fitted again as the ellipse the rod axis predicted
+    by ``T_base_laser`` cuts from the plane (the second pass; ``lasercal verify`` with the
+    active calibration), and the waypoints (index, reason) that kept their first centre
+    because the re-fit failed."""
+    refitted: list[WaypointMeasurement] = []
     kept: list[tuple[int, str]] = []
     for m in measurements:
-        predicted = predict_rod(first.matrix(), m.tcp_pose, rod)
+        predicted = predict_rod(T_base_laser, m.tcp_pose, rod)
         try:
             centre = find_rod_centre(
                 m.averaged,
@@ -288,15 +308,10 @@ def solve_two_pass(
             )
         except RodNotFoundError as exc:
             kept.append((m.index, str(exc)))
-            observations.append(m.observation())
+            refitted.append(m)
             continue
-        observations.append(WaypointMeasurement(m.index, m.tcp_pose, m.averaged, centre).observation())
-    result = solve(observations, rod, options=options)
-    refinement = (
-        f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
-        "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
-    )
-    return TwoPassSolution(first, result, observations, refinement, kept)
+        refitted.append(WaypointMeasurement(m.index, m.tcp_pose, m.averaged, centre))
+    return refitted, kept
 
 
 class Sequencer:

@@ -13,10 +13,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from lasercal_hw.config import JobConfig
-from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.outputs.report import ReportData, render_report
-from lasercal_hw.run.outputs import transform_error
+from lasercal_hw.run.outputs import transform_error, write_text
 from lasercal_hw.run.sequencer import Timings
 from lasercal_hw.verify.active import ActiveCalibration
 from lasercal_hw.verify.drift import DriftTest
@@ -178,20 +177,13 @@ def _report_data(outcome: VerifyOutcome) -> ReportData:
     )
 
 
-def _write_text(path: Path, text: str) -> None:
-    try:
-        path.write_text(text, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"cannot write {path}: {exc.strerror or exc}") from exc
-
-
 def write_verify_outputs(
     out_dir: Path, outcome: VerifyOutcome, *, ground_truth: FloatArray | None = None
 ) -> dict[str, Path]:
     """Write ``verify.json`` and (when the job asks for reports and there is a test) the PNG."""
     files = {"verify": out_dir / VERIFY_FILE}
     document = verify_document(outcome, ground_truth=ground_truth)
-    _write_text(files["verify"], json.dumps(document, indent=2, allow_nan=False) + "\n")
+    write_text(files["verify"], json.dumps(document, indent=2, allow_nan=False) + "\n")
     if outcome.job.output.report and outcome.test is not None:
         files["report"] = render_report(_report_data(outcome), out_dir / REPORT_FILE)
     return files

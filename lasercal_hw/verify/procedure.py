@@ -23,10 +23,9 @@ from lasercal_hw.models import FloatArray
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.engine import MotionPlan, RunRequest, open_sequencer
 from lasercal_hw.run.events import EventSink, RunEvent
-from lasercal_hw.run.sequencer import Measured, Timings
+from lasercal_hw.run.sequencer import Measured, Timings, refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify.active import ActiveCalibration, load_active_calibration, recorded_residuals
-from lasercal_hw.verify.centres import refit_centres
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
 from lasercal_hw.verify.identity import IdentityCheck, check_identity
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
@@ -78,28 +77,21 @@ class VerifyReport:
         return document
 
 
-def verify_job(active: ActiveCalibration, job: JobConfig | None) -> JobConfig:
-    """The job a verify runs: the given one, else the calibration's own; the scanner's
-    nominal pose is the active calibration, so the extraction looks where it predicts."""
-    chosen = job if job is not None else active.job
-    if chosen is None:
-        raise ConfigError(
-            f"{active.path} does not record the job it was made with: pass the job file with --config"
-        )
-    T = active.T_base_laser
-    nominal = {
-        "translation_m": T[:3, 3].tolist(),
-        "euler_zyx_deg": np.degrees(matrix_to_euler_zyx(T[:3, :3])).tolist(),
-    }
-    return with_overrides(chosen, {"scanner.nominal": nominal}, source="verify job")
+def verify_job(job: JobConfig, T_base_laser: FloatArray) -> JobConfig:
+    """The job with the calibration as the scanner's nominal pose, so that the extraction
+    looks for the rod where the calibration predicts it."""
+    T = np.asarray(T_base_laser, dtype=float)
+    euler_deg = np.degrees(matrix_to_euler_zyx(T[:3, :3]))
+    nominal = {"translation_m": T[:3, 3].tolist(), "euler_zyx_deg": euler_deg.tolist()}
+    return with_overrides(job, {"scanner.nominal": nominal}, source="verify job")
 
 
-def drift_model(active: ActiveCalibration, job: JobConfig) -> DriftModel:
-    """The test's prior knowledge: the active calibration and the job's noise settings."""
+def drift_model(T_base_laser: FloatArray, covariance: FloatArray, job: JobConfig) -> DriftModel:
+    """The test's prior knowledge: the calibration and the job's noise settings."""
     settings = job.verify
     return DriftModel(
-        T_base_laser=active.T_base_laser,
-        covariance=active.covariance,
+        T_base_laser=np.asarray(T_base_laser, dtype=float),
+        covariance=np.asarray(covariance, dtype=float),
         rod=job.rod.rod_line(),
         robot_sigma_m=job.robot.position_accuracy_mm / 1000.0,
         repeatability_m=settings.repeatability_mm / 1000.0,
@@ -135,8 +127,13 @@ def verify(
     """
     sink = EventSink(on_event)
     active = load_active_calibration(calibration_result_path)
-    job = verify_job(active, request.job)
-    model = drift_model(active, job)
+    chosen_job = request.job if request.job is not None else active.job
+    if chosen_job is None:
+        raise ConfigError(
+            f"{active.path} does not record the job it was made with: pass the job file with --config"
+        )
+    job = verify_job(chosen_job, active.T_base_laser)
+    model = drift_model(active.T_base_laser, active.covariance, job)
     waypoints = job_waypoints(job)
     reference = recorded_residuals(active.result.residuals, active.waypoints(), waypoints)
     count = request.waypoints or job.verify.waypoints
