@@ -40,8 +40,8 @@ from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_t
 from lasercal_hw.run.sequencer import refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify.active import recorded_residuals
-from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
-from lasercal_hw.verify.procedure import drift_model, verify_job
+from lasercal_hw.verify.drift import DriftModel, DriftTest
+from lasercal_hw.verify.procedure import drift_model, drift_test_of, verify_job
 from lasercal_hw.verify.selection import select_waypoints
 from lasercal_hw.verify.timing import visit_time_s
 from lasercal_hw.verify.verdict import decide
@@ -89,15 +89,7 @@ def visit(
     if len(measurements) < 2:
         return None
     refitted, _ = refit_centres(measurements, model.T_base_laser, verify_job.rod.rod_line(), background)
-    job_index = [indices[m.index] for m in refitted]
-    return run_drift_test(
-        model,
-        job_index,
-        np.array([m.tcp_pose for m in refitted]),
-        np.array([m.centre.centre_uv_m for m in refitted]),
-        np.array([m.centre.covariance_uv_m2 for m in refitted]),
-        reference[job_index],
-    )
+    return drift_test_of(model, refitted, indices, reference)
 
 
 def clopper_pearson(hits: int, trials: int) -> tuple[float, float]:

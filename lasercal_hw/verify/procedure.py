@@ -9,7 +9,7 @@ The CLI (``lasercal verify``) and the daemon call this; it never prints and neve
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,7 +23,7 @@ from lasercal_hw.models import FloatArray
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.engine import MotionPlan, RunRequest, open_sequencer
 from lasercal_hw.run.events import EventSink, RunEvent
-from lasercal_hw.run.sequencer import Measured, Timings, refit_centres
+from lasercal_hw.run.sequencer import Measured, Timings, WaypointMeasurement, refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify.active import ActiveCalibration, load_active_calibration, recorded_residuals
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
@@ -214,6 +214,22 @@ def verify(
     return report
 
 
+def drift_test_of(
+    model: DriftModel, measurements: Sequence[WaypointMeasurement], indices: list[int], reference: FloatArray
+) -> DriftTest:
+    """The drift test of re-fitted measurements of the chosen waypoints ``indices`` (their
+    ``index`` counts those); ``reference``: the calibration's residuals at every job waypoint."""
+    job_index = [indices[m.index] for m in measurements]
+    return run_drift_test(
+        model,
+        job_index,
+        np.array([m.tcp_pose for m in measurements]),
+        np.array([m.centre.centre_uv_m for m in measurements]),
+        np.array([m.centre.covariance_uv_m2 for m in measurements]),
+        reference[job_index],
+    )
+
+
 class _OtherDevicesError(Exception):
     """Preflight met another scanner, robot or rod than the calibration's: stop before
     anything moves (not an error: the verdict is recalibrate)."""
@@ -230,20 +246,13 @@ def _evaluate(
 ) -> VerifyOutcome:
     """Re-fit, test and verdict for what the sequencer measured (its indices count the
     chosen waypoints; the outcome speaks of the job's waypoint numbers)."""
-    rod = job.rod.rod_line()
-    refitted, kept = refit_centres(measured.measurements, active.T_base_laser, rod, measured.background)
-    job_index = [selection.indices[m.index] for m in refitted]
+    refitted, kept = refit_centres(
+        measured.measurements, active.T_base_laser, job.rod.rod_line(), measured.background
+    )
     test: DriftTest | None = None
     missing = None
     if len(refitted) >= MIN_MEASURED:
-        test = run_drift_test(
-            model,
-            job_index,
-            np.array([m.tcp_pose for m in refitted]),
-            np.array([m.centre.centre_uv_m for m in refitted]),
-            np.array([m.centre.covariance_uv_m2 for m in refitted]),
-            reference[job_index],
-        )
+        test = drift_test_of(model, refitted, selection.indices, reference)
     else:
         reasons = "; ".join(f"waypoint {selection.indices[s.index]}: {s.reason}" for s in measured.skipped)
         missing = (
@@ -258,7 +267,9 @@ def _evaluate(
         identity=identity,
         test=test,
         verdict=verdict,
-        visited_by_calibration=[bool(np.isfinite(reference[i]).all()) for i in job_index],
+        visited_by_calibration=[]
+        if test is None
+        else [bool(np.isfinite(reference[i]).all()) for i in test.indices],
         skipped=[(selection.indices[s.index], s.reason) for s in measured.skipped],
         kept_first_fit=[(selection.indices[i], reason) for i, reason in kept],
         timings=measured.timings,
