@@ -127,12 +127,20 @@ def measure(
     return measurements
 
 
+
+def measure_waypoints(
+    job: JobConfig, waypoints: np.ndarray, world: World, scans: int, rng: np.random.Generator
+) -> tuple[list[WaypointMeasurement], AveragedScan]:
+    """The whole chain offline: the background at the retract pose, then ``measure``."""
+    background = dwell(world, retract_candidates(job, waypoints)[0], job.background.scans, rng)
+    return measure(job, waypoints, world, scans, rng, background), background
+
+
 def simulate(
     job: JobConfig, waypoints: np.ndarray, world: World, scans: int, rng: np.random.Generator
 ) -> Trial:
     """One offline run of the sequencer's measurement chain and its two-pass solve."""
-    background = dwell(world, retract_candidates(job, waypoints)[0], job.background.scans, rng)
-    measurements = measure(job, waypoints, world, scans, rng, background)
+    measurements, background = measure_waypoints(job, waypoints, world, scans, rng)
     result = solve_two_pass(measurements, job, background).result
     dt_mm, de_deg = errors(result, world.ground_truth_T_base_laser)
     return Trial(result, dt_mm, de_deg, len(measurements))

@@ -243,6 +243,27 @@ class QualityConfig(_Strict):
     min_observations: int = Field(8, ge=6)
 
 
+class VerifyConfig(_Strict):
+    """The drift check ``lasercal verify`` (docs/verify.md): how many waypoints, the
+    false-alarm rate of its chi-square test, and the application tolerance that separates
+    ``degraded`` (changed, still usable) from ``recalibrate``."""
+
+    waypoints: int = Field(4, ge=2, le=20, description="waypoints visited (--waypoints overrides)")
+    false_alarm_rate: float = Field(0.01, gt=0.0, lt=0.5, description="of the chi-square test")
+    tolerance_mm: float = Field(2.0, gt=0.0, le=100.0, description="scanner shift still usable")
+    tolerance_deg: float = Field(0.2, gt=0.0, le=10.0, description="scanner turn still usable")
+    repeatability_mm: float = Field(
+        0.1, ge=0.0, le=20.0, description="robot's return to a pose the calibration visited (RMS per axis)"
+    )
+    max_time_fraction: float = Field(
+        0.25, gt=0.0, le=1.0, description="motion and dwell budget, as a share of the calibration's"
+    )
+    prior_shift_mm: float = Field(
+        20.0, gt=0.0, le=1000.0, description="std of a plausible bump (prior of the correction)"
+    )
+    prior_turn_deg: float = Field(2.0, gt=0.0, le=90.0, description="std of a plausible bump's turn")
+
+
 class OutputConfig(_Strict):
     """Where results go (``--out`` overrides ``dir``; default ``./lasercal-out/<timestamp>``)."""
 
@@ -264,6 +285,7 @@ class JobConfig(_Strict):
     motion: MotionConfig = Field(default_factory=MotionConfig)
     workspace: WorkspaceConfig = Field(default_factory=WorkspaceConfig)
     quality: QualityConfig = Field(default_factory=QualityConfig)
+    verify: VerifyConfig = Field(default_factory=VerifyConfig)
     output: OutputConfig = Field(default_factory=OutputConfig)
 
     def background_lift_m(self) -> float:

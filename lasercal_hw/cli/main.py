@@ -38,6 +38,10 @@ class _Commands(LazyGroup):
             "lasercal_hw.cli.run:run_command",
             "Calibrate against the robot (or a fake cell with --dry-run) and write the results.",
         ),
+        "verify": LazyCommand(
+            "lasercal_hw.cli.verify:verify_command",
+            "Check that the active calibration still holds: a few waypoints, a drift test, a verdict.",
+        ),
         "fake": LazyCommand(
             "lasercal_hw.cli.fake:fake_app",
             "Run fake devices (scanner, robot) that speak the exact wire protocols, for dry runs and CI.",

@@ -88,7 +88,7 @@ class ProgressView:
 
 
 @contextlib.contextmanager
-def _interrupt_once() -> Iterator[None]:
+def interrupt_once() -> Iterator[None]:
     """Ctrl-C (SIGINT) and SIGTERM stop the run as KeyboardInterrupt; later ones are ignored
     until the run has stopped the arm and closed its recording (a terminal sends SIGINT to
     the whole process group, and an impatient operator presses Ctrl-C twice)."""
@@ -109,7 +109,7 @@ def _interrupt_once() -> Iterator[None]:
             signal.signal(each, handler)
 
 
-def _require_confirmation_possible(yes: bool, dry_run: bool) -> None:
+def require_confirmation_possible(yes: bool, dry_run: bool) -> None:
     if yes or dry_run or sys.stdin.isatty():
         return
     raise ConfigError(
@@ -118,7 +118,7 @@ def _require_confirmation_possible(yes: bool, dry_run: bool) -> None:
     )
 
 
-def _confirm(view: ProgressView, ui: Console) -> Callable[[MotionPlan], None]:
+def confirm_before_motion(view: ProgressView, ui: Console) -> Callable[[MotionPlan], None]:
     def ask(plan: MotionPlan) -> None:
         with view.paused():
             ui.print(f"Preflight passed. {plan.summary()} Keep clear of the arm.")
@@ -198,7 +198,7 @@ def run_command(
     """
     if scene is not None and not dry_run:
         raise ConfigError("--scene only applies to --dry-run")
-    _require_confirmation_possible(yes, dry_run)
+    require_confirmation_possible(yes, dry_run)
     ui = err_console if as_json else console
     if resume is not None and (config is not None or dwell is not None or out is not None):
         raise ConfigError("--resume continues the recorded job: leave out --config, --dwell and --out")
@@ -214,9 +214,9 @@ def run_command(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    with _interrupt_once(), ProgressView(ui) as view:
+    with interrupt_once(), ProgressView(ui) as view:
         report = calibrate(
-            request, on_event=view, confirm=None if yes or dry_run else _confirm(view, ui)
+            request, on_event=view, confirm=None if yes or dry_run else confirm_before_motion(view, ui)
         )
     if as_json:
         print_json(report.document())

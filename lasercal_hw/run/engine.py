@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -36,7 +36,10 @@ from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
 
-__all__ = ["CancelToken", "MotionPlan", "RunEvent", "RunReport", "RunRequest", "calibrate", "default_out_dir"]
+__all__ = [
+    "CancelToken", "MotionPlan", "RunEvent", "RunReport", "RunRequest", "SequencerSession", "calibrate",
+    "default_out_dir", "open_sequencer",
+]
 
 DRY_RUN_SCENE_FILE = "dry_run_scene.toml"
 
@@ -162,9 +165,66 @@ def calibrate(
     """
     sink = EventSink(on_event)
     cancel = cancel or CancelToken()
+    started_s = time.monotonic()
+    with open_sequencer(request, sink, cancel, confirm) as session:
+        outcome = session.sequencer.run()
+        if session.job.trajectory.adaptive:  # design the rest from this estimate, measure it, solve all
+            outcome = run_second_design(
+                session.robot, session.scanner, session.recorder, session.job, session.waypoints, outcome,
+                on_progress=sink.progress_listener(session.job.rod.radius_m), cancel=cancel,
+            )
+        sink.emit("stage", "writing the outputs", stage="outputs")
+        files = {"session": session.session_path} | write_outputs(
+            session.out_dir, outcome, session.job, ground_truth=session.ground_truth, title=request.title
+        )
+    ground_truth, fake_cell, out_dir = session.ground_truth, session.fake_cell, session.out_dir
+    report = RunReport(outcome, files, out_dir, ground_truth, fake_cell, time.monotonic() - started_s)
+    result = outcome.result
+    failures = "; ".join(outcome.verdict.failures())
+    sink.emit(
+        "result",
+        "passed" if outcome.verdict.passed else f"quality gate failed: {failures}",
+        passed=outcome.verdict.passed,
+        T_base_laser=result.T_base_laser,
+        std_translation_mm=result.std_translation_mm,
+        std_rotation_deg=result.std_rotation_deg,
+        rms_residual_mm=result.rms_residual_mm,
+    )
+    return report
+
+
+@dataclass(frozen=True)
+class SequencerSession:
+    """A sequencer connected to the devices (or a dry run's fake cell) and recording to
+    ``session_path``: what ``open_sequencer`` hands to a procedure."""
+
+    job: JobConfig
+    waypoints: FloatArray
+    out_dir: Path
+    session_path: Path
+    sequencer: Sequencer
+    robot: Robot
+    scanner: Scanner
+    recorder: SessionRecorder
+    ground_truth: FloatArray | None
+    fake_cell: dict[str, Any] | None
+
+
+@contextlib.contextmanager
+def open_sequencer(
+    request: RunRequest,
+    sink: EventSink,
+    cancel: CancelToken,
+    confirm: Callable[[MotionPlan], None] | None = None,
+    *,
+    resumable: bool = True,
+) -> Iterator[SequencerSession]:
+    """Everything a run does around its sequencer, for ``calibrate`` and for other
+    procedures on the same machinery (``lasercal verify`` measures without solving):
+    output folder, fake cell, devices, recording, and on failure where the recording is
+    (with the ``--resume`` hint when ``resumable``)."""
     job, waypoints, out_dir, state, created = _prepare(request)
     session_path = request.resume or out_dir / SESSION_FILE
-    started_s = time.monotonic()
     try:
         with contextlib.ExitStack() as stack:
             ground_truth: FloatArray | None = None
@@ -191,32 +251,13 @@ def calibrate(
                 resume=state,
                 cancel=cancel,
             )
-            outcome = sequencer.run()
-            if job.trajectory.adaptive:  # design the rest from this estimate, measure it, solve all
-                progress = sink.progress_listener(job.rod.radius_m)
-                outcome = run_second_design(
-                    robot, scanner, recorder, job, waypoints, outcome, on_progress=progress, cancel=cancel
-                )
-            sink.emit("stage", "writing the outputs", stage="outputs")
-            files = {"session": session_path} | write_outputs(
-                out_dir, outcome, job, ground_truth=ground_truth, title=request.title
+            yield SequencerSession(
+                job, waypoints, out_dir, session_path, sequencer, robot, scanner, recorder, ground_truth,
+                fake_cell,
             )
     except (LasercalError, KeyboardInterrupt) as exc:
-        _after_failure(out_dir, session_path, created, sink, exc)
+        _after_failure(out_dir, session_path, created, sink, exc, resumable)
         raise
-    report = RunReport(outcome, files, out_dir, ground_truth, fake_cell, time.monotonic() - started_s)
-    result = outcome.result
-    failures = "; ".join(outcome.verdict.failures())
-    sink.emit(
-        "result",
-        "passed" if outcome.verdict.passed else f"quality gate failed: {failures}",
-        passed=outcome.verdict.passed,
-        T_base_laser=result.T_base_laser,
-        std_translation_mm=result.std_translation_mm,
-        std_rotation_deg=result.std_rotation_deg,
-        rms_residual_mm=result.rms_residual_mm,
-    )
-    return report
 
 
 def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeState | None, bool]:
@@ -325,14 +366,16 @@ def _open_recorder(
 
 
 def _after_failure(
-    out_dir: Path, session_path: Path, created: bool, sink: EventSink, exc: BaseException
+    out_dir: Path, session_path: Path, created: bool, sink: EventSink, exc: BaseException, resumable: bool
 ) -> None:
     """Say where the recording is, or remove an output folder the run left empty."""
     if session_path.exists():
+        hint = "after fixing the cause " + (
+            f"continue with: lasercal run --resume {session_path}" if resumable else "start again"
+        )
         sink.emit(
             "stopped",
-            f"recording kept in {session_path}; after fixing the cause continue with: "
-            f"lasercal run --resume {session_path}",
+            f"recording kept in {session_path}; {hint}",
             session=str(session_path),
             error=str(exc),
         )

@@ -107,7 +107,8 @@ def report_data(outcome: RunOutcome, job: JobConfig, title: str) -> ReportData:
     )
 
 
-def _write_text(path: Path, text: str) -> None:
+def write_text(path: Path, text: str) -> None:
+    """Write an output file; a failure is a ConfigError naming the file."""
     try:
         path.write_text(text, encoding="utf-8")
     except OSError as exc:
@@ -134,13 +135,13 @@ def write_outputs(
     }
     write_observations_csv(files["observations"], outcome.observations)
     document = result_document(outcome, job, ground_truth=ground_truth)
-    _write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
+    write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
     T = outcome.result.matrix()
     ros_files = {"urdf": out_dir / URDF_FILE, "static_transform_publisher": out_dir / TF_ARGS_FILE}
     if outcome.verdict.passed:
-        _write_text(ros_files["urdf"], urdf_joint(T))
+        write_text(ros_files["urdf"], urdf_joint(T))
         tf_args = " ".join(static_transform_publisher_args(T))
-        _write_text(ros_files["static_transform_publisher"], tf_args + "\n")
+        write_text(ros_files["static_transform_publisher"], tf_args + "\n")
         files |= ros_files
     else:
         for path in ros_files.values():

@@ -13,7 +13,7 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -39,6 +39,8 @@ from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodCentre, RodNotFoundError, find_rod_centre
 
 logger = logging.getLogger(__name__)
+
+_T = TypeVar("_T")
 
 RETRACT = "retract pose (for the background; see background.pose)"
 NOMINAL_CLEARANCE_M = 0.08
@@ -152,6 +154,17 @@ class RunOutcome:
     timings: Timings
     resumed_from: int
     background: AveragedScan | None
+
+
+@dataclass(frozen=True)
+class Measured:
+    """What ``Sequencer.measure`` gathered (no solve)."""
+
+    preflight: PreflightReport
+    measurements: list[WaypointMeasurement]
+    skipped: list[SkippedWaypoint]
+    background: AveragedScan | None
+    timings: Timings
 
 
 @dataclass(frozen=True)
@@ -283,12 +296,40 @@ def solve_two_pass(
     first = solve([m.observation() for m in measurements], rod, options=options)
     if on_second_pass is not None:
         on_second_pass()
-    solved_rod = estimated_rod(first, rod)
     range_offset_m = first.range_offset.offset_mm / 1000.0 if first.range_offset is not None else 0.0
-    observations: list[Observation] = []
+    refitted, kept = refit_centres(
+        measurements, first.matrix(), estimated_rod(first, rod), background, range_offset_m=range_offset_m
+    )
+    kept_indices = {index for index, _ in kept}
+    observations = [
+        _without_range_offset(m.observation(), range_offset_m) if m.index in kept_indices else m.observation()
+        for m in refitted
+    ]
+    applied = options.model_copy(update={"range_offset_applied_m": range_offset_m})
+    result = solve(observations, rod, options=applied)
+    refinement = (
+        f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
+        "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
+    )
+    return TwoPassSolution(first, result, observations, refinement, kept)
+
+
+def refit_centres(
+    measurements: Sequence[WaypointMeasurement],
+    T_base_laser: FloatArray,
+    rod: RodLine,
+    background: AveragedScan | None,
+    *,
+    range_offset_m: float = 0.0,
+) -> tuple[list[WaypointMeasurement], list[tuple[int, str]]]:
+    """The measurements with each centre fitted again as the ellipse the rod axis predicted
+    by ``T_base_laser`` cuts from the plane (the second pass; ``lasercal verify`` with the
+    active calibration), the scanner's ``range_offset_m`` removed, and the waypoints
+    (index, reason) that kept their first centre because the re-fit failed."""
+    refitted: list[WaypointMeasurement] = []
     kept: list[tuple[int, str]] = []
     for m in measurements:
-        predicted = predict_rod(first.matrix(), m.tcp_pose, solved_rod)
+        predicted = predict_rod(T_base_laser, m.tcp_pose, rod)
         try:
             centre = find_rod_centre(
                 m.averaged,
@@ -300,16 +341,10 @@ def solve_two_pass(
             )
         except RodNotFoundError as exc:
             kept.append((m.index, str(exc)))
-            observations.append(_without_range_offset(m.observation(), range_offset_m))
+            refitted.append(m)
             continue
-        observations.append(WaypointMeasurement(m.index, m.tcp_pose, m.averaged, centre).observation())
-    applied = options.model_copy(update={"range_offset_applied_m": range_offset_m})
-    result = solve(observations, rod, options=applied)
-    refinement = (
-        f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
-        "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
-    )
-    return TwoPassSolution(first, result, observations, refinement, kept)
+        refitted.append(WaypointMeasurement(m.index, m.tcp_pose, m.averaged, centre))
+    return refitted, kept
 
 
 class Sequencer:
@@ -357,9 +392,46 @@ class Sequencer:
     def run(self) -> RunOutcome:
         """Run the whole job; see the module docstring. Raises on abort, never hangs the arm."""
         started_s = self._clock()
+        outcome = self._guarded(lambda: self._solve(self._measure_all()))
+        outcome.timings.wall_s = self._clock() - started_s
+        self._event(
+            "run_end",
+            passed=outcome.verdict.passed,
+            wall_s=outcome.timings.wall_s,
+            motion_s=outcome.timings.motion_s,
+            dwell_s=outcome.timings.dwell_s,
+            overhead_fraction=outcome.timings.overhead_fraction,
+        )
+        return outcome
+
+    def measure(self) -> Measured:
+        """Preflight, background and every waypoint as ``run`` does them, but no solve
+        (``lasercal verify`` compares the centres with a calibration instead)."""
+        started_s = self._clock()
+        report = self._guarded(self._measure_all)
+        self._timings.wall_s = self._clock() - started_s
+        self._event(
+            "measure_end",
+            measured=len(self._measurements),
+            skipped=len(self._skipped),
+            wall_s=self._timings.wall_s,
+            motion_s=self._timings.motion_s,
+            dwell_s=self._timings.dwell_s,
+        )
+        return Measured(
+            preflight=report,
+            measurements=sorted(self._measurements, key=lambda m: m.index),
+            skipped=sorted(self._skipped, key=lambda s: s.index),
+            background=self._background,
+            timings=self._timings,
+        )
+
+    def _guarded(self, body: Callable[[], _T]) -> _T:
+        """Run ``body`` so that any way out of it stops the arm and says where (Ctrl-C,
+        cancel, protective stop, errors) and the scanner stream is closed."""
         remove_listener = self._cancel.on_cancel(self._stop_arm)
         try:
-            outcome = self._run()
+            return body()
         except (KeyboardInterrupt, InterruptedRunError) as exc:
             reason = str(exc) or "Ctrl-C"
             self._halt("interrupted", reason)
@@ -380,20 +452,10 @@ class Sequencer:
         finally:
             remove_listener()
             self._stop_streaming()
-        outcome.timings.wall_s = self._clock() - started_s
-        self._event(
-            "run_end",
-            passed=outcome.verdict.passed,
-            wall_s=outcome.timings.wall_s,
-            motion_s=outcome.timings.motion_s,
-            dwell_s=outcome.timings.dwell_s,
-            overhead_fraction=outcome.timings.overhead_fraction,
-        )
-        return outcome
 
     # -- the run ------------------------------------------------------------------------
 
-    def _run(self) -> RunOutcome:
+    def _measure_all(self) -> PreflightReport:
         count = len(self._waypoints)
         self._progress("preflight", f"checking devices and {count} waypoints")
         candidates = retract_candidates(self._job, self._waypoints)
@@ -422,7 +484,7 @@ class Sequencer:
             self._current = index
             self._measure_waypoint(index)
         self._current = None
-        return self._solve(report)
+        return report
 
     def _capture_background(self, pose: FloatArray, q_rad: FloatArray) -> None:
         self._progress("background", "moving to the retract pose for the background")

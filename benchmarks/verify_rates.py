@@ -1,0 +1,215 @@
+"""False-alarm and detection rates of ``lasercal verify``, and its time against the
+calibration's (offline; not collected by pytest).
+
+Run from the repository root::
+
+    .venv/bin/python -m benchmarks.verify_rates [--config FILE] [--seeds 50] [--waypoints 5]
+
+Per seed, no devices and no sockets, all through the product's own code: a calibration is
+simulated in the fake world (``benchmarks.dry_run_accuracy.simulate``: the job's
+trajectory, averaged noisy scans, ``find_rod_centre``, the two-pass solve; a new robot
+error field per seed), then the verify's waypoints are chosen from the job's trajectory
+(``select_waypoints``) and visited three times in the same robot's world: scanner unmoved,
+scanner shifted 3 mm in a random direction, scanner turned 0.3 deg about a random axis
+through its origin.  Each visit: a background at the retract pose, new noisy scans,
+``find_rod_centre``, the re-fit with the active calibration's rod axes (``refit_centres``),
+the drift test and the verdict (``verify.verdict.decide``, the job's tolerance).
+
+Printed: per seed the chi-square values; the false-alarm rate (unmoved scanner flagged,
+with a 95 % Clopper-Pearson interval) against the stated rate; the detection rates (the
+test flags the moved scanner); the coverage of the estimated move (|error| / std per
+component) and the verdict counts; and the time of the verify (motion + settle margin +
+dwell: ``verify.timing.visit_time_s``, joint trapezoid profiles at the job's caps between
+UR5 inverse kinematics solutions) against the calibration's, estimated the same way.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import beta
+
+from benchmarks.dry_run_accuracy import measure_waypoints, simulate, world_for
+from fakes.world import World
+from lasercal_hw.config import JobConfig, load_job
+from lasercal_hw.errors import LasercalError
+from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_to_matrix
+from lasercal_hw.run.sequencer import refit_centres
+from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.verify.active import recorded_residuals
+from lasercal_hw.verify.drift import DriftModel, DriftTest
+from lasercal_hw.verify.procedure import drift_model, drift_test_of, verify_job
+from lasercal_hw.verify.selection import select_waypoints
+from lasercal_hw.verify.timing import visit_time_s
+from lasercal_hw.verify.verdict import decide
+
+SHIFT_M = 0.003
+TURN_DEG = 0.3
+
+
+def move_between(T_from: np.ndarray, T_to: np.ndarray) -> np.ndarray:
+    """The correction (dt m, e rad about base axes) that takes ``T_from`` to ``T_to``."""
+    return np.concatenate([T_to[:3, 3] - T_from[:3, 3], matrix_to_rotvec(T_to[:3, :3] @ T_from[:3, :3].T)])
+
+
+def moved_world(world: World, rng: np.random.Generator, shift_m: float, turn_deg: float) -> World:
+    """The same world with the scanner shifted and turned about a random direction/axis
+    through its origin."""
+    T = world.ground_truth_T_base_laser
+    direction = rng.normal(size=3)
+    axis = rng.normal(size=3)
+    dt = shift_m * direction / np.linalg.norm(direction)
+    e = np.radians(turn_deg) * axis / np.linalg.norm(axis)
+    rotation = rotvec_to_matrix(e) @ T[:3, :3]
+    scanner = world.scene.scanner.model_copy(
+        update={
+            "translation_m": (T[:3, 3] + dt).tolist(),
+            "euler_zyx_deg": np.degrees(matrix_to_euler_zyx(rotation)).tolist(),
+        }
+    )
+    return World(world.scene.model_copy(update={"scanner": scanner}))
+
+
+def visit(
+    verify_job: JobConfig,
+    world: World,
+    poses: np.ndarray,
+    indices: list[int],
+    model: DriftModel,
+    reference: np.ndarray,
+    scans: int,
+    rng: np.random.Generator,
+) -> DriftTest | None:
+    """One offline verify: background, dwell at each chosen waypoint, extraction looking
+    where the calibration predicts (the verify job's nominal pose), re-fit, test."""
+    measurements, background = measure_waypoints(verify_job, poses[indices], world, scans, rng)
+    if len(measurements) < 2:
+        return None
+    refitted, _ = refit_centres(measurements, model.T_base_laser, verify_job.rod.rod_line(), background)
+    return drift_test_of(model, refitted, indices, reference)
+
+
+def clopper_pearson(hits: int, trials: int) -> tuple[float, float]:
+    """95 % confidence interval of a rate."""
+    low = beta.ppf(0.025, hits, trials - hits + 1) if hits > 0 else 0.0
+    high = beta.ppf(0.975, hits + 1, trials - hits) if hits < trials else 1.0
+    return float(low), float(high)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", type=Path, default=None, help="job file (default: built-in defaults)")
+    parser.add_argument("--scene", type=Path, default=None, help="scene file (default: packaged default)")
+    parser.add_argument("--seeds", type=int, default=50)
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--waypoints", type=int, default=None, help="default: the job's verify.waypoints")
+    parser.add_argument(
+        "--no-reference",
+        action="store_true",
+        help="ignore the calibration's residuals at its own waypoints (model prediction only)",
+    )
+    args = parser.parse_args()
+
+    job = load_job(args.config)
+    count = args.waypoints or job.verify.waypoints
+    poses = job_waypoints(job)
+    scans = round(job.dwell_s / World.from_scene(args.scene).geometry.scan_period_s)
+    settings = job.verify
+    print(
+        f"{len(poses)} calibration waypoints, verify with {count}, {scans} scans per waypoint, "
+        f"false-alarm rate {settings.false_alarm_rate:.0%}, tolerance {settings.tolerance_mm:g} mm "
+        f"{settings.tolerance_deg:g} deg, robot sigma {job.robot.position_accuracy_mm:g} mm"
+    )
+    outcomes: dict[str, list[DriftTest | None]] = {"unmoved": [], "shifted": [], "turned": []}
+    truths: dict[str, list[np.ndarray]] = {name: [] for name in outcomes}
+    verdicts: dict[str, dict[str, int]] = {name: {} for name in outcomes}
+    ratios = []
+    calibration_s = visit_time_s(job, poses)
+    budget_s = None if calibration_s is None else settings.max_time_fraction * calibration_s
+    started = time.perf_counter()
+    for seed in range(args.first_seed, args.first_seed + args.seeds):
+        rng = np.random.default_rng(seed)
+        world = world_for(job, args.scene, robot_error_seed=1000 + seed)
+        try:
+            calibration = simulate(job, poses, world, scans, rng).result
+        except LasercalError as exc:
+            print(f"seed {seed}: calibration failed: {exc}")
+            continue
+        checking = verify_job(job, calibration.matrix())
+        model = drift_model(calibration.matrix(), np.asarray(calibration.covariance), checking)
+        reference = recorded_residuals(calibration.residuals, None if args.no_reference else poses, poses)
+        selection = select_waypoints(
+            model,
+            poses,
+            count,
+            np.isfinite(reference).all(axis=1),
+            time_of=lambda indices: visit_time_s(job, poses[indices]),
+            budget_s=budget_s,
+        )
+        shifted = moved_world(world, rng, SHIFT_M, 0.0)
+        turned = moved_world(world, rng, 0.0, TURN_DEG)
+        line = [f"seed {seed:3d}: waypoints {selection.indices}"]
+        for name, case_world in (("unmoved", world), ("shifted", shifted), ("turned", turned)):
+            test = visit(checking, case_world, poses, selection.indices, model, reference, scans, rng)
+            outcomes[name].append(test)
+            verdict = decide([], test, settings.tolerance_mm, settings.tolerance_deg)
+            verdicts[name][verdict.status] = verdicts[name].get(verdict.status, 0) + 1
+            # With the calibration's residuals the correction is the move since the calibration;
+            # from the model alone it is the move away from the active (imperfect) transform.
+            before = model.T_base_laser if args.no_reference else world.ground_truth_T_base_laser
+            truths[name].append(move_between(before, case_world.ground_truth_T_base_laser))
+            line.append(f"{name} chi2 {test.chi_square:6.1f}" if test else f"{name} not measured")
+        ratios.append((selection.estimated_time_s or np.nan) / (calibration_s or np.nan))
+        print(" | ".join(line), f"| time ratio {ratios[-1]:.3f}")
+
+    print(f"\n{len(outcomes['unmoved'])} seeds in {time.perf_counter() - started:.0f} s")
+    for name in outcomes:
+        tests = outcomes[name]
+        flagged = sum(1 for t in tests if t is None or t.changed)
+        low, high = clopper_pearson(flagged, len(tests))
+        label = "false-alarm rate (unmoved)" if name == "unmoved" else f"detection rate ({name})"
+        print(
+            f"  {label}: {flagged}/{len(tests)} = {flagged / len(tests):.1%} (95 % CI {low:.1%}-{high:.1%})"
+            f"; verdicts {verdicts[name]}"
+        )
+    print("  estimated move against the true move:")
+    for name, truth_list in truths.items():
+        coverage = [
+            np.abs(t.correction - truth) / np.sqrt(np.diag(t.correction_covariance))
+            for t, truth in zip(outcomes[name], truth_list, strict=True)
+            if t is not None
+        ]
+        errors = np.array(
+            [
+                [
+                    np.linalg.norm(t.correction[:3] - truth[:3]) * 1e3,
+                    np.degrees(
+                        np.linalg.norm(
+                            matrix_to_rotvec(
+                                rotvec_to_matrix(t.correction[3:]).T @ rotvec_to_matrix(truth[3:])
+                            )
+                        )
+                    ),
+                ]
+                for t, truth in zip(outcomes[name], truth_list, strict=True)
+                if t is not None
+            ]
+        )
+        values = np.concatenate(coverage)
+        print(
+            f"    {name}: error median {np.median(errors[:, 0]):.2f} mm "
+            f"{np.median(errors[:, 1]):.3f} deg; |error|/std per component: median {np.median(values):.2f}, "
+            f"within 2 std {np.mean(values < 2.0):.1%}"
+        )
+    ratio = np.array(ratios)
+    print(
+        f"  verify time / calibration time: median {np.median(ratio):.3f}, max {ratio.max():.3f} "
+        "(target <= 0.25)"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,269 @@
+"""The drift test: are the rod centres measured now where the active calibration says?
+
+For waypoint i the active transform ``T`` predicts the crossing ``p_i`` (the solver's
+measurement model, ``calibration.model``); the scanner measured ``m_i``.  Where the
+calibration itself visited that waypoint, the prediction also carries the residual the
+calibration saw there (``b_i``: the robot's repeatable absolute-position error at that
+pose and what the fit left over), so it is the centre measured back then.  The residual
+``d = m - (p + b)`` (2N values) has, if nothing moved, zero mean and the covariance
+
+    S = blockdiag(C_i + R_i) + J_u Sigma_cal J_u^T
+
+with ``C_i`` the centre noise of the measurement and ``R_i`` the robot's share: for a
+waypoint the calibration visited, the centre noise it had then (the same dwell gives the
+same ``C_i``) plus the robot's repeatability ``sigma_rep^2 A A^T``; for any other, the
+robot's absolute accuracy ``sigma_robot^2 A A^T``, and the calibration's own 6x6
+covariance propagated with the Jacobian ``J_u`` of those predictions (rows of visited
+waypoints are zero there: their prediction does not depend on the solved transform).
+The last term correlates the waypoints, so S is whitened as a whole. ``d^T S^-1 d`` is
+chi-square with 2N degrees of freedom: above its (1 - alpha) quantile the calibration
+has changed, at false-alarm rate alpha.
+
+The correction ``x = (dt, e)`` (the scanner's move since the calibration, in the solver's
+parameters: origin shift in base axes, small turn about base axes) is the maximum a
+posteriori estimate with the active calibration as the prior, ``x ~ N(0, B)`` (``B``: a
+broad prior on how far a bump moves a scanner), from ``d = J x + noise(S)``; its
+covariance is ``(J^T S^-1 J + B^-1)^-1``.  What the correction leaves unexplained is
+tested again (chi-square, 2N - 6 degrees of freedom): a change that is not a rigid move
+of the scanner (another rod, a bent tool, a robot error) shows there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import block_diag, cho_factor, cho_solve
+from scipy.stats import chi2
+
+from lasercal_hw.calibration.model import (
+    left_jacobian_so3,
+    residuals_and_jacobian,
+    rod_lines_in_base,
+)
+from lasercal_hw.geometry import make_transform, rotvec_to_matrix
+from lasercal_hw.models import FloatArray, RodLine
+
+_GAUSS_NEWTON_STEPS = 6
+_RIGID_PARAMETERS = 6
+
+
+@dataclass(frozen=True)
+class DriftModel:
+    """What the test knows before measuring: the active calibration and the noise model."""
+
+    T_base_laser: FloatArray
+    covariance: FloatArray
+    rod: RodLine
+    robot_sigma_m: float
+    repeatability_m: float = 0.0001
+    false_alarm_rate: float = 0.01
+    prior_shift_m: float = 0.02
+    prior_turn_rad: float = float(np.radians(2.0))
+
+    def prior(self) -> FloatArray:
+        """Prior covariance (6, 6) of the correction: how far a bump moves a scanner."""
+        return np.diag([self.prior_shift_m**2] * 3 + [self.prior_turn_rad**2] * 3)
+
+
+@dataclass(frozen=True)
+class DriftTest:
+    """The outcome of the test for N measured waypoints (arrays in waypoint order)."""
+
+    indices: list[int]
+    tcp_poses: FloatArray
+    predicted_uv_m: FloatArray
+    measured_uv_m: FloatArray
+    whitened_norm: FloatArray
+    chi_square: float
+    dof: int
+    threshold: float
+    p_value: float
+    false_alarm_rate: float
+    correction: FloatArray
+    correction_covariance: FloatArray
+    post_fit_chi_square: float
+    post_fit_dof: int
+    post_fit_threshold: float
+
+    @property
+    def changed(self) -> bool:
+        """True when the measurements contradict the calibration at the stated rate."""
+        return self.chi_square > self.threshold
+
+    @property
+    def rigid(self) -> bool:
+        """False when a rigid scanner move cannot explain the residuals (or untestable: True)."""
+        return self.post_fit_dof <= 0 or self.post_fit_chi_square <= self.post_fit_threshold
+
+    @property
+    def residual_mm(self) -> FloatArray:
+        """Measured minus predicted centre (N, 2) in mm."""
+        return (self.measured_uv_m - self.predicted_uv_m) * 1e3
+
+    @property
+    def shift_mm(self) -> FloatArray:
+        """Estimated move of the scanner origin (base x, y, z) in mm."""
+        return self.correction[:3] * 1e3
+
+    @property
+    def turn_deg(self) -> FloatArray:
+        """Estimated turn of the scanner about the base x, y, z axes in degrees."""
+        return np.degrees(self.correction[3:])
+
+    @property
+    def std_shift_mm(self) -> FloatArray:
+        """Std of each shift component (mm)."""
+        return np.sqrt(np.diag(self.correction_covariance)[:3]) * 1e3
+
+    @property
+    def std_turn_deg(self) -> FloatArray:
+        """Std of each turn component (deg)."""
+        return np.degrees(np.sqrt(np.diag(self.correction_covariance)[3:]))
+
+    def shift_norm_mm(self) -> tuple[float, float]:
+        """Length of the shift and its std along the shift's direction (mm)."""
+        return _norm_and_std(self.correction[:3], self.correction_covariance[:3, :3], 1e3)
+
+    def turn_norm_deg(self) -> tuple[float, float]:
+        """Angle of the turn and its std about the turn's axis (deg)."""
+        return _norm_and_std(self.correction[3:], self.correction_covariance[3:, 3:], float(np.degrees(1.0)))
+
+    def corrected_T_base_laser(  # noqa: N802 (the transform's name everywhere)
+        self, T_base_laser: FloatArray
+    ) -> FloatArray:
+        """The active transform with the correction applied."""
+        T = np.asarray(T_base_laser, dtype=float)
+        return make_transform(
+            rotvec_to_matrix(self.correction[3:]) @ T[:3, :3], T[:3, 3] + self.correction[:3]
+        )
+
+
+def _norm_and_std(vector: FloatArray, covariance: FloatArray, unit: float) -> tuple[float, float]:
+    length = float(np.linalg.norm(vector))
+    if length > 0:
+        direction = vector / length
+        std = float(np.sqrt(direction @ covariance @ direction))
+    else:
+        std = float(np.sqrt(np.max(np.linalg.eigvalsh(covariance))))
+    return length * unit, std * unit
+
+
+def predictions(
+    T_base_laser: FloatArray, tcp_poses: FloatArray, rod: RodLine
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Predicted centres (N, 2), their Jacobian (N, 2, 6) in (dt, e) and the slopes (N, 2)
+    of the rod in the scan plane, for the transform ``T_base_laser``."""
+    T = np.asarray(T_base_laser, dtype=float)
+    origins, directions = rod_lines_in_base(np.asarray(tcp_poses, dtype=float).reshape(-1, 6), rod)
+    zeros = np.zeros((len(origins), 2))
+    return residuals_and_jacobian(T[:3, :3], T[:3, 3], origins, directions, zeros)
+
+
+def noise_blocks(
+    model: DriftModel, slope: FloatArray, covariance_uv_m2: FloatArray, visited: NDArray[np.bool_]
+) -> FloatArray:
+    """``C_i + R_i`` (N, 2, 2) of the module docstring; ``visited`` (N,) is True where the
+    calibration saw the waypoint (its residual is part of the prediction)."""
+    centre = np.asarray(covariance_uv_m2, dtype=float)
+    spread = np.eye(2) + slope[:, :, None] * slope[:, None, :]
+    robot_var = np.where(visited, model.repeatability_m**2, model.robot_sigma_m**2)
+    return centre * (1.0 + visited)[:, None, None] + robot_var[:, None, None] * spread
+
+
+def residual_covariance(
+    model: DriftModel,
+    jac: FloatArray,
+    slope: FloatArray,
+    covariance_uv_m2: FloatArray,
+    visited: NDArray[np.bool_],
+) -> FloatArray:
+    """``S`` (2N, 2N) of the module docstring."""
+    j = (jac * (~visited)[:, None, None]).reshape(-1, 6)
+    blocks = noise_blocks(model, slope, covariance_uv_m2, visited)
+    return block_diag(*blocks) + j @ np.asarray(model.covariance, dtype=float) @ j.T
+
+
+def run_drift_test(
+    model: DriftModel,
+    indices: list[int],
+    tcp_poses: FloatArray,
+    measured_uv_m: FloatArray,
+    covariance_uv_m2: FloatArray,
+    recorded_residual_uv_m: FloatArray | None = None,
+) -> DriftTest:
+    """The chi-square test and the correction for N >= 1 measured waypoints.
+
+    ``recorded_residual_uv_m`` (N, 2): measured minus predicted centre of the calibration
+    at each waypoint, NaN where it did not visit it (None: it visited none of them).
+    """
+    measured = np.asarray(measured_uv_m, dtype=float).reshape(-1, 2)
+    poses = np.asarray(tcp_poses, dtype=float).reshape(-1, 6)
+    n = len(measured)
+    recorded = (
+        np.full((n, 2), np.nan) if recorded_residual_uv_m is None else np.asarray(recorded_residual_uv_m)
+    )
+    visited = np.isfinite(recorded).all(axis=1)
+    crossing, jac, slope = predictions(model.T_base_laser, poses, model.rod)
+    predicted = crossing + np.where(visited[:, None], recorded, 0.0)
+    total = residual_covariance(model, jac, slope, covariance_uv_m2, visited)
+    factor = cho_factor(total)
+    d = (measured - predicted).reshape(-1)
+    chi_square = float(d @ cho_solve(factor, d))
+    dof = d.size
+    blocks = total.reshape(n, 2, n, 2)[np.arange(n), :, np.arange(n)]
+    per_waypoint = np.array(
+        [float(r @ np.linalg.solve(b, r)) for r, b in zip(d.reshape(-1, 2), blocks, strict=True)]
+    )
+    correction, correction_cov, post_fit = _correction(
+        model, poses, measured - (predicted - crossing), factor
+    )
+    post_dof = dof - _RIGID_PARAMETERS
+    alpha = model.false_alarm_rate
+    return DriftTest(
+        indices=list(indices),
+        tcp_poses=poses,
+        predicted_uv_m=predicted,
+        measured_uv_m=measured,
+        whitened_norm=np.sqrt(per_waypoint),
+        chi_square=chi_square,
+        dof=dof,
+        threshold=float(chi2.ppf(1.0 - alpha, dof)),
+        p_value=float(chi2.sf(chi_square, dof)),
+        false_alarm_rate=alpha,
+        correction=correction,
+        correction_covariance=correction_cov,
+        post_fit_chi_square=post_fit,
+        post_fit_dof=post_dof,
+        post_fit_threshold=float(chi2.ppf(1.0 - alpha, post_dof)) if post_dof > 0 else float("inf"),
+    )
+
+
+def _correction(
+    model: DriftModel, poses: FloatArray, target_uv_m: FloatArray, noise: tuple[FloatArray, bool]
+) -> tuple[FloatArray, FloatArray, float]:
+    """MAP correction (6,), its covariance (6, 6) and the data part of the objective at it:
+    Gauss-Newton on ``|c(x) - target|^2_S + x^T B^-1 x`` with ``c`` the crossings of the
+    moved transform and ``target`` the measured centres less the recorded residuals;
+    converges in a few steps for bumps."""
+    T = np.asarray(model.T_base_laser, dtype=float)
+    prior_information = np.linalg.inv(model.prior())
+    x = np.zeros(6)
+
+    def linearised(x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        moved = make_transform(rotvec_to_matrix(x[3:]) @ T[:3, :3], T[:3, 3] + x[:3])
+        crossing, jac, _ = predictions(moved, poses, model.rod)
+        jac[:, :, 3:] = jac[:, :, 3:] @ left_jacobian_so3(x[3:])
+        return (target_uv_m - crossing).reshape(-1), jac.reshape(-1, 6)
+
+    for _ in range(_GAUSS_NEWTON_STEPS):
+        d, j = linearised(x)
+        information = j.T @ cho_solve(noise, j) + prior_information
+        step = np.linalg.solve(information, j.T @ cho_solve(noise, d) - prior_information @ x)
+        x = x + step
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    d, j = linearised(x)
+    covariance = np.linalg.inv(j.T @ cho_solve(noise, j) + prior_information)
+    return x, covariance, float(d @ cho_solve(noise, d))

@@ -1,0 +1,276 @@
+"""``verify(request, calibration) -> VerifyReport``: the drift check on the run's own
+machinery (``run.engine.open_sequencer``: fake cell, devices, recording, events, cancel;
+``Sequencer.measure``: preflight, background, move-settle-dwell, centres), then the
+re-fit, the identity check, the drift test, the verdict and the outputs.
+
+The CLI (``lasercal verify``) and the daemon call this; it never prints and never asks.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lasercal_hw.config import JobConfig, with_overrides
+from lasercal_hw.errors import ConfigError
+from lasercal_hw.geometry import matrix_to_euler_zyx
+from lasercal_hw.models import FloatArray
+from lasercal_hw.run.cancel import CancelToken
+from lasercal_hw.run.engine import MotionPlan, RunRequest, open_sequencer
+from lasercal_hw.run.events import EventSink, RunEvent
+from lasercal_hw.run.sequencer import Measured, Timings, WaypointMeasurement, refit_centres
+from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.verify.active import ActiveCalibration, load_active_calibration, recorded_residuals
+from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
+from lasercal_hw.verify.identity import IdentityCheck, check_identity
+from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
+from lasercal_hw.verify.selection import Selection, select_waypoints
+from lasercal_hw.verify.timing import visit_time_s
+from lasercal_hw.verify.verdict import Verdict, decide
+
+MIN_MEASURED = 2
+
+
+@dataclass(frozen=True)
+class VerifyRequest:
+    """What to check and where. ``job`` None: the job recorded with the calibration;
+    ``waypoints`` None: the job's ``verify.waypoints``."""
+
+    out_dir: Path
+    job: JobConfig | None = None
+    robot_host: str | None = None
+    scanner_url: str | None = None
+    waypoints: int | None = None
+    dry_run: bool = False
+    scene: Path | None = None
+
+
+@dataclass(frozen=True)
+class VerifyReport:
+    """A finished verify: the outcome, the files, and the dry run's ground truth."""
+
+    outcome: VerifyOutcome
+    files: dict[str, Path]
+    out_dir: Path
+    ground_truth: FloatArray | None
+    fake_cell: dict[str, Any] | None
+    command_s: float
+
+    @property
+    def verdict(self) -> Verdict:
+        """ok, degraded or recalibrate, with the reason."""
+        return self.outcome.verdict
+
+    def document(self) -> dict[str, Any]:
+        """What ``lasercal verify --json`` prints (``verify.json`` plus the file list)."""
+        document = verify_document(self.outcome, ground_truth=self.ground_truth)
+        document["outputs"] = {name: str(path) for name, path in self.files.items()}
+        document["dry_run"] = self.fake_cell is not None
+        document["timings"]["command_s"] = self.command_s
+        if self.fake_cell is not None:
+            document["fake_cell"] = self.fake_cell
+        return document
+
+
+def verify_job(job: JobConfig, T_base_laser: FloatArray) -> JobConfig:
+    """The job with the calibration as the scanner's nominal pose, so that the extraction
+    looks for the rod where the calibration predicts it."""
+    T = np.asarray(T_base_laser, dtype=float)
+    euler_deg = np.degrees(matrix_to_euler_zyx(T[:3, :3]))
+    nominal = {"translation_m": T[:3, 3].tolist(), "euler_zyx_deg": euler_deg.tolist()}
+    return with_overrides(job, {"scanner.nominal": nominal}, source="verify job")
+
+
+def drift_model(T_base_laser: FloatArray, covariance: FloatArray, job: JobConfig) -> DriftModel:
+    """The test's prior knowledge: the calibration and the job's noise settings."""
+    settings = job.verify
+    return DriftModel(
+        T_base_laser=np.asarray(T_base_laser, dtype=float),
+        covariance=np.asarray(covariance, dtype=float),
+        rod=job.rod.rod_line(),
+        robot_sigma_m=job.robot.position_accuracy_mm / 1000.0,
+        repeatability_m=settings.repeatability_mm / 1000.0,
+        false_alarm_rate=settings.false_alarm_rate,
+        prior_shift_m=settings.prior_shift_mm / 1000.0,
+        prior_turn_rad=float(np.radians(settings.prior_turn_deg)),
+    )
+
+
+def time_budget_s(active: ActiveCalibration, job: JobConfig) -> float | None:
+    """``verify.max_time_fraction`` of the calibration's motion and dwell (estimated the
+    same way as the verify's); None when its trajectory was not recorded or not reachable."""
+    calibration_waypoints = active.waypoints()
+    if active.job is None or calibration_waypoints is None:
+        return None
+    estimate_s = visit_time_s(active.job, calibration_waypoints)
+    return None if estimate_s is None else job.verify.max_time_fraction * estimate_s
+
+
+def verify(
+    request: VerifyRequest,
+    calibration_result_path: Path,
+    *,
+    on_event: Callable[[RunEvent], None] | None = None,
+    cancel: CancelToken | None = None,
+    confirm: Callable[[MotionPlan], None] | None = None,
+) -> VerifyReport:
+    """Check the calibration in ``calibration_result_path`` (its ``result.json``).
+
+    Blocking, any thread. Raises what ``calibrate`` raises (InterruptedRunError on cancel,
+    DeviceError, ConfigError); a changed calibration is not an error: see
+    ``report.verdict``. Events: those of a run, then ``verdict``.
+    """
+    sink = EventSink(on_event)
+    active = load_active_calibration(calibration_result_path)
+    chosen_job = request.job if request.job is not None else active.job
+    if chosen_job is None:
+        raise ConfigError(
+            f"{active.path} does not record the job it was made with: pass the job file with --config"
+        )
+    job = verify_job(chosen_job, active.T_base_laser)
+    model = drift_model(active.T_base_laser, active.covariance, job)
+    waypoints = job_waypoints(job)
+    reference = recorded_residuals(active.result.residuals, active.waypoints(), waypoints)
+    count = request.waypoints or job.verify.waypoints
+    selection = select_waypoints(
+        model,
+        waypoints,
+        count,
+        np.isfinite(reference).all(axis=1),
+        time_of=lambda indices: visit_time_s(job, waypoints[indices]),
+        budget_s=time_budget_s(active, job),
+    )
+    sink.emit(
+        "stage",
+        f"verifying {active.path} at waypoints {selection.indices} of {len(waypoints)}",
+        stage="select",
+        waypoints=selection.indices,
+        expected_std_shift_mm=selection.expected_std_shift_mm,
+        expected_std_turn_deg=selection.expected_std_turn_deg,
+        estimated_time_s=selection.estimated_time_s,
+    )
+    run_request = RunRequest(
+        job=job,
+        out_dir=request.out_dir,
+        robot_host=request.robot_host,
+        scanner_url=request.scanner_url,
+        dry_run=request.dry_run,
+        scene=request.scene,
+        waypoints=waypoints[selection.indices],
+        title="lasercal verify",
+    )
+    started_s = time.monotonic()
+    rod = job.rod.rod_line()
+    found: dict[str, Any] = {}
+
+    def before_motion(plan: MotionPlan) -> None:
+        identity = check_identity(
+            active.robot, active.scanner, active.rod, plan.preflight.robot, plan.preflight.scanner, rod
+        )
+        found["identity"] = identity
+        if not all(check.matches for check in identity):
+            raise _OtherDevicesError()  # the verdict is known: nothing moves
+        if confirm is not None:
+            confirm(plan)
+
+    try:
+        with open_sequencer(
+            run_request, sink, cancel or CancelToken(), before_motion, resumable=False
+        ) as session:
+            found["session"] = session
+            session.recorder.write_event(
+                time.time(), "verify_start", calibration=str(active.path), waypoints=selection.indices
+            )
+            measured = session.sequencer.measure()
+            outcome = _evaluate(active, job, model, selection, measured, reference, found["identity"])
+            session.recorder.write_event(
+                time.time(), "verify_verdict", verdict=outcome.verdict.status, reason=outcome.verdict.reason
+            )
+    except _OtherDevicesError:
+        session = found["session"]
+        verdict = decide(found["identity"], None, job.verify.tolerance_mm, job.verify.tolerance_deg)
+        outcome = VerifyOutcome(
+            active, job, selection, found["identity"], None, verdict, [], [], [], Timings()
+        )
+    sink.emit("stage", "writing the outputs", stage="outputs")
+    files = {"session": session.session_path} | write_verify_outputs(
+        session.out_dir, outcome, ground_truth=session.ground_truth
+    )
+    report = VerifyReport(
+        outcome, files, session.out_dir, session.ground_truth, session.fake_cell, time.monotonic() - started_s
+    )
+    sink.emit(
+        "verdict",
+        f"{outcome.verdict.status}: {outcome.verdict.reason}",
+        verdict=outcome.verdict.status,
+        reason=outcome.verdict.reason,
+        calibration=str(active.path),
+    )
+    return report
+
+
+def drift_test_of(
+    model: DriftModel, measurements: Sequence[WaypointMeasurement], indices: list[int], reference: FloatArray
+) -> DriftTest:
+    """The drift test of re-fitted measurements of the chosen waypoints ``indices`` (their
+    ``index`` counts those); ``reference``: the calibration's residuals at every job waypoint."""
+    job_index = [indices[m.index] for m in measurements]
+    return run_drift_test(
+        model,
+        job_index,
+        np.array([m.tcp_pose for m in measurements]),
+        np.array([m.centre.centre_uv_m for m in measurements]),
+        np.array([m.centre.covariance_uv_m2 for m in measurements]),
+        reference[job_index],
+    )
+
+
+class _OtherDevicesError(Exception):
+    """Preflight met another scanner, robot or rod than the calibration's: stop before
+    anything moves (not an error: the verdict is recalibrate)."""
+
+
+def _evaluate(
+    active: ActiveCalibration,
+    job: JobConfig,
+    model: DriftModel,
+    selection: Selection,
+    measured: Measured,
+    reference: FloatArray,
+    identity: list[IdentityCheck],
+) -> VerifyOutcome:
+    """Re-fit, test and verdict for what the sequencer measured (its indices count the
+    chosen waypoints; the outcome speaks of the job's waypoint numbers)."""
+    refitted, kept = refit_centres(
+        measured.measurements, active.T_base_laser, job.rod.rod_line(), measured.background
+    )
+    test: DriftTest | None = None
+    missing = None
+    if len(refitted) >= MIN_MEASURED:
+        test = drift_test_of(model, refitted, selection.indices, reference)
+    else:
+        reasons = "; ".join(f"waypoint {selection.indices[s.index]}: {s.reason}" for s in measured.skipped)
+        missing = (
+            f"the rod was found at only {len(refitted)} of {len(selection.indices)} waypoints where the "
+            f"calibration predicts it ({reasons})"
+        )
+    verdict = decide(identity, test, job.verify.tolerance_mm, job.verify.tolerance_deg, missing)
+    return VerifyOutcome(
+        calibration=active,
+        job=job,
+        selection=selection,
+        identity=identity,
+        test=test,
+        verdict=verdict,
+        visited_by_calibration=[]
+        if test is None
+        else [bool(np.isfinite(reference[i]).all()) for i in test.indices],
+        skipped=[(selection.indices[s.index], s.reason) for s in measured.skipped],
+        kept_first_fit=[(selection.indices[i], reason) for i, reason in kept],
+        timings=measured.timings,
+    )

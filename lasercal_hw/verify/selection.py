@@ -1,0 +1,140 @@
+"""Which of the job's waypoints a verify visits.
+
+The subset of ``count`` waypoints maximises ``log det(F_S + P^-1)`` (Bayesian D-optimal
+design): ``F_S`` is the Fisher information of the correction ``(dt, e)`` from the chosen
+waypoints under the verify's noise model, ``P`` the correction's prior (``drift``). A
+large determinant means a small confidence ellipsoid in every direction at once, so the
+chosen waypoints spread over the scan plane and the tool tilts by themselves: a subset
+that left one direction of the transform untested would have a near-zero factor there.
+Greedy selection, then exchanges until no swap improves the determinant; with a time
+budget (``verify.max_time_fraction`` of the calibration's own motion and dwell, estimated
+by ``verify.timing``), the exchanges keep the subset inside it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base, whitening
+from lasercal_hw.errors import CalibrationError
+from lasercal_hw.models import FloatArray
+from lasercal_hw.verify.drift import DriftModel, noise_blocks, predictions
+
+#: Centre noise the design assumes (a 20 mm rod over a 3 s dwell: about 0.5 mm per axis).
+DESIGN_SIGMA_UV_M = 0.0005
+MIN_INCIDENCE_DEG = 10.0
+MIN_WAYPOINTS = 2
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The chosen waypoints (indices into the job's list, in visiting order) and the std
+    of the correction they are expected to give (mm, deg; about base x, y, z)."""
+
+    indices: list[int]
+    candidates: int
+    expected_std_shift_mm: list[float]
+    expected_std_turn_deg: list[float]
+    estimated_time_s: float | None = None
+
+
+def _crosses_plane(model: DriftModel, waypoints: FloatArray) -> np.ndarray:
+    """Waypoints whose rod, by the active calibration, pierces the scan plane steeply
+    enough, between its ends and inside the scanner's field of view (+-135 deg)."""
+    T = np.asarray(model.T_base_laser, dtype=float)
+    origins, directions = rod_lines_in_base(waypoints, model.rod)
+    crossing, _, line_s = plane_crossing(T[:3, :3], T[:3, 3], origins, directions)
+    incidence_deg = np.degrees(np.arcsin(np.clip(np.abs(directions @ T[:3, 2]), 0.0, 1.0)))
+    bearing_deg = np.degrees(np.arctan2(crossing[:, 1], crossing[:, 0]))
+    return (
+        (incidence_deg >= MIN_INCIDENCE_DEG)
+        & (line_s >= 0.0)
+        & (line_s <= model.rod.length_m)
+        & (np.abs(bearing_deg) <= 135.0)
+    )
+
+
+def waypoint_information(
+    model: DriftModel, waypoints: FloatArray, visited: NDArray[np.bool_], sigma_uv_m: float
+) -> FloatArray:
+    """Fisher information (N, 6, 6) of the correction from each waypoint alone (the
+    calibration's covariance, which correlates the waypoints it did not visit, left out)."""
+    _, jac, slope = predictions(model.T_base_laser, waypoints, model.rod)
+    centre = np.broadcast_to(np.eye(2) * sigma_uv_m**2, (len(waypoints), 2, 2))
+    white = whitening(noise_blocks(model, slope, centre, visited))
+    whitened = white @ jac
+    return np.swapaxes(whitened, 1, 2) @ whitened
+
+
+def _log_det(matrix: FloatArray) -> float:
+    sign, value = np.linalg.slogdet(matrix)
+    return float(value) if sign > 0 else -np.inf
+
+
+def select_waypoints(
+    model: DriftModel,
+    waypoints: FloatArray,
+    count: int,
+    visited: NDArray[np.bool_] | None = None,
+    *,
+    time_of: Callable[[list[int]], float | None] | None = None,
+    budget_s: float | None = None,
+    sigma_uv_m: float = DESIGN_SIGMA_UV_M,
+) -> Selection:
+    """The D-optimal subset of ``count`` waypoints (all usable ones if fewer), visited in
+    trajectory order; ``visited`` (N,) marks the waypoints the calibration measured (None:
+    none). With ``time_of`` (waypoint indices -> seconds, None if unknown) and
+    ``budget_s``, exchanges first bring the subset within the budget, then improve it
+    inside the budget only."""
+    poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
+    seen = np.zeros(len(poses), dtype=bool) if visited is None else np.asarray(visited, dtype=bool)
+    usable = np.flatnonzero(_crosses_plane(model, poses))
+    if len(usable) < MIN_WAYPOINTS:
+        raise CalibrationError(
+            f"only {len(usable)} of the trajectory's {len(poses)} waypoints put the rod through the scan "
+            "plane the calibration describes: check that --config and the calibration belong to this cell"
+        )
+    information = waypoint_information(model, poses[usable], seen[usable], sigma_uv_m)
+    base = np.linalg.inv(model.prior())
+
+    def score(subset: list[int]) -> float:
+        return _log_det(base + information[subset].sum(axis=0))
+
+    def seconds(subset: list[int]) -> float:
+        if time_of is None or budget_s is None:
+            return 0.0
+        value = time_of(sorted(int(usable[k]) for k in subset))
+        return 0.0 if value is None else value
+
+    def better(trial: list[int], current: list[int]) -> bool:
+        limit = np.inf if budget_s is None else budget_s
+        trial_s, current_s = seconds(trial), seconds(current)
+        if current_s > limit:  # over budget: any faster subset is better
+            return trial_s < current_s - 1e-9
+        return trial_s <= limit and score(trial) > score(current) + 1e-9
+
+    chosen: list[int] = []
+    for _ in range(min(count, len(usable))):
+        scores = [-np.inf if k in chosen else score([*chosen, k]) for k in range(len(usable))]
+        chosen.append(int(np.argmax(scores)))
+    improved = True
+    while improved:
+        improved = False
+        for slot in range(len(chosen)):
+            for k in sorted(set(range(len(usable))) - set(chosen)):
+                trial = [*chosen[:slot], k, *chosen[slot + 1:]]
+                if better(trial, chosen):
+                    chosen, improved = trial, True
+    covariance = np.linalg.inv(base + information[chosen].sum(axis=0))
+    std = np.sqrt(np.diag(covariance))
+    return Selection(
+        indices=sorted(int(usable[k]) for k in chosen),
+        candidates=len(usable),
+        expected_std_shift_mm=[float(v) for v in std[:3] * 1e3],
+        expected_std_turn_deg=[float(v) for v in np.degrees(std[3:])],
+        estimated_time_s=time_of(sorted(int(usable[k]) for k in chosen)) if time_of is not None else None,
+    )

@@ -1,0 +1,184 @@
+"""The verify's mathematics and files without devices: the drift test, the waypoint
+choice, the identity check, the verdict and reading the calibration."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.linalg import block_diag
+
+from lasercal_hw.calibration.result import WaypointResidual
+from lasercal_hw.cli.verify import verify_command
+from lasercal_hw.errors import CalibrationError, ConfigError
+from lasercal_hw.geometry import make_transform, rotvec_to_matrix
+from lasercal_hw.models import RobotIdentity, ScannerIdentity
+from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.verify.active import load_active_calibration, recorded_residuals
+from lasercal_hw.verify.drift import DriftModel, noise_blocks, predictions, run_drift_test
+from lasercal_hw.verify.identity import check_identity
+from lasercal_hw.verify.procedure import drift_model
+from lasercal_hw.verify.selection import _log_det, select_waypoints, waypoint_information
+from lasercal_hw.verify.verdict import decide
+from tests.cli_helpers import assert_one_line_error, run_cli
+from tests.verify_helpers import calibration_document, fast_job, write_calibration
+
+SIGMA_UV_M = 0.0005
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory: pytest.TempPathFactory) -> tuple[DriftModel, np.ndarray, Path]:
+    job = fast_job()
+    path = write_calibration(tmp_path_factory.mktemp("calibration"), job)
+    active = load_active_calibration(path)
+    return drift_model(active.T_base_laser, active.covariance, job), job_waypoints(job), path
+
+
+def moved(T: np.ndarray, correction: np.ndarray) -> np.ndarray:
+    return make_transform(rotvec_to_matrix(correction[3:]) @ T[:3, :3], T[:3, 3] + correction[:3])
+
+
+def centres(model: DriftModel, poses: np.ndarray, correction: np.ndarray) -> np.ndarray:
+    return predictions(moved(model.T_base_laser, correction), poses, model.rod)[0]
+
+
+def test_unchanged_centres_pass_and_a_move_is_found(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
+    model, poses, _ = setup
+    chosen = poses[:5]
+    cov = np.broadcast_to(np.eye(2) * SIGMA_UV_M**2, (5, 2, 2))
+    still = run_drift_test(model, list(range(5)), chosen, centres(model, chosen, np.zeros(6)), cov)
+    assert still.chi_square == pytest.approx(0.0, abs=1e-9) and not still.changed
+    assert np.allclose(still.correction, 0.0, atol=1e-9)
+    truth = np.array([0.004, -0.002, 0.001, *np.radians([0.2, -0.3, 0.4])])
+    shifted = run_drift_test(model, list(range(5)), chosen, centres(model, chosen, truth), cov)
+    assert shifted.changed and shifted.rigid and shifted.p_value < 1e-6
+    std = np.sqrt(np.diag(shifted.correction_covariance))
+    assert np.all(np.abs(shifted.correction - truth) < 0.2 * std)  # the broad prior barely pulls
+    assert shifted.shift_norm_mm()[0] == pytest.approx(1e3 * np.linalg.norm(truth[:3]), rel=1e-2)
+
+
+def test_false_alarm_rate_is_the_stated_one(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
+    """Noise drawn from the stated covariance (calibration error included): the share of
+    alarms matches the chosen rate (0.3 here, so 150 draws can tell)."""
+    model, poses, _ = setup
+    model = DriftModel(**{**model.__dict__, "false_alarm_rate": 0.3})
+    chosen = poses[[0, 3, 6, 9]]
+    cov = np.broadcast_to(np.eye(2) * SIGMA_UV_M**2, (4, 2, 2))
+    nominal, jac, slope = predictions(model.T_base_laser, chosen, model.rod)
+    visited = np.zeros(4, dtype=bool)
+    j = jac.reshape(-1, 6)
+    total = block_diag(*noise_blocks(model, slope, cov, visited)) + j @ model.covariance @ j.T
+    rng = np.random.default_rng(7)
+    draws = rng.multivariate_normal(np.zeros(8), total, size=150)
+    alarms = sum(
+        run_drift_test(model, [0, 3, 6, 9], chosen, nominal + d.reshape(4, 2), cov).changed for d in draws
+    )
+    assert 28 <= alarms <= 62, alarms
+
+
+def test_recorded_residuals_are_part_of_the_prediction(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
+    """At a waypoint the calibration visited the prediction is what it measured there; the
+    noise is then the two centre noises and the robot's repeatability, not its accuracy."""
+    model, poses, _ = setup
+    chosen = poses[:4]
+    cov = np.broadcast_to(np.eye(2) * SIGMA_UV_M**2, (4, 2, 2))
+    offset = np.full((4, 2), 0.002)
+    test = run_drift_test(
+        model, [0, 1, 2, 3], chosen, centres(model, chosen, np.zeros(6)) + offset, cov, offset
+    )
+    assert test.chi_square == pytest.approx(0.0, abs=1e-9)
+    measured = centres(model, chosen, np.zeros(6)) + offset
+    visited = run_drift_test(model, [0, 1, 2, 3], chosen, measured, cov, np.zeros((4, 2)))
+    unvisited = run_drift_test(model, [0, 1, 2, 3], chosen, measured, cov)
+    assert visited.changed and visited.chi_square > 3.0 * unvisited.chi_square
+
+
+def test_chosen_waypoints_beat_random_subsets(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
+    model, poses, _ = setup
+    visited = np.ones(len(poses), dtype=bool)
+    selection = select_waypoints(model, poses, 4, visited)
+    assert len(selection.indices) == 4 and selection.indices == sorted(selection.indices)
+    information = waypoint_information(model, poses, visited, 0.0005)
+    prior = np.linalg.inv(model.prior())
+    best = _log_det(prior + information[selection.indices].sum(axis=0))
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        other = rng.choice(len(poses), 4, replace=False)
+        assert _log_det(prior + information[other].sum(axis=0)) <= best + 1e-9
+    assert max(selection.expected_std_shift_mm) < 5.0 and max(selection.expected_std_turn_deg) < 0.5
+
+
+def test_waypoints_that_miss_the_calibrated_plane_are_refused(
+    setup: tuple[DriftModel, np.ndarray, Path],
+) -> None:
+    model, poses, _ = setup
+    lifted = poses.copy()
+    lifted[:, 2] += 1.0  # the whole rod far above the scan plane
+    with pytest.raises(CalibrationError, match="through the scan plane"):
+        select_waypoints(model, lifted, 4)
+
+
+def test_identity_names_what_changed(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
+    model, _, _ = setup
+    robot = RobotIdentity("UR5", "20185500042", "5.11", (5, 11, 6, 0))
+    scanner = ScannerIdentity("Hokuyo", "UTM", "1.1.0", "SCIP 2.0", "H0123456", "UTM-30LX-EW")
+    recorded_robot = {"model": "UR5", "serial_number": "20185500042"}
+    same = check_identity(recorded_robot, {"serial": "H0123456"}, model.rod, robot, scanner, model.rod)
+    assert all(c.matches for c in same)
+    other = check_identity(recorded_robot, {"serial": "H1"}, None, robot, scanner, model.rod)
+    assert [c.name for c in other if not c.matches] == ["scanner serial"]
+    verdict = decide(other, None, 2.0, 0.2)
+    assert verdict.status == "recalibrate" and "scanner serial is H0123456" in verdict.reason
+
+
+def test_verdict_separates_degraded_from_recalibrate(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
+    model, poses, _ = setup
+    chosen = poses[:6]
+    cov = np.broadcast_to(np.eye(2) * (0.0001) ** 2, (6, 2, 2))
+    tight = DriftModel(**{**model.__dict__, "covariance": np.eye(6) * 1e-12, "robot_sigma_m": 1e-5})
+    small = np.array([0.001, 0.0, 0.0, 0.0, 0.0, 0.0])
+    large = np.array([0.004, 0.0, 0.0, 0.0, 0.0, 0.0])
+    for truth, status in ((small, "degraded"), (large, "recalibrate")):
+        test = run_drift_test(tight, list(range(6)), chosen, centres(tight, chosen, truth), cov)
+        verdict = decide([], test, tolerance_mm=2.0, tolerance_deg=0.2)
+        assert verdict.status == status, verdict.reason
+    assert decide([], None, 2.0, 0.2, "rod found at 1 of 4").reason == "rod found at 1 of 4"
+
+
+def test_recorded_residuals_are_matched_by_pose() -> None:
+    poses = job_waypoints(fast_job())
+    residuals = [
+        WaypointResidual(index=i, du_mm=float(i), dv_mm=-1.0, norm_mm=1.0, whitened_norm=1.0, used=i != 2)
+        for i in range(len(poses))
+    ]
+    found = recorded_residuals(residuals, poses, poses[[3, 2, 0]])
+    assert (
+        np.allclose(found[0], [0.003, -0.001])
+        and np.isnan(found[1]).all()
+        and np.allclose(found[2], [0, -0.001])
+    )
+    assert np.isnan(recorded_residuals(residuals, None, poses)).all()
+
+
+def test_calibration_file_errors_are_one_line(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_active_calibration(tmp_path / "missing.json")
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"T_base_laser": [[1, 0, 0, 0]]}))
+    with pytest.raises(ConfigError, match="not a lasercal calibration result"):
+        load_active_calibration(bad)
+    document = calibration_document(fast_job())
+    document["run"] = {}
+    bare = tmp_path / "bare.json"
+    bare.write_text(json.dumps(document))
+    active = load_active_calibration(bare)
+    assert active.job is None and active.scanner is None and active.motion_and_dwell_s is None
+
+
+def test_cli_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
+    missing = run_cli("verify", "--calibration", str(tmp_path / "none.json"), "--dry-run")
+    assert_one_line_error(missing, 2, "none.json does not exist")
+    with pytest.raises(ConfigError, match="--scene only applies to --dry-run"):
+        verify_command(tmp_path / "none.json", scene=Path("x.toml"), yes=True)

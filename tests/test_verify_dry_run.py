@@ -1,0 +1,88 @@
+"""``lasercal verify --dry-run`` against the fake cell: the real drivers, the run's
+sequencer, the verdicts for an unmoved scanner, a moved one and another scanner."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lasercal_hw.errors import ExitCode
+from lasercal_hw.session.reader import read_session
+from lasercal_hw.verify import VerifyRequest, verify
+from tests.verify_helpers import fast_job, moved_scene, write_calibration
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
+
+SHIFT_M = np.array([0.003, -0.004, 0.0])  # 5 mm
+TURN_RAD = np.radians(0.5) * np.array([0.6, 0.0, 0.8])  # 0.5 deg
+
+
+def test_cli_unmoved_scanner_is_ok(tmp_path: Path) -> None:
+    calibration = write_calibration(tmp_path / "calibration", fast_job())
+    out = tmp_path / "verify"
+    completed = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "lasercal_hw.cli.main",
+            "verify",
+            "--calibration",
+            str(calibration),
+            "--dry-run",
+            "--json",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=200,
+        stdin=subprocess.DEVNULL,
+    )
+    assert completed.returncode == ExitCode.OK, completed.stderr[-2000:]
+    document = json.loads(completed.stdout)
+    assert document["verdict"] == "ok", document["reason"]
+    test = document["test"]
+    assert test["chi_square"] <= test["threshold"] and test["dof"] == 8
+    assert all(w["visited_by_calibration"] for w in test["waypoints"])
+    assert all(check["matches"] for check in document["identity"])
+    assert {"session", "verify", "report"} <= set(document["outputs"])
+    assert (out / "verify.png").stat().st_size > 10_000
+    recording = read_session(out / "session.mcap")
+    assert [e["verdict"] for e in recording.events_of("verify_verdict")] == ["ok"]
+    assert len(recording.events_of("observation")) == 4
+
+
+def test_moved_scanner_needs_recalibration_and_the_move_is_estimated(tmp_path: Path) -> None:
+    calibration = write_calibration(tmp_path / "calibration", fast_job())
+    scene = moved_scene(tmp_path / "moved.toml", SHIFT_M, TURN_RAD)
+    events = []
+    report = verify(
+        VerifyRequest(out_dir=tmp_path / "verify", dry_run=True, scene=scene),
+        calibration,
+        on_event=events.append,
+    )
+    assert report.verdict.status == "recalibrate", report.verdict.reason
+    test = report.outcome.test
+    assert test is not None and test.changed and test.rigid
+    truth = np.concatenate([SHIFT_M, TURN_RAD])
+    std = np.sqrt(np.diag(test.correction_covariance))
+    assert np.all(np.abs(test.correction - truth) <= 2.0 * std), (test.correction - truth) / std
+    assert events[-1].kind == "verdict" and events[-1].data["verdict"] == "recalibrate"
+    document = report.document()
+    assert document["verdict"] == "recalibrate" and "beyond the tolerance" in document["reason"]
+    assert np.allclose(document["ground_truth"]["T_base_laser"][0][3], 0.303)
+
+
+def test_another_scanner_needs_recalibration_before_anything_moves(tmp_path: Path) -> None:
+    calibration = write_calibration(tmp_path / "calibration", fast_job(), scanner_serial="H7654321")
+    report = verify(VerifyRequest(out_dir=tmp_path / "verify", dry_run=True), calibration)
+    assert report.verdict.status == "recalibrate"
+    assert "scanner serial is H0123456, the calibration was made with H7654321" in report.verdict.reason
+    assert report.outcome.test is None and report.outcome.timings.motion_s == 0.0
+    document = json.loads((tmp_path / "verify" / "verify.json").read_text())
+    assert document["verdict"] == "recalibrate" and document["test"] is None
