@@ -5,31 +5,31 @@ entry point; until then the daemon answers 501 for it."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
 
-from lasercal_hw.config import with_overrides
-from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
 
 Devices = Callable[[], dict[str, str | None]]
 
 
-def run_engine(ctx: RunContext, *, dry_run: bool) -> RunResult:
+def run_engine(ctx: RunContext, *, dry_run: bool, devices: dict[str, str | None]) -> RunResult:
     """One calibration through ``lasercal_hw.run.engine.calibrate`` (blocking)."""
-    from lasercal_hw.run.engine import CancelToken, RunRequest, calibrate
+    from lasercal_hw.run.engine import RunRequest, calibrate
 
-    token = CancelToken()
-    ctx.cancel.listen(token.cancel)
     request = RunRequest(
         job=ctx.job,
         out_dir=ctx.out_dir,
+        robot_host=devices.get("robot.host"),
+        scanner_url=devices.get("scanner.url"),
         dry_run=dry_run,
         scene=ctx.scene_file if dry_run else None,
         resume=ctx.resume_from,
         title=f"lasercal {'dry run' if dry_run else 'calibration'} (job {ctx.job_id})",
     )
     report = calibrate(
-        request, on_event=lambda e: ctx.on_event(e.kind, e.message, e.data), cancel=token, confirm=ctx.confirm
+        request,
+        on_event=lambda event: ctx.on_event(event.kind, event.message, event.data),
+        cancel=ctx.cancel,
+        confirm=ctx.confirm,
     )
     document = report.document()
     return RunResult(
@@ -41,13 +41,10 @@ def run_engine(ctx: RunContext, *, dry_run: bool) -> RunResult:
 
 
 def build_runners(devices: Devices) -> dict[str, Runner]:
-    """The runners by kind; ``devices()`` gives the daemon's current robot host and scanner URL
-    (``{"robot.host": ..., "scanner.url": ...}``), applied again on every start and resume."""
-
-    def calibrate(ctx: RunContext) -> RunResult:
-        job = with_overrides(ctx.job, devices(), source="daemon configuration")
-        if job.robot.host is None:
-            raise ConfigError("no robot configured: set robot_host in the daemon configuration")
-        return run_engine(replace(ctx, job=job), dry_run=False)
-
-    return {"calibrate": calibrate, "dry_run": lambda ctx: run_engine(ctx, dry_run=True)}
+    """The runners by kind; ``devices()`` gives the daemon's current robot host and scanner
+    URL (``{"robot.host": ..., "scanner.url": ...}``), asked again on every start and resume
+    (a restarted dry-run daemon's fake cell has a new address)."""
+    return {
+        "calibrate": lambda ctx: run_engine(ctx, dry_run=False, devices=devices()),
+        "dry_run": lambda ctx: run_engine(ctx, dry_run=True, devices={}),
+    }
