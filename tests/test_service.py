@@ -138,6 +138,10 @@ def test_events_have_ids_and_replay_after_last_event_id(client: TestClient) -> N
     assert [e[0] for e in rest] == [i for i in ids if i > middle]
     with client.stream("GET", f"/v1/jobs/{job_id}/events?last_event_id={middle}") as response:
         assert read_sse(response) == rest
+    with client.stream(
+        "GET", f"/v1/jobs/{job_id}/events", headers={"Last-Event-ID": str(ids[-1])}
+    ) as response:
+        assert read_sse(response) == []  # after the final state: the stream ends at once
 
 
 def test_history_activate_rollback_and_diff(client: TestClient, engine: FakeEngine) -> None:

@@ -291,11 +291,12 @@ class JobManager:
         thread.start()
 
     def _set_state(self, job_id: str, state: str, **fields: Any) -> None:
-        self._store.update_job(job_id, state=state, **fields)
+        """Publish the state event, then store the state: a job seen finished has its final event stored."""
         data: dict[str, Any] = {"state": state}
         if "error" in fields and fields["error"] is not None:
             data["error"] = fields["error"]
         self._bus.publish("state", data, job_id)
+        self._store.update_job(job_id, state=state, **fields)
         self._on_state(job_id, state)
 
     def _work(
