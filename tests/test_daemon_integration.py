@@ -10,10 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from tests.daemon_helpers import QUICK_DRY_RUN, QUICK_JOB, DaemonProcess, read_sse, wait_for
+from tests.daemon_helpers import QUICK_DRY_RUN, DaemonProcess, read_sse, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
 TERMINAL = ("succeeded", "failed", "cancelled", "interrupted")
+# A calibrate job on the dry-run daemon's own fake cell: one fake cell on the machine, not two.
+QUICK_CALIBRATE = QUICK_DRY_RUN | {"kind": "calibrate"}
 
 
 @pytest.fixture(scope="module")
@@ -78,9 +80,7 @@ def test_cancel_stops_the_arm_keeps_the_recording_and_resume_finishes(daemon: Da
     """A calibrate job on the daemon's own fake cell, so the status shows its robot."""
     with daemon.client() as client:
         active_before = client.get("/v1/calibration").json()
-        job_id = client.post(
-            "/v1/jobs", json={"kind": "calibrate", "confirm_motion": True, "job": QUICK_JOB, "dwell_s": 0.5}
-        ).json()["id"]
+        job_id = client.post("/v1/jobs", json=QUICK_CALIBRATE).json()["id"]
         wait_for(client, job_id, _progressed(2))
         assert client.get("/v1/status").json()["job"]["id"] == job_id
         running_seen = False
@@ -134,7 +134,7 @@ def test_sigkill_mid_run_then_restart_finds_it_interrupted_and_resumes(tmp_path:
     first = DaemonProcess(data_dir).start()
     try:
         with first.client() as client:
-            job_id = client.post("/v1/jobs", json=QUICK_DRY_RUN).json()["id"]
+            job_id = client.post("/v1/jobs", json=QUICK_CALIBRATE).json()["id"]
             completed = wait_for(client, job_id, _progressed(2))["progress"]["completed"]
         first.kill()
     finally:

@@ -82,6 +82,13 @@ def test_unknown_ids_are_404_json(client: TestClient) -> None:
     assert client.get("/v1/calibration").json()["code"] == "no_active_calibration"
 
 
+def test_openapi_documents_the_api(client: TestClient) -> None:
+    paths = client.get("/v1/openapi.json").json()["paths"]
+    assert {"/v1/status", "/v1/jobs", "/v1/jobs/{job_id}/events", "/v1/calibrations/{a}/diff/{b}"} <= set(
+        paths
+    )
+
+
 def test_verify_is_not_implemented_yet(client: TestClient) -> None:
     answer = client.post("/v1/jobs", json={**JOB, "kind": "verify"})
     assert (answer.status_code, answer.json()["code"]) == (501, "not_implemented")
