@@ -7,7 +7,7 @@ point above the CLI's. Both runs are measured in the same invocation (the machin
 moves both). The event followers run in another process, so their work does not slow the
 latency probe.
 
-    .venv/bin/python benchmarks/daemon_load.py [--preset quick] [--dwell 0.5] [--clients 20]
+    .venv/bin/python -m benchmarks.daemon_load [--preset quick] [--dwell 0.5] [--clients 20]
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import argparse
 import json
 import multiprocessing
 import os
-import re
 import statistics
 import subprocess
 import sys
@@ -27,6 +26,8 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+
+from tests.daemon_helpers import DaemonProcess
 
 TICKS_S = os.sysconf("SC_CLK_TCK")
 
@@ -65,32 +66,6 @@ def cli_run(root: Path, job_file: Path) -> dict[str, Any]:
     if result.returncode not in (0, 1):
         sys.exit(f"CLI dry run failed ({result.returncode}):\n{result.stderr[-2000:]}")
     return json.loads(result.stdout)
-
-
-def start_daemon(data_dir: Path) -> tuple[subprocess.Popen[str], str]:
-    process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "lasercal_hw.cli.main",
-            "serve",
-            "--dry-run",
-            "--listen",
-            "127.0.0.1:0",
-            "--data-dir",
-            str(data_dir),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        stdin=subprocess.DEVNULL,
-        text=True,
-    )
-    assert process.stdout is not None
-    for line in process.stdout:
-        found = re.search(r"listening on (http://\S+)", line)
-        if found:
-            return process, found.group(1)
-    sys.exit("the daemon did not start")
 
 
 def follow(url: str, job_id: str, clients: int, results: Any) -> None:
@@ -147,24 +122,22 @@ def main() -> None:
         print(f"CLI dry run ({args.preset}, dwell {args.dwell} s) ...", flush=True)
         cli = cli_run(root, job_file)
 
-        daemon, url = start_daemon(root / "data")
+        daemon = DaemonProcess(root / "data").start()
+        url, pid = daemon.url, daemon.pid
         try:
-            token = (root / "data" / "token").read_text().strip()
-            with httpx.Client(
-                base_url=url, timeout=30.0, headers={"Authorization": f"Bearer {token}"}
-            ) as client:
+            with daemon.client() as client:
                 stop = threading.Event()
-                idle_cpu0, idle_t0 = cpu_s(daemon.pid), time.monotonic()
+                idle_cpu0, idle_t0 = cpu_s(pid), time.monotonic()
                 idle: list[float] = []
                 idle_thread = threading.Thread(target=lambda: idle.extend(probe_status(client, stop, 0.05)))
                 idle_thread.start()
                 time.sleep(5.0)
                 stop.set()
                 idle_thread.join()
-                idle_cpu_share = (cpu_s(daemon.pid) - idle_cpu0) / (time.monotonic() - idle_t0)
+                idle_cpu_share = (cpu_s(pid) - idle_cpu0) / (time.monotonic() - idle_t0)
 
                 print(f"daemon dry run with {args.clients} event followers ...", flush=True)
-                cpu0, t0 = cpu_s(daemon.pid), time.monotonic()
+                cpu0, t0 = cpu_s(pid), time.monotonic()
                 job_id = (
                     client.post("/v1/jobs", json={"kind": "dry_run", "confirm_motion": True, "job": job})
                     .raise_for_status()
@@ -187,15 +160,14 @@ def main() -> None:
                 ):
                     time.sleep(0.5)
                 wall_s = time.monotonic() - t0
-                job_cpu_share = (cpu_s(daemon.pid) - cpu0) / wall_s
+                job_cpu_share = (cpu_s(pid) - cpu0) / wall_s
                 stop.set()
                 probe.join()
                 counts = results.get(timeout=60)
                 followers.join()
                 finished = client.get(f"/v1/jobs/{job_id}").json()
         finally:
-            daemon.terminate()
-            daemon.wait(60)
+            daemon.stop()
     if finished["state"] != "succeeded":
         sys.exit(f"daemon job ended {finished['state']}: {finished['error']}")
     d_t, c_t = finished["document"]["timings"], cli["timings"]

@@ -168,6 +168,12 @@ class DaemonProcess:
         raise AssertionError(f"daemon did not start: {self.log.read_text()[-2000:]}")
 
     @property
+    def pid(self) -> int:
+        """The daemon's process id."""
+        assert self.process is not None
+        return self.process.pid
+
+    @property
     def token(self) -> str:
         """The token the daemon created."""
         return (self.data_dir / "token").read_text().strip()

@@ -4,6 +4,10 @@ activate / roll back / diff. The tests of the module share one daemon and run in
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,6 +29,19 @@ def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
         yield process
     finally:
         process.stop()
+
+
+def remote(daemon: DaemonProcess, *args: str) -> subprocess.CompletedProcess[str]:
+    """``lasercal remote ...`` against the daemon, its token from the environment."""
+    return subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", "remote", *args, "--daemon", daemon.url],
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+        check=False,
+        env=os.environ | {"LASERCAL_TOKEN": daemon.token},
+    )
 
 
 def _progressed(waypoints: int):
@@ -59,7 +76,7 @@ def test_dry_run_to_the_end_with_every_event_and_file(daemon: DaemonProcess) -> 
         assert first + rest == everything
         kinds = [kind for _, kind, _ in everything]
         assert {"stage", "progress", "centre", "scan", "result", "calibration"} <= set(kinds)
-        assert everything[0][1:] == ("state", {"state": "preflight", "job_id": job_id})
+        assert everything[0][1:] == ("state", {"state": "queued", "job_id": job_id})
         assert everything[-1][1:] == ("state", {"state": "succeeded", "job_id": job_id})
 
         finished = client.get(f"/v1/jobs/{job_id}").json()
@@ -104,11 +121,14 @@ def test_cancel_stops_the_arm_keeps_the_recording_and_resume_finishes(daemon: Da
         assert client.get("/v1/status").json()["robot"]["program_running"] is False
 
         assert client.post(f"/v1/jobs/{job_id}/resume", json={}).json()["code"] == "confirmation_required"
-        assert client.post(f"/v1/jobs/{job_id}/resume", json={"confirm_motion": True}).status_code == 200
-        done = wait_for(client, job_id, lambda job: job["state"] in TERMINAL and job["state"] != "cancelled")
-        assert done["state"] == "succeeded", done["error"]
-        assert done["progress"]["completed"] == done["progress"]["waypoint_count"]
-        assert done["calibration_id"] is not None
+    finished = remote(daemon, "resume", job_id, "--yes", "--wait", "--json")
+    assert finished.returncode == 0, finished.stderr[-2000:]
+    done = json.loads(finished.stdout)
+    assert done["state"] == "succeeded" and done["passed"] is True and done["calibration_id"]
+    assert done["job_id"] == job_id and len(done["T_base_laser"]) == 4
+    with daemon.client() as client:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        assert job["progress"]["completed"] == job["progress"]["waypoint_count"]
 
 
 def test_activate_roll_back_and_diff(daemon: DaemonProcess) -> None:
@@ -127,6 +147,15 @@ def test_activate_roll_back_and_diff(daemon: DaemonProcess) -> None:
         diff = client.get(f"/v1/calibrations/{older}/diff/{newer}").json()
         assert len(diff["translation_mm"]) == 3 and diff["translation_norm_mm"] < 20.0
         assert isinstance(diff["significant"], bool)
+    history = json.loads(remote(daemon, "history", "--json").stdout)["calibrations"]
+    assert [c["active"] for c in history if c["id"] in (older, newer)] == [False, True]
+    assert remote(daemon, "activate", newer, "--reason", "roll forward").returncode == 0
+    assert json.loads(remote(daemon, "status", "--json").stdout)["active_calibration"]["id"] == newer
+    assert json.loads(remote(daemon, "diff", older, newer, "--json").stdout) == diff
+    refused = remote(daemon, "calibrate", "--dry-run")
+    assert refused.returncode == 2 and "--yes" in refused.stderr
+    unknown = remote(daemon, "activate", "cal-nope")
+    assert unknown.returncode == 2 and "not_found" in unknown.stderr
 
 
 def test_sigkill_mid_run_then_restart_finds_it_interrupted_and_resumes(tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ events with ids and replay, calibration history, store and token files."""
 from __future__ import annotations
 
 import json
+import socket
 import sqlite3
 import stat
 import time
@@ -18,6 +19,7 @@ from lasercal_hw.service.app import create_app
 from lasercal_hw.service.auth import ensure_token
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
+from lasercal_hw.service.sd_notify import notify, watchdog_interval_s
 from lasercal_hw.service.store import SCHEMA_VERSION, HistoryStore
 from tests.daemon_helpers import FakeEngine, fake_runners, read_sse
 
@@ -231,3 +233,19 @@ def test_non_loopback_listen_needs_a_configured_token(tmp_path: Path) -> None:
         Daemon(config)
     with pytest.raises(ConfigError, match="listen"):
         load_daemon_config(None, {"listen": "localhost"})
+
+
+def test_sd_notify_sends_one_datagram_to_the_notify_socket(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "notify"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as receiver:
+        receiver.bind(str(path))
+        monkeypatch.setenv("NOTIFY_SOCKET", str(path))
+        assert notify("READY=1")
+        assert receiver.recv(100) == b"READY=1"
+    monkeypatch.setenv("WATCHDOG_USEC", "30000000")
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    assert watchdog_interval_s() == 15.0
+    monkeypatch.delenv("NOTIFY_SOCKET")
+    assert notify("READY=1") is False

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import sys
-import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -62,14 +61,9 @@ def _print(document: Any, as_json: bool) -> None:
 
 
 def _job_file(path: Path | None) -> dict[str, Any] | None:
-    if path is None:
-        return None
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"job file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise ConfigError(f"cannot read job file {path}: {exc}") from None
+    from lasercal_hw.config import read_toml
+
+    return None if path is None else read_toml(path, "job file")
 
 
 def _show_event(kind: str, data: dict[str, Any]) -> None:

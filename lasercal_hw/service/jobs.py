@@ -211,6 +211,7 @@ class JobManager:
                 scene_file = out_dir / "request_scene.toml"
                 scene_file.write_text(scene_toml, encoding="utf-8")
             self._store.insert_job(record)
+            self._bus.publish("state", {"state": "queued"}, job_id)
             self._launch(record, job, resume_from=None, scene_file=scene_file)
         return self.get(job_id)
 
@@ -238,9 +239,7 @@ class JobManager:
         with self._lock:
             self._refuse_if_busy()
             record["request"] = record["request"] | {"restore_robot": restore_robot}
-            self._store.update_job(
-                job_id, state="queued", finished_utc=None, error=None, request=record["request"]
-            )
+            self._set_state(job_id, "queued", finished_utc=None, error=None, request=record["request"])
             self._launch(
                 record, job, resume_from=session, scene_file=scene_file if scene_file.exists() else None
             )
