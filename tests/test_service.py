@@ -102,6 +102,7 @@ def test_one_motion_job_at_a_time_and_cancel_keeps_active_calibration(
     first = client.post("/v1/jobs", json=JOB | {"activate_on_pass": True}).json()
     active = _finish(client, first["id"])["calibration_id"]
     engine.release.clear()
+    engine.started.clear()
     running = client.post("/v1/jobs", json=JOB | {"activate_on_pass": True}).json()
     assert engine.started.wait(5.0)
     second = client.post("/v1/jobs", json=JOB)
