@@ -124,10 +124,15 @@ def test_one_motion_job_at_a_time_and_cancel_keeps_active_calibration(
     assert client.get("/v1/calibration").json()["id"] == done["calibration_id"] != active
 
 
-def test_a_failed_run_is_failed_with_its_error_code(client: TestClient, engine: FakeEngine) -> None:
+def test_a_device_failure_is_failed_with_its_code_and_resumable(
+    client: TestClient, engine: FakeEngine
+) -> None:
     engine.fail = True
     job = _finish(client, client.post("/v1/jobs", json=JOB).json()["id"])
     assert job["state"] == "failed" and job["error"]["code"] == "device_error"
+    engine.fail = False  # the device is back: the recording continues
+    assert client.post(f"/v1/jobs/{job['id']}/resume", json={"confirm_motion": True}).status_code == 200
+    assert _finish(client, job["id"])["state"] == "succeeded"
     again = client.post(f"/v1/jobs/{job['id']}/resume", json={"confirm_motion": True})
     assert (again.status_code, again.json()["code"]) == (409, "not_resumable")
 
