@@ -69,7 +69,7 @@ class FakeEngine:
         self.contexts.append(ctx)
         ctx.on_event("stage", "connecting", {"stage": "connect"})
         ctx.confirm(None)
-        ctx.on_event("stage", "waypoints", {"stage": "waypoints"})
+        ctx.on_event("progress", "background", {"stage": "background", "completed": 0})
         (ctx.out_dir / "session.mcap").write_bytes(b"recording")
         self.started.set()
         first = 2 if ctx.resume_from is not None else 0
@@ -91,7 +91,7 @@ class FakeEngine:
             )
         if self.fail:
             raise DeviceError("the scanner went away")
-        ctx.on_event("stage", "solving", {"stage": "solving"})
+        ctx.on_event("progress", "solving", {"stage": "solve", "completed": self.waypoints})
         result = fake_result(self.translation_m)
         (ctx.out_dir / "result.json").write_text(json.dumps(result))
         return RunResult(

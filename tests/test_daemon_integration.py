@@ -103,6 +103,8 @@ def test_dry_run_to_the_end_with_every_event_and_file(daemon: DaemonProcess) -> 
         assert {"stage", "progress", "centre", "scan", "result", "calibration"} <= set(kinds)
         assert everything[0][1:] == ("state", {"state": "queued", "job_id": job_id})
         assert everything[-1][1:] == ("state", {"state": "succeeded", "job_id": job_id})
+        states = [data["state"] for _, kind, data in everything if kind == "state"]
+        assert {"queued", "preflight", "running", "solving", "succeeded"} <= set(states)
 
         finished = client.get(f"/v1/jobs/{job_id}").json()
         # The verdict is the calibration's business (a loaded machine can fail a gate), not the daemon's.

@@ -146,7 +146,9 @@ def test_events_have_ids_and_replay_after_last_event_id(client: TestClient) -> N
     ids = [event_id for event_id, _, _ in events]
     assert ids == sorted(set(ids)) and all(data["job_id"] == job_id for _, _, data in events)
     assert events[-1][1:] == ("state", {"state": "succeeded", "job_id": job_id})
-    assert [e[2]["completed"] for e in events if e[1] == "progress"] == [1, 2, 3, 4]
+    assert [e[2]["completed"] for e in events if e[1] == "progress"] == [0, 1, 2, 3, 4, 4]
+    states = [e[2]["state"] for e in events if e[1] == "state"]
+    assert states == ["queued", "preflight", "running", "solving", "succeeded"]
     middle = ids[len(ids) // 2]
     with client.stream(
         "GET", f"/v1/jobs/{job_id}/events", headers={"Last-Event-ID": str(middle)}

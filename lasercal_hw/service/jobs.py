@@ -29,12 +29,10 @@ SESSION_FILE = "session.mcap"
 RESUMABLE_STATES = ("cancelled", "interrupted")
 RESUMABLE_ERRORS = ("device_error", "protective_stop")
 """A job a device stopped (the arm stopped, the recording kept) resumes as ``lasercal run --resume`` does."""
-_STAGE_STATES = {
-    "connect": "preflight",
-    "preflight": "preflight",
-    "background": "running",
-    "waypoints": "running",
-    "solving": "solving",
+_STAGE_STATES = {  # the engine's stage events and its progress events' stages -> the job's state
+    **dict.fromkeys(("fake_cell", "connect", "preflight"), "preflight"),
+    **dict.fromkeys(("background", "waypoints", "move", "dwell", "centre", "skip", "retry"), "running"),
+    **dict.fromkeys(("solve", "solving", "refine", "done", "outputs"), "solving"),
 }
 
 
@@ -318,12 +316,13 @@ class JobManager:
 
         def on_event(event_kind: str, message: str, data: dict[str, Any]) -> None:
             self._bus.publish(event_kind, data | {"message": message}, job_id)
-            if event_kind == "stage":
-                new_state = _STAGE_STATES.get(str(data.get("stage")))
-                if new_state is not None and new_state != state["value"]:
-                    state["value"] = new_state
-                    self._set_state(job_id, new_state)
-            elif event_kind == "progress":
+            new_state = (
+                _STAGE_STATES.get(str(data.get("stage"))) if event_kind in ("stage", "progress") else None
+            )
+            if new_state is not None and new_state != state["value"]:
+                state["value"] = new_state
+                self._set_state(job_id, new_state)
+            if event_kind == "progress":
                 progress.update(
                     _progress(
                         data.get("waypoint"),
