@@ -96,15 +96,21 @@ def errors(result: CalibrationResult, truth: np.ndarray) -> tuple[np.ndarray, np
     return dt_mm, de_deg
 
 
-def simulate(
-    job: JobConfig, waypoints: np.ndarray, world: World, scans: int, rng: np.random.Generator
-) -> Trial:
-    """One offline run of the sequencer's measurement chain and its two-pass solve."""
+def measure(
+    job: JobConfig,
+    waypoints: np.ndarray,
+    world: World,
+    scans: int,
+    rng: np.random.Generator,
+    background: AveragedScan,
+    first_index: int = 0,
+) -> list[WaypointMeasurement]:
+    """The sequencer's dwell and extraction at each waypoint (indices from ``first_index``);
+    waypoints whose rod is not found are left out."""
     rod = job.rod.rod_line()
-    background = dwell(world, retract_candidates(job, waypoints)[0], job.background.scans, rng)
     nominal = job.scanner.nominal
     measurements: list[WaypointMeasurement] = []
-    for index, pose in enumerate(waypoints):
+    for index, pose in enumerate(waypoints, start=first_index):
         averaged = dwell(world, pose, scans, rng)
         expected = None if nominal is None else predict_rod(nominal.matrix(), pose, rod).expected_uv_m
         try:
@@ -114,6 +120,15 @@ def simulate(
         except RodNotFoundError:
             continue
         measurements.append(WaypointMeasurement(index, pose, averaged, centre))
+    return measurements
+
+
+def simulate(
+    job: JobConfig, waypoints: np.ndarray, world: World, scans: int, rng: np.random.Generator
+) -> Trial:
+    """One offline run of the sequencer's measurement chain and its two-pass solve."""
+    background = dwell(world, retract_candidates(job, waypoints)[0], job.background.scans, rng)
+    measurements = measure(job, waypoints, world, scans, rng, background)
     result = solve_two_pass(measurements, job, background).result
     dt_mm, de_deg = errors(result, world.ground_truth_T_base_laser)
     return Trial(result, dt_mm, de_deg, len(measurements))

@@ -28,7 +28,7 @@ from fakes.world import World
 from lasercal_hw.config import WorkspaceConfig, load_job
 from lasercal_hw.geometry import matrix_to_pose
 from lasercal_hw.models import RodLine
-from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
+from lasercal_hw.ur_kinematics import inverse_kinematics_pose
 from trajectories.checks import check_waypoints
 from trajectories.plane_crossing import rod_plane_crossings
 from trajectories.presets import get_preset

@@ -17,7 +17,8 @@ then to waypoint 0, 1, ...):
 * ``protective_stop_at_waypoint = k`` stops the robot halfway through move ``k + 2``;
 * ``scanner_drop_at_waypoint = k`` drops the scanner's connection once,
   ``SCANNER_DROP_DELAY_S`` after move ``k + 2`` has ended (during that waypoint's dwell);
-* ``corrupt_checksum_every_scans = N`` corrupts a data-line checksum in every N-th scan.
+* ``corrupt_checksum_every_scans = N`` corrupts a data-line checksum in every N-th scan;
+* ``scanner_stale_field = "AFRT=560"`` changes that VV/PP/II value but not its checksum.
 """
 
 from __future__ import annotations
@@ -58,7 +59,10 @@ class FakeCell:
         source = WorldRangeSource(self.world, self._tcp_pose_at, seed)
         self.scanner = FakeScannerServer(
             address, DEFAULT_PORT, source=source,
-            faults=ScipFaults(corrupt_every_scans=faults.corrupt_checksum_every_scans),
+            faults=ScipFaults(
+                corrupt_every_scans=faults.corrupt_checksum_every_scans,
+                stale_field=faults.scanner_stale_field,
+            ),
         )
         self.address = self.robot.address
         self.scanner_url = ""

@@ -128,6 +128,8 @@ class FaultSettings(_Strict):
     protective_stop_at_waypoint: int | None = Field(None, ge=0)
     scanner_drop_at_waypoint: int | None = Field(None, ge=0)
     corrupt_checksum_every_scans: int = Field(0, ge=0)
+    scanner_stale_field: str = Field("", pattern=r"^([A-Z]{4}=[ -~]+)?$")
+    """``"KEY=VALUE"``: the scanner's VV/PP/II line of KEY says VALUE under the old checksum."""
 
 
 def _default_walls() -> list[WallSettings]:

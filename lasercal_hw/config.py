@@ -26,14 +26,21 @@ DEFAULT_PRESET = "paper"
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # nan and inf are refused as what they are ("should be a finite number"), not
+    # reported against whichever bound a nan comparison happens to fail first.
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class RobotConfig(_Strict):
-    """Where the robot controller is (``--robot`` overrides ``host``) and how far its
-    reported TCP position may be from the real one."""
+    """Where the robot controller is (``--robot`` overrides ``host``), which model it is,
+    and how far its reported TCP position may be from the real one."""
 
     host: str | None = None
+    model: Literal["ur5", "ur5e"] | None = Field(
+        None,
+        description="robot model for offline kinematics (trajectory design and check); "
+        "unset: the connected robot's model, or ur5 offline",
+    )
     position_accuracy_mm: float = Field(
         1.0,
         ge=0.0,
@@ -108,6 +115,14 @@ class TrajectoryConfig(_Strict):
     preset: str | None = None
     parameters: dict[str, float | int | str | bool | list[float]] = Field(default_factory=dict)
     waypoints_file: Path | None = None
+    adaptive: bool = Field(
+        False, description="design a short robust first part from scanner.nominal, solve, design the rest"
+    )
+    first_waypoints: int = Field(8, ge=6, le=100, description="adaptive: waypoints of the first design")
+    design_waypoints: int = Field(20, ge=6, le=200, description="adaptive: waypoints in all")
+    pose_uncertainty: tuple[float, float] = Field(
+        (0.05, 5.0), description="adaptive: how far off scanner.nominal may be (m, deg)"
+    )
 
     @model_validator(mode="before")
     @classmethod
@@ -122,6 +137,10 @@ class TrajectoryConfig(_Strict):
             raise ValueError("give either preset or waypoints_file, not both")
         if self.waypoints_file is not None and self.parameters:
             raise ValueError("parameters apply to a preset, not to a waypoints_file")
+        if self.adaptive and self.waypoints_file is not None:
+            raise ValueError("an adaptive run designs its own waypoints: leave out waypoints_file")
+        if self.adaptive and self.first_waypoints >= self.design_waypoints:
+            raise ValueError("first_waypoints must be fewer than design_waypoints")
         return self
 
     @property

@@ -16,8 +16,10 @@ pytestmark = pytest.mark.integration
 
 
 def _csv(tmp_path: Path, **kwargs: object) -> Path:
+    """Simulated observations with the noise of a real run (3 mm), so that a good solve also
+    passes the quality gates `solve` applies (the paper's 10 mm simulation would not)."""
     path = tmp_path / "observations.csv"
-    write_observations_csv(path, observations(**kwargs))  # type: ignore[arg-type]
+    write_observations_csv(path, observations(**{"laser_noise_m": 0.003, **kwargs}))  # type: ignore[arg-type]
     return path
 
 

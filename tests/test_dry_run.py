@@ -210,6 +210,8 @@ def _read_until(fd: int, text: str, timeout_s: float) -> str:
 @pytest.mark.parametrize("answer", ["no", "sigterm"])
 def test_operator_declining_or_terminating_at_the_prompt_moves_nothing(tmp_path: Path, answer: str) -> None:
     job = write_job(tmp_path)
+    with job.open("a") as file:  # a live run needs to know roughly where the scanner is
+        file.write("[scanner.nominal]\ntranslation_m = [0.30, 0.50, 0.20]\neuler_zyx_deg = [5.0, 7.0, 3.0]\n")
     out = tmp_path / "out"
     with FakeCellProcess() as cell:
         controller, terminal = pty.openpty()

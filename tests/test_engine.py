@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lasercal_hw.config import load_job
+from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ConfigError, InterruptedRunError
 from lasercal_hw.run.engine import CancelToken, RunEvent, RunRequest, calibrate
 from tests.test_dry_run import write_job
@@ -57,16 +57,28 @@ def test_engine_and_cli_give_the_same_document_and_files(tmp_path: Path) -> None
     assert events[-1].kind == "result" and events[-1].data["passed"] is True
 
 
+def _live_job() -> JobConfig:
+    """A job for a live run: it says where the scanner roughly is."""
+    return with_overrides(load_job(None), {"scanner.nominal": {"translation_m": [0.3, 0.5, 0.2]}})
+
+
+def test_a_live_run_without_any_scanner_pose_points_to_trajectory_design(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    with pytest.raises(ConfigError, match=r"no scanner pose.*lasercal trajectory design --scanner-pose"):
+        calibrate(RunRequest(job=load_job(None), out_dir=out, robot_host="127.0.0.9"))
+    assert not out.exists()
+
+
 def test_a_cancelled_run_before_connecting_leaves_no_empty_folder(tmp_path: Path) -> None:
     cancel = CancelToken()
     cancel.cancel("test")
     out = tmp_path / "out"
     with pytest.raises(InterruptedRunError, match="test"):
-        calibrate(RunRequest(job=load_job(None), out_dir=out, robot_host="127.0.0.9"), cancel=cancel)
+        calibrate(RunRequest(job=_live_job(), out_dir=out, robot_host="127.0.0.9"), cancel=cancel)
     assert not out.exists()
 
 
 def test_a_folder_holding_a_session_is_refused(tmp_path: Path) -> None:
     (tmp_path / "session.mcap").write_bytes(b"")
     with pytest.raises(ConfigError, match="already exists"):
-        calibrate(RunRequest(job=load_job(None), out_dir=tmp_path, robot_host="127.0.0.9"))
+        calibrate(RunRequest(job=_live_job(), out_dir=tmp_path, robot_host="127.0.0.9"))

@@ -91,3 +91,27 @@ def test_missing_empty_and_unsupported_files_are_config_errors(tmp_path: Path) -
         load_observations(_write(tmp_path, "\n\n"))
     with pytest.raises(ConfigError, match=r"unsupported file type '.txt' \(supported: .csv\)"):
         load_observations(_write(tmp_path, HEADER, "observations.txt"))
+
+
+def test_a_quoted_cell_is_read_row_by_row_to_the_same_observations(tmp_path: Path) -> None:
+    original = observations(points=5)
+    plain = tmp_path / "observations.csv"
+    write_observations_csv(plain, original)
+    lines = plain.read_text().splitlines()
+    quoted = _write(tmp_path, "\n".join([f"{lines[0]},note", *(f'{line},"a, b"' for line in lines[1:])]),
+                    "quoted.csv")
+    for a, b in zip(read_observations_csv(plain), read_observations_csv(quoted), strict=True):
+        assert a.index == b.index
+        np.testing.assert_array_equal(a.tcp_pose, b.tcp_pose)
+        np.testing.assert_array_equal(a.centre_uv_m, b.centre_uv_m)
+        np.testing.assert_array_equal(a.covariance_uv_m2, b.covariance_uv_m2)
+
+
+def test_a_row_short_of_an_extra_column_is_still_rejected(tmp_path: Path) -> None:
+    path = _write(tmp_path, f"{HEADER},note\n0,0,0,0,0,0,0,0,0,a\n1,0,0,0,0,0,0,0,0\n")
+    with pytest.raises(ConfigError, match="line 3: 9 values, header has 10"):
+        read_observations_csv(path)
+
+
+def test_a_file_of_only_a_header_has_no_observations(tmp_path: Path) -> None:
+    assert read_observations_csv(_write(tmp_path, f"# nothing recorded\n{HEADER}\n")) == []

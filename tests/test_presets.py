@@ -10,7 +10,7 @@ import pytest
 from lasercal_hw.config import WorkspaceConfig
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import make_transform, rotvec_to_matrix, transform_points
-from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
+from lasercal_hw.ur_kinematics import inverse_kinematics_pose
 from trajectories.checks import check_waypoints
 from trajectories.plane_crossing import rod_plane_crossings
 from trajectories.presets import DEFAULT_PRESET, PRESETS, get_preset, preset_names, preset_waypoints

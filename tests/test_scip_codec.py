@@ -111,14 +111,31 @@ def test_parameter_values_may_contain_colons_and_semicolons(caplog: pytest.LogCa
     assert parse_time_field("4991D0") == 0x4991D0
 
 
-def test_parameter_checksum_mismatch_is_logged_not_raised(caplog: pytest.LogCaptureFixture) -> None:
-    with_semicolon = b"PROT:SCIP 2.0;" + checksum(b"PROT:SCIP 2.0;")
-    parsed = parse_parameter_lines([b"SERI:00903971;X", with_semicolon, b"garbage"])
-    assert parsed == {"SERI": "00903971", "PROT": "SCIP 2.0"}
-    messages = " ".join(r.getMessage() for r in caplog.records)
-    assert "SERI" in messages and "checksum mismatch" in messages
-    assert "PROT" not in messages  # the ';'-included variant is accepted silently
-    assert "garbage" in messages
+def test_parameter_checksum_variants_are_accepted_and_a_mismatch_names_the_line() -> None:
+    texts = (b"PROT:SCIP 2.0", b"SERI:H0123456")
+    with_semicolon = [text + b";" + checksum(text + b";") for text in texts]
+    assert parse_parameter_lines(with_semicolon, "VV") == {"PROT": "SCIP 2.0", "SERI": "H0123456"}
+    commented = b"SCSP:Initial(600[rpm])<-Default setting by user;A"
+    assert parse_parameter_lines([commented], "II")["SCSP"].startswith("Initial(600[rpm])")
+    with pytest.raises(ChecksumError, match=r"PP reply line 'AFRT:560;0' fails its checksum"):
+        parse_parameter_lines([b"AMAX:1080;Z", b"AFRT:560;0"], "PP")
+
+
+def test_a_line_matching_only_the_other_checksum_convention_is_refused() -> None:
+    """'MODL:UTM-35LX-EW' under the old checksum passes if the ';' is summed too: one
+    firmware sums one way, so a reply mixing the two is damaged."""
+    with pytest.raises(ChecksumError, match="'MODL:UTM-35LX-EW;I' fails its checksum"):
+        parse_parameter_lines([b"DMIN:23;7", b"MODL:UTM-35LX-EW;I"], "PP")
+    with pytest.raises(ChecksumError, match="not printable"):
+        parse_parameter_lines([b"MODL:UTM-3\xb0LX-EW;I"], "PP")
+
+
+@pytest.mark.parametrize(
+    ("line", "problem"), [(b"SERI:00903971", "no ';' \\+ checksum"), (b"garbage", "no key")]
+)
+def test_parameter_line_without_checksum_or_key_is_an_error(line: bytes, problem: str) -> None:
+    with pytest.raises(ChecksumError, match=problem):
+        parse_parameter_lines([line], "VV")
 
 
 def test_time_field_rejects_other_widths() -> None:

@@ -49,7 +49,7 @@ def test_linear_start_is_exact_without_noise_and_needs_no_guess() -> None:
     obs = observations(points=8, laser_noise_m=0.0, robot_noise_m=0.0)
     origins, directions = rod_lines_in_base(np.array([o.tcp_pose for o in obs]), RodLine())
     centres = np.array([o.centre_uv_m for o in obs])
-    rotation, translation = linear_initial_pose(origins, directions, centres, np.ones(len(obs)))
+    rotation, translation, _ = linear_initial_pose(origins, directions, centres, np.ones(len(obs)))
     np.testing.assert_allclose(rotation, TRUTH[:3, :3], atol=1e-9)
     np.testing.assert_allclose(translation, TRUTH[:3, 3], atol=1e-9)
 

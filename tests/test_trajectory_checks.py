@@ -11,7 +11,7 @@ from pydantic import ValidationError
 from lasercal_hw.config import WorkspaceConfig
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import RodLine
-from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
+from lasercal_hw.ur_kinematics import inverse_kinematics_pose
 from trajectories.checks import check_waypoints, require_waypoints_ok
 from trajectories.waypoint import Waypoint
 

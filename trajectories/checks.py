@@ -4,7 +4,7 @@ limits, inside the workspace box (TCP and, when a rod is given, both rod ends).
 One set of checks, one message style: ``lasercal run``'s preflight runs ``check_pose``
 against the robot controller (``getInverseKinematics``, ``isPoseWithinSafetyLimits``
 through the driver), ``lasercal trajectory check`` runs it offline against
-``lasercal_hw.ur5_kinematics``; the reachability and safety tests are callables for that.
+``lasercal_hw.ur_kinematics``; the reachability and safety tests are callables for that.
 """
 
 from __future__ import annotations

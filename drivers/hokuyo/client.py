@@ -40,6 +40,7 @@ from drivers.hokuyo.info import (
 from drivers.hokuyo.stamps import ClockEstimate, ClockSample, DeviceClock, TimestampUnwrapper
 from drivers.hokuyo.transport import SerialTransport, Transport, open_transport
 from lasercal_hw.errors import (
+    ChecksumError,
     ConfigError,
     DeviceError,
     DeviceTimeoutError,
@@ -55,6 +56,8 @@ QUIET_S = 0.2
 """Silence that ends the drain after the initial QT (scip2.md P-1)."""
 MAX_DRAIN_S = 2.0
 READER_POLL_S = 0.1
+PARAMETER_TRIES = 3
+"""Times a VV/PP/II query is sent before a bad line checksum is an error."""
 TAG_SAFE_STATUSES = ("0C", "0D", "0G", "0H")
 """Statuses a device may give a tagged request it cannot parse; the client retries untagged."""
 
@@ -118,14 +121,18 @@ class HokuyoScanner:
         first_step: int | None = None,
         last_step: int | None = None,
         cluster: int = 1,
+        transport: Transport | None = None,
+        quiet_s: float = QUIET_S,
     ) -> HokuyoScanner:
         """Connect to ``url`` (``scip+tcp://...`` or ``scip+serial://...``) and read its info.
 
         ``timeout_s`` bounds every command reply; ``first_step``/``last_step``/``cluster``
-        choose the scan layout (default: all measurable steps)."""
+        choose the scan layout (default: all measurable steps). ``transport`` replaces the
+        connection opened from ``url`` (an in-memory peer for fuzzing); ``quiet_s`` is the
+        silence that ends the initial drain."""
         scanner = cls(
             url,
-            open_transport(url, connect_timeout_s),
+            transport if transport is not None else open_transport(url, connect_timeout_s),
             timeout_s=timeout_s,
             connect_timeout_s=connect_timeout_s,
             queue_size=queue_size,
@@ -133,7 +140,7 @@ class HokuyoScanner:
             reconnect_timeout_s=reconnect_timeout_s,
         )
         try:
-            scanner._resynchronise()
+            scanner._resynchronise(quiet_s=quiet_s)
             scanner.refresh_info()
             scanner._geometry = scanner.parameters().geometry(first_step, last_step, cluster)
             if sync_clock:
@@ -279,10 +286,28 @@ class HokuyoScanner:
 
     # ------------------------------------------------------------------ information
 
+    def _read_fields(self, command: bytes) -> dict[str, str]:
+        """The checked ``KEY:VALUE`` lines of a VV/PP/II reply. A reply with a bad line
+        checksum is asked for again (a link can drop or flip a byte) up to
+        ``PARAMETER_TRIES`` times in all; then ``ChecksumError`` names the line."""
+        name = command.decode("ascii")
+        attempt = 1
+        while True:
+            try:
+                return parse_parameter_lines(self._command(command).data_lines, name)
+            except ChecksumError as exc:
+                if attempt >= PARAMETER_TRIES:
+                    raise ChecksumError(
+                        f"{self.url}: {exc}, {attempt} times in a row; the link corrupts data or the "
+                        "scanner is faulty: check the cable (and the bit rate on a serial link)"
+                    ) from exc
+                logger.info("%s: %s; asking again", self.url, exc)
+                attempt += 1
+
     def refresh_info(self) -> None:
         """Read VV and PP again (identity and parameters)."""
-        version = parse_parameter_lines(self._command(b"VV").data_lines)
-        self._parameters = parse_parameters(parse_parameter_lines(self._command(b"PP").data_lines))
+        version = self._read_fields(b"VV")
+        self._parameters = parse_parameters(self._read_fields(b"PP"))
         self._identity = parse_identity(version, self._parameters.model)
 
     def identity(self) -> ScannerIdentity:
@@ -301,7 +326,7 @@ class HokuyoScanner:
 
     def status(self) -> ScannerStatus:
         """A fresh II status (laser, mode, link, sensor time, diagnostic)."""
-        return parse_status(parse_parameter_lines(self._command(b"II").data_lines))
+        return parse_status(self._read_fields(b"II"))
 
     def geometry(self) -> ScanGeometry:
         """Beam layout of the scans this client requests."""
@@ -510,6 +535,11 @@ class HokuyoScanner:
         finally:
             self._stop_reader.set()
             reader.join(timeout=5.0)
+            if self._corrupted > 1:
+                logger.warning(
+                    "%s: %d corrupted scans dropped in this stream of %d received",
+                    self.url, self._corrupted, self._received + self._corrupted,
+                )
             self._reader = None
             self._stream = None
             while not self._replies.empty():
@@ -583,8 +613,7 @@ class HokuyoScanner:
         elif status == "00":
             logger.debug("%s: stream acknowledgement %r", self.url, response.echo)
         elif status == "0M":
-            logger.warning("%s: scanner unstable (0M); scan skipped", self.url)
-            self._corrupted += 1
+            self._drop_corrupted("scanner unstable (0M)")
         else:
             command = response.echo.decode("ascii", "replace")
             error = ScannerStatusError(command, status, status_meaning(command, status))
@@ -595,8 +624,7 @@ class HokuyoScanner:
         try:
             decoded = decode_scan_lines(response.data_lines, request)
         except ProtocolError as exc:
-            self._corrupted += 1
-            logger.warning("%s: corrupted scan dropped (%s)", self.url, exc)
+            self._drop_corrupted(str(exc))
             return
         device_ms = self._unwrapper.unwrap(decoded.timestamp_ms)
         self._clock.observe(device_ms, host_time)
@@ -626,6 +654,15 @@ class HokuyoScanner:
         geometry = self._stream_geometry or self.geometry()
         self._enqueue(self._make_scan(decoded, geometry, host_time, self._sequence, device_ms))
 
+    def _drop_corrupted(self, reason: str) -> None:
+        """Count a dropped scan; only the first of a stream is a warning (the rest are
+        summarised when the stream stops, instead of one line each)."""
+        self._corrupted += 1
+        if self._corrupted == 1:
+            logger.warning("%s: corrupted scan dropped (%s); further ones are counted", self.url, reason)
+        else:
+            logger.debug("%s: corrupted scan dropped (%s)", self.url, reason)
+
     def _enqueue(self, item: LaserScan | DeviceError) -> None:
         try:
             self._scans.put_nowait(item)
@@ -651,6 +688,7 @@ class HokuyoScanner:
             old.close()
         deadline = time.monotonic() + self.reconnect_timeout_s
         delay_s = 0.05
+        reported = False
         while not self._stop_reader.is_set():
             try:
                 transport = open_transport(self.url, min(self.connect_timeout_s, self.reconnect_timeout_s))
@@ -677,6 +715,14 @@ class HokuyoScanner:
                     )
                     self._stop_reader.set()
                     return
+                if not reported and isinstance(exc.__cause__, ConnectionRefusedError):
+                    # Nothing listens where the scanner was: it restarted or is gone. Say so
+                    # now (the consumer decides), and keep trying until the deadline.
+                    reported = True
+                    self._enqueue(TransportError(
+                        f"{self.url}: connection lost ({reason}) and refused on reconnect: the scanner "
+                        f"restarted or is gone; still retrying for {self.reconnect_timeout_s:g} s"
+                    ))
                 logger.info("%s: reconnect failed (%s); retrying in %.2f s", self.url, exc, delay_s)
                 self._stop_reader.wait(delay_s)
                 delay_s = min(2 * delay_s, 1.0)

@@ -278,37 +278,60 @@ def parameter_line(key: str, value: str) -> bytes:
     return text + b";" + checksum(text)
 
 
-def _parameter_checksum_ok(text: bytes, received: bytes) -> bool:
-    candidates = [text, text + b";"]
+_CHECKSUM_CONVENTIONS = ("without ';'", "with ';'")
+
+
+def _parameter_conventions(text: bytes, received: bytes) -> set[str]:
+    """The checksum conventions under which ``text`` (``KEY:VALUE``) carries ``received``:
+    the sum over the text (scip2.md 2.3, the captures), or over text and ``;`` (some
+    firmware); a ``<-`` comment may be left out of either (P-4)."""
+    bodies = [text]
     comment = text.find(b"<-")
     if comment > 0:
-        candidates.append(text[:comment])
-    return any(checksum(c) == received for c in candidates)
+        bodies.append(text[:comment])
+    return {
+        convention
+        for convention, suffix in zip(_CHECKSUM_CONVENTIONS, (b"", b";"), strict=True)
+        if any(checksum(body + suffix) == received for body in bodies)
+    }
 
 
-def parse_parameter_lines(lines: Iterable[bytes]) -> dict[str, str]:
-    """Parse VV/PP/II lines into ``{key: value}``.
+def parse_parameter_lines(lines: Iterable[bytes], command: str = "parameter") -> dict[str, str]:
+    """Parse the VV/PP/II lines of a ``command`` reply into ``{key: value}``.
 
     Key = text before the first ``:``; checksum = last char; the ``;`` before it is the
-    separator; the value may itself contain ``:`` and ``;``. A checksum mismatch is
-    logged, not raised (real firmware differs, scip2.md 2.3, P-4); a line without ``:``
-    is logged and skipped."""
+    separator; the value may itself contain ``:`` and ``;`` (scip2.md 2.3, P-4). These
+    values decide every scan angle, so they are checked like scan data: a line that is
+    not printable ASCII, has no key, no ``;`` + checksum, or a checksum that fails raises
+    ``ChecksumError`` naming the line. One firmware computes every sum one way, so all
+    lines of a reply must agree on the convention (with or without the ``;``): a damaged
+    line that happens to match the other one is caught too."""
     result: dict[str, str] = {}
+    common = set(_CHECKSUM_CONVENTIONS)
     for raw in lines:
+        if not all(0x20 <= byte <= 0x7E for byte in raw):
+            raise ChecksumError(f"{command} reply line {_shown(raw)} holds bytes that are not printable")
         colon = raw.find(b":")
         if colon <= 0:
-            logger.warning("skipping parameter line without a key: %r", raw)
-            continue
-        if len(raw) >= colon + 3 and raw[-2:-1] == b";":
-            text, received = raw[:-2], raw[-1:]
-            if not _parameter_checksum_ok(text, received):
-                logger.warning("parameter line %r: checksum mismatch (kept)", raw)
-        else:
-            text = raw
-            logger.warning("parameter line %r has no ';' + checksum (kept)", raw)
-        key = text[:colon].decode("ascii", errors="replace")
-        result[key] = text[colon + 1 :].decode("ascii", errors="replace")
+            raise ChecksumError(f"{command} reply line {_shown(raw)} has no key (no ':')")
+        if len(raw) < colon + 3 or raw[-2:-1] != b";":
+            raise ChecksumError(f"{command} reply line {_shown(raw)} has no ';' + checksum")
+        text, received = raw[:-2], raw[-1:]
+        conventions = _parameter_conventions(text, received)
+        if not conventions & common:
+            raise ChecksumError(
+                f"{command} reply line {_shown(raw)} fails its checksum "
+                f"(received {_shown(received)}, expected {_shown(checksum(text))})"
+            )
+        common &= conventions
+        key = text[:colon].decode("ascii")
+        result[key] = text[colon + 1 :].decode("ascii")
     return result
+
+
+def _shown(data: bytes) -> str:
+    """``data`` quoted for a one-line message (non-ASCII bytes escaped)."""
+    return repr(data.decode("ascii", errors="backslashreplace"))
 
 
 def parse_time_field(value: str) -> int:

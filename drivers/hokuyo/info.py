@@ -10,6 +10,8 @@ from lasercal_hw.models import ScanGeometry, ScannerIdentity
 
 HEALTHY_DIAGNOSTICS = ("Sensor works well.", "Stable 000 no error.", "sensor is working normally")
 """II STAT strings of a healthy URG/UTM-30LX, UTM-30LX-EW and UST (scip2.md 4.3, P-7)."""
+II_KEYS = ("MODL", "LASR", "SCSP", "MESM", "SBPS", "TIME", "STAT")
+"""Keys every II reply carries (scip2.md 4.3; the URG-04LX, UTM-30LX and UXM captures)."""
 
 
 def _required(params: dict[str, str], key: str, command: str) -> str:
@@ -81,8 +83,65 @@ class ScannerParameters:
         )
 
 
+@dataclass(frozen=True)
+class StepLayout:
+    """The step numbers a scanner model's PP reply must carry (ARES, AMIN, AMAX, AFRT)."""
+
+    steps_per_revolution: int
+    first_step: int
+    last_step: int
+    front_step: int
+
+
+KNOWN_LAYOUTS: dict[str, StepLayout] = {
+    "UTM-30LX": StepLayout(1440, 0, 1080, 540),
+    "URG-04LX": StepLayout(1024, 44, 725, 384),
+}
+"""Data sheet values by PP ``MODL`` prefix (UTM-30LX and UTM-30LX-EW share theirs;
+scip_captures.md A.1, B.2, B.3)."""
+
+
+def known_layout(model: str) -> tuple[str, StepLayout] | None:
+    """The known layout whose model name ``model`` starts with (longest match), if any."""
+    matches = [name for name in KNOWN_LAYOUTS if model.startswith(name)]
+    if not matches:
+        return None
+    name = max(matches, key=len)
+    return name, KNOWN_LAYOUTS[name]
+
+
+def check_plausible(parameters: ScannerParameters) -> None:
+    """``ProtocolError`` when the PP values cannot describe a real scanner, or differ from
+    the known values of its model: a wrong front step turns every angle (issue 14)."""
+    p = parameters
+    if not (0 <= p.first_step <= p.front_step <= p.last_step < p.steps_per_revolution):
+        raise ProtocolError(
+            f"PP steps are impossible: AMIN {p.first_step} <= AFRT {p.front_step} <= AMAX {p.last_step} "
+            f"< ARES {p.steps_per_revolution} does not hold; the reply is corrupted"
+        )
+    if not 0 <= p.min_range_mm < p.max_range_mm:
+        raise ProtocolError(f"PP ranges are impossible: DMIN {p.min_range_mm} >= DMAX {p.max_range_mm}")
+    known = known_layout(p.model)
+    if known is None:
+        return
+    name, layout = known
+    found = StepLayout(p.steps_per_revolution, p.first_step, p.last_step, p.front_step)
+    keys = {"steps_per_revolution": "ARES", "first_step": "AMIN", "last_step": "AMAX", "front_step": "AFRT"}
+    differ = [
+        f"{key} {getattr(found, field_name)} (a {name} has {getattr(layout, field_name)})"
+        for field_name, key in keys.items()
+        if getattr(found, field_name) != getattr(layout, field_name)
+    ]
+    if differ:
+        raise ProtocolError(
+            f"PP of a {p.model} reports {', '.join(differ)}; every scan angle would be wrong, so the "
+            "scanner is refused: check the link for corruption and that MODL names the real model"
+        )
+
+
 def parse_parameters(params: dict[str, str]) -> ScannerParameters:
-    """Typed PP reply; a missing or non-numeric key is a ``ProtocolError``."""
+    """Typed PP reply; a missing or non-numeric key, or implausible values, are a
+    ``ProtocolError`` (``check_plausible``)."""
     parameters = ScannerParameters(
         model=_required(params, "MODL", "PP"),
         min_range_mm=_integer(params, "DMIN"),
@@ -94,12 +153,9 @@ def parse_parameters(params: dict[str, str]) -> ScannerParameters:
         motor_speed_rpm=_integer(params, "SCAN"),
         raw=dict(params),
     )
-    if (
-        parameters.steps_per_revolution <= 0
-        or parameters.motor_speed_rpm <= 0
-        or (parameters.first_step > parameters.last_step)
-    ):
-        raise ProtocolError(f"PP values are inconsistent: {params}")
+    if parameters.motor_speed_rpm <= 0:
+        raise ProtocolError(f"PP SCAN {parameters.motor_speed_rpm} rpm is impossible; the reply is corrupted")
+    check_plausible(parameters)
     return parameters
 
 
@@ -123,17 +179,20 @@ class ScannerStatus:
 
 
 def parse_status(params: dict[str, str]) -> ScannerStatus:
-    """Typed II reply; TIME may be 6 hex digits or the 4-char encoding (P-6)."""
-    laser = params.get("LASR", "").strip().upper()
-    time_text = params.get("TIME")
+    """Typed II reply; TIME may be 6 hex digits or the 4-char encoding (P-6). Every key
+    of scip2.md 4.3 must be there (a reply that lost a line is refused, not read as a
+    blank status)."""
+    for key in II_KEYS:
+        _required(params, key, "II")
+    laser = params["LASR"].strip().upper()
     return ScannerStatus(
-        model=params.get("MODL", ""),
+        model=params["MODL"],
         laser_on=True if laser.startswith("ON") else False if laser.startswith("OFF") else None,
-        motor_speed=params.get("SCSP", ""),
-        measurement_mode=params.get("MESM", ""),
-        link=params.get("SBPS", ""),
-        time_ms=parse_time_field(time_text) if time_text else None,
-        diagnostic=params.get("STAT", ""),
+        motor_speed=params["SCSP"],
+        measurement_mode=params["MESM"],
+        link=params["SBPS"],
+        time_ms=parse_time_field(params["TIME"]),
+        diagnostic=params["STAT"],
         raw=dict(params),
     )
 

@@ -75,7 +75,10 @@ def parse_url(url: str) -> TransportUrl:
         if parts.scheme == "scip+tcp":
             if not parts.hostname or parts.path not in ("", "/") or parts.query:
                 raise ValueError("needs a host and nothing after it")
-            return TransportUrl("tcp", host=parts.hostname, port=parts.port or DEFAULT_TCP_PORT)
+            port = DEFAULT_TCP_PORT if parts.port is None else parts.port
+            if port == 0:
+                raise ValueError("port 0 is no port a scanner listens on; leave it out for 10940")
+            return TransportUrl("tcp", host=parts.hostname, port=port)
         if parts.scheme == "scip+serial":
             if parts.netloc or not parts.path:
                 raise ValueError("needs a device path such as /dev/ttyACM0")

@@ -13,16 +13,19 @@ therefore probes the controller with plain sockets (with timeouts) before constr
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from typing import TypeVar
 
-from lasercal_hw.errors import DeviceTimeoutError, RobotError
+from lasercal_hw.errors import DeviceTimeoutError, RobotError, TransportError
 
 T = TypeVar("T")
+_POLL_S = 0.05
 
 
 def ur_call(what: str, fn: Callable[[], T], *, timeout_s: float | None = None,
-            false_is_error: bool = True, lock: threading.Lock | None = None) -> T:
+            false_is_error: bool = True, lock: threading.Lock | None = None,
+            connected: Callable[[], bool] | None = None) -> T:
     """Run ``fn`` (a ur_rtde call) and return its result.
 
     Raises ``RobotError`` if it raises, returns ``False`` (unless ``false_is_error`` is
@@ -30,6 +33,9 @@ def ur_call(what: str, fn: Callable[[], T], *, timeout_s: float | None = None,
     ``DeviceTimeoutError`` if ``timeout_s`` passes first. With ``lock`` the call runs
     while holding it: ur_rtde's command handshake must not be entered by two threads at
     once, and a call abandoned at its deadline keeps the lock until it really returns.
+    With ``timeout_s``, ``connected`` is asked every ``_POLL_S`` while waiting; once it
+    says False the wait ends with ``TransportError`` (ur_rtde would spend the rest of the
+    deadline reconnecting to a controller that is gone).
     """
     if lock is not None:
         unlocked = fn
@@ -52,7 +58,12 @@ def ur_call(what: str, fn: Callable[[], T], *, timeout_s: float | None = None,
 
         thread = threading.Thread(target=worker, name=f"ur-call-{what}", daemon=True)
         thread.start()
-        thread.join(timeout_s)
+        deadline = time.monotonic() + timeout_s
+        while thread.is_alive() and (remaining_s := deadline - time.monotonic()) > 0:
+            thread.join(min(_POLL_S, remaining_s))
+            if thread.is_alive() and connected is not None and not connected():
+                raise TransportError(f"robot call {what}: the connection to the robot was lost while "
+                                     "waiting for its answer; check the robot and connect again")
         if thread.is_alive():
             raise DeviceTimeoutError(f"robot call {what} did not return within {timeout_s:g} s; "
                                      "the connection is unusable, reconnect")

@@ -237,8 +237,33 @@ class URRobot:
 
     def _command(self, what: str, fn: Any, *, false_is_error: bool = True,
                  timeout_s: float = _COMMAND_TIMEOUT_S) -> Any:
-        """A control-interface command: serialised, with a deadline."""
-        return ur_call(what, fn, timeout_s=timeout_s, false_is_error=false_is_error, lock=self._command_lock)
+        """A control-interface command: serialised, with a deadline; a lost control
+        connection is a TransportError at once (ur_rtde would spend seconds reconnecting
+        and then report a refusal)."""
+        if self._has_control and not self._closed and not ur_call(
+                "isConnected", self._control.isConnected, false_is_error=False):
+            raise self._lost("control", what)
+        return ur_call(what, fn, timeout_s=timeout_s, false_is_error=false_is_error, lock=self._command_lock,
+                       connected=self._connected)
+
+    def _connected(self) -> bool:
+        """Both RTDE connections up (as far as ur_rtde knows)."""
+        return bool(self._receive.isConnected()) and bool(self._control.isConnected())
+
+    def _read(self, what: str, fn: Any) -> Any:
+        """A receive-interface read (an empty list is a RobotError). ur_rtde keeps answering
+        with the last package after its connection is gone, so a lost connection is a
+        TransportError, never stale data."""
+        if not ur_call("isConnected", self._receive.isConnected, false_is_error=False):
+            raise self._lost("RTDE receive", what)
+        return ur_call(what, fn, false_is_error=False)
+
+    def _lost(self, interface: str, what: str) -> TransportError:
+        """The error for a connection found lost before ``what``; no motion after it."""
+        reason = f"the {interface} connection to the robot at {self.host} was lost"
+        self._broken = (reason, TransportError)
+        return TransportError(f"{what}: {reason} (the controller closed it or is gone); the robot's state "
+                              "is unknown: check it and connect again")
 
     # -- identity and state ----------------------------------------------------------------
 
@@ -259,7 +284,7 @@ class URRobot:
 
     def safety_status_bits(self) -> int:
         """``safety_status_bits`` of the newest RTDE package."""
-        return int(ur_call("getSafetyStatusBits", self._receive.getSafetyStatusBits, false_is_error=False))
+        return int(self._read("getSafetyStatusBits", self._receive.getSafetyStatusBits))
 
     def state(self) -> RobotState:
         """Robot mode, safety status, program and remote-control state."""
@@ -278,11 +303,11 @@ class URRobot:
 
     def _program_running(self) -> bool:
         """``runtime_state == 2`` (PLAYING) in the receive stream, ur_rtde's own test."""
-        return int(ur_call("getRuntimeState", self._receive.getRuntimeState, false_is_error=False)) == 2
+        return int(self._read("getRuntimeState", self._receive.getRuntimeState)) == 2
 
     def tcp_pose(self) -> FloatArray:
         """Actual TCP pose (UR pose vector) from the newest RTDE package."""
-        return np.array(ur_call("getActualTCPPose", self._receive.getActualTCPPose))
+        return np.array(self._read("getActualTCPPose", self._receive.getActualTCPPose))
 
     def flange_pose(self) -> FloatArray:
         """Actual flange (tool0) pose: the TCP pose times the inverse TCP offset.
@@ -297,7 +322,7 @@ class URRobot:
 
     def joint_positions_rad(self) -> FloatArray:
         """Actual joint positions (rad)."""
-        return np.array(ur_call("getActualQ", self._receive.getActualQ))
+        return np.array(self._read("getActualQ", self._receive.getActualQ))
 
     # -- motion --------------------------------------------------------------------------------
 
@@ -396,7 +421,8 @@ class URRobot:
                                      f"{expected_s:.1f} s); the arm was stopped")
                 time.sleep(POLL_S)
         except KeyboardInterrupt:
-            self.stop()
+            with contextlib.suppress(RobotError, TransportError):  # the interrupt is what to report
+                self.stop()
             raise
         # The receive stream is a connection of its own and may lag the control one.
         self.wait_until_steady(_SETTLE_TIMEOUT_S)
@@ -406,7 +432,7 @@ class URRobot:
         deadline = time.monotonic() + timeout_s
         while True:
             self._raise_if_stopped()
-            qd = np.array(ur_call("getActualQd", self._receive.getActualQd))
+            qd = np.array(self._read("getActualQd", self._receive.getActualQd))
             if float(np.max(np.abs(qd))) < _STEADY_SPEED_RAD_S:
                 return
             if time.monotonic() > deadline:
@@ -463,14 +489,14 @@ class URRobot:
             return
         self._closed = True
         control, receive, dashboard = self._control, self._receive, self._dashboard
-        if self._has_control:
+        if self._has_control and control.isConnected():  # else ur_rtde spends seconds reconnecting
             self._quietly("stopScript", lambda: control.stopScript() if control.isProgramRunning() else None,
                           self._command_lock)
         receive_thread = threading.Thread(
             target=self._quietly, args=("RTDEReceiveInterface.disconnect", receive.disconnect),
             name="ur-receive-disconnect", daemon=True)
         receive_thread.start()
-        if self._has_control:
+        if self._has_control and control.isConnected():  # else the lock may be held by an abandoned call
             self._quietly("RTDEControlInterface.disconnect", control.disconnect, self._command_lock)
         receive_thread.join(_COMMAND_TIMEOUT_S)
         self._quietly("DashboardClient.disconnect", dashboard.disconnect)

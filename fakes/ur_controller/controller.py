@@ -24,12 +24,7 @@ from fakes.ur_controller.motion import JointPath, LinearPath, Motion, track_pose
 from fakes.ur_controller.rtde_protocol import REGISTER_COUNT
 from lasercal_hw.geometry import invert_transform, matrix_to_pose, pose_to_matrix
 from lasercal_hw.models import FloatArray
-from lasercal_hw.ur5_kinematics import (
-    JOINT_LIMITS_RAD,
-    JOINT_SPEED_LIMITS_RAD_S,
-    forward_kinematics,
-    inverse_kinematics,
-)
+from lasercal_hw.ur_kinematics import UR5, forward_kinematics, inverse_kinematics
 
 logger = logging.getLogger(__name__)
 
@@ -124,7 +119,7 @@ class Snapshot:
 
 
 def _limits_array() -> FloatArray:
-    limits = np.asarray(JOINT_LIMITS_RAD, dtype=float)
+    limits = np.asarray(UR5.joint_limits_rad, dtype=float)
     return limits if limits.shape == (6, 2) else limits.T
 
 
@@ -438,7 +433,7 @@ class FakeController:
             return
         q = motion.advance(dt_s, self._q)
         if q is None or (dt_s > 0.0 and np.any(
-                np.abs(q - self._q) > _SINGULARITY_SPEED_FACTOR * JOINT_SPEED_LIMITS_RAD_S * dt_s)):
+                np.abs(q - self._q) > _SINGULARITY_SPEED_FACTOR * UR5.joint_speed_limits_rad_s * dt_s)):
             self.runtime_error("movel: the path passes a singularity or leaves the workspace")
             return
         T_new = self._fk(q)

@@ -1,4 +1,4 @@
-"""Closed-form initial solution: no initial guess needed.
+"""Closed-form initial solution: no initial guess needed, and no trust in every row.
 
 The measured centre is the base-frame point ``X_i = u_i r1 + v_i r2 + t`` (``r1``, ``r2``
 the first two columns of R).  It lies on the rod line (origin ``o_i``, unit direction
@@ -8,41 +8,142 @@ the first two columns of R).  It lies on the rod line (origin ``o_i``, unit dire
 
 which is linear in the nine unknowns (r1, r2, t).  Each waypoint gives two independent
 equations (the residual is the perpendicular distance of X_i from the line), so five
-waypoints with varied rod directions suffice.  The stacked system is solved by least
+waypoints with varied rod directions suffice.  A stacked system is solved by least
 squares with (u, v) centred for conditioning; ``[r1 r2]`` is then projected onto the
 nearest pair of orthonormal columns (SVD), ``r3 = r1 x r2``, and t is re-solved with the
 rotation fixed.
+
+One gross outlier (a row 5 m off) drags a least-squares start far enough that the robust
+refinement settles in the wrong place, so the start is a consensus (least median of
+squares): the pose of every minimal subset of five waypoints (all of them when there are
+few, else ``CONSENSUS_SUBSETS`` drawn with a fixed seed) is scored by the median distance
+of all centres from their rod lines; the rows within ``INLIER_SCALES`` robust scales of
+the best one are solved together.
 """
 
 from __future__ import annotations
+
+import math
+from itertools import combinations
+from typing import NamedTuple
 
 import numpy as np
 
 from lasercal_hw.geometry import FloatArray, skew
 
+MINIMAL_ROWS = 5
+"""Waypoints in a minimal subset (10 equations for 9 unknowns)."""
+CONSENSUS_SUBSETS = 200
+"""Subsets drawn when there are more combinations: with 30 % outliers one in six is clean,
+so all 200 are spoilt with probability 1e-16."""
+INLIER_SCALES = 2.5
+"""Rows farther than this many robust scales from the consensus pose are left out of the start."""
+_RANK_TOLERANCE = 1e-9
+_SEED = 20140614
+
+
+class InitialPose(NamedTuple):
+    """The start of the solver: ``T_base_laser``'s rotation (3, 3) and translation (3,), and
+    which waypoints (N,) agree with it (the refinement starts from those)."""
+
+    rotation: FloatArray
+    translation: FloatArray
+    agreeing: np.ndarray
+
 
 def linear_initial_pose(
     origins: FloatArray, directions: FloatArray, centres_uv_m: FloatArray, weights: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """Rotation (3, 3) and translation (3,) of ``T_base_laser`` from the linear system above.
-
-    ``weights`` (N,) scale each waypoint's equations (e.g. 1 / sigma).
+) -> InitialPose:
+    """The linear solution on the rows that agree with the best minimal-subset pose (see
+    the module docstring). ``weights`` (N,) scale each waypoint's equations (e.g. 1 / sigma).
     """
+    agreeing = consensus_inliers(origins, directions, centres_uv_m, weights)
+    rotation, translation, _ = _batched_poses(
+        origins[None, agreeing], directions[None, agreeing], centres_uv_m[None, agreeing],
+        weights[None, agreeing],
+    )
+    return InitialPose(rotation[0], translation[0], agreeing)
+
+
+def consensus_inliers(
+    origins: FloatArray, directions: FloatArray, centres_uv_m: FloatArray, weights: FloatArray
+) -> np.ndarray:
+    """Boolean mask (N,) of the rows consistent with the least-median-of-squares pose
+    (every row when no subset determines a pose)."""
     n = len(origins)
-    centre_mean = centres_uv_m.mean(axis=0)
-    uv = centres_uv_m - centre_mean
-    cross = skew(directions) * weights[:, None, None]  # (N, 3, 3)
-    rhs = np.cross(directions, origins) * weights[:, None]
+    if n <= MINIMAL_ROWS:
+        return np.ones(n, dtype=bool)
+    subsets = _subsets(n)
+    rotation, translation, determined = _batched_poses(
+        origins[subsets], directions[subsets], centres_uv_m[subsets], weights[subsets]
+    )
+    if not determined.any():
+        return np.ones(n, dtype=bool)
+    distances = weights * line_distances(
+        rotation[determined], translation[determined], origins, directions, centres_uv_m
+    )
+    medians = np.median(distances, axis=1)
+    best = int(np.argmin(medians))
+    # Rousseeuw's LMedS scale with its small-sample correction.
+    scale = 1.4826 * (1.0 + 5.0 / max(n - MINIMAL_ROWS, 1)) * medians[best]
+    inliers = distances[best] <= INLIER_SCALES * scale
+    if inliers.sum() < MINIMAL_ROWS:
+        inliers[np.argsort(distances[best])[:MINIMAL_ROWS]] = True
+    return inliers
+
+
+def line_distances(
+    rotation: FloatArray, translation: FloatArray, origins: FloatArray, directions: FloatArray,
+    centres_uv_m: FloatArray,
+) -> FloatArray:
+    """Distance (K, N) of each centre, mapped to the base by each of K poses, from its rod line."""
+    points = np.einsum("kij,nj->kni", rotation[:, :, :2], centres_uv_m) + translation[:, None, :]
+    return np.linalg.norm(np.cross(directions, points - origins), axis=2)
+
+
+def _subsets(n: int) -> np.ndarray:
+    """Row indices (K, MINIMAL_ROWS) of the minimal subsets to try."""
+    if math.comb(n, MINIMAL_ROWS) <= CONSENSUS_SUBSETS:
+        return np.array(list(combinations(range(n), MINIMAL_ROWS)))
+    rng = np.random.default_rng(_SEED)
+    return rng.permuted(np.tile(np.arange(n), (CONSENSUS_SUBSETS, 1)), axis=1)[:, :MINIMAL_ROWS]
+
+
+def _batched_poses(
+    origins: FloatArray, directions: FloatArray, centres_uv_m: FloatArray, weights: FloatArray
+) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """The linear solution for each of K row sets: rotations (K, 3, 3), translations (K, 3)
+    and whether the set determined the nine unknowns (K,)."""
+    k, m = origins.shape[:2]
+    uv = centres_uv_m - centres_uv_m.mean(axis=1, keepdims=True)
+    cross = skew(directions) * weights[..., None, None]  # (K, M, 3, 3)
+    rhs = np.cross(directions, origins) * weights[..., None]  # (K, M, 3)
     system = np.concatenate(
-        [cross * uv[:, 0, None, None], cross * uv[:, 1, None, None], cross], axis=2
-    ).reshape(3 * n, 9)
-    solution, *_ = np.linalg.lstsq(system, rhs.reshape(-1), rcond=None)
-    columns = solution[:6].reshape(2, 3).T  # (3, 2): r1, r2
+        [cross * uv[..., 0, None, None], cross * uv[..., 1, None, None], cross], axis=3
+    ).reshape(k, 3 * m, 9)
+    solution, determined = _lstsq(system, rhs.reshape(k, 3 * m))
+    columns = solution[:, :6].reshape(k, 2, 3).transpose(0, 2, 1)  # (K, 3, 2): r1, r2
     left, _, right_t = np.linalg.svd(columns, full_matrices=False)
     r12 = left @ right_t
-    rotation = np.column_stack([r12[:, 0], r12[:, 1], np.cross(r12[:, 0], r12[:, 1])])
+    rotation = np.concatenate([r12, np.cross(r12[..., 0], r12[..., 1])[..., None]], axis=2)
     # Re-solve t with the rotation fixed: [d]x t = d x o - [d]x (u r1 + v r2).
-    in_plane = centres_uv_m @ r12.T  # (N, 3)
-    rhs_t = rhs - np.einsum("nij,nj->ni", cross, in_plane)
-    translation, *_ = np.linalg.lstsq(cross.reshape(3 * n, 3), rhs_t.reshape(-1), rcond=None)
-    return rotation, translation
+    in_plane = np.einsum("kij,kmj->kmi", r12, centres_uv_m)  # (K, M, 3)
+    rhs_t = rhs - np.einsum("kmij,kmj->kmi", cross, in_plane)
+    translation, _ = _lstsq(cross.reshape(k, 3 * m, 3), rhs_t.reshape(k, 3 * m))
+    return rotation, translation, determined
+
+
+def _lstsq(system: FloatArray, rhs: FloatArray) -> tuple[FloatArray, np.ndarray]:
+    """Least-squares solutions (K, P) of K systems (K, E, P), small singular values cut as
+    ``np.linalg.lstsq`` cuts them (one system: numpy's own, bit for bit; many: one batched
+    SVD), and whether each system has full rank (smallest singular value above
+    ``_RANK_TOLERANCE`` of the largest)."""
+    if len(system) == 1:
+        solution, _, _, singular = np.linalg.lstsq(system[0], rhs[0], rcond=None)
+        return solution[None], np.array([singular[-1] > _RANK_TOLERANCE * singular[0]])
+    left, singular, right_t = np.linalg.svd(system, full_matrices=False)
+    largest = singular[:, :1]
+    kept = singular > np.finfo(float).eps * max(system.shape[1:]) * largest
+    inverse = np.divide(1.0, singular, out=np.zeros_like(singular), where=kept)
+    projected = np.einsum("kep,ke->kp", left, rhs) * inverse
+    return np.einsum("kpq,kp->kq", right_t, projected), singular[:, -1] > _RANK_TOLERANCE * largest[:, 0]

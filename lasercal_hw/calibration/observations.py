@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.models import Observation
+from lasercal_hw.models import FloatArray, Observation
 
 POSE_COLUMNS = ("tcp_x", "tcp_y", "tcp_z", "tcp_rx", "tcp_ry", "tcp_rz")
 REQUIRED_COLUMNS = ("index", *POSE_COLUMNS, "u", "v")
@@ -39,7 +39,12 @@ def load_observations(path: str | Path) -> list[Observation]:
 
 
 def read_observations_csv(path: str | Path) -> list[Observation]:
-    """Parse ``observations.csv``; errors name the file, line and column."""
+    """Parse ``observations.csv``; errors name the file, line and column.
+
+    A well-formed file is read by ``np.loadtxt`` and checked as a whole, as fast as numpy reads
+    it; a file that fails that is read again row by row, which names the first problem's line
+    and column (or accepts what only Python's ``float`` parses, like quoted cells).
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -53,8 +58,7 @@ def read_observations_csv(path: str | Path) -> list[Observation]:
              if line.strip() and not line.lstrip().startswith("#")]
     if not lines:
         raise ConfigError(f"{path.name}: empty file, expected a header line {','.join(REQUIRED_COLUMNS)}")
-    rows = list(csv.reader(line for _, line in lines))
-    header = [name.strip().lower() for name in rows[0]]
+    header = [name.strip().lower() for name in next(csv.reader([lines[0][1]]))]
     missing = [name for name in REQUIRED_COLUMNS if name not in header]
     if missing:
         raise ConfigError(
@@ -67,21 +71,56 @@ def read_observations_csv(path: str | Path) -> list[Observation]:
         raise ConfigError(
             f"{path.name}: column {absent} is missing (give both sigma_u and sigma_v or neither)"
         )
+    names = [*REQUIRED_COLUMNS, *(SIGMA_COLUMNS if all(has_sigma) else ())]
+    columns = [header.index(name) for name in names]
+    table = None if '"' in text else _plain_table([line for _, line in lines[1:]], columns, len(header))
+    if table is None:
+        table = _table_row_by_row(path.name, header, lines[1:], names)
+    return _observations(table)
+
+
+def _plain_table(lines: list[str], columns: list[int], width: int) -> FloatArray | None:
+    """The ``columns`` of every line (none quoted) as one array when all lines are plainly valid
+    (at least ``width`` cells, finite numbers, integer and unique indices, positive sigmas),
+    else None."""
+    if not lines:
+        return np.empty((0, len(columns)))
+    if any(line.count(",") < width - 1 for line in lines):
+        return None
+    try:
+        table = np.loadtxt(lines, delimiter=",", usecols=columns, comments=None, ndmin=2)
+    except ValueError:
+        return None
+    index = table[:, 0]
+    valid = (
+        np.isfinite(table).all()
+        and (index == np.trunc(index)).all()
+        and np.unique(index).size == index.size
+        and (table[:, len(REQUIRED_COLUMNS):] > 0).all()
+    )
+    return table if valid else None
+
+
+def _table_row_by_row(file_name: str, header: list[str], lines: list[tuple[int, str]],
+                      names: list[str]) -> FloatArray:
+    """The ``names`` columns of every line (``(line number, text)``), parsed one row at a time:
+    the first bad value raises a ConfigError naming its line and column."""
     column = {name: header.index(name) for name in header}
-    observations: list[Observation] = []
-    first_line: dict[int, int] = {}
-    for (line_number, _), row in zip(lines[1:], rows[1:], strict=True):
-        if len(row) < len(header):
-            raise ConfigError(f"{path.name} line {line_number}: {len(row)} values, header has {len(header)}")
-        observation = _parse_row(_Row(path.name, line_number, row, column), with_sigma=all(has_sigma))
-        if observation.index in first_line:
+    table: list[list[float]] = []
+    first_line: dict[float, int] = {}
+    for (line_number, _), cells in zip(lines, csv.reader(line for _, line in lines), strict=True):
+        if len(cells) < len(header):
             raise ConfigError(
-                f"{path.name} line {line_number}: index {observation.index} repeats line "
-                f"{first_line[observation.index]}"
+                f"{file_name} line {line_number}: {len(cells)} values, header has {len(header)}"
             )
-        first_line[observation.index] = line_number
-        observations.append(observation)
-    return observations
+        values = _parse_row(_Row(file_name, line_number, cells, column), names)
+        if values[0] in first_line:
+            raise ConfigError(
+                f"{file_name} line {line_number}: index {int(values[0])} repeats line {first_line[values[0]]}"
+            )
+        first_line[values[0]] = line_number
+        table.append(values)
+    return np.array(table, dtype=float).reshape(len(table), len(names))
 
 
 @dataclass(frozen=True)
@@ -109,24 +148,30 @@ class _Row:
         return value
 
 
-def _parse_row(row: _Row, *, with_sigma: bool) -> Observation:
+def _parse_row(row: _Row, names: list[str]) -> list[float]:
+    """The values of ``names`` in one row, checked: integer index, positive sigmas."""
     index_value = row.number("index")
     if index_value != int(index_value):
         raise ConfigError(
             f"{row.file_name} line {row.line_number}, column index: {index_value!r} is not an integer"
         )
-    covariance = None
-    if with_sigma:
-        sigmas = [row.number(name) for name in SIGMA_COLUMNS]
-        if min(sigmas) <= 0:
-            raise ConfigError(f"{row.file_name} line {row.line_number}: sigma_u and sigma_v must be positive")
-        covariance = np.diag(np.square(sigmas))
-    return Observation(
-        index=int(index_value),
-        tcp_pose=np.array([row.number(name) for name in POSE_COLUMNS]),
-        centre_uv_m=np.array([row.number("u"), row.number("v")]),
-        covariance_uv_m2=covariance,
-    )
+    sigmas = [row.number(name) for name in names[len(REQUIRED_COLUMNS):]]
+    if sigmas and min(sigmas) <= 0:
+        raise ConfigError(f"{row.file_name} line {row.line_number}: sigma_u and sigma_v must be positive")
+    return [index_value, *(row.number(name) for name in names[1:len(REQUIRED_COLUMNS)]), *sigmas]
+
+
+def _observations(table: FloatArray) -> list[Observation]:
+    """One observation per row of ``index, tcp pose (6), u, v[, sigma_u, sigma_v]``."""
+    count = len(table)
+    poses = table[:, 1:7].copy()
+    centres = table[:, 7:9].copy()
+    covariances: list[FloatArray | None] | FloatArray = [None] * count
+    if table.shape[1] > len(REQUIRED_COLUMNS):
+        covariances = np.zeros((count, 2, 2))
+        covariances[:, [0, 1], [0, 1]] = np.square(table[:, 9:11])
+    rows = zip(table[:, 0].tolist(), poses, centres, covariances, strict=True)
+    return [Observation(int(index), pose, centre, covariance) for index, pose, centre, covariance in rows]
 
 
 def write_observations_csv(path: str | Path, observations: Sequence[Observation]) -> None:

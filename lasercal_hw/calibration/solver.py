@@ -15,6 +15,7 @@ the stated noise model); repeated with re-admission until the set is stable.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -24,7 +25,6 @@ import numpy as np
 from pydantic import BaseModel, Field
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from lasercal_hw import __version__
 from lasercal_hw.calibration.initial import linear_initial_pose
@@ -41,6 +41,7 @@ from lasercal_hw.calibration.model import (
     whitening,
 )
 from lasercal_hw.calibration.paper import solve_paper
+from lasercal_hw.calibration.plausible import check_physical
 from lasercal_hw.calibration.result import (
     CalibrationResult,
     Observability,
@@ -116,10 +117,12 @@ def solve(
     opts = options or SolverOptions()
     if formulation is not None:
         opts = opts.model_copy(update={"formulation": formulation})
+    check_physical(observations)
     data = _arrays(observations, rod, opts)
     _check_rod_directions(data.directions, opts)
     weights = 1.0 / np.sqrt(0.5 * np.trace(data.covariance, axis1=1, axis2=2))
-    rotation, translation = linear_initial_pose(data.origins, data.directions, data.centres, weights)
+    initial = linear_initial_pose(data.origins, data.directions, data.centres, weights)
+    rotation, translation = initial.rotation, initial.translation
     usable, outliers = _usable_by_incidence(rotation, translation, data, opts)
     _check_observability(rotation, translation, data, usable, opts, stage="initial")
 
@@ -128,7 +131,11 @@ def solve(
         rotation, translation = paper.rotation, paper.translation_m
         used, converged, evaluations, message = usable, paper.converged, paper.evaluations, paper.message
     else:
-        rotation, translation, used, evaluations = _fit(rotation, translation, data, usable, robust, opts)
+        agreeing = usable & initial.agreeing
+        start = agreeing if robust and agreeing.sum() >= MIN_WAYPOINTS else usable
+        rotation, translation, used, evaluations = _fit(
+            rotation, translation, data, usable, start, robust, opts
+        )
         outliers += _rejected(rotation, translation, data, usable & ~used, opts)
         converged, message = True, "converged"
     try:
@@ -237,14 +244,16 @@ def _fit(
     translation: FloatArray,
     data: _Data,
     usable: np.ndarray,
+    start: np.ndarray,
     robust: bool,
     opts: SolverOptions,
 ) -> tuple[FloatArray, FloatArray, np.ndarray, int]:
-    """Robust refinement with iterated rejection, then plain least squares on the inliers
-    (weights re-evaluated at the robust estimate, so the answer does not depend on the path)."""
-    used = usable.copy()
+    """Robust refinement with iterated rejection (from the ``start`` rows; any usable row
+    may be re-admitted), then plain least squares on the inliers (weights re-evaluated at
+    the robust estimate, so the answer does not depend on the path)."""
+    used = start.copy()
     evaluations = 0
-    threshold = chi2.ppf(opts.outlier_confidence, 2)
+    threshold = _chi2_2dof_quantile(opts.outlier_confidence)
     knee = opts.loss_scale or float(np.sqrt(threshold))
     if robust:
         for _ in range(opts.max_rejection_rounds):
@@ -321,6 +330,12 @@ def _whitened(rotation: FloatArray, translation: FloatArray, data: _Data, opts: 
     return np.nan_to_num(whiten_residual(white, crossing - data.centres), nan=np.inf)
 
 
+def _chi2_2dof_quantile(probability: float) -> float:
+    """The chi-square quantile with 2 degrees of freedom: that distribution is exponential with
+    mean 2, so its quantile is closed-form (and scipy.stats, 0.3 s to import, is not needed)."""
+    return -2.0 * math.log1p(-probability)
+
+
 def _rejected(
     rotation: FloatArray, translation: FloatArray, data: _Data, rejected: np.ndarray, opts: SolverOptions
 ) -> list[Outlier]:
@@ -329,7 +344,7 @@ def _rejected(
     m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
     crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
     norm_mm = np.linalg.norm(crossing - data.centres, axis=1) * 1e3
-    threshold = chi2.ppf(opts.outlier_confidence, 2)
+    threshold = _chi2_2dof_quantile(opts.outlier_confidence)
     return [
         Outlier(
             index=int(data.index[i]),

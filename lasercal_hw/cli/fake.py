@@ -16,10 +16,7 @@ from fakes.scip_server import DEFAULT_PORT, REPLY_TIMINGS, FakeScannerServer
 from lasercal_hw.cli.common import err_console, parse_vector
 from lasercal_hw.errors import ConfigError, DeviceError
 
-fake_app = typer.Typer(
-    help="Run fake devices (scanner, robot) that speak the exact wire protocols, for dry runs and CI.",
-    no_args_is_help=True,
-)
+fake_app = typer.Typer(no_args_is_help=True)  # its help is in cli/main.py, where it is listed
 
 
 def parse_listen(text: str) -> tuple[str, int]:
@@ -170,10 +167,13 @@ def fake_cell(
     address: str = typer.Option(..., "--address", help="Loopback address to serve on, e.g. 127.0.0.7."),
     scene: Path | None = typer.Option(None, "--scene", help="Scene file (TOML); default: the packaged one."),  # noqa: B008
     seed: int = typer.Option(0, "--seed", help="Seed of the scanner's noise."),
+    lifeline_stdin: bool = typer.Option(
+        False, "--lifeline-stdin", help="Also stop when standard input closes (the parent died)."
+    ),
 ) -> None:
     """Serve a fake UR controller and a fake UTM-30LX-EW sharing one simulated world; prints
     'fake cell ready: {json}' (addresses and the ground-truth T_base_laser) when ready."""
     from fakes.cell import FakeCell
     from fakes.serving import serve_until_signal
 
-    serve_until_signal(FakeCell(address, scene, seed))
+    serve_until_signal(FakeCell(address, scene, seed), sys.stdin.buffer if lifeline_stdin else None)

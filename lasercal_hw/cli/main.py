@@ -1,11 +1,14 @@
-"""Entry point of the ``lasercal`` command: registers the sub-commands and maps errors
-to exit codes with a one-line message (``--debug`` shows the traceback)."""
+"""Entry point of the ``lasercal`` command: registers the sub-commands (each imported only
+when it runs), limits BLAS threads, and maps errors to exit codes with a one-line message
+(``--debug`` shows the traceback). Keep this module's imports light: no numpy, scipy or
+matplotlib (tests/test_cli_startup.py)."""
 
 from __future__ import annotations
 
 import logging
 import sys
 import traceback
+from typing import ClassVar
 
 import typer
 from rich.markup import escape
@@ -13,19 +16,59 @@ from typer.exceptions import TyperException
 
 from lasercal_hw import __version__
 from lasercal_hw.cli.common import err_console
-from lasercal_hw.cli.fake import fake_app
-from lasercal_hw.cli.remote import remote_app
-from lasercal_hw.cli.robot import robot_app
-from lasercal_hw.cli.run import run_command
-from lasercal_hw.cli.scanner import scanner_app
-from lasercal_hw.cli.serve import serve_command
-from lasercal_hw.cli.session import session_app
-from lasercal_hw.cli.simulate import simulate_command
-from lasercal_hw.cli.solve import solve_command
-from lasercal_hw.cli.trajectory import trajectory_app
+from lasercal_hw.cli.lazy import LazyCommand, LazyGroup
+from lasercal_hw.cli.threads import limit_blas_threads
 from lasercal_hw.errors import ExitCode, LasercalError
 
+
+class _Commands(LazyGroup):
+    """The sub-commands, in the order ``lasercal --help`` lists them. Each module is imported
+    only when its command runs, so no command waits for another's imports (scipy, matplotlib)."""
+
+    lazy_commands: ClassVar[dict[str, LazyCommand]] = {
+        "simulate": LazyCommand(
+            "lasercal_hw.cli.simulate:simulate_command",
+            "Reproduce the paper's Table 1 by Monte Carlo and compare with the Cramér-Rao bound.",
+        ),
+        "solve": LazyCommand(
+            "lasercal_hw.cli.solve:solve_command",
+            "Solve for T_base_laser from observations.csv or from a run's session.mcap.",
+        ),
+        "run": LazyCommand(
+            "lasercal_hw.cli.run:run_command",
+            "Calibrate against the robot (or a fake cell with --dry-run) and write the results.",
+        ),
+        "fake": LazyCommand(
+            "lasercal_hw.cli.fake:fake_app",
+            "Run fake devices (scanner, robot) that speak the exact wire protocols, for dry runs and CI.",
+        ),
+        "scanner": LazyCommand(
+            "lasercal_hw.cli.scanner:scanner_app",
+            "Query a Hokuyo scanner and capture scans (SCIP 2.0 over TCP or serial).",
+        ),
+        "session": LazyCommand(
+            "lasercal_hw.cli.session:session_app", "Inspect and repair session recordings (session.mcap)."
+        ),
+        "trajectory": LazyCommand(
+            "lasercal_hw.cli.trajectory:trajectory_app",
+            "List trajectory presets, show their waypoints, check waypoints offline, design them for a cell.",
+        ),
+        "robot": LazyCommand(
+            "lasercal_hw.cli.robot:robot_app",
+            "Talk to a UR robot (ur_rtde: dashboard, RTDE receive and control).",
+        ),
+        "serve": LazyCommand(
+            "lasercal_hw.cli.serve:serve_command",
+            "Run the calibration daemon (HTTP API on loopback; see docs/daemon.md).",
+        ),
+        "remote": LazyCommand(
+            "lasercal_hw.cli.remote:remote_app", "Talk to a running 'lasercal serve' daemon."
+        ),
+    }
+
+
 app = typer.Typer(
+    cls=_Commands,
     name="lasercal",
     help="Calibrate a 2D laser scanner against a UR robot with a thin rod or a drill.",
     no_args_is_help=True,
@@ -57,20 +100,10 @@ def _root(
     )
 
 
-app.command("simulate")(simulate_command)
-app.command("solve")(solve_command)
-app.command("run")(run_command)
-app.add_typer(fake_app, name="fake")
-app.add_typer(scanner_app, name="scanner")
-app.add_typer(session_app, name="session")
-app.add_typer(trajectory_app, name="trajectory")
-app.add_typer(robot_app, name="robot")
-app.command("serve")(serve_command)  # cli/serve.py and cli/remote.py import their libraries when run
-app.add_typer(remote_app, name="remote")
-
 
 def main() -> None:
     """Run the CLI; expected failures become one line on stderr and an exit code."""
+    limit_blas_threads()  # before any command imports numpy or scipy
     try:
         exit_code = app(standalone_mode=False, prog_name="lasercal")
     except TyperException as exc:

@@ -9,8 +9,7 @@ import typer
 
 from lasercal_hw.cli.common import console, print_json
 
-robot_app = typer.Typer(help="Talk to a UR robot (ur_rtde: dashboard, RTDE receive and control).",
-                        no_args_is_help=True)
+robot_app = typer.Typer(no_args_is_help=True)  # its help is in cli/main.py, where it is listed
 
 
 @robot_app.command("info")

@@ -27,7 +27,7 @@ from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, 
 OVERHEAD_TARGET = 0.10
 
 
-_LINE_COLOURS = {"centre": "green", "skip": "yellow", "warning": "yellow", "stopped": "default"}
+_LINE_COLOURS = {"centre": "green", "skip": "yellow", "warning": "yellow"}
 
 
 class ProgressView:
@@ -83,20 +83,30 @@ class ProgressView:
             self._progress.console.print(f"[{_LINE_COLOURS[event.kind]}]{escape(event.message)}[/]")
         elif event.kind == "stage":
             self._progress.console.print(escape(event.message))
+        elif event.kind == "stopped":  # where the recording is: with the error, on stderr
+            err_console.print(escape(event.message))
 
 
 @contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """Turn SIGTERM into KeyboardInterrupt so it stops the arm like Ctrl-C does."""
+def _interrupt_once() -> Iterator[None]:
+    """Ctrl-C (SIGINT) and SIGTERM stop the run as KeyboardInterrupt; later ones are ignored
+    until the run has stopped the arm and closed its recording (a terminal sends SIGINT to
+    the whole process group, and an impatient operator presses Ctrl-C twice)."""
+    stopping = (signal.SIGINT, signal.SIGTERM)
 
     def interrupt(signum: int, frame: FrameType | None) -> None:
-        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+        for each in stopping:
+            signal.signal(each, signal.SIG_IGN)
+        raise KeyboardInterrupt() if signum == signal.SIGINT else KeyboardInterrupt(
+            f"signal {signal.Signals(signum).name}"
+        )
 
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    previous = {each: signal.signal(each, interrupt) for each in stopping}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for each, handler in previous.items():
+            signal.signal(each, handler)
 
 
 def _require_confirmation_possible(yes: bool, dry_run: bool) -> None:
@@ -178,6 +188,7 @@ def run_command(
     dry_run: DryRunOption = False,
     resume: ResumeOption = None,
     scene: SceneOption = None,
+    adaptive: Annotated[bool, typer.Option("--adaptive", help="Design waypoints as the run goes.")] = False,
 ) -> None:
     """Run a calibration: preflight, background, waypoints, solve, quality gates, outputs.
 
@@ -191,7 +202,8 @@ def run_command(
     ui = err_console if as_json else console
     if resume is not None and (config is not None or dwell is not None or out is not None):
         raise ConfigError("--resume continues the recorded job: leave out --config, --dwell and --out")
-    job = with_overrides(load_job(config), {"dwell_s": dwell, "output.dir": out})
+    flags = {"trajectory.adaptive": True} if adaptive else {}
+    job = with_overrides(load_job(config), {"dwell_s": dwell, "output.dir": out} | flags)
     request = RunRequest(
         job=job,
         out_dir=job.output.dir or default_out_dir(),
@@ -202,7 +214,7 @@ def run_command(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    with _sigterm_as_interrupt(), ProgressView(ui) as view:
+    with _interrupt_once(), ProgressView(ui) as view:
         report = calibrate(
             request, on_event=view, confirm=None if yes or dry_run else _confirm(view, ui)
         )

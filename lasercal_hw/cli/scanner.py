@@ -15,9 +15,7 @@ from lasercal_hw.cli.common import console, print_json
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import LaserScan, ScanGeometry
 
-scanner_app = typer.Typer(
-    help="Query a Hokuyo scanner and capture scans (SCIP 2.0 over TCP or serial).", no_args_is_help=True
-)
+scanner_app = typer.Typer(no_args_is_help=True)  # its help is in cli/main.py, where it is listed
 
 URL_HELP = "Scanner URL: scip+tcp://HOST[:PORT] (port 10940) or scip+serial:///dev/ttyACM0[?baud=115200]."
 

@@ -13,9 +13,7 @@ from lasercal_hw.cli.common import console, print_json
 from lasercal_hw.session.reader import SessionRecording, read_session
 from lasercal_hw.session.recorder import repair_session
 
-session_app = typer.Typer(
-    help="Inspect and repair session recordings (session.mcap).", no_args_is_help=True
-)
+session_app = typer.Typer(no_args_is_help=True)  # its help is in cli/main.py, where it is listed
 
 
 def _summary(recording: SessionRecording) -> dict[str, Any]:

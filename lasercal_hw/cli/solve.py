@@ -8,15 +8,17 @@ from typing import Annotated, Literal
 
 import numpy as np
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from lasercal_hw.calibration.observations import load_observations
+from lasercal_hw.calibration.quality import evaluate_gates
 from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.calibration.solver import SolverOptions, solve
-from lasercal_hw.cli.common import console, parse_vector, print_json
-from lasercal_hw.errors import ConfigError
+from lasercal_hw.cli.common import console, err_console, parse_vector, print_json
+from lasercal_hw.config import QualityConfig
+from lasercal_hw.errors import ConfigError, ExitCode
 from lasercal_hw.models import RodLine
-from lasercal_hw.run.replay import solve_recording
 
 
 def solve_command(
@@ -33,7 +35,9 @@ def solve_command(
     as_json: bool = typer.Option(False, "--json", help="Print the result.json document instead of a table."),
 ) -> None:
     """Solve for T_base_laser from observations (index,tcp_x..tcp_rz,u,v[,sigma_u,sigma_v]) or from
-    a run's session.mcap (same extraction and solver as the live run; rod and noise from its job)."""
+    a run's session.mcap (same extraction and solver as the live run; rod and noise from its job).
+    The quality gates of `lasercal run` apply (a recording's own, else the defaults): exit 1
+    when one fails."""
     if formulation not in ("ours", "paper"):
         raise ConfigError(f"--formulation must be 'ours' or 'paper', got {formulation!r}")
     if sigma_mm <= 0 or robot_sigma_mm < 0:
@@ -47,14 +51,19 @@ def solve_command(
                 "--axis-origin, --axis-direction, --no-robust and --formulation apply to observations.csv; "
                 "a session.mcap is solved with the rod and settings of its recorded job"
             )
-        result = solve_recording(input_path).solution.result
+        from lasercal_hw.run.replay import solve_recording  # its recording reader is not needed for a CSV
+
+        recording = solve_recording(input_path)
+        result, gates = recording.solution.result, recording.job.quality
     else:
         rod = RodLine(origin_m=np.array(parse_vector(axis_origin, 3, "--axis-origin")), direction=direction)
         observations = load_observations(input_path)
         options = SolverOptions(default_sigma_uv_m=sigma_mm / 1e3, robot_sigma_m=robot_sigma_mm / 1e3)
         mode: Literal["ours", "paper"] = "paper" if formulation == "paper" else "ours"
         result = solve(observations, rod, robust=robust, options=options, formulation=mode)
-    document = result.to_json_dict()
+        gates = QualityConfig()
+    verdict = evaluate_gates(result, gates, len(result.residuals))
+    document = result.to_json_dict() | {"passed": verdict.passed, "verdict": verdict.as_dict()}
     if output is not None:
         try:
             output.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")
@@ -67,6 +76,11 @@ def solve_command(
         print_json(document)
     else:
         print_result(result)
+        for check in verdict.checks:
+            console.print(f"[{'green' if check.passed else 'red'}]{escape(check.describe())}[/]")
+    if not verdict.passed:
+        err_console.print(f"[bold red]quality gate failed:[/] {escape('; '.join(verdict.failures()))}")
+        raise typer.Exit(int(ExitCode.QUALITY_GATE_FAILED))
 
 
 def print_result(result: CalibrationResult) -> None:

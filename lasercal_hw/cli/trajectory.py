@@ -1,32 +1,40 @@
-"""``lasercal trajectory ...``: list presets, show waypoints, check them offline."""
+"""``lasercal trajectory ...``: list presets, show waypoints, check them offline, design them
+for a cell (the search itself is ``trajectories.design``)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import typer
 from pydantic import ValidationError
 from rich.table import Table
 
-from lasercal_hw.cli.common import console, parse_vector, print_json
-from lasercal_hw.config import WorkspaceConfig
+from lasercal_hw.cli.common import console, err_console, parse_vector, print_json
+from lasercal_hw.config import JobConfig, WorkspaceConfig, load_job
 from lasercal_hw.errors import ConfigError, ExitCode
+from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
 from lasercal_hw.models import RodLine
-from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
+from lasercal_hw.ur_kinematics import MODELS, URModel, inverse_kinematics_pose, robot_model
 from trajectories.checks import check_waypoints
 from trajectories.presets import DEFAULT_PRESET, PRESETS, get_preset, preset_names
 from trajectories.waypoint import Waypoint
 from trajectories.waypoint_file import load_waypoints
 
-trajectory_app = typer.Typer(
-    help="List trajectory presets, show their waypoints, check waypoints offline.", no_args_is_help=True
-)
+trajectory_app = typer.Typer(no_args_is_help=True)  # its help is in cli/main.py, where it is listed
 
 _PRESET_ARG = typer.Argument(DEFAULT_PRESET, help=f"Preset name ({', '.join(preset_names())}).")
 _FILE_OPT = typer.Option(None, "--file", "-f", help="A waypoint file (.csv or .toml) instead of a preset.")
 _JSON_OPT = typer.Option(False, "--json", help="Print one JSON document instead of a table.")
+_MODEL_OPT = typer.Option(
+    None, "--robot-model", help=f"Robot model of the offline kinematics ({', '.join(MODELS)}; default ur5)."
+)
+
+
+def _offline_ik(model: URModel):
+    """The offline IK of ``model`` for one UR pose vector."""
+    return lambda pose: inverse_kinematics_pose(pose, model=model)
 
 
 def _rod_document(rod: RodLine) -> dict[str, Any]:
@@ -91,9 +99,10 @@ def check(
     file: Path | None = _FILE_OPT,
     box_min: str = typer.Option(_DEFAULT_BOX_MIN, "--box-min", help="Workspace box minimum x,y,z (m)."),
     box_max: str = typer.Option(_DEFAULT_BOX_MAX, "--box-max", help="Workspace box maximum x,y,z (m)."),
+    robot_model_name: str | None = _MODEL_OPT,
     json_output: bool = _JSON_OPT,
 ) -> None:
-    """Check waypoints offline against a UR5 (CB3) model and the workspace box.
+    """Check waypoints offline against a UR5 (CB3) or UR5e model and the workspace box.
 
     Exit code 2 when any waypoint is unreachable or outside the box (all are listed).
     On a real cell the run's preflight asks the controller instead.
@@ -105,7 +114,8 @@ def check(
         )
     except ValidationError as exc:
         raise ConfigError(f"--box-min/--box-max: {exc.errors()[0]['msg']}") from None
-    report = check_waypoints(waypoints, inverse_kinematics=inverse_kinematics_pose, workspace=box, rod=rod)
+    model = robot_model(robot_model_name or "ur5")
+    report = check_waypoints(waypoints, inverse_kinematics=_offline_ik(model), workspace=box, rod=rod)
     if json_output:
         print_json(
             {
@@ -126,6 +136,147 @@ def check(
         raise typer.Exit(code=int(ExitCode.BAD_INPUT))
 
 
+ScannerPoseOption = Annotated[
+    tuple[float, float, float, float, float, float] | None,
+    typer.Option(
+        "--scanner-pose",
+        help="Rough scanner pose in the robot base frame: X Y Z (m) YAW PITCH ROLL (deg, ZYX); "
+        "default: the job's [scanner.nominal].",
+    ),
+]
+ConfigOption = Annotated[
+    Path | None, typer.Option("--config", help="Job file: rod, workspace box, gates, dwell.")
+]
+WaypointCountOption = Annotated[
+    int, typer.Option("--waypoints", min=6, max=200, help="How many waypoints to design.")
+]
+DesignModelOption = Annotated[
+    str | None,
+    typer.Option(
+        "--robot-model", help=f"Robot model ({', '.join(MODELS)}); default: the job's robot.model, or ur5."
+    ),
+]
+OutOption = Annotated[Path, typer.Option("--out", help="Waypoint file to write (CSV).")]
+SeedOption = Annotated[int, typer.Option("--seed", help="Seed of the search (same seed, same waypoints).")]
+UncertaintyOption = Annotated[
+    tuple[float, float],
+    typer.Option("--pose-uncertainty", help="How far off the rough pose may be: metres and degrees."),
+]
+
+
+def _rough_pose(job: JobConfig, scanner_pose: tuple[float, ...] | None) -> np.ndarray:
+    """``T_base_laser`` from ``--scanner-pose`` or the job's nominal pose."""
+    if scanner_pose is not None:
+        x, y, z, yaw, pitch, roll = scanner_pose
+        return make_transform(euler_zyx_to_matrix(*np.radians([yaw, pitch, roll])), [x, y, z])
+    if job.scanner.nominal is not None:
+        return job.scanner.nominal.matrix()
+    raise ConfigError(
+        "no scanner pose: pass --scanner-pose X Y Z YAW PITCH ROLL (metres, degrees; a tape measure "
+        "or the CAD model is enough) or set [scanner.nominal] in the job file"
+    )
+
+
+def design(
+    scanner_pose: ScannerPoseOption = None,
+    pose_uncertainty: UncertaintyOption = (0.05, 5.0),
+    config: ConfigOption = None,
+    waypoints: WaypointCountOption = 20,
+    robot_model_name: DesignModelOption = None,
+    out: OutOption = Path("waypoints.csv"),
+    seed: SeedOption = 0,
+    json_output: bool = _JSON_OPT,
+) -> None:
+    """Design waypoints for your cell that minimise the calibration's Cramér-Rao bound.
+
+    Every waypoint keeps the rules a run checks (reach on one IK branch, no wrist flip,
+    bounded joint steps, workspace box, rod crossing the scan plane with a margin that
+    holds anywhere inside the pose uncertainty, field of view, range, line of sight past the
+    robot's base), in a short visiting order. Prints the predicted std per axis and writes a
+    waypoint file for `lasercal run` (trajectory.waypoints_file) and `trajectory check`.
+    """
+    from rich.progress import BarColumn, Progress, TextColumn
+
+    from lasercal_hw.calibration.model import fisher_information
+    from trajectories.candidates import PoseUncertainty
+    from trajectories.design import design as design_waypoints
+    from trajectories.design import request_for_job
+    from trajectories.waypoint_file import waypoints_to_csv
+
+    job = load_job(config)
+    translation_m, rotation_deg = pose_uncertainty
+    if not (0.0 <= translation_m <= 0.5 and 0.0 <= rotation_deg <= 45.0):
+        raise ConfigError(
+            f"--pose-uncertainty {translation_m:g} {rotation_deg:g}: give 0-0.5 m and 0-45 deg"
+        )
+    model = robot_model(robot_model_name or job.robot.model or "ur5")
+    request = request_for_job(
+        job,
+        _rough_pose(job, scanner_pose),
+        model,
+        uncertainty=PoseUncertainty(translation_m, rotation_deg),
+        waypoints=waypoints,
+        seed=seed,
+    )
+    with Progress(TextColumn("{task.description}"), BarColumn(), console=err_console, transient=True) as bar:
+        task = bar.add_task("designing", total=1.0)
+        result = design_waypoints(
+            request, fisher_information, lambda stage, f: bar.update(task, description=stage, completed=f)
+        )
+    if not result.waypoints:
+        raise ConfigError(f"no waypoint keeps every rule for this scanner pose: {result.weak_direction}")
+    report = check_waypoints(
+        result.waypoints,
+        inverse_kinematics=_offline_ik(model),
+        workspace=job.workspace,
+        rod=request.rules.rod,
+    )
+    if not report.ok:  # the search keeps these rules itself: this would be a bug
+        raise ConfigError("the design fails trajectory check:\n" + report.summary())
+    try:
+        out.write_text(waypoints_to_csv(result.waypoints), encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot write {out}: {exc.strerror or exc}") from None
+    if json_output:
+        print_json(
+            {
+                "out": str(out),
+                "robot_model": model.name,
+                "waypoints": [w.model_dump(mode="json") for w in result.waypoints],
+                "predicted_std_translation_mm": result.std_translation_mm.tolist(),
+                "predicted_std_rotation_deg": result.std_rotation_deg.tolist(),
+                "score": result.score,
+                "weak_direction": result.weak_direction,
+                "notes": result.notes,
+                "candidates": {"drawn": result.candidates_drawn, "kept": result.candidates_kept},
+            }
+        )
+        return
+    _print_design(result, request.targets.translation_mm, request.targets.rotation_deg, model, out)
+
+
+def _print_design(result: Any, gate_mm: float, gate_deg: float, model: URModel, out: Path) -> None:
+    """The predicted std per axis, what stays weak, and how to use the file."""
+    title = f"{len(result.waypoints)} waypoints for a {model.name}"
+    table = Table("axis", "predicted std", "gate", title=title)
+    for axis, value in zip("xyz", result.std_translation_mm, strict=True):
+        table.add_row(f"translation {axis}", f"{value:.2f} mm", f"{gate_mm:g} mm")
+    for axis, value in zip("xyz", result.std_rotation_deg, strict=True):
+        table.add_row(f"rotation about {axis}", f"{value:.3f} deg", f"{gate_deg:g} deg")
+    console.print(table)
+    for note in result.notes:
+        console.print(f"[yellow]note:[/] {note}", markup=True)
+    if result.weak_direction is not None:
+        console.print(f"[yellow]weak:[/] {result.weak_direction}")
+    console.print(
+        f"wrote {out}; every waypoint passes "
+        f"`lasercal trajectory check --file {out} --robot-model {model.name}`. Use it with "
+        f"trajectory.waypoints_file = \"{out}\" and the scanner pose as [scanner.nominal].",
+        markup=False,
+    )
+
+
 trajectory_app.command("list")(list_presets)
 trajectory_app.command("show")(show)
 trajectory_app.command("check")(check)
+trajectory_app.command("design")(design)

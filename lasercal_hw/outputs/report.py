@@ -3,25 +3,25 @@ centres, residuals per waypoint, the trajectory, and the transform with its unce
 
 The sequencer (live run) and ``lasercal solve`` (replay) both fill a ``ReportData`` from
 their plain values and call ``render_report``. Matplotlib is used through its object API
-with the Agg canvas: no pyplot state, no display needed, safe in threads.
+with the Agg canvas: no pyplot state, no display needed, safe in threads. It is imported when
+a report is drawn, not with this module (0.3 s that a run's start or ``--help`` need not wait).
 """
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Wedge
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_quat
 from lasercal_hw.models import FloatArray
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 _USED_COLOUR = "tab:blue"
 _PREDICTED_COLOUR = "tab:orange"
@@ -94,6 +94,9 @@ class ReportData(BaseModel):
 
 def render_report(data: ReportData, path: str | Path, *, dpi: int = 100) -> Path:
     """Draw the report and write it as a PNG file; returns the path."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
     path = Path(path)
     figure = Figure(figsize=(18, 10.5), layout="constrained")
     grid = figure.add_gridspec(2, 3, width_ratios=[1.25, 1.0, 0.85])
@@ -122,6 +125,8 @@ def _residual_scale(max_residual_m: float, extent_m: float) -> int:
 
 
 def _draw_scan_plane(ax: Axes, data: ReportData) -> None:
+    from matplotlib.patches import Wedge
+
     measured = np.asarray(data.measured_uv_m, dtype=float).reshape(-1, 2)
     predicted = np.asarray(data.predicted_uv_m, dtype=float).reshape(-1, 2)
     used = np.asarray(data.used, dtype=bool)

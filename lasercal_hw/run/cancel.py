@@ -1,4 +1,4 @@
-"""A cancel token: another thread (a service request, a signal handler) asks a running
+"""A cancel token: another thread (a service request, a device watchdog) asks a running
 calibration to stop; the run stops the arm exactly as Ctrl-C does and keeps its recording."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import logging
 import threading
 from collections.abc import Callable
 
-from lasercal_hw.errors import InterruptedRunError
+from lasercal_hw.errors import InterruptedRunError, LasercalError
 
 logger = logging.getLogger(__name__)
 
@@ -19,6 +19,7 @@ class CancelToken:
         self._event = threading.Event()
         self._lock = threading.Lock()
         self._reason: str | None = None
+        self._error: LasercalError | None = None
         self._listeners: list[Callable[[], None]] = []
 
     @property
@@ -32,11 +33,18 @@ class CancelToken:
         return self._reason
 
     def cancel(self, reason: str = "cancelled") -> None:
-        """Ask the run to stop; listeners (e.g. stopping the arm mid-move) run in this thread."""
+        """Ask the run to stop; listeners (e.g. stopping the arm mid-move) run in this thread.
+        The run ends with InterruptedRunError (exit code 130)."""
+        self.fail(InterruptedRunError(reason))
+
+    def fail(self, error: LasercalError) -> None:
+        """Stop the run as ``cancel`` does, but end it with ``error`` (e.g. the DeviceError of a
+        device that died under it)."""
         with self._lock:
             if self._event.is_set():
                 return
-            self._reason = reason
+            self._reason = str(error)
+            self._error = error
             self._event.set()
             listeners = list(self._listeners)
         for listener in listeners:
@@ -62,6 +70,7 @@ class CancelToken:
         return remove
 
     def raise_if_cancelled(self) -> None:
-        """Raise InterruptedRunError when cancelled (the run's checkpoints call this)."""
-        if self._event.is_set():
-            raise InterruptedRunError(self._reason or "cancelled")
+        """Raise the cancel's error (InterruptedRunError unless ``fail`` gave another) when
+        cancelled; the run's checkpoints call this."""
+        if self._error is not None:
+            raise self._error

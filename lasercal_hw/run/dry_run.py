@@ -9,8 +9,16 @@ share one simulated world. It announces readiness with one line on standard outp
 
 (a single line: the prefix, then a JSON object with at least those keys; the matrix is the
 ground truth the run is compared with). The cell runs on a random loopback address whose
-ports are free, so dry runs and tests can run side by side. ``close`` stops the child on
-every exit path (terminate, then kill).
+ports are free, so dry runs and tests can run side by side.
+
+The child never outlives this process and never takes a signal meant for it: it runs in
+its own session (a terminal's Ctrl-C goes to the foreground process group, and the run
+must still talk to the fake robot to stop the arm), and it watches its standard input, a
+pipe this process holds (``--lifeline-stdin``): when this process dies, even by SIGKILL,
+the pipe closes and the cell stops. ``close`` stops the child on every exit path (closes
+the lifeline, then terminate, then kill). A cell that dies on its own is reported at once
+(``death``, a log error and the ``on_death`` callback) so a run can say why its devices
+went silent.
 """
 
 from __future__ import annotations
@@ -23,7 +31,9 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -31,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from fakes.cell import READY_PREFIX
-from lasercal_hw.errors import DeviceTimeoutError, TransportError
+from lasercal_hw.errors import DeviceTimeoutError, InterruptedRunError, TransportError
 from lasercal_hw.models import FloatArray
 
 logger = logging.getLogger(__name__)
@@ -80,15 +90,21 @@ class FakeCellProcess:
         address: str | None = None,
         extra_args: tuple[str, ...] = (),
         startup_timeout_s: float = 60.0,
+        on_death: Callable[[str], None] | None = None,
     ) -> None:
         self.address = address or free_loopback_address()
-        self.args = [sys.executable, "-m", "lasercal_hw.cli.main", "fake", "cell", "--address", self.address]
+        self.args = [sys.executable, "-m", "lasercal_hw.cli.main", "fake", "cell", "--lifeline-stdin",
+                     "--address", self.address]
         if scene is not None:
             self.args += ["--scene", str(scene)]
         self.args += list(extra_args)
         self.startup_timeout_s = startup_timeout_s
         self.process: subprocess.Popen[str] | None = None
         self.info: dict[str, Any] = {}
+        self.death: str | None = None
+        """Why the cell stopped by itself (None while it runs, or when ``close`` stopped it)."""
+        self._on_death = on_death
+        self._closing = threading.Event()
         self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - lives until close()
 
     @property
@@ -116,9 +132,20 @@ class FakeCellProcess:
         """Launch the child and wait for its ready line."""
         logger.info("starting fake cell: %s", " ".join(self.args))
         self.process = subprocess.Popen(
-            self.args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=self._stderr, text=True
+            self.args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
+            start_new_session=True,
         )
-        assert self.process.stdout is not None
+        try:
+            return self._await_ready()
+        except KeyboardInterrupt:
+            self.close()
+            raise InterruptedRunError(
+                "interrupted while the fake cell was starting; nothing was connected or moved"
+            ) from None
+
+    def _await_ready(self) -> FakeCellProcess:
+        """Wait for the child's ready line (its document goes to ``info``)."""
+        assert self.process is not None and self.process.stdout is not None
         deadline = time.monotonic() + self.startup_timeout_s
         with selectors.DefaultSelector() as selector:
             selector.register(self.process.stdout, selectors.EVENT_READ)
@@ -128,6 +155,9 @@ class FakeCellProcess:
                 line = self.process.stdout.readline()
                 if line.startswith(READY_PREFIX):
                     self.info = parse_ready_line(line)
+                    threading.Thread(
+                        target=self._watch, args=(self.process,), name="fake-cell-watch", daemon=True
+                    ).start()
                     return self
                 if not line:
                     error = self._stderr_tail()
@@ -138,15 +168,32 @@ class FakeCellProcess:
             f"the fake cell on {self.address} printed no ready line within {self.startup_timeout_s:g} s"
         )
 
+    def _watch(self, process: subprocess.Popen[str]) -> None:
+        """Wait for the child; if it exits before ``close`` asked it to, say so."""
+        code = process.wait()
+        if self._closing.is_set():
+            return
+        how = f"was killed by signal {-code}" if code < 0 else f"exited with code {code}"
+        tail = self._stderr_tail().splitlines()[-1:] if not self._stderr.closed else []
+        self.death = (f"the fake cell (pid {process.pid}) {how} during the run"
+                      + (f": {tail[0]}" if tail else ""))
+        logger.error("%s", self.death)
+        if self._on_death is not None:
+            self._on_death(self.death)
+
     def _stderr_tail(self) -> str:
         self._stderr.flush()
         self._stderr.seek(0)
         return self._stderr.read().strip()[-800:]
 
     def close(self) -> None:
-        """Stop the child (terminate, then kill) and reap it; safe to call twice."""
+        """Stop the child (close its lifeline and terminate it, then kill) and reap it; safe
+        to call twice."""
+        self._closing.set()
         process, self.process = self.process, None
         if process is not None:
+            if process.stdin is not None:
+                process.stdin.close()
             if process.poll() is None:
                 process.terminate()
                 try:

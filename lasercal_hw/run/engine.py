@@ -22,8 +22,9 @@ import numpy as np
 
 from lasercal_hw import __version__
 from lasercal_hw.config import JobConfig, with_overrides
-from lasercal_hw.errors import ConfigError, LasercalError
+from lasercal_hw.errors import ConfigError, DeviceError, LasercalError
 from lasercal_hw.models import FloatArray
+from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
 from lasercal_hw.run.events import EventSink, RunEvent
@@ -169,7 +170,7 @@ def calibrate(
             ground_truth: FloatArray | None = None
             fake_cell: dict[str, Any] | None = None
             if request.dry_run:
-                job, ground_truth, fake_cell = _start_fake_cell(request, job, out_dir, stack, sink)
+                job, ground_truth, fake_cell = _start_fake_cell(request, job, out_dir, stack, sink, cancel)
             cancel.raise_if_cancelled()
             if job.robot.host is None:
                 raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
@@ -191,6 +192,11 @@ def calibrate(
                 cancel=cancel,
             )
             outcome = sequencer.run()
+            if job.trajectory.adaptive:  # design the rest from this estimate, measure it, solve all
+                progress = sink.progress_listener(job.rod.radius_m)
+                outcome = run_second_design(
+                    robot, scanner, recorder, job, waypoints, outcome, on_progress=progress, cancel=cancel
+                )
             sink.emit("stage", "writing the outputs", stage="outputs")
             files = {"session": session_path} | write_outputs(
                 out_dir, outcome, job, ground_truth=ground_truth, title=request.title
@@ -223,7 +229,9 @@ def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeSt
         job = with_overrides(recorded, devices)  # the recording decides all but where the devices are
         return job, waypoints, request.resume.parent, resume_state(previous), False
     job = with_overrides(request.job, devices)
-    waypoints = request.waypoints if request.waypoints is not None else job_waypoints(job)
+    waypoints = (
+        request.waypoints if request.waypoints is not None else job_waypoints(job, live=not request.dry_run)
+    )
     out_dir = request.out_dir
     created = not out_dir.exists()
     try:
@@ -236,9 +244,15 @@ def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeSt
 
 
 def _start_fake_cell(
-    request: RunRequest, job: JobConfig, out_dir: Path, stack: contextlib.ExitStack, sink: EventSink
+    request: RunRequest,
+    job: JobConfig,
+    out_dir: Path,
+    stack: contextlib.ExitStack,
+    sink: EventSink,
+    cancel: CancelToken,
 ) -> tuple[JobConfig, FloatArray, dict[str, Any]]:
-    """Start the dry run's fake cell and point the job at it."""
+    """Start the dry run's fake cell and point the job at it; if the cell dies during the
+    run, the run stops at once with a DeviceError that says so."""
     from lasercal_hw.run.dry_run import FakeCellProcess
     from lasercal_hw.run.dry_run_scene import rods_differ, write_rod_scene
 
@@ -246,7 +260,10 @@ def _start_fake_cell(
     scene = request.scene
     if scene is None:  # the fake cell holds the rod the job describes
         scene = write_rod_scene(job.rod.rod_line(), out_dir / DRY_RUN_SCENE_FILE)
-    cell = stack.enter_context(FakeCellProcess(scene=scene))
+    def died(death: str) -> None:
+        cancel.fail(DeviceError(f"the dry run's fake cell died: {death}"))
+
+    cell = stack.enter_context(FakeCellProcess(scene=scene, on_death=died))
     job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": cell.scanner_url})
     sink.emit(
         "stage",

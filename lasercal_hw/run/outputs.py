@@ -122,19 +122,31 @@ def write_outputs(
     ground_truth: FloatArray | None = None,
     title: str = "lasercal calibration",
 ) -> dict[str, Path]:
-    """Write every result file into ``out_dir``; returns them by name."""
+    """Write every result file into ``out_dir``; returns them by name.
+
+    A result that failed a quality gate gets no URDF and no ``static_transform_publisher``
+    arguments: a launch file picks those up as they are, and nothing in them could say
+    FAILED. ``result.json`` (with its verdict and exports) and the report still say
+    everything, and a stale pair from an earlier pass in the same folder is removed."""
     files = {
         "observations": out_dir / OBSERVATIONS_FILE,
         "result": out_dir / RESULT_FILE,
-        "urdf": out_dir / URDF_FILE,
-        "static_transform_publisher": out_dir / TF_ARGS_FILE,
     }
     write_observations_csv(files["observations"], outcome.observations)
     document = result_document(outcome, job, ground_truth=ground_truth)
     _write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
     T = outcome.result.matrix()
-    _write_text(files["urdf"], urdf_joint(T))
-    _write_text(files["static_transform_publisher"], " ".join(static_transform_publisher_args(T)) + "\n")
+    ros_files = {"urdf": out_dir / URDF_FILE, "static_transform_publisher": out_dir / TF_ARGS_FILE}
+    if outcome.verdict.passed:
+        _write_text(ros_files["urdf"], urdf_joint(T))
+        tf_args = " ".join(static_transform_publisher_args(T))
+        _write_text(ros_files["static_transform_publisher"], tf_args + "\n")
+        files |= ros_files
+    else:
+        for path in ros_files.values():
+            path.unlink(missing_ok=True)
+        logger.warning("quality gate failed: %s and %s are not written (result.json has the transform "
+                       "and its verdict)", URDF_FILE, TF_ARGS_FILE)
     if job.output.report:
         files["report"] = render_report(report_data(outcome, job, title), out_dir / REPORT_FILE)
     return files

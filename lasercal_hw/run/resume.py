@@ -26,10 +26,14 @@ logger = logging.getLogger(__name__)
 
 META_JOB = "job"
 META_WAYPOINTS = "waypoints"
+#: Event of an adaptive run's design (``lasercal_hw.run.adaptive``): its waypoints extend
+#: the recorded ones from ``first_index`` on.
+DESIGN_EVENT = "trajectory_design"
 
 
 def recorded_job(recording: SessionRecording) -> tuple[JobConfig, FloatArray]:
-    """The job and the waypoints an earlier run recorded in its meta."""
+    """The job and the waypoints an earlier run recorded: its meta's, then those of any
+    later design of an adaptive run."""
     meta = recording.meta
     if META_JOB not in meta or META_WAYPOINTS not in meta:
         raise ConfigError(
@@ -38,6 +42,10 @@ def recorded_job(recording: SessionRecording) -> tuple[JobConfig, FloatArray]:
         )
     job = job_from_mapping(meta[META_JOB], f"{recording.path} (recorded job)")
     waypoints = np.asarray(meta[META_WAYPOINTS], dtype=float).reshape(-1, 6)
+    for event in recording.events_of(DESIGN_EVENT):  # an adaptive run's later designs
+        designed = np.asarray(event["waypoints"], dtype=float).reshape(-1, 6)
+        if int(event["first_index"]) == len(waypoints):
+            waypoints = np.vstack([waypoints, designed])
     return job, waypoints
 
 

@@ -4,6 +4,7 @@ parameter overrides, or a waypoint file (``trajectories.waypoint_file``: CSV or 
 from __future__ import annotations
 
 from lasercal_hw.config import JobConfig
+from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_pose
 from lasercal_hw.models import FloatArray
 from trajectories.presets import get_preset
@@ -29,6 +30,28 @@ def job_waypoint_list(job: JobConfig) -> list[Waypoint]:
     return semicircle_waypoints(parameters, job.rod.rod_line())
 
 
-def job_waypoints(job: JobConfig) -> FloatArray:
-    """The job's waypoints as UR pose vectors (N, 6)."""
+def require_scanner_pose(job: JobConfig) -> None:
+    """Refuse a live run whose job says nothing about where the scanner is: a preset is laid
+    out for one scanner placement (the fake cell's default scene), not for this cell."""
+    if job.trajectory.waypoints_file is not None or job.scanner.nominal is not None:
+        return
+    raise ConfigError(
+        f"the job gives no scanner pose, and the preset {job.trajectory.preset!r} is laid out for the "
+        "fake cell's default scene (scanner at 0.30, 0.50, 0.20 m), not for your cell: measure the "
+        "scanner's pose roughly and run `lasercal trajectory design --scanner-pose X Y Z YAW PITCH ROLL "
+        "--config JOB --out waypoints.csv`, then set trajectory.waypoints_file = \"waypoints.csv\" and "
+        "[scanner.nominal] in the job (or [scanner.nominal] alone to keep a preset checked for your cell)"
+    )
+
+
+def job_waypoints(job: JobConfig, *, live: bool = False) -> FloatArray:
+    """The job's waypoints as UR pose vectors (N, 6); ``live``: for a run on a real cell,
+    which needs the job to say where the scanner is (``require_scanner_pose``). An adaptive
+    job's are those of its first design (``lasercal_hw.run.adaptive``)."""
+    if job.trajectory.adaptive:  # the first design; the rest follows from its estimate
+        from lasercal_hw.run.adaptive import first_design
+
+        return matrix_to_pose(waypoint_matrices(first_design(job).waypoints))
+    if live:
+        require_scanner_pose(job)
     return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))

@@ -2,7 +2,10 @@
 
 A file whose writer was killed has no summary or footer and may end inside a record:
 ``read_session`` reads every complete record, drops the incomplete tail and reports it
-with ``SessionRecording.truncated``. Layout: ``lasercal_hw.session.format``.
+with ``SessionRecording.truncated``. A chunk whose CRC fails (a flipped bit on disk) is
+skipped on its own: the records around it are kept and ``SessionRecording.damaged``
+says what was lost (bytes and the time span of its messages). Layout:
+``lasercal_hw.session.format``.
 """
 
 from __future__ import annotations
@@ -47,10 +50,12 @@ _RECORD_HEADER = struct.Struct("<BQ")
 
 
 class McapRecords:
-    """The complete records of an MCAP file in file order, tolerant of a killed writer.
+    """The complete records of an MCAP file in file order, tolerant of a killed writer and
+    of damaged chunks.
 
     ``truncated`` is True when the file has no footer (the writer did not close it) or ends
-    in an incomplete or corrupt record; ``truncation_reason`` says which.
+    in an incomplete or corrupt record; ``truncation_reason`` says which. ``damaged`` lists
+    the chunks skipped because they failed their CRC or did not decode (after iterating).
     """
 
     def __init__(self, path: str | Path) -> None:
@@ -67,42 +72,71 @@ class McapRecords:
             data = b""
         elif not data.startswith(_MAGIC):
             raise ConfigError(f"{self.path} is not an MCAP file (wrong magic bytes); pass a session.mcap")
-        end, self.truncation_reason = _complete_prefix(data)
+        self._spans, self.truncation_reason = _record_spans(data)
         self.truncated = self.truncation_reason is not None
-        self._data = data[:end]
+        self.damaged: list[str] = []
+        self._data = data
 
     def __iter__(self) -> Iterator[McapRecord]:
-        if not self._data:
-            return
-        reader = StreamReader(io.BytesIO(self._data), validate_crcs=True)
-        try:
-            yield from reader.records
-        except (McapError, ValueError, struct.error) as exc:
-            # EndOfFile (an McapError) is the normal end of an unclosed file's complete part.
-            if self.truncation_reason is None or not isinstance(exc, EndOfFile):
-                self.truncated = True
-                self.truncation_reason = f"unreadable record: {exc or type(exc).__name__}"
+        """Each top-level record on its own, so one bad chunk costs only its contents."""
+        self.damaged = []
+        for offset, end in self._spans:
+            record = self._data[offset:end]
+            try:
+                inner = list(_records_of(record))
+            except (McapError, ValueError, struct.error, RuntimeError) as exc:
+                cause = exc or type(exc).__name__
+                if record[0] != Opcode.CHUNK:
+                    self.truncated = True
+                    self.truncation_reason = f"unreadable record at offset {offset}: {cause}"
+                    return
+                self.damaged.append(_chunk_loss(record, offset, exc))
+                continue
+            yield from inner
 
 
-def _complete_prefix(data: bytes) -> tuple[int, str | None]:
-    """Length of the part of ``data`` made of whole records, and why the rest is missing
-    (None for a properly closed file)."""
+def _records_of(record: bytes) -> Iterator[McapRecord]:
+    """The records one top-level record holds (a chunk's contents, CRC checked)."""
+    reader = StreamReader(io.BytesIO(record), skip_magic=True, validate_crcs=True)
+    try:
+        yield from reader.records
+    except EndOfFile:
+        return
+
+
+_CHUNK_TIMES = struct.Struct("<QQ")
+
+
+def _chunk_loss(record: bytes, offset: int, cause: BaseException) -> str:
+    """What skipping a damaged chunk lost, in words (its size and message time span)."""
+    start_ns, end_ns = _CHUNK_TIMES.unpack_from(record, _RECORD_HEADER.size)
+    span = ""
+    if 0 < start_ns <= end_ns < 1 << 62:  # the header itself may be the damaged part
+        span = (f", {(end_ns - start_ns) / 1e9:.1f} s of messages, {start_ns / 1e9:.3f} to "
+                f"{end_ns / 1e9:.3f} s")
+    return f"chunk at byte {offset} ({len(record)} bytes{span}): {cause or type(cause).__name__}"
+
+
+def _record_spans(data: bytes) -> tuple[list[tuple[int, int]], str | None]:
+    """(start, end) of every whole record of ``data`` after the magic, and why the rest is
+    missing (None for a properly closed file)."""
+    spans: list[tuple[int, int]] = []
     if not data:
-        return 0, "the file is empty (writer killed before the header was written)"
+        return spans, "the file is empty (writer killed before the header was written)"
     offset = MAGIC_SIZE
     while True:
         if offset + _RECORD_HEADER.size > len(data):
-            return offset, "no footer: the writer did not close the file"
+            return spans, "no footer: the writer did not close the file"
         opcode, length = _RECORD_HEADER.unpack_from(data, offset)
         if opcode == 0:
-            return offset, f"zero bytes at offset {offset} (unfinished write)"
+            return spans, f"zero bytes at offset {offset} (unfinished write)"
         end = offset + _RECORD_HEADER.size + length
         if end > len(data):
-            return offset, f"incomplete record at offset {offset} (writer killed mid-write)"
+            return spans, f"incomplete record at offset {offset} (writer killed mid-write)"
+        spans.append((offset, end))
         if opcode == Opcode.FOOTER:
-            if data[end : end + MAGIC_SIZE] != _MAGIC:
-                return end, "footer without the closing magic bytes"
-            return end + MAGIC_SIZE, None
+            closed = data[end : end + MAGIC_SIZE] == _MAGIC
+            return spans, None if closed else "footer without the closing magic bytes"
         offset = end
 
 
@@ -156,6 +190,8 @@ class SessionRecording:
     events: list[dict[str, Any]] = field(default_factory=list)
     truncated: bool = False
     truncation_reason: str | None = None
+    damaged: list[str] = field(default_factory=list)
+    """Damaged chunks skipped while reading, each with what it lost."""
 
     @property
     def meta(self) -> dict[str, Any]:
@@ -234,15 +270,18 @@ def read_session(path: str | Path, *, include_scans: bool = True) -> SessionReco
     records = McapRecords(path)
     recording = SessionRecording(path=Path(path))
     decoders = DecoderFactory()
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, tuple[str, Schema | None]] = {}
+    # Schemas and channels first, from anywhere in the file: a closed file repeats them in
+    # its summary, so messages after a damaged chunk that defined them still decode.
+    every = list(records)
+    schemas = {record.id: record for record in every if isinstance(record, Schema)}
+    channels = {
+        record.id: (record.topic, schemas.get(record.schema_id))
+        for record in every
+        if isinstance(record, Channel)
+    }
     pending_scan: tuple[int, Any] | None = None
-    for record in records:
-        if isinstance(record, Schema):
-            schemas[record.id] = record
-        elif isinstance(record, Channel):
-            channels[record.id] = (record.topic, schemas.get(record.schema_id))
-        elif isinstance(record, Message) and record.channel_id in channels:
+    for record in every:
+        if isinstance(record, Message) and record.channel_id in channels:
             topic, schema = channels[record.channel_id]
             if topic == TOPIC_SCAN and include_scans:
                 arrays = _laser_scan_arrays(record.data)
@@ -274,6 +313,9 @@ def read_session(path: str | Path, *, include_scans: bool = True) -> SessionReco
                 recording.metas.append(_json(record))
     recording.truncated = records.truncated
     recording.truncation_reason = records.truncation_reason
+    recording.damaged = list(records.damaged)
+    for loss in recording.damaged:
+        logger.warning("%s: a damaged chunk was skipped and the rest kept; lost the %s", path, loss)
     if recording.truncated:
         logger.warning("%s is truncated (%s); read what is complete", path, records.truncation_reason)
     return recording

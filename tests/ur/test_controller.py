@@ -19,7 +19,7 @@ from fakes.ur_controller.controller import (
     FaultPlan,
 )
 from lasercal_hw.geometry import matrix_to_pose
-from lasercal_hw.ur5_kinematics import forward_kinematics
+from lasercal_hw.ur_kinematics import forward_kinematics
 
 DT = 0.002
 PROGRAM = "def rtde_control():\n    global reg_offset_int = # int register offset\n{offset}    x = 1\nend\n"

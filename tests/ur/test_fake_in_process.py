@@ -15,7 +15,7 @@ import pytest
 from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
 from fakes.ur_controller.process import DASHBOARD_PORT, RTDE_PORT, FakeRobot
 from lasercal_hw.errors import TransportError
-from lasercal_hw.ur5_kinematics import forward_kinematics
+from lasercal_hw.ur_kinematics import forward_kinematics
 
 pytestmark = pytest.mark.timeout(30)
 

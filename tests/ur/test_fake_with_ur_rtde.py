@@ -13,7 +13,7 @@ import rtde_control
 
 from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
 from lasercal_hw.geometry import matrix_to_pose, pose_to_matrix
-from lasercal_hw.ur5_kinematics import forward_kinematics
+from lasercal_hw.ur_kinematics import forward_kinematics
 from tests.ur.conftest import StartFake, control_interface, eventually, receive_interface
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fakes.ur_controller.motion import JointPath, LinearPath, Motion, TrapezoidProfile, track_pose
-from lasercal_hw.ur5_kinematics import forward_kinematics
+from lasercal_hw.ur_kinematics import forward_kinematics
 
 Q_HOME = np.array([0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0])
 

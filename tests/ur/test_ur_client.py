@@ -22,7 +22,7 @@ from lasercal_hw.errors import (
     TransportError,
 )
 from lasercal_hw.geometry import matrix_to_pose
-from lasercal_hw.ur5_kinematics import forward_kinematics
+from lasercal_hw.ur_kinematics import forward_kinematics
 from tests.ur.conftest import StartFake, eventually
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]

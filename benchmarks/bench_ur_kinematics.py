@@ -1,6 +1,6 @@
-"""Cost of the UR5 kinematics, as ratios to one forward-kinematics call in the same run.
+"""Cost of the UR kinematics, as ratios to one forward-kinematics call in the same run.
 
-Run: .venv/bin/python -m benchmarks.bench_ur5_kinematics
+Run: .venv/bin/python -m benchmarks.bench_ur_kinematics
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lasercal_hw.ur5_kinematics import forward_kinematics, inverse_kinematics, inverse_kinematics_all
+from lasercal_hw.ur_kinematics import forward_kinematics, inverse_kinematics, inverse_kinematics_all
 
 
 def per_call_s(fn: Callable[[], object], repeats: int) -> float:

@@ -1,4 +1,4 @@
-"""UR5 (CB3) kinematics: forward kinematics against published reference values, and the
+"""UR5 (CB3) and UR5e kinematics: forward kinematics against published reference values, and the
 closed-form inverse kinematics against forward kinematics on every branch."""
 
 from __future__ import annotations
@@ -9,16 +9,23 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_pose, pose_to_matrix, rotation_angle_rad
-from lasercal_hw.ur5_kinematics import (
-    JOINT_LIMITS_RAD,
-    JOINT_SPEED_LIMITS_RAD_S,
-    UR5_DH,
+from lasercal_hw.ur_kinematics import (
+    UR5,
+    UR5E,
+    URModel,
     forward_kinematics,
     inverse_kinematics,
     inverse_kinematics_all,
+    inverse_kinematics_branches,
     inverse_kinematics_pose,
+    model_of_controller,
+    robot_model,
 )
+
+JOINT_LIMITS_RAD = UR5.joint_limits_rad
+MODELS = pytest.mark.parametrize("model", [UR5, UR5E], ids=["ur5", "ur5e"])
 
 # Reference pairs q -> flange position (m) computed with Universal Robots' own DH
 # spreadsheet from the support article "DH parameters for calculations of kinematics and
@@ -51,16 +58,45 @@ def same_angles(a: np.ndarray, b: np.ndarray, tol: float = 1e-6) -> bool:
 
 
 def test_dh_table_is_the_published_ur5_cb3_table() -> None:
-    assert UR5_DH.d_m == (0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823)
-    assert UR5_DH.a_m == (0.0, -0.425, -0.39225, 0.0, 0.0, 0.0)
-    np.testing.assert_allclose(UR5_DH.alpha_rad, [np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0])
+    assert UR5.dh.d_m == (0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823)
+    assert UR5.dh.a_m == (0.0, -0.425, -0.39225, 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(UR5.dh.alpha_rad, [np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0])
     np.testing.assert_allclose(JOINT_LIMITS_RAD, [[-2 * np.pi, 2 * np.pi]] * 6)
-    np.testing.assert_allclose(JOINT_SPEED_LIMITS_RAD_S, np.deg2rad(180.0))
+    np.testing.assert_allclose(UR5.joint_speed_limits_rad_s, np.deg2rad(180.0))
+
+
+def test_dh_table_is_the_published_ur5e_table() -> None:
+    # UR's support article, UR5e column: d1 0.1625, a2 -0.425, a3 -0.3922, d4 0.1333,
+    # d5 0.0997, d6 0.0996; joint ranges +-360 deg and speeds 180 deg/s (UR5e specification).
+    assert UR5E.dh.d_m == (0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996)
+    assert UR5E.dh.a_m == (0.0, -0.425, -0.3922, 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(UR5E.dh.alpha_rad, [np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0])
+    np.testing.assert_allclose(UR5E.joint_limits_rad, [[-2 * np.pi, 2 * np.pi]] * 6)
+    np.testing.assert_allclose(UR5E.joint_speed_limits_rad_s, np.deg2rad(180.0))
+
+
+def test_models_are_chosen_by_name_or_by_the_controller() -> None:
+    assert robot_model("UR5e") is UR5E and robot_model(" ur5 ") is UR5
+    with pytest.raises(ConfigError, match=r"unknown robot model 'ur10'.*ur5, ur5e"):
+        robot_model("ur10")
+    # The dashboard says "UR5" on both generations; e-Series controllers run software 5.x.
+    assert model_of_controller("UR5", (5, 11, 6, 108949)) is UR5E
+    assert model_of_controller("UR5", (3, 15, 7, 0)) is UR5
 
 
 @pytest.mark.parametrize(("q", "position_m"), UR_SPREADSHEET_PAIRS)
 def test_forward_kinematics_matches_ur_dh_spreadsheet(q: list[float], position_m: list[float]) -> None:
     np.testing.assert_allclose(forward_kinematics(q)[:3, 3], position_m, atol=6e-6)
+
+
+def test_ur5e_zero_pose_follows_its_own_table() -> None:
+    # q = 0 puts the flange at (a2 + a3, -(d4 + d6), d1 - d5), facing -y.
+    pose = matrix_to_pose(forward_kinematics(np.zeros(6), model=UR5E))
+    np.testing.assert_allclose(pose[:3], [-(0.425 + 0.3922), -(0.1333 + 0.0996), 0.1625 - 0.0997])
+    np.testing.assert_allclose(pose[3:], [np.pi / 2, 0.0, 0.0], atol=1e-12)
+    # A bent arm differs between the two models by more than a centimetre.
+    q = np.array([0.4, -1.2, 1.3, -1.6, -1.4, 0.5])
+    assert np.linalg.norm(forward_kinematics(q, model=UR5E)[:3, 3] - forward_kinematics(q)[:3, 3]) > 0.01
 
 
 def test_zero_pose_is_the_controller_base_frame_pose() -> None:
@@ -97,22 +133,41 @@ def test_tcp_offset_moves_the_reported_point_along_the_flange_axes() -> None:
     np.testing.assert_allclose(back, q, atol=1e-8)
 
 
-@settings(max_examples=150, deadline=None)
-@given(joint_angles)
-def test_every_ik_branch_reproduces_the_pose(q: np.ndarray) -> None:
-    target = forward_kinematics(q)
-    solutions = inverse_kinematics_all(target, theta6_if_singular_rad=float(q[5]))
+@MODELS
+@settings(max_examples=100, deadline=None)
+@given(q=joint_angles)
+def test_every_ik_branch_reproduces_the_pose(model: URModel, q: np.ndarray) -> None:
+    target = forward_kinematics(q, model=model)
+    solutions = inverse_kinematics_all(target, theta6_if_singular_rad=float(q[5]), model=model)
     assert 1 <= len(solutions) <= 8
     assert np.all(np.isfinite(solutions))
     for solution in solutions:
-        assert_same_pose(forward_kinematics(solution), target, tol=2e-6)
+        assert_same_pose(forward_kinematics(solution, model=model), target, tol=2e-6)
 
 
-@settings(max_examples=150, deadline=None)
-@given(regular_joint_angles)
-def test_one_ik_branch_is_the_original_angles(q: np.ndarray) -> None:
-    solutions = inverse_kinematics_all(forward_kinematics(q))
+@MODELS
+@settings(max_examples=100, deadline=None)
+@given(q=regular_joint_angles)
+def test_one_ik_branch_is_the_original_angles(model: URModel, q: np.ndarray) -> None:
+    solutions = inverse_kinematics_all(forward_kinematics(q, model=model), model=model)
     assert any(same_angles(solution, q) for solution in solutions)
+
+
+@MODELS
+def test_branches_are_numbered_by_shoulder_wrist_and_elbow(model: URModel) -> None:
+    rng = np.random.default_rng(5)
+    qs = rng.uniform(-np.pi, np.pi, (200, 6))
+    qs = qs[(np.abs(np.sin(qs[:, 2])) > 0.05) & (np.abs(np.sin(qs[:, 4])) > 0.05)]
+    branches = inverse_kinematics_branches(forward_kinematics(qs, model=model), model=model)
+    assert branches.shape == (len(qs), 8, 6)
+    for q, solutions in zip(qs, branches, strict=True):
+        matches = [b for b in range(8) if np.all(np.isfinite(solutions[b])) and same_angles(solutions[b], q)]
+        assert len(matches) == 1
+        wrist, elbow = (matches[0] // 2) % 2, matches[0] % 2
+        assert wrist == int(np.sin(q[4]) < 0) and elbow == int(np.sin(q[2]) < 0)
+    # Out of reach: every branch is NaN.
+    far = inverse_kinematics_branches(pose_to_matrix([2.0, 0.0, 0.3, np.pi, 0.0, 0.0])[None], model=model)
+    assert np.all(np.isnan(far))
 
 
 @settings(max_examples=100, deadline=None)
