@@ -22,7 +22,12 @@ TERMINAL = ("succeeded", "failed", "cancelled", "interrupted")
 # No report PNG there (test 1 reads one): rendering it is a good part of a short run.
 QUICK_CALIBRATE = QUICK_DRY_RUN | {
     "kind": "calibrate",
-    "job": QUICK_DRY_RUN["job"] | {"output": {"report": False}},
+    "job": QUICK_DRY_RUN["job"]
+    | {
+        "output": {"report": False},
+        # a real (non dry-run) job names the scanner's rough pose: the fake cell's default scene
+        "scanner": {"nominal": {"translation_m": [0.30, 0.50, 0.20], "euler_zyx_deg": [5.0, 7.0, 3.0]}},
+    },
 }
 
 
