@@ -61,6 +61,13 @@ class _Commands(LazyGroup):
             "lasercal_hw.cli.robot:robot_app",
             "Talk to a UR robot (ur_rtde: dashboard, RTDE receive and control).",
         ),
+        "serve": LazyCommand(
+            "lasercal_hw.cli.serve:serve_command",
+            "Run the calibration daemon (HTTP API on loopback; see docs/daemon.md).",
+        ),
+        "remote": LazyCommand(
+            "lasercal_hw.cli.remote:remote_app", "Talk to a running 'lasercal serve' daemon."
+        ),
     }
 
 
