@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from fakes.world import World
-from lasercal_hw.cli.run import _write_rod_scene
 from lasercal_hw.config import load_job
 from lasercal_hw.errors import ExitCode
+from lasercal_hw.run.dry_run_scene import write_rod_scene
 
 
 def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -53,7 +53,7 @@ def test_scene_needs_dry_run(tmp_path: Path) -> None:
 
 def test_dry_run_scene_gives_the_fake_cell_the_jobs_rod(tmp_path: Path) -> None:
     job = load_job(Path(__file__).parents[1] / "examples" / "drill.toml")
-    scene = _write_rod_scene(job, tmp_path / "dry_run_scene.toml")
+    scene = write_rod_scene(job.rod.rod_line(), tmp_path / "dry_run_scene.toml")
     world_rod = World.from_scene(scene).rod
     job_rod = job.rod.rod_line()
     np.testing.assert_array_equal(world_rod.origin_m, job_rod.origin_m)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ from lasercal_hw.errors import (
 )
 from lasercal_hw.geometry import matrix_to_euler_zyx
 from lasercal_hw.models import RobotState
+from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.preflight import rod_end_points_m
 from lasercal_hw.run.replay import solve_recording
 from lasercal_hw.run.resume import resume_state
@@ -309,3 +311,28 @@ def test_the_robots_stated_accuracy_is_in_the_solvers_noise_model() -> None:
         results[accuracy_mm] = outcome.result
     # A less accurate robot widens the bound of the same waypoints.
     assert results[3.0].crb_translation_mm[2] > 1.5 * results[0.0].crb_translation_mm[2]
+
+
+def test_cancel_from_another_thread_stops_the_arm_and_keeps_the_recording() -> None:
+    """A cancel token (the daemon's cancel request) acts as Ctrl-C does: the arm is told to
+    stop at once, the run ends with InterruptedRunError at its next checkpoint, and every
+    waypoint measured before it stays in the recording."""
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    recorder = MemoryRecorder()
+    cancel = CancelToken()
+    stops_at_cancel: list[int] = []
+
+    def cancel_at_waypoint_3(progress: Progress) -> None:
+        if progress.stage == "dwell" and progress.waypoint == 3:
+            worker = threading.Thread(target=cancel.cancel, args=("operator pressed cancel",))
+            worker.start()
+            worker.join()
+            stops_at_cancel.append(robot.stops)
+
+    with pytest.raises(InterruptedRunError, match="waypoint 3 \\(operator pressed cancel\\)"):
+        Sequencer(robot, scanner, recorder, job, semicircle_waypoints(8), on_progress=cancel_at_waypoint_3,
+                  cancel=cancel, clock=clock).run()
+    assert stops_at_cancel == [1]  # stopped by the cancel itself, before the run noticed it
+    assert [e["index"] for _, kind, e in recorder.events if kind == "observation"] == [0, 1, 2]
+    assert recorder.kinds()[-1] == "abort"

@@ -31,6 +31,7 @@ from lasercal_hw.errors import (
     TransportError,
 )
 from lasercal_hw.models import FloatArray, LaserScan, Observation, RodLine
+from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
 from lasercal_hw.run.dwell import DwellCapture, collect_count, collect_window
 from lasercal_hw.run.preflight import PreflightReport, first_clear_pose, rod_end_points_m, run_preflight
@@ -67,6 +68,9 @@ class Progress:
     scans_averaged: int | None = None
     centre_uv_m: tuple[float, float] | None = None
     time_left_s: float | None = None
+    reason: str | None = None
+    averaged: AveragedScan | None = field(default=None, repr=False)
+    centre: RodCentre | None = field(default=None, repr=False)
 
 
 ProgressCallback = Callable[[Progress], None]
@@ -296,10 +300,13 @@ class Sequencer:
         on_progress: ProgressCallback | None = None,
         before_motion: Callable[[PreflightReport], None] | None = None,
         resume: ResumeState | None = None,
+        cancel: CancelToken | None = None,
         clock: Callable[[], float] = time.time,
     ) -> None:
         """``before_motion`` is called once preflight passed and before the first motion
-        (the CLI asks the operator there; raising from it aborts with nothing moved)."""
+        (the CLI asks the operator there; raising from it aborts with nothing moved).
+        ``cancel`` stops the run from another thread as Ctrl-C does: the arm is told to
+        stop at once, the run raises InterruptedRunError at its next checkpoint."""
         self._robot = robot
         self._scanner = scanner
         self._recorder = recorder
@@ -309,6 +316,7 @@ class Sequencer:
         self._on_progress = on_progress
         self._before_motion = before_motion
         self._resume = resume or ResumeState()
+        self._cancel = cancel or CancelToken()
         self._clock = clock
         self._background: AveragedScan | None = self._resume.background
         self._measurements: list[WaypointMeasurement] = list(self._resume.measurements)
@@ -323,6 +331,7 @@ class Sequencer:
     def run(self) -> RunOutcome:
         """Run the whole job; see the module docstring. Raises on abort, never hangs the arm."""
         started_s = self._clock()
+        remove_listener = self._cancel.on_cancel(self._stop_arm)
         try:
             outcome = self._run()
         except (KeyboardInterrupt, InterruptedRunError) as exc:
@@ -343,6 +352,7 @@ class Sequencer:
             self._halt("error", f"{type(exc).__name__}: {exc}")
             raise
         finally:
+            remove_listener()
             self._stop_streaming()
         outcome.timings.wall_s = self._clock() - started_s
         self._event(
@@ -405,7 +415,7 @@ class Sequencer:
                     start_host_s=settled_s + self._job.settle.margin_s,
                     count=count,
                     scan_timeout_s=self._job.acquisition.scan_timeout_s,
-                    on_scan=self._recorder.write_scan,
+                    on_scan=self._on_scan,
                 )
             except TransportError as exc:
                 self._event("fault", device="scanner", index=None, attempt=attempt, message=str(exc))
@@ -477,7 +487,7 @@ class Sequencer:
                 expected_uv_m=self._nominal_expected_uv(tcp_start),
             )
         except RodNotFoundError as exc:
-            self._skip(index, str(exc))
+            self._skip(index, str(exc), averaged)
             return
         self._measurements.append(WaypointMeasurement(index, tcp_start, averaged, centre))
         u, v = (float(c) for c in centre.centre_uv_m)
@@ -498,6 +508,8 @@ class Sequencer:
             waypoint=index,
             scans_averaged=len(capture.scans),
             centre_uv_m=(u, v),
+            averaged=averaged,
+            centre=centre,
         )
 
     def _check_capture(self, capture: DwellCapture, drift_mm: float) -> None:
@@ -524,7 +536,7 @@ class Sequencer:
                 start_host_s=start_s,
                 duration_s=self._job.dwell_s,
                 scan_timeout_s=self._job.acquisition.scan_timeout_s,
-                on_scan=self._recorder.write_scan,
+                on_scan=self._on_scan,
             )
         except TransportError as exc:
             self._event("fault", device="scanner", index=index, attempt=attempt, message=str(exc))
@@ -577,10 +589,12 @@ class Sequencer:
         except ProtectiveStopError:
             raise
         except RobotError as exc:
+            self._cancel.raise_if_cancelled()  # a move cut short by a cancel is the cancel
             self._raise_if_safety_stop(exc)
             raise
         finally:
             self._timings.motion_s += self._clock() - started_s
+        self._cancel.raise_if_cancelled()
 
     def _raise_if_safety_stop(self, cause: RobotError) -> None:
         """A failed move may be a safety stop reported late: ask the robot, and say so."""
@@ -617,16 +631,25 @@ class Sequencer:
             return None
         return predict_rod(nominal.matrix(), tcp_pose, self._rod).expected_uv_m
 
-    def _skip(self, index: int, reason: str) -> None:
+    def _skip(self, index: int, reason: str, averaged: AveragedScan | None = None) -> None:
         self._skipped.append(SkippedWaypoint(index, reason))
         self._event("waypoint_skipped", index=index, reason=reason)
-        self._progress("skip", f"waypoint {index} skipped: {reason}", waypoint=index)
+        self._progress("skip", f"waypoint {index} skipped: {reason}", waypoint=index, reason=reason,
+                       averaged=averaged)
 
-    def _halt(self, cause: str, message: str) -> None:
+    def _on_scan(self, scan: LaserScan) -> None:
+        """Record every scan; a cancel takes effect between two scans of a dwell."""
+        self._recorder.write_scan(scan)
+        self._cancel.raise_if_cancelled()
+
+    def _stop_arm(self) -> None:
         try:
             self._robot.stop()
         except LasercalError as exc:
             logger.error("could not stop the robot: %s", exc)
+
+    def _halt(self, cause: str, message: str) -> None:
+        self._stop_arm()
         self._event("abort", cause=cause, index=self._current, message=message)
 
     def _stop_streaming(self) -> None:
@@ -645,6 +668,7 @@ class Sequencer:
             logger.error("could not record event %s: %s", kind, exc)
 
     def _progress(self, stage: str, message: str, **fields: Any) -> None:
+        self._cancel.raise_if_cancelled()
         if self._on_progress is None:
             return
         done = len(self._measurements) + len(self._skipped)

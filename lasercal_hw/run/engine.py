@@ -1,0 +1,330 @@
+"""The one way to run a calibration: ``calibrate(RunRequest) -> RunReport``.
+
+The CLI, the daemon and Python scripts all call this. It prepares the output folder,
+starts the dry-run fake cell when asked, connects the scanner and then the robot,
+records everything to ``session.mcap``, runs the sequencer, writes every output file and
+reports what happens as ``RunEvent``s to one callback (a terminal view, a JSON printer,
+an HTTP event stream or a test). It never prints and never asks: the caller renders the
+events and, through ``confirm``, asks the operator.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lasercal_hw import __version__
+from lasercal_hw.config import JobConfig, with_overrides
+from lasercal_hw.errors import ConfigError, LasercalError
+from lasercal_hw.models import FloatArray
+from lasercal_hw.run.cancel import CancelToken
+from lasercal_hw.run.devices import Robot, Scanner
+from lasercal_hw.run.events import EventSink, RunEvent
+from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
+from lasercal_hw.run.preflight import PreflightReport
+from lasercal_hw.run.resume import META_JOB, META_WAYPOINTS, recorded_job, resume_state
+from lasercal_hw.run.sequencer import ResumeState, RunOutcome, Sequencer
+from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.recorder import SessionRecorder
+
+__all__ = ["CancelToken", "MotionPlan", "RunEvent", "RunReport", "RunRequest", "calibrate", "default_out_dir"]
+
+DRY_RUN_SCENE_FILE = "dry_run_scene.toml"
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """What to run. ``job`` is resolved (command-line or request overrides applied); a
+    resumed run takes its job and waypoints from the recording instead. ``robot_host``
+    and ``scanner_url``, when given, say where the devices are (for a resumed run too)."""
+
+    job: JobConfig
+    out_dir: Path
+    robot_host: str | None = None
+    scanner_url: str | None = None
+    dry_run: bool = False
+    scene: Path | None = None
+    resume: Path | None = None
+    waypoints: FloatArray | None = None
+    title: str = "lasercal run"
+
+
+@dataclass(frozen=True)
+class RunReport:
+    """A finished run: the sequencer's outcome and the files written."""
+
+    outcome: RunOutcome
+    files: dict[str, Path]
+    out_dir: Path
+    ground_truth: FloatArray | None
+    fake_cell: dict[str, Any] | None
+    command_s: float
+
+    @property
+    def overhead_fraction_with_io(self) -> float:
+        """Overhead share counting connecting and writing the outputs too."""
+        busy_s = self.outcome.timings.motion_s + self.outcome.timings.dwell_s
+        return (self.command_s - busy_s) / busy_s if busy_s > 0 else 0.0
+
+    def truth_error(self) -> dict[str, float] | None:
+        """Dry run: the error of both passes against the fake cell's ground truth."""
+        if self.ground_truth is None:
+            return None
+        first = transform_error(self.outcome.first_pass.matrix(), self.ground_truth)
+        return transform_error(self.outcome.result.matrix(), self.ground_truth) | {
+            f"first_pass_{key}": value for key, value in first.items()
+        }
+
+    def document(self) -> dict[str, Any]:
+        """The JSON document of the run (what ``lasercal run --json`` prints)."""
+        outcome, result = self.outcome, self.outcome.result
+        document: dict[str, Any] = {
+            "passed": outcome.verdict.passed,
+            "verdict": outcome.verdict.as_dict(),
+            "T_base_laser": result.T_base_laser,
+            "translation_m": result.translation_m,
+            "euler_zyx_deg": result.euler_zyx_deg,
+            "quaternion_xyzw": result.quaternion_xyzw,
+            "std_translation_mm": result.std_translation_mm,
+            "std_rotation_deg": result.std_rotation_deg,
+            "rms_residual_mm": result.rms_residual_mm,
+            "observations": len(outcome.observations),
+            "skipped": [{"index": s.index, "reason": s.reason} for s in outcome.skipped],
+            "refinement": outcome.refinement,
+            "timings": {
+                "wall_s": outcome.timings.wall_s,
+                "motion_s": outcome.timings.motion_s,
+                "dwell_s": outcome.timings.dwell_s,
+                "overhead_fraction": outcome.timings.overhead_fraction,
+                "command_s": self.command_s,
+                "overhead_fraction_with_io": self.overhead_fraction_with_io,
+            },
+            "outputs": {name: str(path) for name, path in self.files.items()},
+            "dry_run": self.fake_cell is not None,
+        }
+        if self.fake_cell is not None:
+            document["fake_cell"] = self.fake_cell
+        if self.ground_truth is not None:
+            document["ground_truth"] = {
+                "T_base_laser": np.asarray(self.ground_truth).tolist(),
+                "error": transform_error(result.matrix(), self.ground_truth),
+                "first_pass_error": transform_error(outcome.first_pass.matrix(), self.ground_truth),
+            }
+        return document
+
+
+@dataclass(frozen=True)
+class MotionPlan:
+    """What is about to move, for the question asked before the first motion."""
+
+    preflight: PreflightReport
+    job: JobConfig
+    waypoint_count: int
+
+    def summary(self) -> str:
+        """One paragraph for the operator."""
+        robot, motion = self.preflight.robot, self.job.motion
+        return (
+            f"About to move the {robot.model} at {self.job.robot.host} (serial {robot.serial_number}) to its "
+            f"retract pose and through {self.waypoint_count} waypoints, {motion.move} moves capped at "
+            f"{motion.speed_m_s} m/s and {motion.accel_m_s2} m/s^2, dwelling {self.job.dwell_s:g} s each."
+        )
+
+
+def default_out_dir() -> Path:
+    """``./lasercal-out/<UTC time>``."""
+    return Path("lasercal-out") / datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+
+
+def calibrate(
+    request: RunRequest,
+    *,
+    on_event: Callable[[RunEvent], None] | None = None,
+    cancel: CancelToken | None = None,
+    confirm: Callable[[MotionPlan], None] | None = None,
+) -> RunReport:
+    """Run one calibration to the end (see the module docstring). Blocking; any thread.
+
+    ``confirm`` is called once preflight passed, before the first motion; raising
+    InterruptedRunError from it ends the run with nothing moved.
+    Raises the LasercalError of what stopped it (InterruptedRunError for a cancel or
+    Ctrl-C: the arm was stopped and the recording kept). A failed quality gate is not an
+    error: ``report.outcome.verdict.passed`` is False and every file is written.
+    """
+    sink = EventSink(on_event)
+    cancel = cancel or CancelToken()
+    job, waypoints, out_dir, state, created = _prepare(request)
+    session_path = request.resume or out_dir / SESSION_FILE
+    started_s = time.monotonic()
+    try:
+        with contextlib.ExitStack() as stack:
+            ground_truth: FloatArray | None = None
+            fake_cell: dict[str, Any] | None = None
+            if request.dry_run:
+                job, ground_truth, fake_cell = _start_fake_cell(request, job, out_dir, stack, sink)
+            cancel.raise_if_cancelled()
+            if job.robot.host is None:
+                raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
+            sink.emit("stage", "connecting to the scanner and the robot", stage="connect")
+            robot, scanner = _connect(job, stack)
+            recorder = _open_recorder(request, job, waypoints, robot, scanner, ground_truth, session_path)
+            stack.callback(recorder.close)
+            sequencer = Sequencer(
+                robot,
+                scanner,
+                recorder,
+                job,
+                waypoints,
+                on_progress=sink.progress_listener(job.rod.radius_m),
+                before_motion=None if confirm is None else lambda report: confirm(
+                    MotionPlan(report, job, len(waypoints))
+                ),
+                resume=state,
+                cancel=cancel,
+            )
+            outcome = sequencer.run()
+            sink.emit("stage", "writing the outputs", stage="outputs")
+            files = {"session": session_path} | write_outputs(
+                out_dir, outcome, job, ground_truth=ground_truth, title=request.title
+            )
+    except (LasercalError, KeyboardInterrupt) as exc:
+        _after_failure(out_dir, session_path, created, sink, exc)
+        raise
+    report = RunReport(outcome, files, out_dir, ground_truth, fake_cell, time.monotonic() - started_s)
+    result = outcome.result
+    failures = "; ".join(outcome.verdict.failures())
+    sink.emit(
+        "result",
+        "passed" if outcome.verdict.passed else f"quality gate failed: {failures}",
+        passed=outcome.verdict.passed,
+        T_base_laser=result.T_base_laser,
+        std_translation_mm=result.std_translation_mm,
+        std_rotation_deg=result.std_rotation_deg,
+        rms_residual_mm=result.rms_residual_mm,
+    )
+    return report
+
+
+def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeState | None, bool]:
+    """The job, its waypoints, the output folder (made here), what a resumed run already
+    has, and whether this call created the folder."""
+    devices = {"robot.host": request.robot_host, "scanner.url": request.scanner_url}
+    if request.resume is not None:
+        previous = read_session(request.resume)
+        recorded, waypoints = recorded_job(previous)
+        job = with_overrides(recorded, devices)  # the recording decides all but where the devices are
+        return job, waypoints, request.resume.parent, resume_state(previous), False
+    job = with_overrides(request.job, devices)
+    waypoints = request.waypoints if request.waypoints is not None else job_waypoints(job)
+    out_dir = request.out_dir
+    created = not out_dir.exists()
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}") from exc
+    if (out_dir / SESSION_FILE).exists():
+        raise ConfigError(f"{out_dir / SESSION_FILE} already exists; choose another --out or use --resume")
+    return job, np.asarray(waypoints, dtype=float).reshape(-1, 6), out_dir, None, created
+
+
+def _start_fake_cell(
+    request: RunRequest, job: JobConfig, out_dir: Path, stack: contextlib.ExitStack, sink: EventSink
+) -> tuple[JobConfig, FloatArray, dict[str, Any]]:
+    """Start the dry run's fake cell and point the job at it."""
+    from lasercal_hw.run.dry_run import FakeCellProcess
+    from lasercal_hw.run.dry_run_scene import rods_differ, write_rod_scene
+
+    sink.emit("stage", "starting a fake cell for the dry run", stage="fake_cell")
+    scene = request.scene
+    if scene is None:  # the fake cell holds the rod the job describes
+        scene = write_rod_scene(job.rod.rod_line(), out_dir / DRY_RUN_SCENE_FILE)
+    cell = stack.enter_context(FakeCellProcess(scene=scene))
+    job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": cell.scanner_url})
+    sink.emit(
+        "stage",
+        f"fake cell on {cell.address} (pid {cell.pid}): scanner {cell.scanner_url}",
+        stage="fake_cell",
+        address=cell.address,
+        pid=cell.pid,
+    )
+    difference = rods_differ(cell.info.get("rod"), job.rod.rod_line())
+    if difference is not None:
+        sink.emit("warning", difference)
+    return job, cell.ground_truth, {"address": cell.address, "pid": cell.pid}
+
+
+def _connect(job: JobConfig, stack: contextlib.ExitStack) -> tuple[Robot, Scanner]:
+    """The scanner first: a typo in its URL must not touch the robot, whose control
+    interface stops the program running on it as soon as it opens."""
+    from drivers.hokuyo.client import HokuyoScanner
+    from drivers.ur.client import MotionLimits, URRobot
+
+    assert job.robot.host is not None
+    scanner = HokuyoScanner.open(job.scanner.url, timeout_s=job.scanner.timeout_s)
+    stack.callback(scanner.close)
+    limits = MotionLimits(
+        max_speed_m_s=job.motion.speed_m_s,
+        max_accel_m_s2=job.motion.accel_m_s2,
+        max_joint_speed_rad_s=job.motion.joint_speed_rad_s,
+        max_joint_accel_rad_s2=job.motion.joint_accel_rad_s2,
+    )
+    robot = URRobot.connect(job.robot.host, limits=limits)
+    stack.callback(robot.close)
+    return robot, scanner
+
+
+def _open_recorder(
+    request: RunRequest,
+    job: JobConfig,
+    waypoints: FloatArray,
+    robot: Robot,
+    scanner: Scanner,
+    ground_truth: FloatArray | None,
+    session_path: Path,
+) -> SessionRecorder:
+    """A new ``session.mcap``, or the interrupted one continued, with the run's meta."""
+    meta = {
+        META_JOB: job.model_dump(mode="json"),
+        META_WAYPOINTS: np.asarray(waypoints).tolist(),
+        "software_version": __version__,
+        "dry_run": request.dry_run,
+        "started_utc": datetime.now(UTC).isoformat(),
+        "robot": asdict(robot.identity()) | {"host": job.robot.host},
+        "scanner": asdict(scanner.identity()) | {"url": job.scanner.url},
+    }
+    if ground_truth is not None:
+        meta["ground_truth_T_base_laser"] = np.asarray(ground_truth).tolist()
+    if request.resume is not None:
+        return SessionRecorder.resume(request.resume, meta)
+    return SessionRecorder(session_path, meta)
+
+
+def _after_failure(
+    out_dir: Path, session_path: Path, created: bool, sink: EventSink, exc: BaseException
+) -> None:
+    """Say where the recording is, or remove an output folder the run left empty."""
+    if session_path.exists():
+        sink.emit(
+            "stopped",
+            f"recording kept in {session_path}; after fixing the cause continue with: "
+            f"lasercal run --resume {session_path}",
+            session=str(session_path),
+            error=str(exc),
+        )
+        return
+    leftovers = [p for p in out_dir.iterdir() if p.name != DRY_RUN_SCENE_FILE]
+    if created and not leftovers:
+        for path in out_dir.iterdir():
+            path.unlink()
+        out_dir.rmdir()
+        sink.emit("stopped", f"nothing was recorded; removed the empty output folder {out_dir}",
+                  error=str(exc))
+
