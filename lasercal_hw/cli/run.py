@@ -22,6 +22,7 @@ from lasercal_hw.cli.common import console, err_console, print_json
 from lasercal_hw.cli.solve import print_result
 from lasercal_hw.config import load_job, with_overrides
 from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
+from lasercal_hw.live.foxglove import tee_to_live_view
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate, default_out_dir
 
 OVERHEAD_TARGET = 0.10
@@ -165,6 +166,9 @@ DryRunOption = Annotated[
 ]
 ResumeOption = Annotated[Path | None, typer.Option("--resume", help="Continue an interrupted session.mcap.")]
 SceneOption = Annotated[Path | None, typer.Option("--scene", help="Scene file for the --dry-run fake cell.")]
+FoxgloveOption = Annotated[bool, typer.Option(
+    "--foxglove", help="Serve the run live to the Foxglove app on 127.0.0.1 (needs the foxglove extra).")]
+FoxglovePortOption = Annotated[int, typer.Option("--foxglove-port", help="Port of the --foxglove server.")]
 
 
 def run_command(
@@ -178,6 +182,8 @@ def run_command(
     dry_run: DryRunOption = False,
     resume: ResumeOption = None,
     scene: SceneOption = None,
+    foxglove: FoxgloveOption = False,
+    foxglove_port: FoxglovePortOption = 8765,
 ) -> None:
     """Run a calibration: preflight, background, waypoints, solve, quality gates, outputs.
 
@@ -202,9 +208,10 @@ def run_command(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    with _sigterm_as_interrupt(), ProgressView(ui) as view:
+    with (_sigterm_as_interrupt(), ProgressView(ui) as view,
+          tee_to_live_view(request, view, foxglove_port if foxglove else None) as on_event):
         report = calibrate(
-            request, on_event=view, confirm=None if yes or dry_run else _confirm(view, ui)
+            request, on_event=on_event, confirm=None if yes or dry_run else _confirm(view, ui)
         )
     if as_json:
         print_json(report.document())

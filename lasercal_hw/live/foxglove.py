@@ -17,9 +17,10 @@ Topics (frames ``base``, ``tcp``, ``rod``, ``laser``):
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -31,6 +32,10 @@ from lasercal_hw.config import JobConfig
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import make_transform, matrix_to_quat, pose_to_matrix
 from lasercal_hw.models import FloatArray, RodLine
+from lasercal_hw.run.engine import RunRequest
+from lasercal_hw.run.resume import recorded_job
+from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.session.reader import read_session
 
 LOOPBACK = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -55,7 +60,7 @@ class RunGeometry:
 
     tcp_poses: FloatArray
     rod: RodLine
-    nominal_T_base_laser: FloatArray | None = None
+    nominal_base_laser: FloatArray | None = None
 
     @classmethod
     def of_job(cls, job: JobConfig, tcp_poses: FloatArray) -> RunGeometry:
@@ -63,6 +68,16 @@ class RunGeometry:
         nominal = job.scanner.nominal
         return cls(np.asarray(tcp_poses, dtype=float), job.rod.rod_line(),
                    nominal.matrix() if nominal is not None else None)
+
+
+    @classmethod
+    def of_request(cls, request: RunRequest) -> RunGeometry:
+        """The geometry of the run ``request`` asks for (a resumed run's, from its recording)."""
+        if request.resume is not None:
+            job, tcp_poses = recorded_job(read_session(request.resume))
+            return cls.of_job(job, tcp_poses)
+        tcp_poses = request.waypoints if request.waypoints is not None else job_waypoints(request.job)
+        return cls.of_job(request.job, tcp_poses)
 
 
 def _import_foxglove() -> Any:
@@ -141,7 +156,7 @@ class FoxgloveLiveView:
         """A new run: forget the last one's centres and estimate."""
         self._geometry = geometry
         self._centres = {}
-        self._T_base_laser = geometry.nominal_T_base_laser if geometry is not None else None
+        self._T_base_laser = geometry.nominal_base_laser if geometry is not None else None
 
     def __call__(self, event: EventLike) -> None:
         """Show one engine event (usable as ``on_event`` of ``calibrate``)."""
@@ -153,7 +168,8 @@ class FoxgloveLiveView:
         if kind == "scan":
             self._show_scan(stamp, data)
         elif kind == "centre":
-            self._centres[int(data["waypoint"])] = (float(data["centre_uv_m"][0]), float(data["centre_uv_m"][1]))
+            u, v = data["centre_uv_m"]
+            self._centres[int(data["waypoint"])] = (float(u), float(v))
             self._update_estimate()
             self._show_frames(stamp, data)
         elif kind == "result":
@@ -199,12 +215,13 @@ class FoxgloveLiveView:
         ]
         if self._geometry is not None:
             rod = self._geometry.rod
-            entities.append(fm.SceneEntity(timestamp=stamp, frame_id=FRAME_ROD, id="rod", frame_locked=True, cylinders=[
-                fm.CylinderPrimitive(
-                    pose=fm.Pose(position=fm.Vector3(x=0, y=0, z=rod.length_m / 2),
-                                 orientation=fm.Quaternion(x=0, y=0, z=0, w=1)),
-                    size=fm.Vector3(x=2 * rod.radius_m, y=2 * rod.radius_m, z=rod.length_m),
-                    color=fm.Color(r=0.87, g=0.42, b=0.13, a=0.9))]))
+            cylinder = fm.CylinderPrimitive(
+                pose=fm.Pose(position=fm.Vector3(x=0, y=0, z=rod.length_m / 2),
+                             orientation=fm.Quaternion(x=0, y=0, z=0, w=1)),
+                size=fm.Vector3(x=2 * rod.radius_m, y=2 * rod.radius_m, z=rod.length_m),
+                color=fm.Color(r=0.87, g=0.42, b=0.13, a=0.9))
+            entities.append(fm.SceneEntity(timestamp=stamp, frame_id=FRAME_ROD, id="rod", frame_locked=True,
+                                           cylinders=[cylinder]))
         self._scene.log(fm.SceneUpdate(entities=entities))
 
     def _show_frames(self, stamp: Any, data: Mapping[str, Any]) -> None:
@@ -213,7 +230,8 @@ class FoxgloveLiveView:
         geometry = self._geometry
         tcp_pose = data.get("tcp_pose")
         waypoint = data.get("waypoint")
-        if tcp_pose is None and geometry is not None and waypoint is not None and 0 <= waypoint < len(geometry.tcp_poses):
+        known = geometry is not None and waypoint is not None and 0 <= waypoint < len(geometry.tcp_poses)
+        if tcp_pose is None and known:
             tcp_pose = geometry.tcp_poses[waypoint]
         if tcp_pose is not None:
             transforms.append(_transform(fm, stamp, FRAME_BASE, FRAME_TCP, pose_to_matrix(tcp_pose)))
@@ -236,3 +254,25 @@ class FoxgloveLiveView:
         centres = np.array([self._centres[i] for i in indices])
         rotation, translation = linear_initial_pose(origins, directions, centres, np.ones(len(indices)))
         self._T_base_laser = make_transform(rotation, translation)
+
+
+@contextlib.contextmanager
+def tee_to_live_view(
+    request: RunRequest, on_event: Callable[[Any], None], port: int | None
+) -> Iterator[Callable[[Any], None]]:
+    """``on_event``, and with a ``port`` also the live view of ``request`` on that port
+    (closed on exit): what ``lasercal run --foxglove`` hands to ``calibrate``."""
+    if port is None:
+        yield on_event
+        return
+    view = FoxgloveLiveView(port=port)
+    view.begin(RunGeometry.of_request(request))
+
+    def both(event: Any) -> None:
+        on_event(event)
+        view(event)
+
+    try:
+        yield both
+    finally:
+        view.close()
