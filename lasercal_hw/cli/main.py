@@ -14,9 +14,11 @@ from typer.exceptions import TyperException
 from lasercal_hw import __version__
 from lasercal_hw.cli.common import err_console
 from lasercal_hw.cli.fake import fake_app
+from lasercal_hw.cli.remote import remote_app
 from lasercal_hw.cli.robot import robot_app
 from lasercal_hw.cli.run import run_command
 from lasercal_hw.cli.scanner import scanner_app
+from lasercal_hw.cli.serve import serve_command
 from lasercal_hw.cli.session import session_app
 from lasercal_hw.cli.simulate import simulate_command
 from lasercal_hw.cli.solve import solve_command
@@ -63,6 +65,8 @@ app.add_typer(scanner_app, name="scanner")
 app.add_typer(session_app, name="session")
 app.add_typer(trajectory_app, name="trajectory")
 app.add_typer(robot_app, name="robot")
+app.command("serve")(serve_command)  # cli/serve.py and cli/remote.py import their libraries when run
+app.add_typer(remote_app, name="remote")
 
 
 def main() -> None:

@@ -1,0 +1,251 @@
+"""``lasercal remote``: drive a running daemon from a script or a shell (``calibrate``,
+``verify``, ``status``, ``jobs``, ``history``, ``activate``, ``cancel``, ``resume``, ``diff``)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from lasercal_hw.errors import ConfigError, ExitCode
+
+remote_app = typer.Typer(help="Talk to a running 'lasercal serve' daemon.", no_args_is_help=True)
+
+DaemonOption = Annotated[
+    str,
+    typer.Option("--daemon", envvar="LASERCAL_DAEMON", help="Daemon URL (default http://127.0.0.1:8766)."),
+]
+TokenFileOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--token-file", help="Token file (default: $LASERCAL_TOKEN, else ~/.local/state/lasercal/token)."
+    ),
+]
+JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON document.")]
+ConfigOption = Annotated[Path | None, typer.Option("--config", help="Job file (TOML) to send.")]
+WaitOption = Annotated[
+    bool, typer.Option("--wait", help="Follow the job to its end; exit code as 'lasercal run'.")
+]
+YesOption = Annotated[bool, typer.Option("--yes", "-y", help="Confirm that the arm may move (required).")]
+DwellOption = Annotated[float | None, typer.Option("--dwell", help="Dwell per waypoint in s.")]
+DEFAULT_DAEMON = "http://127.0.0.1:8766"
+_EXIT_BY_ERROR = {
+    "invalid_job": ExitCode.BAD_INPUT,
+    "device_error": ExitCode.DEVICE_ERROR,
+    "protective_stop": ExitCode.DEVICE_ERROR,
+    "calibration_failed": ExitCode.CALIBRATION_FAILED,
+    "cancelled": ExitCode.INTERRUPTED,
+    "interrupted": ExitCode.INTERRUPTED,
+}
+
+
+def _client(daemon: str, token_file: Path | None) -> Any:
+    from lasercal_hw.service.client import DaemonClient, read_token
+
+    return DaemonClient(daemon, read_token(token_file))
+
+
+def _print(document: Any, as_json: bool) -> None:
+    if as_json:
+        sys.stdout.write(json.dumps(document, indent=2) + "\n")
+    else:
+        from lasercal_hw.cli.common import console
+
+        console.print_json(data=document)
+
+
+def _job_file(path: Path | None) -> dict[str, Any] | None:
+    if path is None:
+        return None
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"job file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError(f"cannot read job file {path}: {exc}") from None
+
+
+def _show_event(kind: str, data: dict[str, Any]) -> None:
+    message = data.get("message")
+    if kind in ("stage", "progress", "centre", "skip", "fault", "state", "result", "calibration") and message:
+        typer.echo(f"[{kind}] {message}", err=True)
+    elif kind == "state":
+        typer.echo(f"[state] {data.get('state')}", err=True)
+
+
+def _finish(job: dict[str, Any], as_json: bool) -> None:
+    """Print a finished job and exit with the code 'lasercal run' would give."""
+    document = job.get("document") or {}
+    summary = document | {
+        "job_id": job["id"],
+        "state": job["state"],
+        "calibration_id": job.get("calibration_id"),
+        "verify_id": job.get("verify_id"),
+        "error": job.get("error"),
+    }
+    _print(summary, as_json)
+    if job["state"] == "succeeded":
+        passed = bool((job.get("verdict") or {}).get("passed", True))
+        raise typer.Exit(int(ExitCode.OK if passed else ExitCode.QUALITY_GATE_FAILED))
+    code = (job.get("error") or {}).get("code", "")
+    raise typer.Exit(int(_EXIT_BY_ERROR.get(code, ExitCode.DEVICE_ERROR)))
+
+
+def _start(
+    kind: str,
+    daemon: str,
+    token_file: Path | None,
+    config: Path | None,
+    dwell: float | None,
+    yes: bool,
+    wait: bool,
+    as_json: bool,
+    extra: dict[str, Any],
+) -> None:
+    if not yes:
+        raise ConfigError("this job moves the arm: check the cell and pass --yes to confirm the motion")
+    client = _client(daemon, token_file)
+    body = {"kind": kind, "confirm_motion": True, "job": _job_file(config), "dwell_s": dwell} | extra
+    job = client.start_job(body)
+    if not wait:
+        _print(job, as_json)
+        return
+    typer.echo(f"job {job['id']} started; following its events", err=True)
+    _finish(client.wait(job["id"], on_event=_show_event), as_json)
+
+
+@remote_app.command("calibrate")
+def calibrate_command(
+    daemon: DaemonOption = DEFAULT_DAEMON,
+    token_file: TokenFileOption = None,
+    config: ConfigOption = None,
+    dwell: DwellOption = None,
+    yes: YesOption = False,
+    wait: WaitOption = False,
+    as_json: JsonOption = False,
+    dry_run: Annotated[
+        bool, typer.Option("--dry-run", help="Run on a fake cell (job kind dry_run).")
+    ] = False,
+    activate: Annotated[
+        bool, typer.Option("--activate", help="Make the result active if it passes.")
+    ] = False,
+    no_restore: Annotated[
+        bool, typer.Option("--no-restore", help="Leave the robot's program unloaded.")
+    ] = False,
+) -> None:
+    """Start a calibration (with --wait: follow it and exit 0 passed, 1 gate failed, 2-4, 130)."""
+    _start(
+        "dry_run" if dry_run else "calibrate",
+        daemon,
+        token_file,
+        config,
+        dwell,
+        yes,
+        wait,
+        as_json,
+        {"activate_on_pass": activate, "restore_robot": not no_restore},
+    )
+
+
+@remote_app.command("verify")
+def verify_command(
+    daemon: DaemonOption = DEFAULT_DAEMON,
+    token_file: TokenFileOption = None,
+    config: ConfigOption = None,
+    dwell: DwellOption = None,
+    yes: YesOption = False,
+    wait: WaitOption = False,
+    as_json: JsonOption = False,
+) -> None:
+    """Check the active calibration for drift (a verify job)."""
+    _start("verify", daemon, token_file, config, dwell, yes, wait, as_json, {})
+
+
+@remote_app.command("status")
+def status_command(daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = False) -> None:
+    """Daemon, devices, active calibration and current job."""
+    _print(_client(daemon, None).status(), as_json)
+
+
+@remote_app.command("jobs")
+def jobs_command(daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = False) -> None:
+    """Jobs, newest first."""
+    jobs = _client(daemon, None).jobs()
+    if as_json:
+        _print({"jobs": jobs}, True)
+        return
+    for job in jobs:
+        typer.echo(
+            f"{job['id']}  {job['kind']:<9} {job['state']:<11} {job['created_utc']}  "
+            f"{job['progress']['message']}"
+        )
+
+
+@remote_app.command("history")
+def history_command(daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = False) -> None:
+    """Calibrations, newest first (* marks the active one)."""
+    calibrations = _client(daemon, None).calibrations()
+    if as_json:
+        _print({"calibrations": calibrations}, True)
+        return
+    for c in calibrations:
+        t = ", ".join(f"{1000 * v:.1f}" for v in c["translation_m"])
+        typer.echo(
+            f"{'*' if c['active'] else ' '} {c['id']}  {'passed' if c['passed'] else 'FAILED'}  "
+            f"{'dry run ' if c['dry_run'] else ''}t=({t}) mm  job {c['job_id']}"
+        )
+
+
+@remote_app.command("activate")
+def activate_command(
+    calibration_id: str,
+    daemon: DaemonOption = DEFAULT_DAEMON,
+    token_file: TokenFileOption = None,
+    reason: Annotated[
+        str, typer.Option("--reason", help="Why (kept in the activation log).")
+    ] = "lasercal remote",
+    force: Annotated[bool, typer.Option("--force", help="Activate even if it failed its gates.")] = False,
+    as_json: JsonOption = False,
+) -> None:
+    """Make a calibration the active one (also how to roll back)."""
+    _print(_client(daemon, token_file).activate(calibration_id, reason, force), as_json)
+
+
+@remote_app.command("cancel")
+def cancel_command(
+    job_id: str,
+    daemon: DaemonOption = DEFAULT_DAEMON,
+    token_file: TokenFileOption = None,
+    as_json: JsonOption = False,
+) -> None:
+    """Stop a running job (the arm stops, the recording is kept)."""
+    _print(_client(daemon, token_file).cancel(job_id), as_json)
+
+
+@remote_app.command("resume")
+def resume_command(
+    job_id: str,
+    daemon: DaemonOption = DEFAULT_DAEMON,
+    token_file: TokenFileOption = None,
+    yes: YesOption = False,
+    wait: WaitOption = False,
+    as_json: JsonOption = False,
+) -> None:
+    """Continue a cancelled or interrupted job from its recording."""
+    if not yes:
+        raise ConfigError("resuming moves the arm: check the cell and pass --yes to confirm the motion")
+    client = _client(daemon, token_file)
+    job = client.resume(job_id)
+    if wait:
+        _finish(client.wait(job["id"], on_event=_show_event), as_json)
+    _print(job, as_json)
+
+
+@remote_app.command("diff")
+def diff_command(a: str, b: str, daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = False) -> None:
+    """The change between two calibrations (mm, degrees) and whether it is significant."""
+    _print(_client(daemon, None).diff(a, b), as_json)

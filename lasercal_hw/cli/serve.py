@@ -1,0 +1,78 @@
+"""``lasercal serve``: the calibration daemon (HTTP API, live events, calibration history)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+ConfigOption = Annotated[Path | None, typer.Option("--config", help="Daemon configuration (TOML).")]
+ListenOption = Annotated[
+    str | None,
+    typer.Option("--listen", help="HOST:PORT to listen on (default 127.0.0.1:8766; port 0: any free)."),
+]
+DataDirOption = Annotated[
+    Path | None, typer.Option("--data-dir", help="History, job folders and token (~/.local/state/lasercal).")
+]
+DryRunOption = Annotated[
+    bool, typer.Option("--dry-run", help="Serve a fake cell started by the daemon instead of hardware.")
+]
+
+READY_PREFIX = "lasercal daemon listening on "
+
+
+def serve_command(
+    config: ConfigOption = None,
+    listen: ListenOption = None,
+    data_dir: DataDirOption = None,
+    dry_run: DryRunOption = False,
+) -> None:
+    """Run the calibration daemon until SIGTERM or Ctrl-C (a running job's arm is stopped first).
+
+    Prints one line 'lasercal daemon listening on http://HOST:PORT (token in FILE)' once it
+    accepts connections; notifies systemd (READY=1, STATUS, WATCHDOG) when run under it.
+    """
+    import uvicorn
+
+    from lasercal_hw.service.app import create_app
+    from lasercal_hw.service.config import listen_address, load_daemon_config
+    from lasercal_hw.service.daemon import Daemon
+    from lasercal_hw.service.sd_notify import notify
+
+    overrides: dict[str, Any] = {"listen": listen, "data_dir": data_dir, "dry_run": dry_run or None}
+    settings = load_daemon_config(config, overrides)
+    daemon = Daemon(settings)
+    host, port = listen_address(settings.listen)
+
+    class Server(uvicorn.Server):
+        """uvicorn, announcing readiness once the socket listens and ending event streams at exit."""
+
+        async def startup(self, sockets: Any = None) -> None:
+            await super().startup(sockets)
+            if not self.started:
+                return
+            bound_port = self.servers[0].sockets[0].getsockname()[1]
+            print(f"{READY_PREFIX}http://{host}:{bound_port} (token in {settings.token_path})", flush=True)
+            notify("READY=1")
+
+        def handle_exit(self, sig: int, frame: Any) -> None:
+            notify("STOPPING=1")
+            daemon.bus.close_streams_soon()
+            daemon.jobs.shutdown(timeout_s=0.0)  # start stopping the arm now; lifespan waits for it
+            super().handle_exit(sig, frame)
+
+    server = Server(
+        uvicorn.Config(
+            create_app(daemon),
+            host=host,
+            port=port,
+            log_level="warning",
+            timeout_graceful_shutdown=5,
+            lifespan="on",
+        )
+    )
+    server.run()
+    if not server.started:
+        sys.exit(3)

@@ -1,0 +1,1 @@
+"""The calibration daemon (``lasercal serve``): jobs over HTTP, live events, calibration history."""

@@ -1,0 +1,163 @@
+"""The calibration history: file a finished calibration, summarise it, activate it
+(rollback is activating an older one), export it and compare two."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lasercal_hw.geometry import matrix_to_rotvec
+from lasercal_hw.outputs.exports import static_transform_publisher_args, urdf_joint
+from lasercal_hw.service.events import EventBus
+from lasercal_hw.service.problems import ApiError, not_found
+from lasercal_hw.service.store import HistoryStore, new_id, utc_now
+
+RESULT_FILE = "result.json"
+SIGNIFICANCE_SIGMA = 3.0
+"""A difference is significant when some component exceeds this many combined standard deviations."""
+_SUMMARY_FIELDS = (
+    "T_base_laser",
+    "translation_m",
+    "euler_zyx_deg",
+    "std_translation_mm",
+    "std_rotation_deg",
+    "crb_translation_mm",
+    "crb_rotation_deg",
+    "rms_residual_mm",
+)
+
+
+class CalibrationHistory:
+    """Calibrations in the store, their files on disk beside it."""
+
+    def __init__(self, store: HistoryStore, bus: EventBus) -> None:
+        self._store = store
+        self._bus = bus
+
+    def record(self, job_id: str | None, directory: Path, dry_run: bool) -> str:
+        """File the calibration whose ``result.json`` is in ``directory``; returns its id."""
+        document = json.loads((directory / RESULT_FILE).read_text(encoding="utf-8"))
+        calibration_id = new_id("cal")
+        passed = bool(document.get("verdict", {}).get("passed", False))
+        summary = {
+            "id": calibration_id,
+            "created_utc": utc_now(),
+            "job_id": job_id,
+            "dry_run": dry_run,
+            "passed": passed,
+        } | {key: document.get(key) for key in _SUMMARY_FIELDS}
+        summary["verdict"] = document.get("verdict")
+        summary["devices"] = {
+            "robot": document.get("run", {}).get("robot"),
+            "scanner": document.get("run", {}).get("scanner"),
+        }
+        self._store.add_calibration(calibration_id, job_id, dry_run, passed, summary, directory)
+        return calibration_id
+
+    def _stored(self, calibration_id: str) -> tuple[dict[str, Any], Path]:
+        found = self._store.calibration(calibration_id)
+        if found is None:
+            raise not_found("calibration", calibration_id)
+        return found
+
+    def _present(self, summary: dict[str, Any], directory: Path, active_id: str | None) -> dict[str, Any]:
+        base = f"/v1/calibrations/{summary['id']}/files/"
+        files = (
+            {
+                path.name.split(".")[0]: base + path.name
+                for path in sorted(directory.iterdir())
+                if path.is_file()
+            }
+            if directory.is_dir()
+            else {}
+        )
+        return summary | {"active": summary["id"] == active_id, "files": files}
+
+    def summary(self, calibration_id: str) -> dict[str, Any]:
+        """One calibration summary (404 when unknown)."""
+        summary, directory = self._stored(calibration_id)
+        return self._present(summary, directory, self._store.active_calibration_id())
+
+    def all(self) -> list[dict[str, Any]]:
+        """Every summary, newest first."""
+        active_id = self._store.active_calibration_id()
+        return [self._present(s, self._stored(s["id"])[1], active_id) for s in self._store.calibrations()]
+
+    def active(self) -> dict[str, Any] | None:
+        """The active calibration with its exports, or None."""
+        active_id = self._store.active_calibration_id()
+        if active_id is None:
+            return None
+        summary = self.summary(active_id)
+        T = np.asarray(summary["T_base_laser"], dtype=float)
+        return summary | {
+            "exports": {
+                "urdf_joint": urdf_joint(T),
+                "static_transform_publisher_args": static_transform_publisher_args(T),
+            }
+        }
+
+    def file(self, calibration_id: str, name: str) -> Path:
+        """A file of a calibration (404 when there is no such file)."""
+        _, directory = self._stored(calibration_id)
+        path = directory / name
+        if "/" in name or name.startswith(".") or not path.is_file():
+            raise ApiError(
+                404,
+                "not_found",
+                f"calibration {calibration_id} has no file {name!r}; its files "
+                f"are listed in GET /v1/calibrations/{calibration_id}",
+                {"file": name},
+            )
+        return path
+
+    def activate(self, calibration_id: str, reason: str, *, force: bool = False) -> dict[str, Any]:
+        """Make a calibration the active one (recorded in the activation log). One that failed
+        its quality gates needs ``force``."""
+        summary, _ = self._stored(calibration_id)
+        if not summary["passed"] and not force:
+            raise ApiError(
+                409,
+                "failed_quality_gates",
+                f"calibration {calibration_id} failed its quality "
+                'gates; send "force": true to activate it anyway',
+                {"calibration_id": calibration_id},
+            )
+        self._store.activate(calibration_id, reason)
+        self._bus.publish("activation", {"calibration_id": calibration_id, "reason": reason})
+        return self.summary(calibration_id)
+
+    def diff(self, a: str, b: str) -> dict[str, Any]:
+        """The change from ``a`` to ``b`` in mm and degrees, and whether it is significant."""
+        first, _ = self._stored(a)
+        second, _ = self._stored(b)
+        return transform_change(first, second)
+
+
+def transform_change(first: dict[str, Any], second: dict[str, Any]) -> dict[str, Any]:
+    """Translation (mm, base frame) and rotation (deg, rotation vector about the base axes,
+    ``R_b R_a^T``) from ``first`` to ``second``, against their combined standard deviations."""
+    Ta, Tb = np.asarray(first["T_base_laser"], dtype=float), np.asarray(second["T_base_laser"], dtype=float)
+    translation_mm = 1000.0 * (Tb[:3, 3] - Ta[:3, 3])
+    rotation_deg = np.degrees(matrix_to_rotvec(Tb[:3, :3] @ Ta[:3, :3].T))
+    std_t = np.hypot(first["std_translation_mm"], second["std_translation_mm"])
+    std_r = np.hypot(first["std_rotation_deg"], second["std_rotation_deg"])
+    significant = bool(
+        np.any(np.abs(translation_mm) > SIGNIFICANCE_SIGMA * std_t)
+        or np.any(np.abs(rotation_deg) > SIGNIFICANCE_SIGMA * std_r)
+    )
+    return {
+        "from": first["id"],
+        "to": second["id"],
+        "translation_mm": translation_mm.tolist(),
+        "translation_norm_mm": float(np.linalg.norm(translation_mm)),
+        "rotation_deg": rotation_deg.tolist(),
+        "rotation_angle_deg": float(np.linalg.norm(rotation_deg)),
+        "combined_std_translation_mm": std_t.tolist(),
+        "combined_std_rotation_deg": std_r.tolist(),
+        "significance_sigma": SIGNIFICANCE_SIGMA,
+        "significant": significant,
+    }

@@ -1,0 +1,125 @@
+"""The daemon's parts put together: data folder, token, history, event bus, job manager,
+device monitor and, with ``dry_run``, the fake cell it serves instead of hardware."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from lasercal_hw import __version__
+from lasercal_hw.errors import ConfigError
+from lasercal_hw.service.auth import ensure_token
+from lasercal_hw.service.calibrations import CalibrationHistory
+from lasercal_hw.service.config import DaemonConfig
+from lasercal_hw.service.dashboard import ProgramKeeper
+from lasercal_hw.service.events import EventBus
+from lasercal_hw.service.jobs import JobManager, Runner
+from lasercal_hw.service.monitor import DeviceMonitor
+from lasercal_hw.service.store import DB_FILE, HistoryStore, utc_now
+
+logger = logging.getLogger(__name__)
+
+API_VERSION = 1
+
+
+class Daemon:
+    """Everything ``lasercal serve`` holds; ``start`` and ``stop`` bracket the server's life."""
+
+    def __init__(
+        self,
+        config: DaemonConfig,
+        runners: Callable[[Callable[[], dict[str, str | None]]], dict[str, Runner]] | None = None,
+    ) -> None:
+        if not config.loopback_only and config.token_file is None:
+            raise ConfigError(
+                f"refusing to listen on {config.listen} (not loopback) without a configured "
+                "token: set token_file in the daemon configuration (docs/daemon.md)"
+            )
+        self.config = config
+        self.data_dir = config.data_dir
+        try:
+            self.data_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+        except OSError as exc:
+            raise ConfigError(
+                f"cannot create the data folder {self.data_dir}: {exc.strerror or exc}"
+            ) from None
+        self.token = ensure_token(config.token_path)
+        self.store = HistoryStore(self.data_dir / DB_FILE)
+        self.bus = EventBus(self.store)
+        self.history = CalibrationHistory(self.store, self.bus)
+        self.robot_host = config.robot_host
+        self.scanner_url = config.scanner_url
+        self.fake_cell: Any = None
+        self.started_utc = utc_now()
+        if runners is None:
+            from lasercal_hw.service.runners import build_runners
+
+            runners = build_runners
+        self.jobs = JobManager(
+            self.store,
+            self.bus,
+            self.data_dir,
+            runners(self.devices),
+            self.history,
+            robot=ProgramKeeper(),
+            dry_run_daemon=config.dry_run,
+            on_state=self._on_state,
+        )
+        self.monitor: DeviceMonitor | None = None
+        self.state_listeners: list[Callable[[str, str], None]] = []
+
+    def devices(self) -> dict[str, str | None]:
+        """The job overrides naming the daemon's robot and scanner."""
+        return {"robot.host": self.robot_host, "scanner.url": self.scanner_url}
+
+    def _on_state(self, job_id: str, state: str) -> None:
+        for listener in self.state_listeners:
+            listener(job_id, state)
+
+    def start(self) -> None:
+        """Start the fake cell (dry run), mark jobs a crash left running as interrupted, poll devices."""
+        if self.config.dry_run:
+            from lasercal_hw.run.dry_run import FakeCellProcess
+
+            self.fake_cell = FakeCellProcess().start()
+            self.robot_host, self.scanner_url = self.fake_cell.robot_host, self.fake_cell.scanner_url
+        interrupted = self.jobs.recover()
+        self.monitor = DeviceMonitor(
+            self.robot_host, self.scanner_url, self.config.status_poll_s, self.jobs.running_id
+        )
+        self.monitor.start()
+        self.bus.publish(
+            "daemon",
+            {
+                "message": f"lasercal {__version__} daemon started",
+                "dry_run": self.config.dry_run,
+                "interrupted_jobs": interrupted,
+            },
+        )
+
+    def stop(self) -> None:
+        """Stop a running job's arm (the job becomes ``interrupted``) and release everything."""
+        self.jobs.shutdown()
+        if self.monitor is not None:
+            self.monitor.stop()
+        if self.fake_cell is not None:
+            self.fake_cell.close()
+        self.store.close()
+
+    def status(self) -> dict[str, Any]:
+        """``GET /v1/status``: from memory and the store, no device I/O."""
+        devices = self.monitor.snapshot() if self.monitor else {"robot": None, "scanner": None}
+        return {
+            "daemon": {
+                "version": __version__,
+                "api_version": API_VERSION,
+                "dry_run": self.config.dry_run,
+                "started_utc": self.started_utc,
+                "data_dir": str(Path(self.data_dir).resolve()),
+            },
+            **devices,
+            "active_calibration": self.history.active(),
+            "job": self.jobs.current(),
+        }

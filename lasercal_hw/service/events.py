@@ -1,0 +1,138 @@
+"""The event bus: every event gets an increasing id, is stored (so a client that reconnects
+with ``Last-Event-ID`` continues where it left off, even across a daemon restart) and is
+pushed to the live subscribers of the event loop.
+
+``publish`` may be called from any thread (the job's worker thread publishes the engine's
+events); subscribers live on the event loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import threading
+from collections.abc import AsyncIterator, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from lasercal_hw.service.store import HistoryStore, utc_now
+
+TERMINAL_STATES = ("succeeded", "failed", "cancelled", "interrupted")
+QUEUE_LIMIT = 1000
+KEEPALIVE_S = 15.0
+
+
+@dataclass(frozen=True)
+class StoredEvent:
+    """One event as it goes out: id, kind, job (None: a daemon event) and its data as JSON."""
+
+    id: int
+    kind: str
+    job_id: str | None
+    data_json: str
+
+    def sse(self) -> bytes:
+        """The Server-Sent Events message."""
+        return f"id: {self.id}\nevent: {self.kind}\ndata: {self.data_json}\n\n".encode()
+
+    @property
+    def ends_job(self) -> bool:
+        """True for a state event announcing a terminal state."""
+        return self.kind == "state" and json.loads(self.data_json).get("state") in TERMINAL_STATES
+
+
+class _Subscriber:
+    def __init__(self, job_id: str | None) -> None:
+        self.job_id = job_id
+        self.queue: asyncio.Queue[StoredEvent | None] = asyncio.Queue()
+
+
+class EventBus:
+    """Stores events and fans them out to the subscribers on ``loop``."""
+
+    def __init__(self, store: HistoryStore) -> None:
+        self._store = store
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._subscribers: set[_Subscriber] = set()
+        self._publish_lock = threading.Lock()
+
+    def attach(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Deliver live events on ``loop`` (called once the server runs)."""
+        self._loop = loop
+
+    def publish(self, kind: str, data: dict[str, Any], job_id: str | None = None) -> int:
+        """Store an event and push it to the live subscribers; returns its id."""
+        payload = data | ({"job_id": job_id} if job_id is not None else {})
+        with self._publish_lock:  # ids reach the subscribers in order
+            event_id = self._store.add_event(job_id, kind, payload, utc_now())
+            event = StoredEvent(event_id, kind, job_id, json.dumps(payload, allow_nan=False))
+            loop = self._loop
+            if loop is not None and not loop.is_closed():
+                with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+                    loop.call_soon_threadsafe(self._deliver, event)
+        return event_id
+
+    def _deliver(self, event: StoredEvent) -> None:
+        for subscriber in list(self._subscribers):
+            if subscriber.job_id is not None and subscriber.job_id != event.job_id:
+                continue
+            if subscriber.queue.qsize() >= QUEUE_LIMIT:  # too slow: end its stream, it reconnects
+                self._subscribers.discard(subscriber)
+                subscriber.queue.put_nowait(None)
+            else:
+                subscriber.queue.put_nowait(event)
+
+    def close_streams_soon(self) -> None:
+        """``close_streams`` on the loop, from any thread or a signal handler."""
+        loop = self._loop
+        if loop is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(self.close_streams)
+
+    def close_streams(self) -> None:
+        """End every live stream (at shutdown); call on the loop."""
+        for subscriber in list(self._subscribers):
+            subscriber.queue.put_nowait(None)
+        self._subscribers.clear()
+
+    def _stored_after(self, after_id: int, job_id: str | None) -> Iterator[StoredEvent]:
+        while True:
+            rows = self._store.events_after(after_id, job_id)
+            if not rows:
+                return
+            for event_id, kind, data_json in rows:
+                yield StoredEvent(event_id, kind, job_id, data_json)
+                after_id = event_id
+
+    async def stream(
+        self, after_id: int, job_id: str | None = None, keepalive_s: float = KEEPALIVE_S
+    ) -> AsyncIterator[bytes]:
+        """SSE bytes: the stored events after ``after_id``, then live ones. A job's stream
+        ends after the job's final state event; the daemon stream runs until shutdown."""
+        subscriber = _Subscriber(job_id)
+        self._subscribers.add(subscriber)
+        try:
+            last_id = after_id
+            ended = False
+            for event in self._stored_after(after_id, job_id):
+                yield event.sse()
+                last_id = event.id
+                ended = event.ends_job
+            if ended and job_id is not None:
+                return
+            while True:
+                try:
+                    event = await asyncio.wait_for(subscriber.queue.get(), keepalive_s)
+                except TimeoutError:
+                    yield b": keep-alive\n\n"
+                    continue
+                if event is None:
+                    return
+                if event.id <= last_id:
+                    continue
+                yield event.sse()
+                last_id = event.id
+                if job_id is not None and event.ends_job:
+                    return
+        finally:
+            self._subscribers.discard(subscriber)

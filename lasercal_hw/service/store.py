@@ -1,0 +1,269 @@
+"""The daemon's history: jobs, their events, calibrations, activations and verifies in one
+SQLite file (standard library ``sqlite3``, WAL, ``PRAGMA user_version`` as schema version).
+
+Rows are only ever added or, for a job, updated in place; a calibration is never
+overwritten and the active one is the newest activation. Every write is one transaction,
+so a kill at any moment leaves the previous state readable.
+"""
+
+from __future__ import annotations
+
+import json
+import secrets
+import sqlite3
+import threading
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from lasercal_hw.errors import ConfigError
+
+SCHEMA_VERSION = 1
+DB_FILE = "lasercal.sqlite3"
+RUNNING_STATES = ("queued", "preflight", "running", "solving")
+_JSON_COLUMNS = ("request", "progress", "verdict", "error", "document")
+
+_SCHEMA_V1 = """
+CREATE TABLE jobs (
+    id TEXT PRIMARY KEY, kind TEXT NOT NULL, state TEXT NOT NULL,
+    created_utc TEXT NOT NULL, started_utc TEXT, finished_utc TEXT,
+    request TEXT NOT NULL, progress TEXT NOT NULL, verdict TEXT, error TEXT,
+    calibration_id TEXT, verify_id TEXT, out_dir TEXT NOT NULL, document TEXT
+);
+CREATE TABLE events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, job_id TEXT, kind TEXT NOT NULL,
+    data TEXT NOT NULL, time_utc TEXT NOT NULL
+);
+CREATE INDEX events_job ON events (job_id, id);
+CREATE TABLE calibrations (
+    id TEXT PRIMARY KEY, created_utc TEXT NOT NULL, job_id TEXT, dry_run INTEGER NOT NULL,
+    passed INTEGER NOT NULL, summary TEXT NOT NULL, dir TEXT NOT NULL
+);
+CREATE TABLE activations (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, calibration_id TEXT NOT NULL REFERENCES calibrations (id),
+    time_utc TEXT NOT NULL, reason TEXT NOT NULL
+);
+CREATE TABLE verifies (
+    id TEXT PRIMARY KEY, created_utc TEXT NOT NULL, calibration_id TEXT, job_id TEXT,
+    document TEXT NOT NULL
+);
+"""
+_MIGRATIONS = {1: _SCHEMA_V1}
+
+
+def utc_now() -> str:
+    """The current time, ISO 8601 in UTC."""
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
+
+
+def new_id(prefix: str) -> str:
+    """A sortable, unique id: ``<prefix>-<UTC time>-<random hex>``."""
+    return f"{prefix}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%S')}-{secrets.token_hex(3)}"
+
+
+class HistoryStore:
+    """One SQLite file shared by the daemon's threads (calls are serialised by a lock)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        try:
+            self._db = sqlite3.connect(path, check_same_thread=False, isolation_level=None, timeout=10.0)
+            self._db.row_factory = sqlite3.Row
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+            self._migrate()
+        except sqlite3.DatabaseError as exc:
+            raise ConfigError(
+                f"cannot open the history database {path}: {exc}; move it aside to start a new history"
+            ) from None
+        self._lock = threading.Lock()
+
+    def _migrate(self) -> None:
+        version = int(self._db.execute("PRAGMA user_version").fetchone()[0])
+        if version > SCHEMA_VERSION:
+            raise ConfigError(
+                f"{self.path} has schema version {version}, newer than this lasercal "
+                f"({SCHEMA_VERSION}); upgrade lasercal"
+            )
+        for target in range(version + 1, SCHEMA_VERSION + 1):
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                for statement in _MIGRATIONS[target].split(";"):
+                    if statement.strip():
+                        self._db.execute(statement)
+                self._db.execute(f"PRAGMA user_version = {target}")
+                self._db.execute("COMMIT")
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+
+    def close(self) -> None:
+        """Close the database (a checkpoint folds the WAL back into the file)."""
+        with self._lock:
+            self._db.close()
+
+    def _execute(self, sql: str, params: tuple[Any, ...] = ()) -> sqlite3.Cursor:
+        with self._lock:
+            return self._db.execute(sql, params)
+
+    def _query(self, sql: str, params: tuple[Any, ...] = ()) -> list[sqlite3.Row]:
+        with self._lock:
+            return self._db.execute(sql, params).fetchall()
+
+    # -- jobs ------------------------------------------------------------------------------------
+
+    def insert_job(self, job: dict[str, Any]) -> None:
+        """Add a new job row."""
+        columns = list(job)
+        values = tuple(json.dumps(job[c]) if c in _JSON_COLUMNS else job[c] for c in columns)
+        self._execute(
+            f"INSERT INTO jobs ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))})", values
+        )
+
+    def update_job(self, job_id: str, **fields: Any) -> None:
+        """Change some fields of a job."""
+        assignments = ", ".join(f"{name} = ?" for name in fields)
+        values = tuple(json.dumps(v) if k in _JSON_COLUMNS else v for k, v in fields.items())
+        self._execute(f"UPDATE jobs SET {assignments} WHERE id = ?", (*values, job_id))
+
+    def job(self, job_id: str) -> dict[str, Any] | None:
+        """One job as a dict, or None."""
+        rows = self._query("SELECT * FROM jobs WHERE id = ?", (job_id,))
+        return _job_dict(rows[0]) if rows else None
+
+    def jobs(self, limit: int = 100) -> list[dict[str, Any]]:
+        """The newest jobs first."""
+        return [
+            _job_dict(row)
+            for row in self._query("SELECT * FROM jobs ORDER BY created_utc DESC, id DESC LIMIT ?", (limit,))
+        ]
+
+    def mark_unfinished_interrupted(self) -> list[str]:
+        """After a crash: every job left in a running state becomes ``interrupted``."""
+        placeholders = ", ".join("?" * len(RUNNING_STATES))
+        ids = [
+            row["id"]
+            for row in self._query(f"SELECT id FROM jobs WHERE state IN ({placeholders})", RUNNING_STATES)
+        ]
+        error = json.dumps(
+            {
+                "code": "interrupted",
+                "message": "the daemon stopped during this job; resume it with POST /v1/jobs/{id}/resume",
+            }
+        )
+        for job_id in ids:
+            self._execute(
+                "UPDATE jobs SET state = 'interrupted', finished_utc = ?, error = ? WHERE id = ?",
+                (utc_now(), error, job_id),
+            )
+        return ids
+
+    # -- events ----------------------------------------------------------------------------------
+
+    def add_event(self, job_id: str | None, kind: str, data: dict[str, Any], time_utc: str) -> int:
+        """Store one event; returns its id (increasing across restarts)."""
+        cursor = self._execute(
+            "INSERT INTO events (job_id, kind, data, time_utc) VALUES (?, ?, ?, ?)",
+            (job_id, kind, json.dumps(data, allow_nan=False), time_utc),
+        )
+        return int(cursor.lastrowid or 0)
+
+    def events_after(
+        self, after_id: int, job_id: str | None = None, limit: int = 500
+    ) -> list[tuple[int, str, str]]:
+        """``(id, kind, data JSON)`` of stored events after ``after_id`` (of one job, or all)."""
+        if job_id is None:
+            rows = self._query(
+                "SELECT id, kind, data FROM events WHERE id > ? ORDER BY id LIMIT ?", (after_id, limit)
+            )
+        else:
+            rows = self._query(
+                "SELECT id, kind, data FROM events WHERE job_id = ? AND id > ? ORDER BY id LIMIT ?",
+                (job_id, after_id, limit),
+            )
+        return [(int(r["id"]), str(r["kind"]), str(r["data"])) for r in rows]
+
+    # -- calibrations ----------------------------------------------------------------------------
+
+    def add_calibration(
+        self,
+        calibration_id: str,
+        job_id: str | None,
+        dry_run: bool,
+        passed: bool,
+        summary: dict[str, Any],
+        directory: Path,
+    ) -> None:
+        """Store a finished calibration (never replaced)."""
+        self._execute(
+            "INSERT INTO calibrations (id, created_utc, job_id, dry_run, passed, summary, dir) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?)",
+            (
+                calibration_id,
+                summary["created_utc"],
+                job_id,
+                int(dry_run),
+                int(passed),
+                json.dumps(summary, allow_nan=False),
+                str(directory),
+            ),
+        )
+
+    def calibration(self, calibration_id: str) -> tuple[dict[str, Any], Path] | None:
+        """A calibration's stored summary and folder, or None."""
+        rows = self._query("SELECT summary, dir FROM calibrations WHERE id = ?", (calibration_id,))
+        return (json.loads(rows[0]["summary"]), Path(rows[0]["dir"])) if rows else None
+
+    def calibrations(self) -> list[dict[str, Any]]:
+        """Every calibration's stored summary, newest first."""
+        return [
+            json.loads(r["summary"])
+            for r in self._query("SELECT summary FROM calibrations ORDER BY created_utc DESC, id DESC")
+        ]
+
+    def activate(self, calibration_id: str, reason: str) -> None:
+        """Record an activation: the calibration becomes the active one."""
+        self._execute(
+            "INSERT INTO activations (calibration_id, time_utc, reason) VALUES (?, ?, ?)",
+            (calibration_id, utc_now(), reason),
+        )
+
+    def active_calibration_id(self) -> str | None:
+        """The id of the newest activation's calibration."""
+        rows = self._query("SELECT calibration_id FROM activations ORDER BY id DESC LIMIT 1")
+        return str(rows[0]["calibration_id"]) if rows else None
+
+    def activations(self) -> list[dict[str, Any]]:
+        """The activation log, newest first."""
+        return [dict(r) for r in self._query("SELECT * FROM activations ORDER BY id DESC")]
+
+    # -- verifies --------------------------------------------------------------------------------
+
+    def add_verify(self, verify_id: str, job_id: str | None, document: dict[str, Any]) -> None:
+        """Store a verify result."""
+        self._execute(
+            "INSERT INTO verifies (id, created_utc, calibration_id, job_id, document) VALUES (?, ?, ?, ?, ?)",
+            (
+                verify_id,
+                document["created_utc"],
+                document.get("calibration_id"),
+                job_id,
+                json.dumps(document, allow_nan=False),
+            ),
+        )
+
+    def verifies(self) -> list[dict[str, Any]]:
+        """Every verify document, newest first."""
+        return [
+            json.loads(r["document"])
+            for r in self._query("SELECT document FROM verifies ORDER BY created_utc DESC, id DESC")
+        ]
+
+
+def _job_dict(row: sqlite3.Row) -> dict[str, Any]:
+    job = dict(row)
+    for column in _JSON_COLUMNS:
+        if job[column] is not None:
+            job[column] = json.loads(job[column])
+    return job
