@@ -22,7 +22,7 @@ from lasercal_hw.cli.common import console, err_console, print_json
 from lasercal_hw.cli.solve import print_result
 from lasercal_hw.config import load_job, with_overrides
 from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
-from lasercal_hw.live.foxglove import tee_to_live_view
+from lasercal_hw.live.foxglove import foxglove_view
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate, default_out_dir
 
 OVERHEAD_TARGET = 0.10
@@ -208,10 +208,11 @@ def run_command(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    with (_sigterm_as_interrupt(), ProgressView(ui) as view,
-          tee_to_live_view(request, view, foxglove_port if foxglove else None) as on_event):
+    live_port = foxglove_port if foxglove else None
+    with _sigterm_as_interrupt(), ProgressView(ui) as view, foxglove_view(live_port) as live:
         report = calibrate(
-            request, on_event=on_event, confirm=None if yes or dry_run else _confirm(view, ui)
+            request, on_event=live.watch(request, view) if live else view,
+            confirm=None if yes or dry_run else _confirm(view, ui)
         )
     if as_json:
         print_json(report.document())

@@ -180,6 +180,17 @@ class FoxgloveLiveView:
         self._log.log(self._fm.Log(timestamp=stamp, level=self._fm.LogLevel.Info,
                                    message=message or f"{kind} {dict(data)}", name="lasercal"))
 
+    def watch(self, request: RunRequest, on_event: Callable[[Any], None]) -> Callable[[Any], None]:
+        """Start showing the run ``request`` asks for; the callback to give ``calibrate``:
+        ``on_event`` and this view, both fed every event."""
+        self.begin(RunGeometry.of_request(request))
+
+        def both(event: Any) -> None:
+            on_event(event)
+            self(event)
+
+        return both
+
     def close(self) -> None:
         """Stop the server."""
         self._server.stop()
@@ -257,22 +268,14 @@ class FoxgloveLiveView:
 
 
 @contextlib.contextmanager
-def tee_to_live_view(
-    request: RunRequest, on_event: Callable[[Any], None], port: int | None
-) -> Iterator[Callable[[Any], None]]:
-    """``on_event``, and with a ``port`` also the live view of ``request`` on that port
-    (closed on exit): what ``lasercal run --foxglove`` hands to ``calibrate``."""
+def foxglove_view(port: int | None) -> Iterator[FoxgloveLiveView | None]:
+    """The live view on ``127.0.0.1:port`` for the duration of the block (None: no view),
+    as ``lasercal run --foxglove`` and ``lasercal serve --foxglove`` use it."""
     if port is None:
-        yield on_event
+        yield None
         return
     view = FoxgloveLiveView(port=port)
-    view.begin(RunGeometry.of_request(request))
-
-    def both(event: Any) -> None:
-        on_event(event)
-        view(event)
-
     try:
-        yield both
+        yield view
     finally:
         view.close()

@@ -96,7 +96,9 @@ async function authorised(method, path, body) {
       sessionStorage.setItem(TOKEN_KEY, token);
     }
     try {
-      return await api(method, path, body, token);
+      const answer = await api(method, path, body, token);
+      showError("");
+      return answer;
     } catch (err) {
       if (err.status === 401 || err.status === 403) {
         sessionStorage.removeItem(TOKEN_KEY);
@@ -576,7 +578,8 @@ function renderDrift(rows) {
 
 // ---- live events --------------------------------------------------------------------------
 
-const EVENT_KINDS = ["stage", "progress", "centre", "skip", "scan", "fault", "result", "state"];
+const EVENT_KINDS = ["stage", "progress", "centre", "skip", "scan", "fault", "result", "state",
+                     "confirmed", "warning", "stopped", "daemon"];
 
 function connectEvents() {
   const source = new EventSource("/v1/events");
@@ -617,7 +620,17 @@ function applyEvent(kind, data) {
       markDirty("job", "log");
       break;
     case "stage":
-      logLine(`stage ${data.stage}`);
+      logLine(`stage ${data.stage}${data.message ? ": " + data.message : ""}`);
+      markDirty("log");
+      break;
+    case "confirmed":
+    case "warning":
+    case "daemon":
+      logLine(`${kind}: ${data.message || ""}`);
+      markDirty("log");
+      break;
+    case "stopped":
+      logLine(`stopped: ${data.error || ""}${data.session ? " (recording kept: " + data.session + ")" : ""}`);
       markDirty("log");
       break;
     case "scan":
@@ -647,7 +660,10 @@ function applyEvent(kind, data) {
       markDirty("job", "log");
       break;
     case "state":
-      if (job) job.state = data.state;
+      if (job) {
+        job.state = data.state;
+        if (data.error) job.error = data.error;
+      }
       logLine(`state ${data.state}`);
       markDirty("job", "log");
       if (!ACTIVE_STATES.has(data.state)) finishJob(data.job_id);
