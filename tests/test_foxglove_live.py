@@ -9,6 +9,7 @@ import json
 import math
 import struct
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,7 @@ from lasercal_hw.live.foxglove import MIN_CENTRES_FOR_ESTIMATE, FoxgloveLiveView
 from lasercal_hw.models import RodLine  # noqa: E402
 
 SUBPROTOCOL = "foxglove.sdk.v1"
+LAYOUT = Path(__file__).parent.parent / "docs" / "foxglove-layout.json"
 MESSAGE_DATA = 0x01
 TIMEOUT_S = 10.0
 SUBSCRIBE_POLL_S = 0.2
@@ -137,6 +139,10 @@ def test_the_scan_channel_carries_each_averaged_scan(view: FoxgloveLiveView) -> 
         fields = _fields(client.first(7, lambda: view.on_event("scan", scan)))
     finally:
         client.close()
+    layout = json.loads(LAYOUT.read_text(encoding="utf-8"))["configById"]
+    shown = {t for panel in layout.values() for t in panel.get("topics", {})}
+    shown |= {panel["topicToRender"] for panel in layout.values() if "topicToRender" in panel}
+    assert shown <= set(client.channels), "docs/foxglove-layout.json shows topics the view does not serve"
     values = dict(fields)
     assert values[2] == b"laser"  # frame_id
     assert (values[4], values[5]) == (-1.0, 0.5)  # start and end angle: -1 + 3 * 0.5

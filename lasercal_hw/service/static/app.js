@@ -7,6 +7,7 @@ const TOKEN_KEY = "lasercal.token";
 const ACTIVE_STATES = new Set(["queued", "preflight", "running", "solving"]);
 const STATUS_POLL_MS = 5000;
 const EVENT_LOG_LINES = 200;
+const INSET_PX = 150;
 
 const $ = (id) => document.getElementById(id);
 
@@ -387,7 +388,7 @@ function drawGrid(ctx, W, H, px, scale, midU, midV, span) {
   for (let u = u0; u <= midU + span; u += step) {
     const [x] = px(u, 0);
     ctx.beginPath(); ctx.moveTo(x, 0); ctx.lineTo(x, H); ctx.stroke();
-    ctx.fillText(gridLabel(u), x + 2, 10);
+    if (x < W - INSET_PX - 40) ctx.fillText(gridLabel(u), x + 2, 10);  // none under the close-up
   }
   for (let v = v0; v <= midV + span; v += step) {
     const [, y] = px(0, v);
@@ -419,7 +420,7 @@ function drawCross(ctx, x, y) {
 
 /** A close-up of the rod: its beams and the fitted circle, 8 radii across. */
 function drawInset(ctx, W, scan, rodPoints) {
-  const size = 150;
+  const size = INSET_PX;
   const x0 = W - size - 8;
   const y0 = 8;
   const { centre_uv_m: [cu, cv], radius_m } = scan.circle;
