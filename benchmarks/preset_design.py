@@ -25,11 +25,11 @@ import numpy as np
 
 from benchmarks.dry_run_accuracy import crb_std
 from fakes.world import World
-from lasercal_hw.config import load_job
+from lasercal_hw.config import WorkspaceConfig, load_job
 from lasercal_hw.geometry import matrix_to_pose
 from lasercal_hw.models import RodLine
 from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
-from trajectories.checks import WorkspaceBox, check_waypoints
+from trajectories.checks import check_waypoints
 from trajectories.plane_crossing import rod_plane_crossings
 from trajectories.presets import get_preset
 from trajectories.semicircles import SemicircleParameters, semicircle_waypoints
@@ -75,7 +75,7 @@ def arm_ok(poses: np.ndarray, rods: list[RodLine]) -> bool:
         report = check_waypoints(
             [Waypoint(index=i, tcp_pose=tuple(float(v) for v in p)) for i, p in enumerate(poses)],
             inverse_kinematics=inverse_kinematics_pose,
-            workspace=WorkspaceBox(),
+            workspace=WorkspaceConfig(),
             rod=rod,
         )
         if not report.ok:

@@ -175,21 +175,33 @@ class MotionConfig(_Strict):
 
 
 class WorkspaceConfig(_Strict):
-    """Box in the robot base frame that the TCP and both rod ends must stay in."""
+    """Box in the robot base frame that the TCP and both rod ends must stay in; the one box
+    that ``lasercal run``'s preflight and ``lasercal trajectory check`` both use."""
 
     min_m: Vector3 = Field(default_factory=lambda: [-0.95, -0.95, -0.10])
     max_m: Vector3 = Field(default_factory=lambda: [0.95, 0.95, 1.10])
 
     @model_validator(mode="after")
     def _ordered(self) -> WorkspaceConfig:
-        if any(lo >= hi for lo, hi in zip(self.min_m, self.max_m, strict=True)):
-            raise ValueError("every component of min_m must be below max_m")
+        for axis, low, high in zip("xyz", self.min_m, self.max_m, strict=True):
+            if not low < high:
+                raise ValueError(f"workspace box {axis}: min {low} m must be below max {high} m")
         return self
 
     def contains(self, point_m: FloatArray) -> bool:
         """True when the point lies inside the box (boundary included)."""
-        p = np.asarray(point_m, dtype=float)
-        return bool(np.all(p >= np.asarray(self.min_m)) and np.all(p <= np.asarray(self.max_m)))
+        return not self.violations(point_m, "point")
+
+    def violations(self, point_m: FloatArray, what: str) -> list[str]:
+        """Why ``point_m`` is outside the box, one reason per axis (empty when inside)."""
+        reasons = []
+        for axis, value, low, high in zip("xyz", np.asarray(point_m, dtype=float), self.min_m, self.max_m,
+                                          strict=True):
+            if value < low:
+                reasons.append(f"{what} {axis} = {value:.3f} m is below the workspace minimum {low:.3f} m")
+            elif value > high:
+                reasons.append(f"{what} {axis} = {value:.3f} m is above the workspace maximum {high:.3f} m")
+        return reasons
 
 
 class QualityConfig(_Strict):

@@ -79,7 +79,7 @@ def test_check_with_a_tight_box_fails_with_exit_code_2_and_lists_waypoints() -> 
     ("args", "message"),
     [
         (["trajectory", "show", "nope"], "unknown trajectory preset 'nope'"),
-        (["trajectory", "check", "--box-min", "1,1,1"], "min 1.0 m must be below max 0.9 m"),
+        (["trajectory", "check", "--box-min", "1,1,1"], "min 1.0 m must be below max 0.95 m"),
         (["trajectory", "show", "--file", "/nonexistent/w.csv"], "does not exist"),
     ],
 )

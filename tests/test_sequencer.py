@@ -243,8 +243,8 @@ def test_preflight_lists_every_problem_and_moves_nothing() -> None:
         Sequencer(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock).run()
     message = str(caught.value)
     assert "waypoint 2: not reachable" in message
-    assert "waypoint 2: TCP" in message and "outside the workspace box" in message
-    assert "waypoint 5: outside the controller's safety limits" in message
+    assert "waypoint 2: TCP x = 1.500 m is above the workspace maximum 0.900 m" in message
+    assert "waypoint 5: outside the robot's safety limits" in message
     assert robot.moves == []
 
 

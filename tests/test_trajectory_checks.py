@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from lasercal_hw.config import WorkspaceConfig
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import RodLine
 from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
-from trajectories.checks import WorkspaceBox, check_waypoints, require_waypoints_ok
+from trajectories.checks import check_waypoints, require_waypoints_ok
 from trajectories.waypoint import Waypoint
 
 DOWN = (math.pi, 0.0, 0.0)
@@ -33,31 +34,31 @@ def test_every_failure_is_listed_with_its_reason() -> None:
     waypoints = [
         wp(0, 0.45, -0.2, 0.35),
         wp(1, 1.6, 0.0, 0.35, "too far"),  # outside box and out of reach
-        wp(2, 0.45, -0.2, -0.05, "under the table"),  # below the box floor
+        wp(2, 0.45, -0.2, -0.15, "under the table"),  # below the box floor
         wp(3, 0.5, 0.1, 0.4),
     ]
     report = check_waypoints(waypoints, inverse_kinematics=inverse_kinematics_pose)
     assert not report.ok
     assert report.failing_indices == [1, 2]
     reasons = [str(p) for p in report.problems]
-    assert "waypoint 1 (too far): TCP x = 1.600 m is above the workspace maximum 0.900 m" in reasons
+    assert "waypoint 1 (too far): TCP x = 1.600 m is above the workspace maximum 0.950 m" in reasons
     assert "waypoint 1 (too far): not reachable: no inverse kinematics solution" in reasons
-    assert any(r.startswith("waypoint 2 (under the table): TCP z = -0.050 m is below") for r in reasons)
+    assert any(r.startswith("waypoint 2 (under the table): TCP z = -0.150 m is below") for r in reasons)
 
 
 def test_rod_ends_are_checked_against_the_box() -> None:
-    # TCP at 0.2 m pointing down with a 0.3 m rod: the rod end is 0.1 m under the table.
-    waypoints = [wp(0, 0.45, -0.2, 0.2)]
+    # TCP at 0.15 m pointing down with a 0.3 m rod: the rod end is 0.15 m under the table.
+    waypoints = [wp(0, 0.45, -0.2, 0.15)]
     assert check_waypoints(waypoints, inverse_kinematics=inverse_kinematics_pose).ok
     report = check_waypoints(waypoints, inverse_kinematics=inverse_kinematics_pose, rod=RodLine())
     assert [str(p) for p in report.problems] == [
-        "waypoint 0: rod end z = -0.100 m is below the workspace minimum 0.000 m"
+        "waypoint 0: rod end z = -0.150 m is below the workspace minimum -0.100 m"
     ]
 
 
 def test_a_custom_box_and_safety_callable_are_used() -> None:
     waypoints = [wp(0, 0.45, -0.2, 0.35), wp(1, 0.5, 0.1, 0.4)]
-    box = WorkspaceBox(min_m=(0.0, -0.5, 0.0), max_m=(0.48, 0.5, 0.8))
+    box = WorkspaceConfig(min_m=(0.0, -0.5, 0.0), max_m=(0.48, 0.5, 0.8))
     report = check_waypoints(
         waypoints,
         inverse_kinematics=inverse_kinematics_pose,
@@ -107,4 +108,4 @@ def test_require_raises_config_error_listing_all_failures() -> None:
 
 def test_workspace_box_must_be_ordered() -> None:
     with pytest.raises(ValidationError, match=r"z: min 0\.5 m must be below max 0\.2 m"):
-        WorkspaceBox(min_m=(0.0, 0.0, 0.5), max_m=(1.0, 1.0, 0.2))
+        WorkspaceConfig(min_m=(0.0, 0.0, 0.5), max_m=(1.0, 1.0, 0.2))

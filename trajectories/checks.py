@@ -1,9 +1,10 @@
-"""Preflight of waypoints before any motion: reachable, inside the safety limits, inside
-the workspace box (TCP and, when a rod is given, both rod ends).
+"""The pose checks of every waypoint before any motion: reachable, inside the safety
+limits, inside the workspace box (TCP and, when a rod is given, both rod ends).
 
-The reachability and safety tests are callables so the same check runs against the
-robot controller on a real cell (``getInverseKinematics``, ``isPoseWithinSafetyLimits``
-through the driver) and offline against ``lasercal_hw.ur5_kinematics``.
+One set of checks, one message style: ``lasercal run``'s preflight runs ``check_pose``
+against the robot controller (``getInverseKinematics``, ``isPoseWithinSafetyLimits``
+through the driver), ``lasercal trajectory check`` runs it offline against
+``lasercal_hw.ur5_kinematics``; the reachability and safety tests are callables for that.
 """
 
 from __future__ import annotations
@@ -13,10 +14,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, model_validator
 
+from lasercal_hw.config import WorkspaceConfig
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.geometry import FloatArray, transform_points
+from lasercal_hw.geometry import FloatArray, pose_to_matrix, transform_points
 from lasercal_hw.models import RodLine
 from trajectories.waypoint import Waypoint
 
@@ -26,36 +27,6 @@ logger = logging.getLogger(__name__)
 InverseKinematics = Callable[[FloatArray], FloatArray | Sequence[float] | None]
 #: ``within_safety_limits(pose) -> bool``: the controller's (or a model's) safety verdict.
 SafetyCheck = Callable[[FloatArray], bool]
-
-
-class WorkspaceBox(BaseModel):
-    """Axis-aligned box in the robot base frame that the TCP and the rod must stay inside.
-
-    The default suits a UR5 (reach 0.85 m) standing on a table at z = 0: nothing below
-    the table top, nothing higher than 0.9 m above the base.
-    """
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    min_m: tuple[float, float, float] = (-0.9, -0.9, 0.0)
-    max_m: tuple[float, float, float] = (0.9, 0.9, 0.9)
-
-    @model_validator(mode="after")
-    def _ordered(self) -> WorkspaceBox:
-        for axis, low, high in zip("xyz", self.min_m, self.max_m, strict=True):
-            if not low < high:
-                raise ValueError(f"workspace box {axis}: min {low} m must be below max {high} m")
-        return self
-
-    def violations(self, point_m: Sequence[float] | FloatArray, what: str) -> list[str]:
-        """Human-readable reasons the point is outside (empty when inside)."""
-        reasons = []
-        for axis, value, low, high in zip("xyz", point_m, self.min_m, self.max_m, strict=True):
-            if value < low:
-                reasons.append(f"{what} {axis} = {value:.3f} m is below the workspace minimum {low:.3f} m")
-            elif value > high:
-                reasons.append(f"{what} {axis} = {value:.3f} m is above the workspace maximum {high:.3f} m")
-        return reasons
 
 
 @dataclass(frozen=True)
@@ -98,42 +69,58 @@ class CheckReport:
         return "\n".join(lines)
 
 
+def check_pose(
+    pose: FloatArray,
+    *,
+    inverse_kinematics: InverseKinematics,
+    within_safety_limits: SafetyCheck | None = None,
+    workspace: WorkspaceConfig | None = None,
+    rod: RodLine | None = None,
+) -> tuple[list[str], FloatArray | None]:
+    """Every reason one UR pose must not be visited, and its joint solution (None when
+    unreachable)."""
+    box = workspace or WorkspaceConfig()
+    pose = np.asarray(pose, dtype=float).reshape(6)
+    reasons = box.violations(pose[:3], "TCP")
+    if rod is not None:
+        ends_base = transform_points(pose_to_matrix(pose)[None], rod.end_points_m())
+        for name, end in zip(("rod start", "rod end"), ends_base, strict=True):
+            reasons += box.violations(end, name)
+    q = inverse_kinematics(pose)
+    solution = None if q is None or len(q) == 0 else np.asarray(q, dtype=float)
+    if solution is None:
+        reasons.append("not reachable: no inverse kinematics solution")
+    if within_safety_limits is not None and not within_safety_limits(pose):
+        reasons.append("outside the robot's safety limits")
+    return reasons, solution
+
+
 def check_waypoints(
     waypoints: Sequence[Waypoint],
     *,
     inverse_kinematics: InverseKinematics,
     within_safety_limits: SafetyCheck | None = None,
-    workspace: WorkspaceBox | None = None,
+    workspace: WorkspaceConfig | None = None,
     rod: RodLine | None = None,
 ) -> CheckReport:
     """Check every waypoint and list every problem (it does not stop at the first one)."""
-    box = workspace or WorkspaceBox()
     problems: list[WaypointProblem] = []
     solutions: dict[int, FloatArray] = {}
     seen: set[int] = set()
     for waypoint in waypoints:
-
-        def problem(reason: str, w: Waypoint = waypoint) -> None:
-            problems.append(WaypointProblem(w.index, w.label, reason))
-
+        reasons, q = check_pose(
+            waypoint.pose_array(),
+            inverse_kinematics=inverse_kinematics,
+            within_safety_limits=within_safety_limits,
+            workspace=workspace,
+            rod=rod,
+        )
         if waypoint.index in seen:
-            problem("duplicate waypoint index")
+            reasons.insert(0, "duplicate waypoint index")
         seen.add(waypoint.index)
-        pose = waypoint.pose_array()
-        for reason in box.violations(pose[:3], "TCP"):
-            problem(reason)
-        if rod is not None:
-            ends_base = transform_points(waypoint.matrix(), rod.end_points_m())
-            for name, end in zip(("rod start", "rod end"), ends_base, strict=True):
-                for reason in box.violations(end, name):
-                    problem(reason)
-        q = inverse_kinematics(pose)
-        if q is None or len(q) == 0:
-            problem("not reachable: no inverse kinematics solution")
-        else:
-            solutions[waypoint.index] = np.asarray(q, dtype=float)
-        if within_safety_limits is not None and not within_safety_limits(pose):
-            problem("outside the robot's safety limits")
+        problems += [WaypointProblem(waypoint.index, waypoint.label, reason) for reason in reasons]
+        if q is not None:
+            solutions[waypoint.index] = q
     report = CheckReport(checked=len(waypoints), problems=problems, joint_solutions_rad=solutions)
     logger.info("preflight: %s", report.summary().splitlines()[0])
     return report
@@ -144,7 +131,7 @@ def require_waypoints_ok(
     *,
     inverse_kinematics: InverseKinematics,
     within_safety_limits: SafetyCheck | None = None,
-    workspace: WorkspaceBox | None = None,
+    workspace: WorkspaceConfig | None = None,
     rod: RodLine | None = None,
 ) -> CheckReport:
     """:func:`check_waypoints`, raising ConfigError with every failure listed if any."""

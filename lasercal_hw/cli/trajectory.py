@@ -11,10 +11,11 @@ from pydantic import ValidationError
 from rich.table import Table
 
 from lasercal_hw.cli.common import console, parse_vector, print_json
+from lasercal_hw.config import WorkspaceConfig
 from lasercal_hw.errors import ConfigError, ExitCode
 from lasercal_hw.models import RodLine
 from lasercal_hw.ur5_kinematics import inverse_kinematics_pose
-from trajectories.checks import WorkspaceBox, check_waypoints
+from trajectories.checks import check_waypoints
 from trajectories.presets import DEFAULT_PRESET, PRESETS, get_preset, preset_names
 from trajectories.waypoint import Waypoint
 from trajectories.waypoint_file import load_waypoints
@@ -81,15 +82,15 @@ def show(preset: str = _PRESET_ARG, file: Path | None = _FILE_OPT, json_output: 
     console.print(table)
 
 
+_DEFAULT_BOX_MIN = ",".join(str(v) for v in WorkspaceConfig().min_m)
+_DEFAULT_BOX_MAX = ",".join(str(v) for v in WorkspaceConfig().max_m)
+
+
 def check(
     preset: str = _PRESET_ARG,
     file: Path | None = _FILE_OPT,
-    box_min: str = typer.Option(
-        ",".join(str(v) for v in WorkspaceBox().min_m), "--box-min", help="Workspace box minimum x,y,z (m)."
-    ),
-    box_max: str = typer.Option(
-        ",".join(str(v) for v in WorkspaceBox().max_m), "--box-max", help="Workspace box maximum x,y,z (m)."
-    ),
+    box_min: str = typer.Option(_DEFAULT_BOX_MIN, "--box-min", help="Workspace box minimum x,y,z (m)."),
+    box_max: str = typer.Option(_DEFAULT_BOX_MAX, "--box-max", help="Workspace box maximum x,y,z (m)."),
     json_output: bool = _JSON_OPT,
 ) -> None:
     """Check waypoints offline against a UR5 (CB3) model and the workspace box.
@@ -99,7 +100,7 @@ def check(
     """
     name, waypoints, rod = _source(preset, file)
     try:
-        box = WorkspaceBox(
+        box = WorkspaceConfig(
             min_m=parse_vector(box_min, 3, "--box-min"), max_m=parse_vector(box_max, 3, "--box-max")
         )
     except ValidationError as exc:

@@ -14,6 +14,7 @@ from lasercal_hw.errors import ConfigError, RobotError
 from lasercal_hw.geometry import pose_to_matrix, transform_points
 from lasercal_hw.models import FloatArray, RobotIdentity, RodLine, ScannerIdentity
 from lasercal_hw.run.devices import Robot, Scanner
+from trajectories.checks import check_pose
 
 logger = logging.getLogger(__name__)
 
@@ -60,22 +61,20 @@ def check_poses(
     rod: RodLine,
     workspace: WorkspaceConfig,
 ) -> tuple[list[str], list[FloatArray]]:
-    """Problems with the named poses, and each pose's joint solution (empty when unreachable)."""
+    """Problems with the named poses (``trajectories.checks.check_pose`` against the
+    controller), and each pose's joint solution (empty when unreachable)."""
     problems: list[str] = []
     solutions: list[FloatArray] = []
     for name, pose in poses.items():
-        q = robot.inverse_kinematics(pose)
-        solutions.append(np.asarray(q, dtype=float) if q is not None else np.empty(0))
-        if q is None:
-            problems.append(f"{name}: not reachable (no inverse kinematics solution)")
-        if not robot.is_within_safety_limits(pose):
-            problems.append(f"{name}: outside the controller's safety limits")
-        tcp_m = np.asarray(pose[:3], dtype=float)
-        if not workspace.contains(tcp_m):
-            problems.append(f"{name}: TCP {_fmt(tcp_m)} m is outside the workspace box")
-        for end_name, end_m in zip(("rod origin", "rod tip"), rod_end_points_m(pose, rod), strict=True):
-            if not workspace.contains(end_m):
-                problems.append(f"{name}: {end_name} {_fmt(end_m)} m is outside the workspace box")
+        reasons, q = check_pose(
+            pose,
+            inverse_kinematics=robot.inverse_kinematics,
+            within_safety_limits=robot.is_within_safety_limits,
+            workspace=workspace,
+            rod=rod,
+        )
+        problems += [f"{name}: {reason}" for reason in reasons]
+        solutions.append(q if q is not None else np.empty(0))
     return problems, solutions
 
 
@@ -113,6 +112,3 @@ def run_preflight(
         raise (RobotError if device_problems else ConfigError)(message)
     return PreflightReport(robot_identity, scanner_identity, solutions)
 
-
-def _fmt(point_m: FloatArray) -> str:
-    return "[" + ", ".join(f"{v:.3f}" for v in point_m) + "]"
