@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import socket
 import struct
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -28,6 +29,7 @@ from lasercal_hw.geometry import (  # noqa: E402
 )
 from lasercal_hw.live.foxglove import MIN_CENTRES_FOR_ESTIMATE, FoxgloveLiveView, RunGeometry  # noqa: E402
 from lasercal_hw.models import RodLine  # noqa: E402
+from tests.cli_helpers import assert_one_line_error, run_cli  # noqa: E402
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 LAYOUT = Path(__file__).parent.parent / "docs" / "foxglove-layout.json"
@@ -192,3 +194,13 @@ def test_frames_show_the_tcp_the_rod_and_the_scanner_estimate(view: FoxgloveLive
     np.testing.assert_allclose(frames[("tcp", "rod")][:3, 3], rod.origin_m, atol=1e-9)
     np.testing.assert_allclose(frames[("base", "laser")], T, atol=1e-6)  # closed form on exact centres
     np.testing.assert_allclose(solved[("base", "laser")][:3, 3], T[:3, 3] + 0.001, atol=1e-9)
+
+
+@pytest.mark.parametrize("command", [("run", "--dry-run", "--yes"), ("serve", "--dry-run")])
+def test_run_and_serve_say_when_the_foxglove_port_is_taken(command: tuple[str, ...]) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = run_cli(*command, "--foxglove", "--foxglove-port", str(port), timeout_s=60)
+    assert_one_line_error(result, 2, f"127.0.0.1:{port}", "--foxglove-port")

@@ -18,7 +18,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, SpinnerColumn, TextColumn
 from rich.progress import Progress as RichProgress
 
-from lasercal_hw.cli.common import console, err_console, print_json
+from lasercal_hw.cli.common import FoxgloveOption, FoxglovePortOption, console, err_console, print_json
 from lasercal_hw.cli.solve import print_result
 from lasercal_hw.config import load_job, with_overrides
 from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
@@ -166,9 +166,6 @@ DryRunOption = Annotated[
 ]
 ResumeOption = Annotated[Path | None, typer.Option("--resume", help="Continue an interrupted session.mcap.")]
 SceneOption = Annotated[Path | None, typer.Option("--scene", help="Scene file for the --dry-run fake cell.")]
-FoxgloveOption = Annotated[bool, typer.Option(
-    "--foxglove", help="Serve the run live to the Foxglove app on 127.0.0.1 (needs the foxglove extra).")]
-FoxglovePortOption = Annotated[int, typer.Option("--foxglove-port", help="Port of the --foxglove server.")]
 
 
 def run_command(
