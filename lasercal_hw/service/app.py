@@ -133,6 +133,7 @@ def create_app(daemon: Daemon) -> FastAPI:
     def start_job(body: JobBody) -> dict[str, Any]:
         """Start a calibrate, verify or dry_run job (409 while one runs)."""
         require_confirmation(body.confirm_motion)
+        daemon.jobs.require_kind(body.kind)
         devices = daemon.devices() if body.kind != "dry_run" else {}
         job = resolve_job(body, daemon.config.default_job, devices)
         if body.kind != "dry_run" and job.robot.host is None:
@@ -163,6 +164,11 @@ def create_app(daemon: Daemon) -> FastAPI:
     def get_job(job_id: str) -> dict[str, Any]:
         """One job."""
         return daemon.jobs.get(job_id)
+
+    @app.get("/v1/jobs/{job_id}/files/{name}")
+    def job_file(job_id: str, name: str) -> FileResponse:
+        """A file in the job's folder (session.mcap, result.json, ...), finished or not."""
+        return FileResponse(daemon.jobs.file(job_id, name))
 
     @app.post("/v1/jobs/{job_id}/cancel", dependencies=[Authorized])
     def cancel_job(job_id: str) -> dict[str, Any]:

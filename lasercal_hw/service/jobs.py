@@ -18,7 +18,7 @@ from typing import Any, Protocol
 
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import InterruptedRunError, LasercalError
-from lasercal_hw.service.cancel import CancelSignal
+from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.service.events import EventBus
 from lasercal_hw.service.problems import ApiError, error_code, not_found
 from lasercal_hw.service.store import HistoryStore, new_id, utc_now
@@ -47,7 +47,7 @@ class RunContext:
     resume_from: Path | None
     scene_file: Path | None
     on_event: Callable[[str, str, dict[str, Any]], None]  # (kind, message, data)
-    cancel: CancelSignal
+    cancel: CancelToken
     confirm: Callable[[Any], None]  # called once preflight passed
 
 
@@ -81,7 +81,7 @@ class RobotKeeper(Protocol):
 @dataclass
 class _Active:
     job_id: str
-    cancel: CancelSignal
+    cancel: CancelToken
     thread: threading.Thread
 
 
@@ -130,12 +130,29 @@ class JobManager:
             return jobs[0] if jobs else None
         return self._store.job(job_id)
 
+    def file(self, job_id: str, name: str) -> Path:
+        """A file in a job's folder (404 when there is no such file)."""
+        path = Path(self.get(job_id)["out_dir"]) / name
+        if "/" in name or name.startswith(".") or not path.is_file():
+            raise ApiError(404, "not_found", f"job {job_id} has no file {name!r}", {"file": name})
+        return path
+
     def running_id(self) -> str | None:
         """The id of the running job, if any."""
         with self._lock:
             return self._active.job_id if self._active else None
 
     # -- life cycle ----------------------------------------------------------------------------
+
+    def require_kind(self, kind: str) -> None:
+        """501 for a kind this build cannot run yet."""
+        if kind not in self._runners:
+            raise ApiError(
+                501,
+                "not_implemented",
+                f"jobs of kind {kind!r} are not available in this build",
+                {"field": "kind"},
+            )
 
     def recover(self) -> list[str]:
         """At start-up: jobs a killed daemon left running become ``interrupted`` (never resumed)."""
@@ -162,13 +179,7 @@ class JobManager:
         restore_robot: bool,
     ) -> dict[str, Any]:
         """Create a job and start it (409 while another one runs)."""
-        if kind not in self._runners:
-            raise ApiError(
-                501,
-                "not_implemented",
-                f"jobs of kind {kind!r} are not available in this build",
-                {"field": "kind"},
-            )
+        self.require_kind(kind)
         job_id = new_id("job")
         out_dir = self._jobs_dir / job_id
         record = {
@@ -268,7 +279,7 @@ class JobManager:
     def _launch(
         self, record: dict[str, Any], job: JobConfig, *, resume_from: Path | None, scene_file: Path | None
     ) -> None:
-        cancel = CancelSignal()
+        cancel = CancelToken()
         thread = threading.Thread(
             target=self._work,
             name=f"job-{record['id']}",
@@ -291,7 +302,7 @@ class JobManager:
         self,
         record: dict[str, Any],
         job: JobConfig,
-        cancel: CancelSignal,
+        cancel: CancelToken,
         resume_from: Path | None,
         scene_file: Path | None,
     ) -> None:

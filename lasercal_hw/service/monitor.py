@@ -1,10 +1,12 @@
 """Device status for ``GET /v1/status``, polled in a background thread so a request never
 waits on a device.
 
-The robot is watched through read-only interfaces (dashboard and RTDE receive,
-``URRobot.connect(control=False)``): they leave the owner's program running, unlike
-ur_rtde's control interface. The scanner is opened briefly for its identity only while
-no job runs (a job owns it; a UTM-30LX-EW serves one client at a time).
+The robot is asked through its dashboard server only (robot mode, safety status, remote
+control, program state): a read-only conversation that leaves the owner's program alone,
+unlike ur_rtde's control interface, and that costs the daemon nothing between polls (no
+500 Hz RTDE stream, no ur_rtde constructor holding the GIL on the daemon's threads). The
+scanner is opened briefly for its identity only while no job runs (a job owns it; a
+UTM-30LX-EW serves one client at a time).
 """
 
 from __future__ import annotations
@@ -16,10 +18,15 @@ from dataclasses import asdict
 from typing import Any
 
 from lasercal_hw.errors import LasercalError
+from lasercal_hw.service.dashboard import DashboardLink
 
 logger = logging.getLogger(__name__)
 
 SCANNER_EVERY_POLLS = 5
+
+
+def _after_colon(line: str) -> str:
+    return line.split(":", 1)[1].strip() if ":" in line else line.strip()
 
 
 def _robot_unknown(host: str | None, error: str | None) -> dict[str, Any]:
@@ -48,7 +55,6 @@ class DeviceMonitor:
         self.scanner_url = scanner_url
         self._poll_s = poll_s
         self._job_running = job_running
-        self._robot: Any = None
         self._lock = threading.Lock()
         self._robot_status = _robot_unknown(robot_host, None if robot_host else "no robot configured")
         self._scanner_status: dict[str, Any] = {
@@ -65,10 +71,9 @@ class DeviceMonitor:
         self._thread.start()
 
     def stop(self) -> None:
-        """Stop polling and drop the read-only robot connection."""
+        """Stop polling."""
         self._stop.set()
         self._thread.join(10.0)
-        self._drop_robot()
 
     def snapshot(self) -> dict[str, dict[str, Any]]:
         """The newest ``{"robot": ..., "scanner": ...}``."""
@@ -86,31 +91,25 @@ class DeviceMonitor:
             self._stop.wait(self._poll_s)
 
     def _poll_robot(self, host: str) -> None:
-        from drivers.ur.client import URRobot
-
         try:
-            if self._robot is None:
-                self._robot = URRobot.connect(host, control=False, timeout_s=2.0)
-            state = self._robot.state()
-            status = {
-                "connected": True,
-                "host": host,
-                "mode": state.robot_mode,
-                "safety": state.safety_status,
-                "remote_control": state.remote_control,
-                "program_running": state.program_running,
-                "error": None,
-            }
-        except LasercalError as exc:
-            self._drop_robot()
-            status = _robot_unknown(host, str(exc))
+            link = DashboardLink(host)
+            try:
+                remote = link.ask("is in remote control")
+                status = {
+                    "connected": True,
+                    "host": host,
+                    "mode": _after_colon(link.ask("robotmode")),
+                    "safety": _after_colon(link.ask("safetystatus")),
+                    "remote_control": None if remote.startswith("could not") else remote == "true",
+                    "program_running": link.ask("programState").upper().startswith("PLAYING"),
+                    "error": None,
+                }
+            finally:
+                link.close()
+        except OSError as exc:
+            status = _robot_unknown(host, f"the robot's dashboard server on {host} does not answer: {exc}")
         with self._lock:
             self._robot_status = status
-
-    def _drop_robot(self) -> None:
-        robot, self._robot = self._robot, None
-        if robot is not None:
-            robot.close()
 
     def _poll_scanner(self, url: str) -> None:
         from drivers.hokuyo.client import HokuyoScanner

@@ -5,11 +5,8 @@ entry point; until then the daemon answers 501 for it."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
-from lasercal_hw.config import with_overrides
-from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
 
 if TYPE_CHECKING:
@@ -18,26 +15,33 @@ if TYPE_CHECKING:
 Devices = Callable[[], dict[str, str | None]]
 
 
-def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None = None) -> RunResult:
+def run_engine(
+    ctx: RunContext, *, dry_run: bool, devices: dict[str, str | None], live: FoxgloveLiveView | None = None
+) -> RunResult:
     """One calibration through ``lasercal_hw.run.engine.calibrate`` (blocking), shown in the
     Foxglove ``live`` view if there is one."""
-    from lasercal_hw.run.engine import CancelToken, RunEvent, RunRequest, calibrate
+    from lasercal_hw.run.engine import RunEvent, RunRequest, calibrate
 
-    token = CancelToken()
-    ctx.cancel.listen(token.cancel)
     request = RunRequest(
         job=ctx.job,
         out_dir=ctx.out_dir,
+        robot_host=devices.get("robot.host"),
+        scanner_url=devices.get("scanner.url"),
         dry_run=dry_run,
         scene=ctx.scene_file if dry_run else None,
         resume=ctx.resume_from,
         title=f"lasercal {'dry run' if dry_run else 'calibration'} (job {ctx.job_id})",
     )
-    def on_event(e: RunEvent) -> None:
-        ctx.on_event(e.kind, e.message, e.data)
 
-    listener = live.watch(request, on_event) if live else on_event
-    report = calibrate(request, on_event=listener, cancel=token, confirm=ctx.confirm)
+    def on_event(event: RunEvent) -> None:
+        ctx.on_event(event.kind, event.message, event.data)
+
+    report = calibrate(
+        request,
+        on_event=live.watch(request, on_event) if live else on_event,
+        cancel=ctx.cancel,
+        confirm=ctx.confirm,
+    )
     document = report.document()
     return RunResult(
         document=document,
@@ -48,13 +52,10 @@ def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None 
 
 
 def build_runners(devices: Devices, live: FoxgloveLiveView | None = None) -> dict[str, Runner]:
-    """The runners by kind; ``devices()`` gives the daemon's current robot host and scanner URL
-    (``{"robot.host": ..., "scanner.url": ...}``), applied again on every start and resume."""
-
-    def calibrate(ctx: RunContext) -> RunResult:
-        job = with_overrides(ctx.job, devices(), source="daemon configuration")
-        if job.robot.host is None:
-            raise ConfigError("no robot configured: set robot_host in the daemon configuration")
-        return run_engine(replace(ctx, job=job), dry_run=False, live=live)
-
-    return {"calibrate": calibrate, "dry_run": lambda ctx: run_engine(ctx, dry_run=True, live=live)}
+    """The runners by kind; ``devices()`` gives the daemon's current robot host and scanner
+    URL (``{"robot.host": ..., "scanner.url": ...}``), asked again on every start and resume
+    (a restarted dry-run daemon's fake cell has a new address); ``live``: the Foxglove view."""
+    return {
+        "calibrate": lambda ctx: run_engine(ctx, dry_run=False, devices=devices(), live=live),
+        "dry_run": lambda ctx: run_engine(ctx, dry_run=True, devices={}, live=live),
+    }

@@ -1,0 +1,213 @@
+"""Helpers for the daemon tests: a fake engine runner for in-process tests and a real
+``lasercal serve --dry-run`` process on a loopback port for the integration tests."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from lasercal_hw.errors import DeviceError, InterruptedRunError
+from lasercal_hw.service.jobs import RunContext, Runner, RunResult
+
+# A short dry run: the quick preset at 60 deg steps (8 waypoints), 0.5 s dwell, fast joint moves,
+# and acquisition settings that ride out the scan gaps a loaded CI machine causes.
+QUICK_JOB: dict[str, Any] = {
+    "trajectory": {"preset": "quick", "parameters": {"step_deg": 60.0}},
+    "motion": {"joint_speed_rad_s": 1.5, "joint_accel_rad_s2": 4.0},
+    "acquisition": {"max_missed_scans": 10000, "max_attempts": 10},
+    "quality": {"min_observations": 6},
+}
+QUICK_DRY_RUN = {"kind": "dry_run", "confirm_motion": True, "job": QUICK_JOB, "dwell_s": 0.5}
+
+
+def fake_result(translation_m: list[float], std_mm: float = 0.5, passed: bool = True) -> dict[str, Any]:
+    """A minimal result.json as the engine writes it."""
+    T = [
+        [1.0, 0.0, 0.0, translation_m[0]],
+        [0.0, 1.0, 0.0, translation_m[1]],
+        [0.0, 0.0, 1.0, translation_m[2]],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+    return {
+        "T_base_laser": T,
+        "translation_m": translation_m,
+        "euler_zyx_deg": [0.0, 0.0, 0.0],
+        "std_translation_mm": [std_mm] * 3,
+        "std_rotation_deg": [0.05] * 3,
+        "crb_translation_mm": [std_mm / 2] * 3,
+        "crb_rotation_deg": [0.02] * 3,
+        "rms_residual_mm": 0.3,
+        "verdict": {"passed": passed, "checks": []},
+        "run": {"robot": {"model": "UR5"}, "scanner": {}},
+    }
+
+
+class FakeEngine:
+    """A runner that emits engine-like events for ``waypoints`` waypoints, waits ``step_s``
+    each (stopping on cancel like the engine: InterruptedRunError), then writes result.json."""
+
+    def __init__(self, waypoints: int = 4, step_s: float = 0.01, fail: bool = False) -> None:
+        self.waypoints, self.step_s, self.fail = waypoints, step_s, fail
+        self.translation_m = [0.3, 0.5, 0.2]
+        self.started = threading.Event()
+        self.release = threading.Event()
+        self.release.set()
+        self.contexts: list[RunContext] = []
+
+    def __call__(self, ctx: RunContext) -> RunResult:
+        self.contexts.append(ctx)
+        ctx.on_event("stage", "connecting", {"stage": "connect"})
+        ctx.confirm(None)
+        ctx.on_event("stage", "waypoints", {"stage": "waypoints"})
+        (ctx.out_dir / "session.mcap").write_bytes(b"recording")
+        self.started.set()
+        first = 2 if ctx.resume_from is not None else 0
+        for k in range(first, self.waypoints):
+            self.release.wait(10.0)
+            if ctx.cancel.cancelled:
+                raise InterruptedRunError(f"{ctx.cancel.reason}: arm stopped, recording kept")
+            time.sleep(self.step_s)
+            ctx.on_event(
+                "progress",
+                f"waypoint {k}",
+                {
+                    "stage": "centre",
+                    "waypoint": k,
+                    "completed": k + 1,
+                    "waypoint_count": self.waypoints,
+                    "time_left_s": 1.0,
+                },
+            )
+        if self.fail:
+            raise DeviceError("the scanner went away")
+        ctx.on_event("stage", "solving", {"stage": "solving"})
+        result = fake_result(self.translation_m)
+        (ctx.out_dir / "result.json").write_text(json.dumps(result))
+        return RunResult(
+            document={"passed": True, "verdict": result["verdict"]},
+            passed=True,
+            verdict=result["verdict"],
+            calibration_dir=ctx.out_dir,
+        )
+
+
+def fake_runners(engine: FakeEngine) -> Callable[[Any], dict[str, Runner]]:
+    """``Daemon(runners=...)`` giving every calibration kind to ``engine``."""
+    return lambda devices: {"calibrate": engine, "dry_run": engine}
+
+
+def read_sse(
+    response: httpx.Response, stop_after: int | None = None
+) -> list[tuple[int, str, dict[str, Any]]]:
+    """Parse ``(id, kind, data)`` from a streaming response (at most ``stop_after`` events)."""
+    events: list[tuple[int, str, dict[str, Any]]] = []
+    event_id, kind = 0, ""
+    for line in response.iter_lines():
+        if line.startswith("id: "):
+            event_id = int(line[4:])
+        elif line.startswith("event: "):
+            kind = line[7:]
+        elif line.startswith("data: "):
+            events.append((event_id, kind, json.loads(line[6:])))
+            if stop_after is not None and len(events) >= stop_after:
+                break
+    return events
+
+
+class DaemonProcess:
+    """``lasercal serve --dry-run --listen 127.0.0.1:0`` in its own process group."""
+
+    def __init__(self, data_dir: Path) -> None:
+        self.data_dir = data_dir
+        self.log = data_dir.parent / f"{data_dir.name}-daemon.log"
+        self.process: subprocess.Popen[str] | None = None
+        self.url = ""
+
+    def start(self, timeout_s: float = 120.0) -> DaemonProcess:
+        """Start it and wait for its 'listening on' line."""
+        with self.log.open("a") as log:
+            self.process = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "lasercal_hw.cli.main",
+                    "serve",
+                    "--dry-run",
+                    "--listen",
+                    "127.0.0.1:0",
+                    "--data-dir",
+                    str(self.data_dir),
+                ],
+                stdout=subprocess.PIPE,
+                stderr=log,
+                stdin=subprocess.DEVNULL,
+                text=True,
+                start_new_session=True,
+            )
+        assert self.process.stdout is not None
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            line = self.process.stdout.readline()
+            found = re.search(r"listening on (http://127\.0\.0\.1:\d+)", line)
+            if found:
+                self.url = found.group(1)
+                return self
+            if not line and self.process.poll() is not None:
+                break
+        raise AssertionError(f"daemon did not start: {self.log.read_text()[-2000:]}")
+
+    @property
+    def token(self) -> str:
+        """The token the daemon created."""
+        return (self.data_dir / "token").read_text().strip()
+
+    def client(self, token: bool = True) -> httpx.Client:
+        """An HTTP client for the daemon (with the bearer token unless told otherwise)."""
+        headers = {"Authorization": f"Bearer {self.token}"} if token else {}
+        return httpx.Client(base_url=self.url, headers=headers, timeout=30.0)
+
+    def kill(self) -> None:
+        """SIGKILL the daemon alone (its children live on, as after a crash)."""
+        assert self.process is not None
+        self.process.kill()
+        self.process.wait(10.0)
+
+    def stop(self) -> None:
+        """SIGTERM the daemon, then kill whatever is left of its process group."""
+        if self.process is None:
+            return
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(30.0)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.process.pid, signal.SIGKILL)
+        if self.process.stdout is not None:
+            self.process.stdout.close()
+
+
+def wait_for(
+    client: httpx.Client, job_id: str, predicate: Callable[[dict[str, Any]], bool], timeout_s: float = 300.0
+) -> dict[str, Any]:
+    """Poll a job until ``predicate(job)``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if predicate(job):
+            return job
+        time.sleep(0.3)
+    raise AssertionError(f"job {job_id} never got there: {job}")
