@@ -53,8 +53,8 @@ def _wait(browser: Any, condition: Any, what: str, timeout_s: float = STEP_TIMEO
     try:
         return WebDriverWait(browser, timeout_s, poll_frequency=0.2).until(lambda d: condition(d))
     except TimeoutException:
-        error = browser.find_element("id", "error-line").text
-        pytest.fail(f"timed out after {timeout_s:.0f} s waiting for {what} (page error line: {error!r})")
+        seen = {name: _by_id(browser, name).text for name in ("error-line", "job-state", "job-message")}
+        pytest.fail(f"timed out after {timeout_s:.0f} s waiting for {what}; the page shows {seen}")
 
 
 def _by_id(browser: Any, element_id: str) -> Any:

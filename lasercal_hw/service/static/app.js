@@ -537,8 +537,9 @@ function renderDrift(rows) {
     return n;
   };
   svg.replaceChildren();
+  svg.setAttribute("viewBox", rows.length ? "0 0 900 260" : "0 0 900 40");
   if (!rows.length) {
-    svg.append(node("text", { x: 20, y: 30 }, "no calibration to compare against yet"));
+    svg.append(node("text", { x: 20, y: 25 }, "no calibration to compare against yet: activate one"));
     return;
   }
   const times = rows.map((r) => Date.parse(r.time));
