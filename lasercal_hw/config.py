@@ -261,6 +261,18 @@ def job_from_mapping(data: dict[str, Any], source: str = "job") -> JobConfig:
         raise ConfigError(_describe(exc, source)) from None
 
 
+def read_toml(path: Path, what: str) -> dict[str, Any]:
+    """A TOML file as a dict; ConfigError naming ``what`` and the file when it cannot be read."""
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{what} {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"cannot read {what} {path}: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+
+
 def load_job(path: Path | None) -> JobConfig:
     """Read and validate a job file (``None``: all defaults).
 
@@ -268,15 +280,7 @@ def load_job(path: Path | None) -> JobConfig:
     """
     if path is None:
         return JobConfig()
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"job file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"cannot read job file {path}: {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
-    job = job_from_mapping(data, str(path))
+    job = job_from_mapping(read_toml(path, "job file"), str(path))
     waypoints_file = job.trajectory.waypoints_file
     if waypoints_file is not None and not waypoints_file.is_absolute():
         trajectory = job.trajectory.model_copy(

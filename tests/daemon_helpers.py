@@ -21,13 +21,12 @@ import httpx
 from lasercal_hw.errors import DeviceError, InterruptedRunError
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
 
-# A short dry run: the quick preset at 60 deg steps (8 waypoints), 0.5 s dwell, fast joint moves,
+# A short dry run: the quick preset (10 waypoints), 0.5 s dwell, fast joint moves,
 # and acquisition settings that ride out the scan gaps a loaded CI machine causes.
 QUICK_JOB: dict[str, Any] = {
-    "trajectory": {"preset": "quick", "parameters": {"step_deg": 60.0}},
+    "trajectory": {"preset": "quick"},
     "motion": {"joint_speed_rad_s": 1.5, "joint_accel_rad_s2": 4.0},
     "acquisition": {"max_missed_scans": 10000, "max_attempts": 10},
-    "quality": {"min_observations": 6},
 }
 QUICK_DRY_RUN = {"kind": "dry_run", "confirm_motion": True, "job": QUICK_JOB, "dwell_s": 0.5}
 
@@ -167,6 +166,12 @@ class DaemonProcess:
             if not line and self.process.poll() is not None:
                 break
         raise AssertionError(f"daemon did not start: {self.log.read_text()[-2000:]}")
+
+    @property
+    def pid(self) -> int:
+        """The daemon's process id."""
+        assert self.process is not None
+        return self.process.pid
 
     @property
     def token(self) -> str:

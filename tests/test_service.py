@@ -4,6 +4,7 @@ events with ids and replay, calibration history, store and token files."""
 from __future__ import annotations
 
 import json
+import socket
 import sqlite3
 import stat
 import time
@@ -18,6 +19,7 @@ from lasercal_hw.service.app import create_app
 from lasercal_hw.service.auth import ensure_token
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
+from lasercal_hw.service.sd_notify import notify, watchdog_interval_s
 from lasercal_hw.service.store import SCHEMA_VERSION, HistoryStore
 from tests.daemon_helpers import FakeEngine, fake_runners, read_sse
 
@@ -82,6 +84,13 @@ def test_unknown_ids_are_404_json(client: TestClient) -> None:
     assert client.get("/v1/calibration").json()["code"] == "no_active_calibration"
 
 
+def test_openapi_documents_the_api(client: TestClient) -> None:
+    paths = client.get("/v1/openapi.json").json()["paths"]
+    assert {"/v1/status", "/v1/jobs", "/v1/jobs/{job_id}/events", "/v1/calibrations/{a}/diff/{b}"} <= set(
+        paths
+    )
+
+
 def test_verify_is_not_implemented_yet(client: TestClient) -> None:
     answer = client.post("/v1/jobs", json={**JOB, "kind": "verify"})
     assert (answer.status_code, answer.json()["code"]) == (501, "not_implemented")
@@ -93,6 +102,7 @@ def test_one_motion_job_at_a_time_and_cancel_keeps_active_calibration(
     first = client.post("/v1/jobs", json=JOB | {"activate_on_pass": True}).json()
     active = _finish(client, first["id"])["calibration_id"]
     engine.release.clear()
+    engine.started.clear()
     running = client.post("/v1/jobs", json=JOB | {"activate_on_pass": True}).json()
     assert engine.started.wait(5.0)
     second = client.post("/v1/jobs", json=JOB)
@@ -138,6 +148,10 @@ def test_events_have_ids_and_replay_after_last_event_id(client: TestClient) -> N
     assert [e[0] for e in rest] == [i for i in ids if i > middle]
     with client.stream("GET", f"/v1/jobs/{job_id}/events?last_event_id={middle}") as response:
         assert read_sse(response) == rest
+    with client.stream(
+        "GET", f"/v1/jobs/{job_id}/events", headers={"Last-Event-ID": str(ids[-1])}
+    ) as response:
+        assert read_sse(response) == []  # after the final state: the stream ends at once
 
 
 def test_history_activate_rollback_and_diff(client: TestClient, engine: FakeEngine) -> None:
@@ -220,3 +234,19 @@ def test_non_loopback_listen_needs_a_configured_token(tmp_path: Path) -> None:
         Daemon(config)
     with pytest.raises(ConfigError, match="listen"):
         load_daemon_config(None, {"listen": "localhost"})
+
+
+def test_sd_notify_sends_one_datagram_to_the_notify_socket(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "notify"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as receiver:
+        receiver.bind(str(path))
+        monkeypatch.setenv("NOTIFY_SOCKET", str(path))
+        assert notify("READY=1")
+        assert receiver.recv(100) == b"READY=1"
+    monkeypatch.setenv("WATCHDOG_USEC", "30000000")
+    monkeypatch.delenv("WATCHDOG_PID", raising=False)
+    assert watchdog_interval_s() == 15.0
+    monkeypatch.delenv("NOTIFY_SOCKET")
+    assert notify("READY=1") is False

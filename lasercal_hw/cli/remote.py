@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import sys
-import tomllib
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -32,6 +31,9 @@ WaitOption = Annotated[
 ]
 YesOption = Annotated[bool, typer.Option("--yes", "-y", help="Confirm that the arm may move (required).")]
 DwellOption = Annotated[float | None, typer.Option("--dwell", help="Dwell per waypoint in s.")]
+PresetOption = Annotated[
+    str | None, typer.Option("--preset", help="Trajectory preset (e.g. quick), over the job file's.")
+]
 DEFAULT_DAEMON = "http://127.0.0.1:8766"
 _EXIT_BY_ERROR = {
     "invalid_job": ExitCode.BAD_INPUT,
@@ -59,14 +61,9 @@ def _print(document: Any, as_json: bool) -> None:
 
 
 def _job_file(path: Path | None) -> dict[str, Any] | None:
-    if path is None:
-        return None
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"job file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise ConfigError(f"cannot read job file {path}: {exc}") from None
+    from lasercal_hw.config import read_toml
+
+    return None if path is None else read_toml(path, "job file")
 
 
 def _show_event(kind: str, data: dict[str, Any]) -> None:
@@ -95,11 +92,21 @@ def _finish(job: dict[str, Any], as_json: bool) -> None:
     raise typer.Exit(int(_EXIT_BY_ERROR.get(code, ExitCode.DEVICE_ERROR)))
 
 
+def _job(config: Path | None, preset: str | None) -> dict[str, Any] | None:
+    """The job to send: the job file, with ``--preset`` over its trajectory preset."""
+    job = _job_file(config)
+    if preset is None:
+        return job
+    job = job or {}
+    trajectory = {k: v for k, v in job.get("trajectory", {}).items() if k != "waypoints_file"}
+    return job | {"trajectory": trajectory | {"preset": preset}}
+
+
 def _start(
     kind: str,
     daemon: str,
     token_file: Path | None,
-    config: Path | None,
+    job: dict[str, Any] | None,
     dwell: float | None,
     yes: bool,
     wait: bool,
@@ -109,7 +116,7 @@ def _start(
     if not yes:
         raise ConfigError("this job moves the arm: check the cell and pass --yes to confirm the motion")
     client = _client(daemon, token_file)
-    body = {"kind": kind, "confirm_motion": True, "job": _job_file(config), "dwell_s": dwell} | extra
+    body = {"kind": kind, "confirm_motion": True, "job": job, "dwell_s": dwell} | extra
     job = client.start_job(body)
     if not wait:
         _print(job, as_json)
@@ -123,6 +130,7 @@ def calibrate_command(
     daemon: DaemonOption = DEFAULT_DAEMON,
     token_file: TokenFileOption = None,
     config: ConfigOption = None,
+    preset: PresetOption = None,
     dwell: DwellOption = None,
     yes: YesOption = False,
     wait: WaitOption = False,
@@ -142,7 +150,7 @@ def calibrate_command(
         "dry_run" if dry_run else "calibrate",
         daemon,
         token_file,
-        config,
+        _job(config, preset),
         dwell,
         yes,
         wait,
@@ -156,13 +164,14 @@ def verify_command(
     daemon: DaemonOption = DEFAULT_DAEMON,
     token_file: TokenFileOption = None,
     config: ConfigOption = None,
+    preset: PresetOption = None,
     dwell: DwellOption = None,
     yes: YesOption = False,
     wait: WaitOption = False,
     as_json: JsonOption = False,
 ) -> None:
     """Check the active calibration for drift (a verify job)."""
-    _start("verify", daemon, token_file, config, dwell, yes, wait, as_json, {})
+    _start("verify", daemon, token_file, _job(config, preset), dwell, yes, wait, as_json, {})
 
 
 @remote_app.command("status")

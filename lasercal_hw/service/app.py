@@ -20,6 +20,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from lasercal_hw import __version__
 from lasercal_hw.service.auth import check_bearer
 from lasercal_hw.service.daemon import Daemon
+from lasercal_hw.service.events import TERMINAL_STATES
 from lasercal_hw.service.problems import ApiError
 from lasercal_hw.service.requests import JobBody, ResumeBody, require_confirmation, resolve_job
 from lasercal_hw.service.scene_toml import scene_toml
@@ -189,8 +190,9 @@ def create_app(daemon: Daemon) -> FastAPI:
     ) -> StreamingResponse:
         """The job's events (SSE); ends after its final state."""
         daemon.jobs.get(job_id)
+        finished = lambda: daemon.jobs.get(job_id)["state"] in TERMINAL_STATES  # noqa: E731
         return StreamingResponse(
-            daemon.bus.stream(_after_id(last_event_id, after), job_id),
+            daemon.bus.stream(_after_id(last_event_id, after), job_id, finished),
             media_type="text/event-stream",
             headers=SSE_HEADERS,
         )

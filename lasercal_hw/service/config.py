@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import ipaddress
 import os
-import tomllib
 from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from lasercal_hw.config import read_toml
 from lasercal_hw.errors import ConfigError
 
 DEFAULT_PORT = 8766  # beside Foxglove's 8765, which the live view may use
@@ -74,14 +74,7 @@ def load_daemon_config(path: Path | None, overrides: dict[str, Any]) -> DaemonCo
     source = "daemon configuration"
     if path is not None:
         source = str(path)
-        try:
-            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(f"daemon configuration {path} does not exist") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"cannot read daemon configuration {path}: {exc}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+        data = read_toml(path, "daemon configuration")
     data |= {key: value for key, value in overrides.items() if value is not None}
     try:
         config = DaemonConfig.model_validate(data)

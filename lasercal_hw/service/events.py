@@ -12,7 +12,7 @@ import asyncio
 import contextlib
 import json
 import threading
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -105,20 +105,26 @@ class EventBus:
                 after_id = event_id
 
     async def stream(
-        self, after_id: int, job_id: str | None = None, keepalive_s: float = KEEPALIVE_S
+        self,
+        after_id: int,
+        job_id: str | None = None,
+        job_finished: Callable[[], bool] = lambda: False,
+        keepalive_s: float = KEEPALIVE_S,
     ) -> AsyncIterator[bytes]:
         """SSE bytes: the stored events after ``after_id``, then live ones. A job's stream
-        ends after the job's final state event; the daemon stream runs until shutdown."""
+        ends after the job's final state event (at once when a client reconnects after it:
+        ``job_finished()``); the daemon stream runs until shutdown."""
         subscriber = _Subscriber(job_id)
         self._subscribers.add(subscriber)
         try:
             last_id = after_id
+            finished = job_id is not None and job_finished()  # its final event is stored by now
             ended = False
             for event in self._stored_after(after_id, job_id):
                 yield event.sse()
                 last_id = event.id
                 ended = event.ends_job
-            if ended and job_id is not None:
+            if job_id is not None and (ended or finished):
                 return
             while True:
                 try:

@@ -211,6 +211,7 @@ class JobManager:
                 scene_file = out_dir / "request_scene.toml"
                 scene_file.write_text(scene_toml, encoding="utf-8")
             self._store.insert_job(record)
+            self._bus.publish("state", {"state": "queued"}, job_id)
             self._launch(record, job, resume_from=None, scene_file=scene_file)
         return self.get(job_id)
 
@@ -238,9 +239,7 @@ class JobManager:
         with self._lock:
             self._refuse_if_busy()
             record["request"] = record["request"] | {"restore_robot": restore_robot}
-            self._store.update_job(
-                job_id, state="queued", finished_utc=None, error=None, request=record["request"]
-            )
+            self._set_state(job_id, "queued", finished_utc=None, error=None, request=record["request"])
             self._launch(
                 record, job, resume_from=session, scene_file=scene_file if scene_file.exists() else None
             )
@@ -291,11 +290,12 @@ class JobManager:
         thread.start()
 
     def _set_state(self, job_id: str, state: str, **fields: Any) -> None:
-        self._store.update_job(job_id, state=state, **fields)
+        """Publish the state event, then store the state: a job seen finished has its final event stored."""
         data: dict[str, Any] = {"state": state}
         if "error" in fields and fields["error"] is not None:
             data["error"] = fields["error"]
         self._bus.publish("state", data, job_id)
+        self._store.update_job(job_id, state=state, **fields)
         self._on_state(job_id, state)
 
     def _work(
@@ -341,46 +341,28 @@ class JobManager:
             self._set_state(job_id, "preflight", started_utc=record["started_utc"] or utc_now())
             if record["request"].get("restore_robot") and kind != "dry_run" and self._robot is not None:
                 restore = self._robot.snapshot(str(job.robot.host))
-            result = self._runners[kind](
-                RunContext(
-                    job_id,
-                    kind,
-                    job,
-                    Path(record["out_dir"]),
-                    resume_from,
-                    scene_file,
-                    on_event,
-                    cancel,
-                    confirm,
-                )
+            context = RunContext(
+                job_id, kind, job, Path(record["out_dir"]), resume_from, scene_file, on_event, cancel, confirm
             )
-            self._file_result(record, result)
+            final, fields = "succeeded", self._file_result(record, self._runners[kind](context))
         except InterruptedRunError as exc:
-            final = (
-                "interrupted"
-                if cancel.reason == "daemon shutting down" or not cancel.cancelled
-                else "cancelled"
-            )
-            self._set_state(job_id, final, finished_utc=utc_now(), error={"code": final, "message": str(exc)})
+            stopped = cancel.reason == "daemon shutting down" or not cancel.cancelled
+            final = "interrupted" if stopped else "cancelled"
+            fields = {"error": {"code": final, "message": str(exc)}}
         except LasercalError as exc:
-            self._set_state(
-                job_id, "failed", finished_utc=utc_now(), error={"code": error_code(exc), "message": str(exc)}
-            )
+            final, fields = "failed", {"error": {"code": error_code(exc), "message": str(exc)}}
         except Exception as exc:
             logger.exception("job %s failed unexpectedly", job_id)
-            self._set_state(
-                job_id,
-                "failed",
-                finished_utc=utc_now(),
-                error={"code": "internal_error", "message": f"{type(exc).__name__}: {exc}"},
-            )
-        finally:
-            if restore is not None:
-                self._bus.publish("robot_restored", {"message": restore()}, job_id)
-            with self._lock:
-                self._active = None
+            final = "failed"
+            fields = {"error": {"code": "internal_error", "message": f"{type(exc).__name__}: {exc}"}}
+        if restore is not None:
+            self._bus.publish("robot_restored", {"message": restore()}, job_id)
+        with self._lock:
+            self._active = None
+        self._set_state(job_id, final, finished_utc=utc_now(), **fields)
 
-    def _file_result(self, record: dict[str, Any], result: RunResult) -> None:
+    def _file_result(self, record: dict[str, Any], result: RunResult) -> dict[str, Any]:
+        """File a finished run's calibration or verify; the job fields to store with its end."""
         job_id = record["id"]
         fields: dict[str, Any] = {"verdict": result.verdict, "document": result.document}
         if result.calibration_dir is not None:
@@ -396,7 +378,7 @@ class JobManager:
             verify_id = new_id("verify")
             self._store.add_verify(verify_id, job_id, result.verify | {"id": verify_id})
             fields["verify_id"] = verify_id
-        self._set_state(job_id, "succeeded", finished_utc=utc_now(), **fields)
+        return fields
 
 
 def _progress(

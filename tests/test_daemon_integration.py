@@ -1,0 +1,184 @@
+"""The real ``lasercal serve --dry-run`` process on a loopback port, driven through HTTP only:
+a dry run to the end with its events and files, cancel and resume, SIGKILL and resume,
+activate / roll back / diff. The tests of the module share one daemon and run in order."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.daemon_helpers import QUICK_DRY_RUN, DaemonProcess, read_sse, wait_for
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(600)]
+TERMINAL = ("succeeded", "failed", "cancelled", "interrupted")
+# A calibrate job on the dry-run daemon's own fake cell: one fake cell on the machine, not two.
+QUICK_CALIBRATE = QUICK_DRY_RUN | {"kind": "calibrate"}
+
+
+@pytest.fixture(scope="module")
+def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+    process = DaemonProcess(tmp_path_factory.mktemp("daemon") / "data").start()
+    try:
+        yield process
+    finally:
+        process.stop()
+
+
+def remote(daemon: DaemonProcess, *args: str) -> subprocess.CompletedProcess[str]:
+    """``lasercal remote ...`` against the daemon, its token from the environment."""
+    return subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", "remote", *args, "--daemon", daemon.url],
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+        check=False,
+        env=os.environ | {"LASERCAL_TOKEN": daemon.token},
+    )
+
+
+def _progressed(waypoints: int):
+    return lambda job: job["state"] in TERMINAL or job["progress"]["completed"] >= waypoints
+
+
+def test_dry_run_to_the_end_with_every_event_and_file(daemon: DaemonProcess) -> None:
+    with daemon.client() as client, daemon.client(token=False) as anonymous:
+        job = client.post("/v1/jobs", json=QUICK_DRY_RUN)
+        assert job.status_code == 202, job.text
+        job_id = job.json()["id"]
+        busy = client.post("/v1/jobs", json=QUICK_DRY_RUN)
+        assert (busy.status_code, busy.json()["code"], busy.json()["detail"]["job_id"]) == (
+            409,
+            "job_running",
+            job_id,
+        )
+        assert anonymous.post("/v1/jobs", json=QUICK_DRY_RUN).status_code == 401
+        wrong = anonymous.post("/v1/jobs", json=QUICK_DRY_RUN, headers={"Authorization": "Bearer wrong"})
+        assert wrong.status_code == 403
+        assert anonymous.post(f"/v1/jobs/{job_id}/cancel").status_code == 401
+
+        with client.stream("GET", f"/v1/jobs/{job_id}/events") as stream:
+            first = read_sse(stream, stop_after=12)
+        with client.stream(
+            "GET", f"/v1/jobs/{job_id}/events", headers={"Last-Event-ID": str(first[-1][0])}
+        ) as stream:
+            rest = read_sse(stream)
+        with client.stream("GET", f"/v1/jobs/{job_id}/events?last_event_id=0") as stream:
+            everything = read_sse(stream)
+
+        assert first + rest == everything
+        kinds = [kind for _, kind, _ in everything]
+        assert {"stage", "progress", "centre", "scan", "result", "calibration"} <= set(kinds)
+        assert everything[0][1:] == ("state", {"state": "queued", "job_id": job_id})
+        assert everything[-1][1:] == ("state", {"state": "succeeded", "job_id": job_id})
+
+        finished = client.get(f"/v1/jobs/{job_id}").json()
+        assert finished["state"] == "succeeded" and finished["verdict"]["passed"] is True
+        document = finished["document"]
+        assert document["dry_run"] is True and document["ground_truth"]["error"]["translation_mm"] < 20.0
+        calibration = client.get(f"/v1/calibrations/{finished['calibration_id']}").json()
+        assert (
+            calibration["job_id"] == job_id and calibration["dry_run"] is True and not calibration["active"]
+        )
+        result = client.get(calibration["files"]["result"]).json()
+        assert result["T_base_laser"] == calibration["T_base_laser"] == document["T_base_laser"]
+        assert client.get(calibration["files"]["report"]).content.startswith(b"\x89PNG")
+        assert client.get(calibration["files"]["session"]).content.startswith(b"\x89MCAP")
+
+
+def test_cancel_stops_the_arm_keeps_the_recording_and_resume_finishes(daemon: DaemonProcess) -> None:
+    """A calibrate job on the daemon's own fake cell, so the status shows its robot."""
+    with daemon.client() as client:
+        active_before = client.get("/v1/calibration").json()
+        job_id = client.post("/v1/jobs", json=QUICK_CALIBRATE).json()["id"]
+        wait_for(client, job_id, _progressed(2))
+        assert client.get("/v1/status").json()["job"]["id"] == job_id
+        running_seen = False
+        deadline = time.monotonic() + 30.0
+        while not running_seen and time.monotonic() < deadline:
+            running_seen = client.get("/v1/status").json()["robot"]["program_running"] is True
+            time.sleep(0.2)
+        assert running_seen, "the status never showed the control script running"
+        assert client.post(f"/v1/jobs/{job_id}/cancel").status_code == 200
+        cancelled = wait_for(client, job_id, lambda job: job["state"] in TERMINAL)
+        assert cancelled["state"] == "cancelled" and cancelled["error"]["code"] == "cancelled"
+        assert cancelled["calibration_id"] is None
+        with client.stream("GET", f"/v1/jobs/{job_id}/events?last_event_id=0") as stream:
+            kinds = [kind for _, kind, _ in read_sse(stream)]
+        assert "cancel_requested" in kinds and "stopped" in kinds and "result" not in kinds
+        assert len(client.get(f"/v1/jobs/{job_id}/files/session.mcap").content) > 1000
+        assert client.get("/v1/calibration").json() == active_before
+        deadline = time.monotonic() + 30.0
+        while client.get("/v1/status").json()["robot"]["program_running"] and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert client.get("/v1/status").json()["robot"]["program_running"] is False
+
+        assert client.post(f"/v1/jobs/{job_id}/resume", json={}).json()["code"] == "confirmation_required"
+    finished = remote(daemon, "resume", job_id, "--yes", "--wait", "--json")
+    assert finished.returncode == 0, finished.stderr[-2000:]
+    done = json.loads(finished.stdout)
+    assert done["state"] == "succeeded" and done["passed"] is True and done["calibration_id"]
+    assert done["job_id"] == job_id and len(done["T_base_laser"]) == 4
+    with daemon.client() as client:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        assert job["progress"]["completed"] == job["progress"]["waypoint_count"]
+
+
+def test_activate_roll_back_and_diff(daemon: DaemonProcess) -> None:
+    with daemon.client() as client:
+        newer, older = (c["id"] for c in client.get("/v1/calibrations").json()["calibrations"][:2])
+        for calibration_id in (older, newer, older):
+            answer = client.post(f"/v1/calibrations/{calibration_id}/activate", json={"reason": "test"})
+            assert answer.status_code == 200 and answer.json()["active"] is True
+        active = client.get("/v1/calibration").json()
+        assert active["id"] == older and active["exports"]["static_transform_publisher_args"]
+        assert [a["calibration_id"] for a in client.get("/v1/calibrations").json()["activations"][:3]] == [
+            older,
+            newer,
+            older,
+        ]
+        diff = client.get(f"/v1/calibrations/{older}/diff/{newer}").json()
+        assert len(diff["translation_mm"]) == 3 and diff["translation_norm_mm"] < 20.0
+        assert isinstance(diff["significant"], bool)
+    history = json.loads(remote(daemon, "history", "--json").stdout)["calibrations"]
+    assert [c["active"] for c in history if c["id"] in (older, newer)] == [False, True]
+    assert remote(daemon, "activate", newer, "--reason", "roll forward").returncode == 0
+    assert json.loads(remote(daemon, "status", "--json").stdout)["active_calibration"]["id"] == newer
+    assert json.loads(remote(daemon, "diff", older, newer, "--json").stdout) == diff
+    refused = remote(daemon, "calibrate", "--dry-run")
+    assert refused.returncode == 2 and "--yes" in refused.stderr
+    unknown = remote(daemon, "activate", "cal-nope")
+    assert unknown.returncode == 2 and "not_found" in unknown.stderr
+
+
+def test_sigkill_mid_run_then_restart_finds_it_interrupted_and_resumes(tmp_path: Path) -> None:
+    data_dir = tmp_path / "data"
+    first = DaemonProcess(data_dir).start()
+    try:
+        with first.client() as client:
+            job_id = client.post("/v1/jobs", json=QUICK_CALIBRATE).json()["id"]
+            completed = wait_for(client, job_id, _progressed(2))["progress"]["completed"]
+        first.kill()
+    finally:
+        first.stop()
+    second = DaemonProcess(data_dir).start()
+    try:
+        with second.client() as client:
+            job = client.get(f"/v1/jobs/{job_id}").json()
+            assert job["state"] == "interrupted" and job["error"]["code"] == "interrupted"
+            assert client.get("/v1/status").json()["job"]["id"] == job_id
+            time.sleep(1.0)
+            assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "interrupted", "it resumed by itself"
+            assert client.post(f"/v1/jobs/{job_id}/resume", json={"confirm_motion": True}).status_code == 200
+            done = wait_for(client, job_id, lambda j: j["state"] in TERMINAL and j["state"] != "interrupted")
+            assert done["state"] == "succeeded", done["error"]
+            assert done["progress"]["completed"] == done["progress"]["waypoint_count"] >= completed
+    finally:
+        second.stop()
