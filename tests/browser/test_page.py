@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import json
 import statistics
-import urllib.request
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.browser.conftest import Daemon
+from tests.daemon_helpers import DaemonProcess, read_sse
 
 pytestmark = [pytest.mark.slow, pytest.mark.integration, pytest.mark.timeout(600)]
 
@@ -24,26 +23,15 @@ WINDOW_CHROME_PX = 150  # what the headless window's frame takes from its height
 TERMINAL = {"succeeded", "failed", "cancelled", "interrupted"}
 
 
-def _get(daemon: Daemon, path: str) -> Any:
-    with urllib.request.urlopen(daemon.base_url + path, timeout=30) as response:
-        return json.load(response)
+def _get(daemon: DaemonProcess, path: str) -> Any:
+    with daemon.client(token=False) as client:
+        return client.get(path).json()
 
 
-def _job_events(daemon: Daemon, job_id: str) -> list[tuple[str, dict[str, Any]]]:
+def _job_events(daemon: DaemonProcess, job_id: str) -> list[tuple[str, dict[str, Any]]]:
     """The job's whole event stream from the daemon (it ends after the final state)."""
-    events = []
-    kind, data = None, []
-    with urllib.request.urlopen(f"{daemon.base_url}/v1/jobs/{job_id}/events", timeout=60) as response:
-        for raw in response:
-            line = raw.decode("utf-8").rstrip("\n")
-            if line.startswith("event:"):
-                kind = line[6:].strip()
-            elif line.startswith("data:"):
-                data.append(line[5:].strip())
-            elif not line and kind is not None:
-                events.append((kind, json.loads("\n".join(data))))
-                kind, data = None, []
-    return events
+    with daemon.client(token=False) as client, client.stream("GET", f"/v1/jobs/{job_id}/events") as response:
+        return [(kind, data) for _, kind, data in read_sse(response)]
 
 
 def _wait(browser: Any, condition: Any, what: str, timeout_s: float = STEP_TIMEOUT_S) -> Any:
@@ -82,10 +70,10 @@ def _screenshot(browser: Any, artifacts: Path, name: str) -> None:
     assert browser.save_screenshot(str(artifacts / f"{name}.png"))
 
 
-def test_dry_run_from_the_page(daemon: Daemon, browser: Any, artifacts: Path) -> None:
+def test_dry_run_from_the_page(daemon: DaemonProcess, browser: Any, artifacts: Path) -> None:
     from selenium.webdriver.support.ui import Select
 
-    browser.get(daemon.base_url + "/")
+    browser.get(daemon.url + "/")
     _wait(browser, lambda d: "connected" in _by_id(d, "robot-status").text, "the robot's status")
     _wait(browser, lambda d: _by_id(d, "stream-state").text == "stream: live", "the live event stream")
     assert "dry-run daemon" in _by_id(browser, "dry-run-badge").text
@@ -114,6 +102,9 @@ def test_dry_run_from_the_page(daemon: Daemon, browser: Any, artifacts: Path) ->
     _wait(browser, lambda d: int(_by_id(d, "scan").get_attribute("data-scans")) >= 1, "a scan drawn")
     total = int(_by_id(browser, "progress").get_attribute("aria-valuemax"))
     assert f"of {total}" in _by_id(browser, "progress-text").text
+    _wait(browser, lambda d: int(_by_id(d, "progress").get_attribute("aria-valuenow")) >= total // 2,
+          "half the waypoints done", RUN_TIMEOUT_S / 2)
+    assert int(_by_id(browser, "scan").get_attribute("data-scans")) >= 2, "the scan picture follows the run"
     _screenshot(browser, artifacts, "running")
     job_id = _get(daemon, "/v1/jobs")["jobs"][0]["id"]
     assert job_id in _by_id(browser, "job-title").text
@@ -139,7 +130,7 @@ def test_dry_run_from_the_page(daemon: Daemon, browser: Any, artifacts: Path) ->
     _check_event_to_paint(daemon, browser, job_id, artifacts)
 
 
-def _check_event_to_paint(daemon: Daemon, browser: Any, job_id: str, artifacts: Path) -> None:
+def _check_event_to_paint(daemon: DaemonProcess, browser: Any, job_id: str, artifacts: Path) -> None:
     """Every progress event the daemon sent for the job reached the page and was painted
     within a second of its arrival; the figures go to artifacts/event_to_paint.json."""
     sent = [(d.get("stage"), d.get("waypoint"), d.get("completed"))
