@@ -120,6 +120,14 @@ def rod_frame(rod: RodLine) -> FloatArray:
     return make_transform(np.column_stack([x, np.cross(z, x), z]), rod.origin_m)
 
 
+def circle_points(circle: Mapping[str, Any]) -> list[tuple[float, float]]:
+    """A closed polygon (u, v) around a fitted circle ``{"centre_uv_m", "radius_m"}``."""
+    cu, cv = (float(c) for c in circle["centre_uv_m"])
+    radius = float(circle["radius_m"])
+    angles = np.linspace(0.0, 2 * math.pi, CIRCLE_SEGMENTS + 1)
+    return [(cu + radius * math.cos(a), cv + radius * math.sin(a)) for a in angles]
+
+
 class FoxgloveLiveView:
     """A Foxglove websocket server on loopback showing one run at a time.
 
@@ -145,6 +153,7 @@ class FoxgloveLiveView:
         self._log = channels.LogChannel("/lasercal/log", context=ctx)
         self._geometry: RunGeometry | None = None
         self._centres: dict[int, tuple[float, float]] = {}
+        self._circle: Mapping[str, Any] | None = None
         self._T_base_laser: FloatArray | None = None
 
     @property
@@ -156,6 +165,7 @@ class FoxgloveLiveView:
         """A new run: forget the last one's centres and estimate."""
         self._geometry = geometry
         self._centres = {}
+        self._circle = None
         self._T_base_laser = geometry.nominal_base_laser if geometry is not None else None
 
     def __call__(self, event: EventLike) -> None:
@@ -172,6 +182,7 @@ class FoxgloveLiveView:
             self._centres[int(data["waypoint"])] = (float(u), float(v))
             self._update_estimate()
             self._show_frames(stamp, data)
+            self._show_scene(stamp)
         elif kind == "result":
             self._T_base_laser = np.asarray(data["T_base_laser"], dtype=float)
             self._show_frames(stamp, data)
@@ -202,28 +213,30 @@ class FoxgloveLiveView:
         end = start + float(data["angle_increment_rad"]) * max(len(ranges) - 1, 0)
         self._scan.log(fm.LaserScan(timestamp=stamp, frame_id=FRAME_LASER, start_angle=start, end_angle=end,
                                     ranges=ranges))
-        circle = data.get("circle")
-        if circle is not None:
-            self._show_scene(stamp, circle)
+        self._circle = data.get("circle")
+        self._show_scene(stamp)
 
-    def _show_scene(self, stamp: Any, circle: Mapping[str, Any]) -> None:
+    def _show_scene(self, stamp: Any) -> None:
+        """The measured centres, the latest fitted circle (if the rod was found) and the rod."""
         fm = self._fm
         green = fm.Color(r=0.12, g=0.54, b=0.3, a=1.0)
         blue = fm.Color(r=0.17, g=0.42, b=0.69, a=1.0)
-        cu, cv = (float(c) for c in circle["centre_uv_m"])
-        radius = float(circle["radius_m"])
-        angles = np.linspace(0.0, 2 * math.pi, CIRCLE_SEGMENTS + 1)
-        ring = [fm.Point3(x=cu + radius * math.cos(a), y=cv + radius * math.sin(a), z=0.0) for a in angles]
         entities = [
-            fm.SceneEntity(timestamp=stamp, frame_id=FRAME_LASER, id="fitted_circle", lines=[
-                fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=2.0, scale_invariant=True,
-                                 points=ring, color=blue)]),
             fm.SceneEntity(timestamp=stamp, frame_id=FRAME_LASER, id="measured_centres", spheres=[
                 fm.SpherePrimitive(pose=fm.Pose(position=fm.Vector3(x=u, y=v, z=0.0),
                                                 orientation=fm.Quaternion(x=0, y=0, z=0, w=1)),
                                    size=fm.Vector3(x=0.01, y=0.01, z=0.01), color=green)
                 for u, v in self._centres.values()]),
         ]
+        deletions = []
+        if self._circle is not None:
+            ring = [fm.Point3(x=u, y=v, z=0.0) for u, v in circle_points(self._circle)]
+            entities.append(fm.SceneEntity(timestamp=stamp, frame_id=FRAME_LASER, id="fitted_circle", lines=[
+                fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=2.0, scale_invariant=True,
+                                 points=ring, color=blue)]))
+        else:  # the rod was not found in the latest scan
+            deletions.append(fm.SceneEntityDeletion(
+                timestamp=stamp, type=fm.SceneEntityDeletionType.MatchingId, id="fitted_circle"))
         if self._geometry is not None:
             rod = self._geometry.rod
             cylinder = fm.CylinderPrimitive(
@@ -233,7 +246,7 @@ class FoxgloveLiveView:
                 color=fm.Color(r=0.87, g=0.42, b=0.13, a=0.9))
             entities.append(fm.SceneEntity(timestamp=stamp, frame_id=FRAME_ROD, id="rod", frame_locked=True,
                                            cylinders=[cylinder]))
-        self._scene.log(fm.SceneUpdate(entities=entities))
+        self._scene.log(fm.SceneUpdate(deletions=deletions, entities=entities))
 
     def _show_frames(self, stamp: Any, data: Mapping[str, Any]) -> None:
         fm = self._fm
