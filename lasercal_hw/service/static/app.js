@@ -227,7 +227,7 @@ async function refreshStatus() {
   try {
     state.status = await api("GET", "/v1/status");
     const job = state.status.job;
-    if (job && (!state.job || job.id === state.job.id || ACTIVE_STATES.has(job.state))) adoptJob(job);
+    if (job && (!state.job || job.id === state.job.id || ACTIVE_STATES.has(job.state))) takeSnapshot(job);
     markDirty("status", "job");
   } catch (err) {
     showError(`cannot read the daemon's status: ${err.message}`);
@@ -239,6 +239,13 @@ async function refreshStatus() {
 function adoptJob(job) {
   if (state.live.jobId !== job.id) state.live = freshLive(job.id);
   state.job = job;
+}
+
+/** A job record read from the daemon; the event stream may be ahead of it (a final state). */
+function takeSnapshot(job) {
+  const streamState = state.live.jobId === job.id && state.job ? state.job.state : null;
+  const behind = ACTIVE_STATES.has(job.state) && streamState && !ACTIVE_STATES.has(streamState);
+  adoptJob({ ...job, state: behind ? streamState : job.state });
 }
 
 function renderJob() {
@@ -690,9 +697,7 @@ async function refreshJob(jobId) {
   try {
     const job = await api("GET", `/v1/jobs/${jobId}`);
     if (state.live.jobId === jobId) {
-      // The stream is ahead of this snapshot: keep the live state, take everything else.
-      const liveState = state.job && state.job.state;
-      state.job = { ...job, state: ACTIVE_STATES.has(job.state) && liveState && !ACTIVE_STATES.has(liveState) ? liveState : job.state };
+      takeSnapshot(job);
       markDirty("job");
     }
   } catch (err) {
@@ -740,7 +745,7 @@ async function startJob(kind) {
                  activate_on_pass: kind !== "verify" && $("activate-on-pass").checked };
   try {
     const job = await authorised("POST", "/v1/jobs", body);
-    if (job) { adoptJob(job); markDirty("job"); }
+    if (job) { takeSnapshot(job); markDirty("job"); }
   } catch (err) {
     showError(`${err.message} (${err.code})`);
   }
@@ -753,8 +758,8 @@ async function cancelJob() {
   if (!ok) return;
   try {
     const updated = await authorised("POST", `/v1/jobs/${job.id}/cancel`, {});
-    if (updated && state.job && state.job.id === updated.id && ACTIVE_STATES.has(state.job.state)) {
-      state.job = { ...state.job, ...updated, state: ACTIVE_STATES.has(updated.state) ? state.job.state : updated.state };
+    if (updated && state.live.jobId === updated.id) {
+      takeSnapshot(updated);
       markDirty("job");
     }
   } catch (err) {
