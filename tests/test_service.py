@@ -7,6 +7,7 @@ import json
 import socket
 import sqlite3
 import stat
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from lasercal_hw.cli.main import main
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.app import create_app
 from lasercal_hw.service.auth import ensure_token
@@ -122,10 +124,15 @@ def test_one_motion_job_at_a_time_and_cancel_keeps_active_calibration(
     assert client.get("/v1/calibration").json()["id"] == done["calibration_id"] != active
 
 
-def test_a_failed_run_is_failed_with_its_error_code(client: TestClient, engine: FakeEngine) -> None:
+def test_a_device_failure_is_failed_with_its_code_and_resumable(
+    client: TestClient, engine: FakeEngine
+) -> None:
     engine.fail = True
     job = _finish(client, client.post("/v1/jobs", json=JOB).json()["id"])
     assert job["state"] == "failed" and job["error"]["code"] == "device_error"
+    engine.fail = False  # the device is back: the recording continues
+    assert client.post(f"/v1/jobs/{job['id']}/resume", json={"confirm_motion": True}).status_code == 200
+    assert _finish(client, job["id"])["state"] == "succeeded"
     again = client.post(f"/v1/jobs/{job['id']}/resume", json={"confirm_motion": True})
     assert (again.status_code, again.json()["code"]) == (409, "not_resumable")
 
@@ -250,3 +257,17 @@ def test_sd_notify_sends_one_datagram_to_the_notify_socket(
     assert watchdog_interval_s() == 15.0
     monkeypatch.delenv("NOTIFY_SOCKET")
     assert notify("READY=1") is False
+
+
+def test_remote_refuses_to_start_motion_without_yes(monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    monkeypatch.setattr(sys, "argv", ["lasercal", "remote", "calibrate", "--daemon", "http://127.0.0.1:9"])
+    with pytest.raises(SystemExit) as exited:
+        main()
+    assert exited.value.code == 2 and "--yes" in capsys.readouterr().err
+
+
+def test_remote_says_when_the_daemon_is_not_there(monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    monkeypatch.setattr(sys, "argv", ["lasercal", "remote", "status", "--daemon", "http://127.0.0.1:9"])
+    with pytest.raises(SystemExit) as exited:
+        main()
+    assert exited.value.code == 3 and "cannot reach the lasercal daemon" in capsys.readouterr().err

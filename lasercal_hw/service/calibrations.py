@@ -86,12 +86,16 @@ class CalibrationHistory:
         active_id = self._store.active_calibration_id()
         return [self._present(s, self._stored(s["id"])[1], active_id) for s in self._store.calibrations()]
 
+    def active_summary(self) -> dict[str, Any] | None:
+        """The active calibration's summary, or None."""
+        active_id = self._store.active_calibration_id()
+        return None if active_id is None else self.summary(active_id)
+
     def active(self) -> dict[str, Any] | None:
         """The active calibration with its exports, or None."""
-        active_id = self._store.active_calibration_id()
-        if active_id is None:
+        summary = self.active_summary()
+        if summary is None:
             return None
-        summary = self.summary(active_id)
         T = np.asarray(summary["T_base_laser"], dtype=float)
         return summary | {
             "exports": {

@@ -120,6 +120,6 @@ class Daemon:
                 "data_dir": str(Path(self.data_dir).resolve()),
             },
             **devices,
-            "active_calibration": self.history.active(),
+            "active_calibration": self.history.active_summary(),
             "job": self.jobs.current(),
         }

@@ -27,6 +27,8 @@ logger = logging.getLogger(__name__)
 
 SESSION_FILE = "session.mcap"
 RESUMABLE_STATES = ("cancelled", "interrupted")
+RESUMABLE_ERRORS = ("device_error", "protective_stop")
+"""A job a device stopped (the arm stopped, the recording kept) resumes as ``lasercal run --resume`` does."""
 _STAGE_STATES = {
     "connect": "preflight",
     "preflight": "preflight",
@@ -219,11 +221,15 @@ class JobManager:
         """Continue a cancelled or interrupted job from its recording (409 otherwise)."""
         record = self.get(job_id)
         session = Path(record["out_dir"]) / SESSION_FILE
-        if record["state"] not in RESUMABLE_STATES:
+        device_failure = (
+            record["state"] == "failed" and (record["error"] or {}).get("code") in RESUMABLE_ERRORS
+        )
+        if record["state"] not in RESUMABLE_STATES and not device_failure:
             raise ApiError(
                 409,
                 "not_resumable",
-                f"job {job_id} is {record['state']}; only a cancelled or interrupted job can be resumed",
+                f"job {job_id} is {record['state']}; only a cancelled or interrupted job, or one a device "
+                "stopped, can be resumed",
                 {"job_id": job_id, "state": record["state"]},
             )
         if not session.exists():
