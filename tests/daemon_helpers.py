@@ -128,8 +128,9 @@ def read_sse(
 class DaemonProcess:
     """``lasercal serve --dry-run --listen 127.0.0.1:0`` in its own process group."""
 
-    def __init__(self, data_dir: Path) -> None:
+    def __init__(self, data_dir: Path, config: Path | None = None) -> None:
         self.data_dir = data_dir
+        self.config = config
         self.log = data_dir.parent / f"{data_dir.name}-daemon.log"
         self.process: subprocess.Popen[str] | None = None
         self.url = ""
@@ -148,6 +149,7 @@ class DaemonProcess:
                     "127.0.0.1:0",
                     "--data-dir",
                     str(self.data_dir),
+                    *(["--config", str(self.config)] if self.config is not None else []),
                 ],
                 stdout=subprocess.PIPE,
                 stderr=log,

@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import json
 import sys
-from typing import Any
+from typing import Annotated, Any
 
+import typer
 from rich.console import Console
 
 from lasercal_hw.errors import ConfigError
 
 console = Console(stderr=False, highlight=False)
 err_console = Console(stderr=True, highlight=False)
+
+FoxgloveOption = Annotated[bool, typer.Option(
+    "--foxglove", help="Serve runs live to the Foxglove app on 127.0.0.1 (needs the foxglove extra).")]
+FoxglovePortOption = Annotated[int, typer.Option("--foxglove-port", help="Port of the --foxglove server.")]
 
 
 def print_json(document: Any) -> None:

@@ -18,10 +18,11 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, SpinnerColumn, TextColumn
 from rich.progress import Progress as RichProgress
 
-from lasercal_hw.cli.common import console, err_console, print_json
+from lasercal_hw.cli.common import FoxgloveOption, FoxglovePortOption, console, err_console, print_json
 from lasercal_hw.cli.solve import print_result
 from lasercal_hw.config import load_job, with_overrides
 from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
+from lasercal_hw.live.foxglove import foxglove_view
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate, default_out_dir
 
 OVERHEAD_TARGET = 0.10
@@ -189,6 +190,8 @@ def run_command(
     resume: ResumeOption = None,
     scene: SceneOption = None,
     adaptive: Annotated[bool, typer.Option("--adaptive", help="Design waypoints as the run goes.")] = False,
+    foxglove: FoxgloveOption = False,
+    foxglove_port: FoxglovePortOption = 8765,
 ) -> None:
     """Run a calibration: preflight, background, waypoints, solve, quality gates, outputs.
 
@@ -214,9 +217,11 @@ def run_command(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    with interrupt_once(), ProgressView(ui) as view:
+    live_port = foxglove_port if foxglove else None
+    with interrupt_once(), ProgressView(ui) as view, foxglove_view(live_port) as live:
         report = calibrate(
-            request, on_event=view, confirm=None if yes or dry_run else confirm_before_motion(view, ui)
+            request, on_event=live.watch(request, view) if live else view,
+            confirm=None if yes or dry_run else confirm_before_motion(view, ui)
         )
     if as_json:
         print_json(report.document())

@@ -8,6 +8,8 @@ from typing import Annotated, Any
 
 import typer
 
+from lasercal_hw.cli.common import FoxgloveOption, FoxglovePortOption
+
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Daemon configuration (TOML).")]
 ListenOption = Annotated[
     str | None,
@@ -28,6 +30,8 @@ def serve_command(
     listen: ListenOption = None,
     data_dir: DataDirOption = None,
     dry_run: DryRunOption = False,
+    foxglove: FoxgloveOption = False,
+    foxglove_port: FoxglovePortOption = 8765,
 ) -> None:
     """Run the calibration daemon until SIGTERM or Ctrl-C (a running job's arm is stopped first).
 
@@ -36,14 +40,17 @@ def serve_command(
     """
     import uvicorn
 
+    from lasercal_hw.live.foxglove import FoxgloveLiveView
     from lasercal_hw.service.app import create_app
     from lasercal_hw.service.config import listen_address, load_daemon_config
     from lasercal_hw.service.daemon import Daemon
+    from lasercal_hw.service.runners import build_runners
     from lasercal_hw.service.sd_notify import notify
 
     overrides: dict[str, Any] = {"listen": listen, "data_dir": data_dir, "dry_run": dry_run or None}
     settings = load_daemon_config(config, overrides)
-    daemon = Daemon(settings)
+    live = FoxgloveLiveView(port=foxglove_port) if foxglove else None  # lives as long as the process
+    daemon = Daemon(settings, runners=lambda devices: build_runners(devices, live=live))
     host, port = listen_address(settings.listen)
 
     class Server(uvicorn.Server):

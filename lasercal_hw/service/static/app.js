@@ -1,0 +1,806 @@
+// lasercal operator page: plain JavaScript against the daemon's /v1 API (docs/daemon.md).
+// Live state comes from the /v1/events stream; drawing happens once per animation frame, and
+// every event's arrival and paint time is kept in window.lasercalEvents (read by the browser tests).
+"use strict";
+
+const TOKEN_KEY = "lasercal.token";
+const ACTIVE_STATES = new Set(["queued", "preflight", "running", "solving"]);
+const STATUS_POLL_MS = 5000;
+const EVENT_LOG_LINES = 200;
+const INSET_PX = 150;
+
+const $ = (id) => document.getElementById(id);
+
+const state = {
+  status: null,
+  job: null,              // the job shown in the run panel
+  calibrations: [],
+  verifies: [],
+  diffs: new Map(),       // "<id>:<active id>" -> diff document
+  knownJobs: new Set(),   // jobs older than the latest one when the page opened
+  live: freshLive(null),
+};
+
+/** What the run panel draws for one job. */
+function freshLive(jobId) {
+  return { jobId, progress: null, scan: null, scans: 0, centres: new Map(), predicted: new Map(),
+           skipped: [], result: null, log: [] };
+}
+
+// ---- event-to-paint record --------------------------------------------------------------
+
+/** One entry per received event: arrival, render and paint times in epoch milliseconds. */
+window.lasercalEvents = [];
+let unpainted = [];
+const dirty = new Set();
+let frameRequested = false;
+
+function epochMs() { return performance.timeOrigin + performance.now(); }
+
+function markDirty(...parts) {
+  parts.forEach((p) => dirty.add(p));
+  if (!frameRequested) {
+    frameRequested = true;
+    requestAnimationFrame(renderFrame);
+  }
+}
+
+function renderFrame() {
+  frameRequested = false;
+  const parts = new Set(dirty);
+  dirty.clear();
+  if (parts.has("status")) renderStatus();
+  if (parts.has("job")) renderJob();
+  if (parts.has("scan")) renderScan();
+  if (parts.has("log")) renderLog();
+  if (parts.has("history")) renderHistory();
+  const rendered = unpainted;
+  unpainted = [];
+  const renderedAt = epochMs();
+  rendered.forEach((e) => { e.render_ms = renderedAt; });
+  // The next frame's callback runs after this frame was painted.
+  requestAnimationFrame(() => {
+    const paintedAt = epochMs();
+    rendered.forEach((e) => { e.paint_ms = paintedAt; });
+  });
+}
+
+// ---- HTTP ---------------------------------------------------------------------------------
+
+class ApiError extends Error {
+  constructor(status, body) {
+    super(body && body.message ? body.message : `HTTP ${status}`);
+    this.status = status;
+    this.code = body && body.code ? body.code : "http_" + status;
+  }
+}
+
+async function api(method, path, body, token) {
+  const headers = { Accept: "application/json" };
+  if (body !== undefined) headers["Content-Type"] = "application/json";
+  if (token) headers.Authorization = "Bearer " + token;
+  const response = await fetch(path, { method, headers, body: body === undefined ? undefined : JSON.stringify(body) });
+  const text = await response.text();
+  let parsed = null;
+  try { parsed = text ? JSON.parse(text) : null; } catch (_) { parsed = { message: text.slice(0, 200) }; }
+  if (!response.ok) throw new ApiError(response.status, parsed);
+  return parsed;
+}
+
+/** A call that needs the token: asks for it once, and again if the daemon refuses it. */
+async function authorised(method, path, body) {
+  for (let attempt = 0; attempt < 2; attempt++) {
+    let token = sessionStorage.getItem(TOKEN_KEY);
+    if (!token) {
+      token = await askToken();
+      if (!token) return null;
+      sessionStorage.setItem(TOKEN_KEY, token);
+    }
+    try {
+      const answer = await api(method, path, body, token);
+      showError("");
+      return answer;
+    } catch (err) {
+      if (err.status === 401 || err.status === 403) {
+        sessionStorage.removeItem(TOKEN_KEY);
+        showError(`${err.message} (${err.code}); enter the token again`);
+        continue;
+      }
+      throw err;
+    }
+  }
+  return null;
+}
+
+function showError(message) {
+  const line = $("error-line");
+  line.textContent = message;
+  line.hidden = !message;
+}
+
+// ---- dialogs ------------------------------------------------------------------------------
+
+function dialogResult(dialog) {
+  return new Promise((resolve) => {
+    dialog.addEventListener("close", () => resolve(dialog.returnValue), { once: true });
+    dialog.returnValue = "";
+    dialog.showModal();
+  });
+}
+
+async function askToken() {
+  const input = $("token-input");
+  input.value = "";
+  const answer = await dialogResult($("token-dialog"));
+  return answer === "ok" && input.value.trim() ? input.value.trim() : null;
+}
+
+async function confirmAction(title, text, yesLabel) {
+  $("confirm-title").textContent = title;
+  $("confirm-text").textContent = text;
+  $("confirm-yes").textContent = yesLabel;
+  return (await dialogResult($("confirm-dialog"))) === "ok";
+}
+
+// ---- formatting ---------------------------------------------------------------------------
+
+const fmt = (x, digits = 2) => (x === null || x === undefined || Number.isNaN(x) ? "–" : Number(x).toFixed(digits));
+const norm = (v) => (v ? Math.hypot(...v) : null);
+
+/** Standard deviation of |d| from the per-axis std (first order; RMS of the axes at d = 0). */
+function normStd(d, std) {
+  if (!d || !std) return null;
+  const n = Math.hypot(...d);
+  if (n < 1e-12) return Math.sqrt(std.reduce((s, x) => s + x * x, 0) / std.length);
+  return Math.sqrt(d.reduce((s, x, i) => s + (x / n) ** 2 * std[i] ** 2, 0));
+}
+
+function age(isoTime) {
+  const seconds = (Date.now() - Date.parse(isoTime)) / 1000;
+  if (!Number.isFinite(seconds)) return "";
+  if (seconds < 120) return `${Math.round(seconds)} s ago`;
+  if (seconds < 7200) return `${Math.round(seconds / 60)} min ago`;
+  if (seconds < 172800) return `${Math.round(seconds / 3600)} h ago`;
+  return `${Math.round(seconds / 86400)} days ago`;
+}
+
+const utc = (iso) => (iso ? iso.replace("T", " ").replace(/\.\d+/, "").replace(/\+00:00|Z$/, "") : "–");
+
+function el(tag, attrs = {}, ...children) {
+  const node = document.createElement(tag);
+  Object.entries(attrs).forEach(([k, v]) => {
+    if (k === "class") node.className = v; else if (k === "text") node.textContent = v; else node.setAttribute(k, v);
+  });
+  children.forEach((c) => node.append(c));
+  return node;
+}
+
+function badge(text, kind) { return el("span", { class: "badge " + kind, text }); }
+
+function stateKind(jobState) {
+  if (ACTIVE_STATES.has(jobState)) return "run";
+  return { succeeded: "ok", failed: "bad", cancelled: "warn", interrupted: "warn" }[jobState] || "off";
+}
+
+// ---- status panel -------------------------------------------------------------------------
+
+function renderStatus() {
+  const s = state.status;
+  if (!s) return;
+  $("daemon-version").textContent = `daemon ${s.daemon.version}`;
+  $("dry-run-badge").hidden = !s.daemon.dry_run;
+  const robot = s.robot || {};
+  const robotNode = $("robot-status");
+  robotNode.replaceChildren(
+    badge(robot.connected ? "connected" : "not connected", robot.connected ? "ok" : "bad"), " ",
+    el("span", { text: robot.host || "" }),
+    el("div", { class: "small", text: `mode ${robot.mode || "–"} · safety ${robot.safety || "–"} · remote control ${
+      robot.remote_control === true ? "on" : robot.remote_control === false ? "off" : "–"}` }));
+  if (robot.error) robotNode.append(el("div", { class: "small bad-text", text: robot.error }));
+  const scanner = s.scanner || {};
+  const identity = scanner.identity ? Object.entries(scanner.identity).map(([k, v]) => `${k} ${v}`).join(" · ") : "";
+  const scannerNode = $("scanner-status");
+  scannerNode.replaceChildren(
+    badge(scanner.connected ? "connected" : "not connected", scanner.connected ? "ok" : "bad"), " ",
+    el("span", { class: "small", text: scanner.url || "" }),
+    el("div", { class: "small", text: identity }));
+  if (scanner.error) scannerNode.append(el("div", { class: "small", text: scanner.error }));
+  const active = s.active_calibration;
+  const activeNode = $("active-calibration");
+  if (!active) {
+    activeNode.replaceChildren(el("span", { class: "muted", text: "none" }));
+  } else {
+    const lastVerify = state.verifies.find((v) => v.calibration_id === active.id);
+    activeNode.replaceChildren(
+      el("span", { class: "mono", text: active.id }), " ",
+      badge(active.passed ? "passed" : "failed", active.passed ? "ok" : "bad"),
+      active.dry_run ? badge("dry run", "warn") : "",
+      el("div", { class: "small", text: `${utc(active.created_utc)} (${age(active.created_utc)})` }),
+      el("div", { class: "small", text: `std ${fmt(norm(active.std_translation_mm))} mm, ${
+        fmt(norm(active.std_rotation_deg), 3)} deg` }),
+      el("div", { class: "small", text: lastVerify ? `last verify: ${lastVerify.verdict} (${age(lastVerify.created_utc)})`
+        : "not verified since" }));
+  }
+}
+
+async function refreshStatus() {
+  try {
+    state.status = await api("GET", "/v1/status");
+    const job = state.status.job;
+    if (job && (!state.job || job.id === state.job.id || ACTIVE_STATES.has(job.state))) takeSnapshot(job);
+    markDirty("status", "job");
+  } catch (err) {
+    showError(`cannot read the daemon's status: ${err.message}`);
+  }
+}
+
+// ---- run panel ----------------------------------------------------------------------------
+
+function adoptJob(job) {
+  if (state.live.jobId !== job.id) state.live = freshLive(job.id);
+  state.job = job;
+}
+
+/** A job record read from the daemon; the event stream may be ahead of it (a final state). */
+function takeSnapshot(job) {
+  const streamState = state.live.jobId === job.id && state.job ? state.job.state : null;
+  const behind = ACTIVE_STATES.has(job.state) && streamState && !ACTIVE_STATES.has(streamState);
+  adoptJob({ ...job, state: behind ? streamState : job.state });
+}
+
+function renderJob() {
+  const job = state.job;
+  const live = state.live;
+  $("cancel-job").disabled = !(job && ACTIVE_STATES.has(job.state));
+  if (!job) return;
+  $("job-title").textContent = `${job.kind} ${job.id}`;
+  const jobState = $("job-state");
+  jobState.textContent = job.state;
+  jobState.className = "badge " + stateKind(job.state);
+  const p = live.progress || job.progress || {};
+  const total = p.waypoint_count || 0;
+  const done = p.completed || 0;
+  const bar = $("progress");
+  bar.setAttribute("aria-valuemax", String(total));
+  bar.setAttribute("aria-valuenow", String(done));
+  $("progress-fill").style.width = total ? `${(100 * done) / total}%` : "0";
+  $("progress-text").textContent = total ? `waypoint ${Math.min(done + (ACTIVE_STATES.has(job.state) && done < total ? 1 : 0), total)} of ${total} · ${done} done` : "–";
+  $("time-left").textContent = ACTIVE_STATES.has(job.state) && p.time_left_s !== null && p.time_left_s !== undefined
+    ? `about ${Math.round(p.time_left_s)} s left` : "";
+  $("job-message").textContent = (job.error && job.error.message) || p.message || "";
+  renderSkipped();
+  renderResult();
+}
+
+function renderSkipped() {
+  const list = $("skipped");
+  const skipped = state.live.skipped;
+  if (!skipped.length) {
+    list.replaceChildren(el("li", { class: "muted", text: "none" }));
+    return;
+  }
+  list.replaceChildren(...skipped.map((s) => el("li", { text: `waypoint ${s.waypoint}: ${s.reason}` })));
+}
+
+function renderResult() {
+  const node = $("job-result");
+  const result = state.live.result;
+  const job = state.job;
+  const parts = [];
+  if (result) {
+    parts.push(badge(result.passed ? "passed" : "failed the quality gates", result.passed ? "ok" : "bad"), " ",
+      `RMS residual ${fmt(result.rms_residual_mm)} mm · std ${fmt(norm(result.std_translation_mm))} mm, ${
+        fmt(norm(result.std_rotation_deg), 3)} deg`);
+  }
+  const calibration = job && job.calibration_id && state.calibrations.find((c) => c.id === job.calibration_id);
+  if (calibration) parts.push(el("div", { class: "small files" }, "files: ", ...fileLinks(calibration.files)));
+  node.replaceChildren(...parts);
+}
+
+function fileLinks(files) {
+  return Object.entries(files || {}).map(([name, url]) => el("a", { href: url, target: "_blank", text: name }));
+}
+
+function renderLog() {
+  const log = state.live.log;
+  $("event-log").replaceChildren(...log.slice(-EVENT_LOG_LINES).reverse().map((line) => el("li", { text: line })));
+}
+
+// ---- scan picture -------------------------------------------------------------------------
+
+/** Scan points (u, v) in metres in the scanner frame, and which are on the rod. */
+function scanPoints(scan) {
+  const points = [];
+  scan.ranges_m.forEach((r, i) => {
+    if (r === null || !Number.isFinite(r) || r <= 0) return;
+    const a = scan.angle_min_rad + i * scan.angle_increment_rad;
+    points.push([r * Math.cos(a), r * Math.sin(a), i]);
+  });
+  return points;
+}
+
+function renderScan() {
+  const canvas = $("scan");
+  const ctx = canvas.getContext("2d");
+  const W = canvas.width;
+  const H = canvas.height;
+  ctx.clearRect(0, 0, W, H);
+  const live = state.live;
+  const scan = live.scan;
+  const rodBeams = new Set(scan ? scan.rod_beams : []);
+  const points = scan ? scanPoints(scan) : [];
+  const rodPoints = points.filter((p) => rodBeams.has(p[2]));
+  const centres = [...live.centres.values()];
+  const predicted = [...live.predicted.values()];
+  // View: the scanner, every centre and the rod, with a margin (the far walls are clipped).
+  const focus = [[0, 0], ...centres, ...predicted, ...rodPoints];
+  if (scan && scan.circle) focus.push(scan.circle.centre_uv_m);
+  // and the surroundings out to half as far again as the rod (walls beyond are clipped).
+  const reach = 1.5 * Math.max(...focus.map(([u, v]) => Math.hypot(u, v)), 0.3);
+  points.forEach(([u, v]) => { if (Math.hypot(u, v) <= reach) focus.push([u, v]); });
+  let [minU, maxU, minV, maxV] = [Infinity, -Infinity, Infinity, -Infinity];
+  focus.forEach(([u, v]) => { minU = Math.min(minU, u); maxU = Math.max(maxU, u); minV = Math.min(minV, v); maxV = Math.max(maxV, v); });
+  const span = Math.max(maxU - minU, maxV - minV, 0.5) * 1.3;
+  const midU = (minU + maxU) / 2;
+  const midV = (minV + maxV) / 2;
+  const scale = Math.min(W, H) / span;
+  // u (scanner x) to the right, v (scanner y) up.
+  const px = (u, v) => [W / 2 + (u - midU) * scale, H / 2 - (v - midV) * scale];
+
+  drawGrid(ctx, W, H, px, scale, midU, midV, span);
+  drawScanner(ctx, px);
+  ctx.fillStyle = cssVar("--scan");
+  points.forEach(([u, v, i]) => {
+    if (rodBeams.has(i)) return;
+    const [x, y] = px(u, v);
+    if (x >= 0 && x <= W && y >= 0 && y <= H) ctx.fillRect(x - 1, y - 1, 2, 2);
+  });
+  ctx.fillStyle = cssVar("--rod");
+  rodPoints.forEach(([u, v]) => { const [x, y] = px(u, v); ctx.fillRect(x - 2, y - 2, 4, 4); });
+  if (scan && scan.circle) {
+    const [x, y] = px(...scan.circle.centre_uv_m);
+    ctx.strokeStyle = cssVar("--circle");
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    ctx.arc(x, y, Math.max(scan.circle.radius_m * scale, 6), 0, 2 * Math.PI);
+    ctx.stroke();
+  }
+  predicted.forEach(([u, v]) => drawCross(ctx, ...px(u, v)));
+  ctx.font = "11px system-ui, sans-serif";
+  [...live.centres.entries()].forEach(([waypoint, [u, v]]) => {
+    const [x, y] = px(u, v);
+    ctx.fillStyle = cssVar("--measured");
+    ctx.beginPath();
+    ctx.arc(x, y, 4, 0, 2 * Math.PI);
+    ctx.fill();
+    ctx.fillText(String(waypoint), x + 6, y - 6);
+  });
+  if (scan && scan.circle) drawInset(ctx, W, scan, rodPoints);
+  ctx.fillStyle = cssVar("--muted");
+  ctx.fillText(scan ? `waypoint ${scan.waypoint}: ${rodBeams.size} beams on the rod` : "no scan yet", 8, H - 8);
+  canvas.dataset.scans = String(live.scans);
+  canvas.dataset.waypoint = scan ? String(scan.waypoint) : "";
+}
+
+function cssVar(name) { return getComputedStyle(document.documentElement).getPropertyValue(name).trim(); }
+
+function drawGrid(ctx, W, H, px, scale, midU, midV, span) {
+  const step = span > 4 ? 1 : span > 1.5 ? 0.5 : 0.1;
+  ctx.strokeStyle = "#eef0f3";
+  ctx.lineWidth = 1;
+  ctx.fillStyle = cssVar("--muted");
+  ctx.font = "10px system-ui, sans-serif";
+  const u0 = Math.floor((midU - span) / step) * step;
+  const v0 = Math.floor((midV - span) / step) * step;
+  for (let u = u0; u <= midU + span; u += step) {
+    const [x] = px(u, 0);
+    ctx.beginPath(); ctx.moveTo(x, 0); ctx.lineTo(x, H); ctx.stroke();
+    if (x < W - INSET_PX - 40) ctx.fillText(gridLabel(u), x + 2, 10);  // none under the close-up
+  }
+  for (let v = v0; v <= midV + span; v += step) {
+    const [, y] = px(0, v);
+    ctx.beginPath(); ctx.moveTo(0, y); ctx.lineTo(W, y); ctx.stroke();
+    ctx.fillText(gridLabel(v), 2, y - 2);
+  }
+  ctx.fillText("u [m] →, v [m] ↑ (scan plane)", W - 170, H - 8);
+}
+
+function gridLabel(metres) { return (Math.abs(metres) < 1e-9 ? 0 : metres).toFixed(1); }
+
+function drawScanner(ctx, px) {
+  const [x, y] = px(0, 0);
+  ctx.fillStyle = "#1d2330";
+  ctx.beginPath();
+  ctx.moveTo(x + 10, y); ctx.lineTo(x - 6, y - 7); ctx.lineTo(x - 6, y + 7);
+  ctx.closePath();
+  ctx.fill();
+}
+
+function drawCross(ctx, x, y) {
+  ctx.strokeStyle = cssVar("--predicted");
+  ctx.lineWidth = 2;
+  ctx.beginPath();
+  ctx.moveTo(x - 5, y - 5); ctx.lineTo(x + 5, y + 5);
+  ctx.moveTo(x + 5, y - 5); ctx.lineTo(x - 5, y + 5);
+  ctx.stroke();
+}
+
+/** A close-up of the rod: its beams and the fitted circle, 8 radii across. */
+function drawInset(ctx, W, scan, rodPoints) {
+  const size = INSET_PX;
+  const x0 = W - size - 8;
+  const y0 = 8;
+  const { centre_uv_m: [cu, cv], radius_m } = scan.circle;
+  const scale = size / (8 * radius_m);
+  const px = (u, v) => [x0 + size / 2 + (u - cu) * scale, y0 + size / 2 - (v - cv) * scale];
+  ctx.fillStyle = "#fff";
+  ctx.strokeStyle = cssVar("--line");
+  ctx.lineWidth = 1;
+  ctx.fillRect(x0, y0, size, size);
+  ctx.strokeRect(x0, y0, size, size);
+  ctx.save();
+  ctx.beginPath(); ctx.rect(x0, y0, size, size); ctx.clip();
+  ctx.strokeStyle = cssVar("--circle");
+  ctx.lineWidth = 2;
+  ctx.beginPath();
+  ctx.arc(...px(cu, cv), radius_m * scale, 0, 2 * Math.PI);
+  ctx.stroke();
+  ctx.fillStyle = cssVar("--rod");
+  rodPoints.forEach(([u, v]) => { const [x, y] = px(u, v); ctx.fillRect(x - 2.5, y - 2.5, 5, 5); });
+  ctx.restore();
+  ctx.fillStyle = cssVar("--muted");
+  ctx.fillText(`rod close-up, r = ${(radius_m * 1000).toFixed(1)} mm`, x0 + 4, y0 + size - 6);
+}
+
+// ---- history ------------------------------------------------------------------------------
+
+async function refreshHistory() {
+  try {
+    const [calibrations, verifies] = await Promise.all([api("GET", "/v1/calibrations"), api("GET", "/v1/verifies")]);
+    state.calibrations = calibrations.calibrations || [];
+    state.verifies = verifies.verifies || [];
+    const active = state.calibrations.find((c) => c.active);
+    if (active) {
+      await Promise.all(state.calibrations.filter((c) => c.id !== active.id && !state.diffs.has(`${c.id}:${active.id}`))
+        .map(async (c) => {
+          try { state.diffs.set(`${c.id}:${active.id}`, await api("GET", `/v1/calibrations/${c.id}/diff/${active.id}`)); }
+          catch (err) { state.diffs.set(`${c.id}:${active.id}`, null); }
+        }));
+    }
+    markDirty("history", "status", "job");
+  } catch (err) {
+    showError(`cannot read the history: ${err.message}`);
+  }
+}
+
+/** Rows of the history: calibrations and verifies, newest first, each with its change. */
+function historyRows() {
+  const active = state.calibrations.find((c) => c.active);
+  const rows = state.calibrations.map((c) => {
+    let change = null;
+    if (active && c.id === active.id) change = { t: [0, 0, 0], r: [0, 0, 0], st: c.std_translation_mm, sr: c.std_rotation_deg };
+    const diff = active && state.diffs.get(`${c.id}:${active.id}`);
+    if (diff) change = { t: diff.translation_mm, r: diff.rotation_deg, st: diff.combined_std_translation_mm,
+                         sr: diff.combined_std_rotation_deg, significant: diff.significant };
+    return { kind: c.dry_run ? "dry-run calibration" : "calibration", item: c, time: c.created_utc, change,
+             result: badge(c.passed ? "passed" : "failed", c.passed ? "ok" : "bad"),
+             std: `${fmt(norm(c.std_translation_mm))} / ${fmt(norm(c.std_rotation_deg), 3)}` };
+  });
+  state.verifies.forEach((v) => {
+    const against = v.calibration_id === (active && active.id) ? "" : ` (vs ${v.calibration_id})`;
+    rows.push({ kind: "verify" + against, item: v, time: v.created_utc,
+                change: { t: v.shift_translation_mm, r: v.shift_rotation_deg, st: v.shift_std_translation_mm,
+                          sr: v.shift_std_rotation_deg },
+                result: badge(v.verdict, { ok: "ok", degraded: "warn" }[v.verdict] || "bad"), std: "", reason: v.reason });
+  });
+  rows.sort((a, b) => Date.parse(b.time) - Date.parse(a.time));
+  return rows;
+}
+
+function changeCell(d, std, digits) {
+  if (!d) return el("td", { class: "muted", text: "–" });
+  return el("td", { title: `components ${d.map((x) => fmt(x, digits)).join(", ")} ± ${(std || []).map((x) => fmt(x, digits)).join(", ")}`,
+                    text: `${fmt(norm(d), digits)} ± ${fmt(normStd(d, std), digits)}` });
+}
+
+function renderHistory() {
+  const rows = historyRows();
+  const body = $("history-body");
+  if (!rows.length) {
+    body.replaceChildren(el("tr", {}, el("td", { colspan: "9", class: "muted", text: "no calibrations yet" })));
+  } else {
+    body.replaceChildren(...rows.map((row) => {
+      const item = row.item;
+      const action = el("td");
+      if (row.kind.endsWith("calibration")) {
+        if (item.active) action.append(badge("active", "ok"));
+        else {
+          const button = el("button", { type: "button", class: "activate", "data-id": item.id, text: "Activate" });
+          button.addEventListener("click", () => activate(item));
+          action.append(button);
+        }
+      }
+      const result = el("td", {}, row.result);
+      if (row.reason) result.append(el("div", { class: "small muted", text: row.reason }));
+      const tr = el("tr", { "data-id": item.id, "data-kind": row.kind, class: item.active ? "active-row" : "" },
+        el("td", { text: utc(row.time) }), el("td", { text: row.kind }), el("td", { class: "mono", text: item.id }),
+        result, changeCell(row.change && row.change.t, row.change && row.change.st, 2),
+        changeCell(row.change && row.change.r, row.change && row.change.sr, 3),
+        el("td", { text: row.std }), el("td", { class: "files" }, ...fileLinks(item.files)), action);
+      return tr;
+    }));
+  }
+  renderDrift(rows.filter((r) => r.change));
+}
+
+/** Two strips over time: |Δ translation| [mm] and |Δ rotation| [deg], each with ±1 std bars. */
+function renderDrift(rows) {
+  const svg = $("drift");
+  const NS = "http://www.w3.org/2000/svg";
+  const node = (tag, attrs, text) => {
+    const n = document.createElementNS(NS, tag);
+    Object.entries(attrs).forEach(([k, v]) => n.setAttribute(k, v));
+    if (text !== undefined) n.textContent = text;
+    return n;
+  };
+  svg.replaceChildren();
+  svg.setAttribute("viewBox", rows.length ? "0 0 900 260" : "0 0 900 40");
+  if (!rows.length) {
+    svg.append(node("text", { x: 20, y: 25 }, "no calibration to compare against yet: activate one"));
+    return;
+  }
+  const times = rows.map((r) => Date.parse(r.time));
+  let t0 = Math.min(...times);
+  let t1 = Math.max(...times);
+  if (t1 - t0 < 60000) { t0 -= 30000; t1 += 30000; }
+  const [left, right, width] = [70, 880, 810];
+  const x = (t) => left + ((t - t0) / (t1 - t0)) * (right - left);
+  const strips = [
+    { label: "Δ translation [mm]", top: 10, value: (r) => norm(r.change.t), std: (r) => normStd(r.change.t, r.change.st) },
+    { label: "Δ rotation [deg]", top: 135, value: (r) => norm(r.change.r), std: (r) => normStd(r.change.r, r.change.sr) },
+  ];
+  strips.forEach((strip) => {
+    const h = 95;
+    const values = rows.map((r) => [strip.value(r) || 0, strip.std(r) || 0]);
+    const top = Math.max(...values.map(([v, s]) => v + s), 1e-6) * 1.15;
+    const y = (v) => strip.top + h - (v / top) * h;
+    svg.append(node("line", { x1: left, x2: right, y1: y(0), y2: y(0), stroke: "#9aa4b2" }));
+    svg.append(node("line", { x1: left, x2: left, y1: strip.top, y2: strip.top + h, stroke: "#9aa4b2" }));
+    svg.append(node("text", { x: left + 6, y: strip.top + 10 }, strip.label));
+    svg.append(node("text", { x: 4, y: y(top / 1.15) + 4 }, (top / 1.15).toPrecision(2)));
+    svg.append(node("text", { x: 4, y: y(0) + 4 }, "0"));
+    rows.forEach((r, i) => {
+      const [v, s] = values[i];
+      const cx = x(Date.parse(r.time));
+      const colour = r.kind.startsWith("verify") ? "#dd6b20" : "#2b6cb0";
+      svg.append(node("line", { x1: cx, x2: cx, y1: y(Math.max(v - s, 0)), y2: y(v + s), stroke: colour, "stroke-width": 1.5 }));
+      svg.append(node("line", { x1: cx - 4, x2: cx + 4, y1: y(v + s), y2: y(v + s), stroke: colour }));
+      const mark = node("circle", { cx, cy: y(v), r: 4, fill: colour });
+      mark.append(node("title", {}, `${r.kind} ${r.item.id} ${utc(r.time)}: ${fmt(v, 3)} ± ${fmt(s, 3)}`));
+      svg.append(mark);
+    });
+  });
+  svg.append(node("text", { x: left, y: 255 }, utc(new Date(t0).toISOString())));
+  svg.append(node("text", { x: right - 120, y: 255 }, utc(new Date(t1).toISOString())));
+  svg.append(node("text", { x: left + width / 2 - 90, y: 255 }, "● calibration   ● verify (orange)   bars ±1 std"));
+}
+
+// ---- live events --------------------------------------------------------------------------
+
+const EVENT_KINDS = ["stage", "progress", "centre", "skip", "scan", "fault", "result", "state",
+                     "confirmed", "warning", "stopped", "daemon"];
+
+function connectEvents() {
+  const source = new EventSource("/v1/events");
+  const streamState = $("stream-state");
+  source.onopen = () => { streamState.textContent = "stream: live"; streamState.className = "badge ok"; };
+  source.onerror = () => { streamState.textContent = "stream: reconnecting"; streamState.className = "badge warn"; };
+  EVENT_KINDS.forEach((kind) => source.addEventListener(kind, (message) => onEvent(kind, message)));
+}
+
+function onEvent(kind, message) {
+  const arrival = epochMs();
+  let data;
+  try { data = JSON.parse(message.data); } catch (_) { return; }
+  const record = { id: message.lastEventId, kind, job_id: data.job_id || null, stage: data.stage || null,
+                   waypoint: data.waypoint ?? null, completed: data.completed ?? null,
+                   event_time_utc: data.time_utc || null, arrival_ms: arrival, render_ms: null, paint_ms: null };
+  window.lasercalEvents.push(record);
+  unpainted.push(record);
+  if (data.job_id && data.job_id !== state.live.jobId) {
+    // A stream replaying stored events brings older jobs too: only the latest job and new ones count.
+    if (state.knownJobs.has(data.job_id)) return;
+    const job = { id: data.job_id, kind: (state.job && state.job.id === data.job_id && state.job.kind) || "job",
+                  state: "queued", progress: {} };
+    adoptJob(job);
+    refreshJob(data.job_id);
+  }
+  applyEvent(kind, data);
+}
+
+function applyEvent(kind, data) {
+  const live = state.live;
+  const job = state.job;
+  switch (kind) {
+    case "progress":
+      live.progress = { waypoint: data.waypoint, completed: data.completed, waypoint_count: data.waypoint_count,
+                        time_left_s: data.time_left_s, message: data.message || progressMessage(data) };
+      logLine(`progress ${data.stage} ${data.completed}/${data.waypoint_count}`);
+      markDirty("job", "log");
+      break;
+    case "stage":
+      logLine(`stage ${data.stage}${data.message ? ": " + data.message : ""}`);
+      markDirty("log");
+      break;
+    case "confirmed":
+    case "warning":
+    case "daemon":
+      logLine(`${kind}: ${data.message || ""}`);
+      markDirty("log");
+      break;
+    case "stopped":
+      logLine(`stopped: ${data.error || ""}${data.session ? " (recording kept: " + data.session + ")" : ""}`);
+      markDirty("log");
+      break;
+    case "scan":
+      live.scan = data;
+      live.scans += 1;
+      markDirty("scan");
+      break;
+    case "centre":
+      live.centres.set(data.waypoint, data.centre_uv_m);
+      if (data.predicted_uv_m || data.expected_uv_m) live.predicted.set(data.waypoint, data.predicted_uv_m || data.expected_uv_m);
+      logLine(`centre ${data.waypoint}: (${fmt(data.centre_uv_m[0], 4)}, ${fmt(data.centre_uv_m[1], 4)}) m`);
+      markDirty("scan", "log");
+      break;
+    case "skip":
+      live.skipped.push({ waypoint: data.waypoint, reason: data.reason });
+      logLine(`skip ${data.waypoint}: ${data.reason}`);
+      markDirty("job", "log");
+      break;
+    case "fault":
+      logLine(`fault ${data.device}: ${data.message}`);
+      showError(`${data.device}: ${data.message}`);
+      markDirty("log");
+      break;
+    case "result":
+      live.result = data;
+      logLine(`result: ${data.passed ? "passed" : "failed"}`);
+      markDirty("job", "log");
+      break;
+    case "state":
+      if (job) {
+        job.state = data.state;
+        if (data.error) job.error = data.error;
+      }
+      logLine(`state ${data.state}`);
+      markDirty("job", "log");
+      if (!ACTIVE_STATES.has(data.state)) finishJob(data.job_id);
+      break;
+    default:
+      break;
+  }
+}
+
+function progressMessage(data) {
+  const where = data.waypoint === null || data.waypoint === undefined ? "" : ` waypoint ${data.waypoint}`;
+  return `${data.stage}${where}`;
+}
+
+function logLine(text) {
+  const log = state.live.log;
+  log.push(`${new Date().toISOString().slice(11, 19)} ${text}`);
+  if (log.length > EVENT_LOG_LINES) log.splice(0, log.length - EVENT_LOG_LINES);
+}
+
+async function refreshJob(jobId) {
+  try {
+    const job = await api("GET", `/v1/jobs/${jobId}`);
+    if (state.live.jobId === jobId) {
+      takeSnapshot(job);
+      markDirty("job");
+    }
+  } catch (err) {
+    showError(`cannot read job ${jobId}: ${err.message}`);
+  }
+}
+
+/** After a job ends: its final record, the history, and the predicted centres from its result. */
+async function finishJob(jobId) {
+  await refreshJob(jobId);
+  await Promise.all([refreshHistory(), refreshStatus()]);
+  const job = state.job;
+  if (!job || job.id !== jobId || !job.calibration_id) return;
+  const calibration = state.calibrations.find((c) => c.id === job.calibration_id);
+  const resultUrl = calibration && calibration.files && calibration.files.result;
+  if (!resultUrl) return;
+  try {
+    const result = await api("GET", resultUrl);
+    // Predicted centre = measured centre - residual (result.json residuals, mm).
+    (result.residuals || []).forEach((r) => {
+      const measured = state.live.centres.get(r.index);
+      if (measured) state.live.predicted.set(r.index, [measured[0] - r.du_mm / 1000, measured[1] - r.dv_mm / 1000]);
+    });
+    markDirty("scan");
+  } catch (err) {
+    showError(`cannot read the result of ${job.calibration_id}: ${err.message}`);
+  }
+}
+
+// ---- actions ------------------------------------------------------------------------------
+
+async function startJob(kind) {
+  showError("");
+  const preset = $("preset").value;
+  const dwell = Number($("dwell").value);
+  const status = state.status || { daemon: {}, robot: {} };
+  const where = kind === "dry_run" || status.daemon.dry_run
+    ? "the fake cell (a dry run: no real arm moves)"
+    : `the robot at ${status.robot.host || "the configured address"} — keep clear of the arm`;
+  const what = kind === "verify" ? "a verify run against the active calibration" : "a dry-run calibration";
+  const ok = await confirmAction("Start motion?",
+    `This starts ${what} on ${where}: the ${preset} trajectory, dwelling ${dwell} s at every waypoint.`, "Move the arm");
+  if (!ok) return;
+  const body = { kind, confirm_motion: true, job: { trajectory: { preset } }, dwell_s: dwell,
+                 activate_on_pass: kind !== "verify" && $("activate-on-pass").checked };
+  try {
+    const job = await authorised("POST", "/v1/jobs", body);
+    if (job) { takeSnapshot(job); markDirty("job"); }
+  } catch (err) {
+    showError(`${err.message} (${err.code})`);
+  }
+}
+
+async function cancelJob() {
+  const job = state.job;
+  if (!job) return;
+  const ok = await confirmAction("Cancel the run?", `Cancel ${job.kind} ${job.id}? The arm stops where it is; what was recorded is kept.`, "Cancel the run");
+  if (!ok) return;
+  try {
+    const updated = await authorised("POST", `/v1/jobs/${job.id}/cancel`, {});
+    if (updated && state.live.jobId === updated.id) {
+      takeSnapshot(updated);
+      markDirty("job");
+    }
+  } catch (err) {
+    showError(`${err.message} (${err.code})`);
+  }
+}
+
+async function activate(calibration) {
+  const ok = await confirmAction("Activate calibration?",
+    `Make ${calibration.id} (${utc(calibration.created_utc)}${calibration.dry_run ? ", dry run" : ""}) the active calibration? Software reading the daemon's calibration picks it up.`,
+    "Activate");
+  if (!ok) return;
+  try {
+    if (await authorised("POST", `/v1/calibrations/${calibration.id}/activate`, {})) {
+      await Promise.all([refreshHistory(), refreshStatus()]);
+    }
+  } catch (err) {
+    showError(`${err.message} (${err.code})`);
+  }
+}
+
+/** The jobs that existed when the page opened, but for the latest (whose events it shows). */
+async function rememberJobs() {
+  try {
+    const jobs = (await api("GET", "/v1/jobs")).jobs || [];
+    const latest = state.status && state.status.job ? state.status.job.id : null;
+    jobs.forEach((job) => { if (job.id !== latest) state.knownJobs.add(job.id); });
+  } catch (err) {
+    showError(`cannot read the jobs: ${err.message}`);
+  }
+}
+
+function init() {
+  $("start-dry-run").addEventListener("click", () => startJob("dry_run"));
+  $("start-verify").addEventListener("click", () => startJob("verify"));
+  $("cancel-job").addEventListener("click", cancelJob);
+  $("forget-token").addEventListener("click", () => { sessionStorage.removeItem(TOKEN_KEY); showError(""); });
+  refreshHistory();
+  refreshStatus().then(rememberJobs).then(connectEvents);
+  setInterval(refreshStatus, STATUS_POLL_MS);
+  markDirty("scan");
+}
+
+init();
