@@ -102,9 +102,9 @@ class FakeEngine:
         )
 
 
-def fake_runners(engine: FakeEngine) -> Callable[[Any], dict[str, Runner]]:
-    """``Daemon(runners=...)`` giving every calibration kind to ``engine``."""
-    return lambda devices: {"calibrate": engine, "dry_run": engine}
+def fake_runners(engine: FakeEngine) -> Callable[[Any, Any], dict[str, Runner]]:
+    """``Daemon(runners=...)`` giving every calibration kind to ``engine`` (verify stays out)."""
+    return lambda devices, active: {"calibrate": engine, "dry_run": engine}
 
 
 def read_sse(

@@ -93,7 +93,7 @@ def test_openapi_documents_the_api(client: TestClient) -> None:
     )
 
 
-def test_verify_is_not_implemented_yet(client: TestClient) -> None:
+def test_a_kind_without_a_runner_answers_501(client: TestClient) -> None:
     answer = client.post("/v1/jobs", json={**JOB, "kind": "verify"})
     assert (answer.status_code, answer.json()["code"]) == (501, "not_implemented")
 

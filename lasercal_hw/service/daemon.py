@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lasercal_hw import __version__
 from lasercal_hw.errors import ConfigError
@@ -19,6 +19,9 @@ from lasercal_hw.service.jobs import JobManager, Runner
 from lasercal_hw.service.monitor import DeviceMonitor
 from lasercal_hw.service.store import DB_FILE, HistoryStore, utc_now
 
+if TYPE_CHECKING:
+    from lasercal_hw.service.runners import ActiveCalibration, Devices
+
 logger = logging.getLogger(__name__)
 
 API_VERSION = 1
@@ -30,7 +33,7 @@ class Daemon:
     def __init__(
         self,
         config: DaemonConfig,
-        runners: Callable[[Callable[[], dict[str, str | None]]], dict[str, Runner]] | None = None,
+        runners: Callable[[Devices, ActiveCalibration], dict[str, Runner]] | None = None,
     ) -> None:
         if not config.loopback_only and config.token_file is None:
             raise ConfigError(
@@ -61,7 +64,7 @@ class Daemon:
             self.store,
             self.bus,
             self.data_dir,
-            runners(self.devices),
+            runners(self.devices, self.active_calibration),
             self.history,
             robot=ProgramKeeper(),
             dry_run_daemon=config.dry_run,
@@ -69,6 +72,12 @@ class Daemon:
         )
         self.monitor: DeviceMonitor | None = None
         self.state_listeners: list[Callable[[str, str], None]] = []
+
+    def active_calibration(self) -> tuple[str, Path] | None:
+        """The active calibration's id and folder, or None."""
+        calibration_id = self.store.active_calibration_id()
+        found = self.store.calibration(calibration_id) if calibration_id is not None else None
+        return (calibration_id, found[1]) if calibration_id is not None and found is not None else None
 
     def devices(self) -> dict[str, str | None]:
         """The job overrides naming the daemon's robot and scanner."""

@@ -1,18 +1,23 @@
 """The runners a job's kind dispatches to (``JobManager(runners=...)``): the shared engine
-for ``calibrate`` and ``dry_run``. ``verify`` joins here once ``lasercal_hw.verify`` has its
-entry point; until then the daemon answers 501 for it."""
+for ``calibrate`` and ``dry_run``, ``lasercal_hw.verify`` for ``verify`` (against the active
+calibration)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
+from lasercal_hw.service.store import utc_now
 
 if TYPE_CHECKING:
     from lasercal_hw.live.foxglove import FoxgloveLiveView
 
 Devices = Callable[[], dict[str, str | None]]
+#: ``active()`` -> (id, folder) of the active calibration, or None.
+ActiveCalibration = Callable[[], tuple[str, Path] | None]
 
 
 def run_engine(
@@ -51,11 +56,56 @@ def run_engine(
     )
 
 
-def build_runners(devices: Devices, live: FoxgloveLiveView | None = None) -> dict[str, Runner]:
+def run_verify(ctx: RunContext, *, devices: dict[str, str | None], active: ActiveCalibration) -> RunResult:
+    """Check the active calibration (``lasercal_hw.verify``) with the job recorded with it;
+    the result is filed in the verify history with the calibration it checked."""
+    from lasercal_hw.run.engine import RunEvent
+    from lasercal_hw.verify.procedure import VerifyRequest, verify
+
+    found = active()
+    if found is None:
+        raise ConfigError("there is no active calibration to verify: run a calibration and activate it first")
+    calibration_id, folder = found
+
+    def on_event(event: RunEvent) -> None:
+        ctx.on_event(event.kind, event.message, event.data)
+
+    report = verify(
+        VerifyRequest(out_dir=ctx.out_dir, robot_host=devices.get("robot.host"),
+                      scanner_url=devices.get("scanner.url")),
+        folder / "result.json",
+        on_event=on_event,
+        cancel=ctx.cancel,
+        confirm=ctx.confirm,
+    )
+    document = report.document()
+    correction = (document.get("test") or {}).get("correction") or {}
+    summary = {
+        "created_utc": utc_now(),
+        "calibration_id": calibration_id,
+        "verdict": document["verdict"],
+        "reason": document["reason"],
+        "shift_translation_mm": correction.get("shift_mm"),
+        "shift_rotation_deg": correction.get("turn_deg"),
+        "shift_std_translation_mm": correction.get("std_shift_mm"),
+        "shift_std_rotation_deg": correction.get("std_turn_deg"),
+        "out_dir": str(report.out_dir),
+        "document": document,
+    }
+    status = document["verdict"]
+    verdict = {"passed": status == "ok", "status": status, "reason": document["reason"]}
+    return RunResult(document=document, passed=verdict["passed"], verdict=verdict, verify=summary)
+
+
+def build_runners(
+    devices: Devices, active: ActiveCalibration, live: FoxgloveLiveView | None = None
+) -> dict[str, Runner]:
     """The runners by kind; ``devices()`` gives the daemon's current robot host and scanner
     URL (``{"robot.host": ..., "scanner.url": ...}``), asked again on every start and resume
-    (a restarted dry-run daemon's fake cell has a new address); ``live``: the Foxglove view."""
+    (a restarted dry-run daemon's fake cell has a new address); ``active()`` the active
+    calibration; ``live``: the Foxglove view."""
     return {
         "calibrate": lambda ctx: run_engine(ctx, dry_run=False, devices=devices(), live=live),
         "dry_run": lambda ctx: run_engine(ctx, dry_run=True, devices={}, live=live),
+        "verify": lambda ctx: run_verify(ctx, devices=devices(), active=active),
     }
