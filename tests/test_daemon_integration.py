@@ -196,6 +196,20 @@ def test_activate_roll_back_and_diff(daemon: DaemonProcess, remote) -> None:
     assert unknown.returncode == 2 and "not_found" in unknown.stderr
 
 
+def test_verify_checks_the_active_calibration_and_files_it(daemon: DaemonProcess) -> None:
+    """A verify job on the daemon's own fake cell checks the active calibration; the verify
+    is in the history with the calibration it checked and the estimated move."""
+    with daemon.client() as client:
+        active = client.get("/v1/calibration").json()["id"]
+        job = client.post("/v1/jobs", json={"kind": "verify", "confirm_motion": True})
+        assert job.status_code == 202, job.text
+        done = wait_for(client, job.json()["id"], lambda j: j["state"] in TERMINAL)
+        assert done["state"] == "succeeded", done
+        filed = client.get("/v1/verifies").json()["verifies"][0]
+        assert (filed["id"], filed["calibration_id"]) == (done["verify_id"], active)
+        assert filed["verdict"] in ("ok", "degraded", "recalibrate") and filed["reason"]
+
+
 def test_sigkill_mid_run_then_restart_finds_it_interrupted_and_resumes(tmp_path: Path) -> None:
     data_dir = tmp_path / "data"
     first = DaemonProcess(data_dir).start()

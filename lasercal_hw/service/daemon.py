@@ -96,7 +96,8 @@ class Daemon:
             self.robot_host, self.scanner_url = self.fake_cell.robot_host, self.fake_cell.scanner_url
         interrupted = self.jobs.recover()
         self.monitor = DeviceMonitor(
-            self.robot_host, self.scanner_url, self.config.status_poll_s, self.jobs.running_id
+            self.robot_host, self.scanner_url, self.config.status_poll_s, self.jobs.running_id,
+            self.jobs.device_lock,
         )
         self.monitor.start()
         self.bus.publish(

@@ -109,6 +109,9 @@ class JobManager:
         self._dry_run_daemon = dry_run_daemon
         self._on_state = on_state or (lambda job_id, state: None)
         self._lock = threading.Lock()
+        #: Held while a job takes the devices and while the status monitor probes the
+        #: scanner: a UTM-30LX-EW serves one client, so a probe must never overlap a job.
+        self.device_lock = threading.Lock()
         self._active: _Active | None = None
         self._last_id: str | None = None
 
@@ -289,7 +292,8 @@ class JobManager:
             daemon=True,
             args=(record, job, cancel, resume_from, scene_file),
         )
-        self._active = _Active(record["id"], cancel, thread)
+        with self.device_lock:  # a status probe of the scanner in progress ends first
+            self._active = _Active(record["id"], cancel, thread)
         self._last_id = record["id"]
         thread.start()
 

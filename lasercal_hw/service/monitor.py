@@ -50,11 +50,15 @@ class DeviceMonitor:
         scanner_url: str | None,
         poll_s: float,
         job_running: Callable[[], str | None],
+        device_lock: threading.Lock,
     ) -> None:
+        """``job_running()`` names the job that owns the devices; ``device_lock`` is held by a
+        job taking them (``JobManager.device_lock``) and by the scanner probe."""
         self.robot_host = robot_host
         self.scanner_url = scanner_url
         self._poll_s = poll_s
         self._job_running = job_running
+        self._device_lock = device_lock
         self._lock = threading.Lock()
         self._robot_status = _robot_unknown(robot_host, None if robot_host else "no robot configured")
         self._scanner_status: dict[str, Any] = {
@@ -114,16 +118,17 @@ class DeviceMonitor:
     def _poll_scanner(self, url: str) -> None:
         from drivers.hokuyo.client import HokuyoScanner
 
-        job_id = self._job_running()
-        if job_id is not None:
-            with self._lock:
-                self._scanner_status = self._scanner_status | {"error": None, "in_use_by_job": job_id}
-            return
-        try:
-            with HokuyoScanner.open(url, timeout_s=2.0, sync_clock=False, reconnect=False) as scanner:
-                identity = asdict(scanner.identity())
-            status = {"connected": True, "url": url, "identity": identity, "error": None}
-        except LasercalError as exc:
-            status = {"connected": False, "url": url, "identity": None, "error": str(exc)}
+        with self._device_lock:
+            job_id = self._job_running()
+            if job_id is not None:
+                with self._lock:
+                    self._scanner_status = self._scanner_status | {"error": None, "in_use_by_job": job_id}
+                return
+            try:
+                with HokuyoScanner.open(url, timeout_s=2.0, sync_clock=False, reconnect=False) as scanner:
+                    identity = asdict(scanner.identity())
+                status = {"connected": True, "url": url, "identity": identity, "error": None}
+            except LasercalError as exc:
+                status = {"connected": False, "url": url, "identity": None, "error": str(exc)}
         with self._lock:
             self._scanner_status = status
