@@ -276,8 +276,8 @@ class FoxgloveLiveView:
             return
         origins, directions = rod_lines_in_base(geometry.tcp_poses[indices], geometry.rod)
         centres = np.array([self._centres[i] for i in indices])
-        rotation, translation = linear_initial_pose(origins, directions, centres, np.ones(len(indices)))
-        self._T_base_laser = make_transform(rotation, translation)
+        initial = linear_initial_pose(origins, directions, centres, np.ones(len(indices)))
+        self._T_base_laser = make_transform(initial.rotation, initial.translation)
 
 
 @contextlib.contextmanager
