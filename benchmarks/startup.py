@@ -51,12 +51,13 @@ def _children_cpu_s() -> float:
 
 
 def _timed(argv: Sequence[str], env: Mapping[str, str] | None = None) -> tuple[float, float, str]:
-    """Wall and CPU time of one command (it must succeed) and its standard output."""
+    """Wall and CPU time of one command (it must finish: exit 0, or 1 for a solve whose quality
+    gate failed, as the paper's noise level fails the default RMS gate) and its standard output."""
     cpu_before_s, start = _children_cpu_s(), time.perf_counter()
     done = subprocess.run(argv, capture_output=True, text=True, stdin=subprocess.DEVNULL, env=env,
                           check=False)
     elapsed_s, cpu_s = time.perf_counter() - start, _children_cpu_s() - cpu_before_s
-    if done.returncode != 0:
+    if done.returncode not in (0, 1):
         sys.exit(f"{' '.join(argv)} failed ({done.returncode}):\n{done.stderr[-2000:]}")
     return elapsed_s, cpu_s, done.stdout
 
