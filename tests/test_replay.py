@@ -134,3 +134,32 @@ def test_scans_without_scan_info_are_a_one_line_error(
     )
     with pytest.raises(ConfigError, match=r"no usable scans .*scan_info"):
         solve_recording(path)
+
+
+def test_no_waypoint_left_says_what_is_missing_and_what_to_solve_instead(
+    recorded: tuple[Path, RunOutcome], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Every dwell loses every other scan: nothing can be re-extracted, and the error says so
+    and points to the live run's centres; a replay re-measures nothing, so no --resume talk."""
+    observations = read_session(recorded[0]).events_of("observation")
+    windows = [(event["window_start_s"], event["window_end_s"]) for event in observations]
+
+    def halve_the_dwells(topic: str, data: bytes) -> bytes | None:
+        if topic != TOPIC_SCAN_INFO:
+            return data
+        info = json.loads(data)
+        in_a_dwell = any(start <= info["device_time_s"] < end for start, end in windows)
+        return None if in_a_dwell and info["sequence"] % 2 else data
+
+    path = _copy(recorded[0], tmp_path / "session.mcap", halve_the_dwells)
+    with pytest.raises(CalibrationError) as caught:
+        solve_recording(path)
+    message = str(caught.value)
+    assert "none of its 8 waypoints could be re-extracted" in message and "\n" not in message
+    assert "scans recorded in its dwell window" in message and "measure again with lasercal run" in message
+    assert "--use-recorded-centres" not in message  # it cannot bring back missing scans
+    assert "resume" not in message + caplog.text and "measuring again" not in caplog.text
+
+    (tmp_path / "observations.csv").write_text("index,tcp_x,tcp_y,tcp_z,tcp_rx,tcp_ry,tcp_rz,u,v\n")
+    with pytest.raises(CalibrationError, match=f"lasercal solve {tmp_path / 'observations.csv'}$"):
+        solve_recording(path)

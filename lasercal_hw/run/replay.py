@@ -23,9 +23,9 @@ from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.run.resume import (
     check_observation_events,
+    recorded_background,
     recorded_centre,
     recorded_job,
-    resume_state,
     window_average,
 )
 from lasercal_hw.run.sequencer import TwoPassSolution, WaypointMeasurement, predict_rod, solve_two_pass
@@ -74,19 +74,24 @@ def solve_recording(
             "centres cannot be re-extracted (docs/recorder.md: what a recording holds)"
         )
     background = _background(recording)
-    measurements, messages = _reextract(events, recording, job, background, use_recorded_centres)
+    measurements, messages, unscanned = _reextract(events, recording, job, background, use_recorded_centres)
     for message in messages:
         logger.warning("%s", message)
     if not measurements:
-        raise CalibrationError(f"{path}: no waypoint could be re-extracted from its scans: {messages[0]}")
+        raise CalibrationError(_nothing_to_solve(path, messages, scanned=len(messages) - unscanned))
     if recording.truncated:
         logger.warning("%s was not closed (%s); solving what it holds", path, recording.truncation_reason)
-    state = resume_state(recording)
+    observed = {int(event["index"]) for event in events}
+    skipped = {
+        int(event["index"]): str(event["reason"])
+        for event in recording.events_of("waypoint_skipped")
+        if int(event["index"]) not in observed
+    }
     solution = solve_two_pass(measurements, job, background)
     return RecordingSolution(
         job=job,
         solution=solution,
-        skipped={s.index: s.reason for s in state.skipped},
+        skipped=dict(sorted(skipped.items())),
         truncated=recording.truncated,
         messages=messages,
     )
@@ -94,15 +99,29 @@ def solve_recording(
 
 def _background(recording: SessionRecording) -> AveragedScan | None:
     """The live run's background, or None when it took none; refuses one whose scans are gone."""
-    if not recording.events_of("background"):
-        return None
-    background = resume_state(recording).background
-    if background is None:
+    background = recorded_background(recording)
+    if isinstance(background, str):
         raise ConfigError(
-            f"{recording.path}: the scans of the background are not all in the recording; without them the "
-            "centres cannot be extracted as the live run did"
+            f"{recording.path}: the scans of the background are not all in the recording ({background}); "
+            "without them the centres cannot be extracted as the live run did"
         )
     return background
+
+
+def _nothing_to_solve(path: Path, messages: list[str], scanned: int) -> str:
+    """Why a recording gave no waypoint to solve and what to do instead, in one line;
+    ``scanned`` waypoints had their scans (--use-recorded-centres would keep their centres)."""
+    found = path.parent / "observations.csv"
+    if found.is_file():
+        instead = f"solve the centres the live run wrote instead: lasercal solve {found}"
+    else:
+        instead = "it cannot give a calibration; measure again with lasercal run"
+    if scanned:
+        instead += ", or keep the centres the live run recorded with --use-recorded-centres"
+    return (
+        f"{path}: none of its {len(messages)} waypoints could be re-extracted from the recorded scans "
+        f"(first: {messages[0].removesuffix('; dropped')}); a replay does not guess them, so {instead}"
+    )
 
 
 def _reextract(
@@ -111,13 +130,14 @@ def _reextract(
     job: JobConfig,
     background: AveragedScan | None,
     use_recorded: bool,
-) -> tuple[list[WaypointMeasurement], list[str]]:
+) -> tuple[list[WaypointMeasurement], list[str], int]:
     """Every observation's centre extracted again from its scans, as the live run did; a
-    message per waypoint where that fails (the waypoint dropped, or its recorded centre kept)."""
+    message per waypoint where that fails (the waypoint dropped, or its recorded centre kept);
+    how many of those failed because their scans are not all in the recording."""
     rod = job.rod.rod_line()
     nominal = job.scanner.nominal
     latest = {int(event["index"]): event for event in events}
-    measurements, messages = [], []
+    measurements, messages, unscanned = [], [], 0
     for index in sorted(latest):
         event = latest[index]
         tcp_pose = np.asarray(event["tcp_pose"], dtype=float)
@@ -125,7 +145,7 @@ def _reextract(
         averaged = window_average(event, recording.scans)
         problem = None
         if isinstance(averaged, str):
-            problem = averaged
+            problem, unscanned = averaged, unscanned + 1
         else:
             expected = None if nominal is None else predict_rod(nominal.matrix(), tcp_pose, rod).expected_uv_m
             try:
@@ -146,7 +166,7 @@ def _reextract(
             measurements.append(WaypointMeasurement(index, tcp_pose, averaged, recorded))
         else:
             messages.append(f"waypoint {index}: {problem}; dropped")
-    return measurements, messages
+    return measurements, messages, unscanned
 
 
 def _disagreement(found: np.ndarray, recorded: np.ndarray, covariance: np.ndarray) -> str | None:

@@ -115,7 +115,9 @@ def _measurement(event: dict[str, Any], scans: list[LaserScan]) -> WaypointMeasu
     )
 
 
-def _background(recording: SessionRecording) -> AveragedScan | None:
+def recorded_background(recording: SessionRecording) -> AveragedScan | str | None:
+    """The background rebuilt from its recorded scans, why it cannot be (a string), or None
+    when the run recorded none."""
     events = recording.events_of("background")
     if not events:
         return None
@@ -126,11 +128,16 @@ def _background(recording: SessionRecording) -> AveragedScan | None:
         if float(event["window_start_s"]) <= scan.device_time_s <= float(event["window_end_s"])
     ][: int(event["scans"])]
     if len(window) != int(event["scans"]) or not window:
-        logger.warning(
-            "background: %d scans recorded, %d were used; measuring again", len(window), event["scans"]
-        )
-        return None
+        return f"{len(window)} scans recorded, {event['scans']} were used"
     return average_scans(window)
+
+
+def _background(recording: SessionRecording) -> AveragedScan | None:
+    background = recorded_background(recording)
+    if isinstance(background, str):
+        logger.warning("background: %s; measuring again", background)
+        return None
+    return background
 
 
 def resume_state(recording: SessionRecording) -> ResumeState:
