@@ -18,6 +18,7 @@ import pytest
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.run.dry_run import FakeCellProcess, free_loopback_address, ports_free
 from lasercal_hw.session.reader import read_session
+from tests.conftest import DryRunResult
 from trajectories.presets import preset_waypoints
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
@@ -31,7 +32,8 @@ def write_job(folder: Path) -> Path:
         "dwell_s = 1.0\n"
         "[trajectory]\npreset = \"quick\"\n"
         "[background]\nscans = 10\n"
-        "[motion]\njoint_speed_rad_s = 1.2\njoint_accel_rad_s2 = 3.0\n"
+        # the job file's highest joint speed and acceleration: motion is most of a dry run's time
+        "[motion]\njoint_speed_rad_s = 1.5\njoint_accel_rad_s2 = 4.0\n"
         # A short test trajectory: gates sized for it, not for a real run.
         "[quality]\nmax_std_translation_mm = 100.0\nmax_std_rotation_deg = 10.0\nmin_observations = 6\n"
     )
@@ -151,17 +153,10 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
     )
 
 
-def test_scanner_drop_at_a_waypoint_repeats_that_waypoint(tmp_path: Path) -> None:
+def test_scanner_drop_at_a_waypoint_repeats_that_waypoint(scanner_drop_dry_run: DryRunResult) -> None:
     """The scene fault drops the scanner's connection during waypoint 2's dwell: the driver
     reconnects, the dwell is repeated and the run completes."""
-    job = write_job(tmp_path)
-    scene = tmp_path / "scene.toml"
-    scene.write_text("[faults]\nscanner_drop_at_waypoint = 2\n")
-    out = tmp_path / "out"
-    result = subprocess.run(
-        lasercal("--dry-run", "--json", "--config", str(job), "--scene", str(scene), "--out", str(out)),
-        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
-    )
+    out, result = scanner_drop_dry_run
     assert result.returncode == ExitCode.OK, result.stderr[-3000:]
     recording = read_session(out / "session.mcap")
     dwells = [event["index"] for event in recording.events_of("dwell_start")]

@@ -4,8 +4,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,22 +12,23 @@ import pytest
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ConfigError, InterruptedRunError
 from lasercal_hw.run.engine import CancelToken, RunEvent, RunRequest, calibrate
+from tests.conftest import DryRunResult
 from tests.test_dry_run import write_job
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
 
 
-def test_engine_and_cli_give_the_same_document_and_files(tmp_path: Path) -> None:
+def test_engine_and_cli_give_the_same_document_and_files(
+    tmp_path: Path, scanner_drop_dry_run: DryRunResult
+) -> None:
+    """The engine's dry run against the CLI's of the same job and scene (that one also
+    rides out a dropped scanner connection: tests/conftest.py)."""
     job_file = write_job(tmp_path)
     events: list[RunEvent] = []
     report = calibrate(
         RunRequest(job=load_job(job_file), out_dir=tmp_path / "engine", dry_run=True), on_event=events.append
     )
-    cli = subprocess.run(
-        [sys.executable, "-m", "lasercal_hw.cli.main", "run", "--dry-run", "--json",
-         "--config", str(job_file), "--out", str(tmp_path / "cli")],
-        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
-    )
+    _, cli = scanner_drop_dry_run
     assert cli.returncode == 0, cli.stderr[-3000:]
     from_cli, from_engine = json.loads(cli.stdout), report.document()
     assert from_engine.keys() == from_cli.keys()

@@ -25,7 +25,7 @@ CENTRE_SIGMA_M = 0.0005
 
 
 def fast_job() -> JobConfig:
-    """A short job for tests: the quick preset, 1 s dwells, fast joint moves; scans the
+    """A short job for tests: the quick preset, 1 s dwells, the fastest joint moves a job allows; scans the
     fake scanner misses on a loaded test machine do not fail a dwell."""
     return job_from_mapping(
         {
@@ -33,7 +33,7 @@ def fast_job() -> JobConfig:
             "acquisition": {"max_missed_scans": 1000, "min_scan_fraction": 0.2},
             "trajectory": {"preset": "quick"},
             "background": {"scans": 10},
-            "motion": {"joint_speed_rad_s": 1.2, "joint_accel_rad_s2": 3.0},
+            "motion": {"joint_speed_rad_s": 1.5, "joint_accel_rad_s2": 4.0},
         }
     )
 
