@@ -10,18 +10,21 @@ import re
 import signal
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from lasercal_hw.config import load_job
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.run.dry_run import FakeCellProcess, free_loopback_address, ports_free
-from lasercal_hw.session.reader import read_session
-from tests.conftest import DryRunResult
+from lasercal_hw.run.engine import RunEvent, RunReport, RunRequest, calibrate
+from lasercal_hw.session.reader import SessionRecording, read_session
 from trajectories.presets import preset_waypoints
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
+# A test's time limit includes the module's dry runs it sets up (one or both).
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(400)]
 
 WAYPOINTS = len(preset_waypoints("quick"))
 
@@ -52,30 +55,39 @@ def process_gone(pid: int) -> bool:
     return False
 
 
-def test_free_address_is_random_loopback_with_free_ports() -> None:
-    address = free_loopback_address()
-    assert address.startswith("127.") and address != "127.0.0.1"
-    assert ports_free(address)
+@dataclass(frozen=True)
+class InterruptedDryRun:
+    """A ``lasercal run --dry-run --json`` stopped by SIGINT once waypoint 3 is done, then
+    continued with ``--resume``."""
+
+    out: Path
+    returncode: int
+    stderr: str
+    cell_pid: int | None
+    recording: SessionRecording  # as the interrupt left it, read before resuming
+    result_written: bool  # result.json existed after the interrupt
+    resumed: subprocess.CompletedProcess[str]
 
 
-def test_fake_cell_child_reports_truth_and_is_stopped() -> None:
-    with FakeCellProcess() as cell:
-        pid = cell.pid
-        assert cell.scanner_url == f"scip+tcp://{cell.address}:10940"
-        assert cell.robot_host == cell.address
-        assert np.allclose(cell.ground_truth[:3, 3], [0.30, 0.50, 0.20])
-        assert not ports_free(cell.address)
-    assert process_gone(pid)
+@dataclass(frozen=True)
+class EngineDryRun:
+    """A dry run through ``lasercal_hw.run.engine.calibrate`` and every event it reported."""
+
+    out: Path
+    report: RunReport
+    events: list[RunEvent]
 
 
-def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path: Path) -> None:
-    """One dry run, interrupted and resumed: every exit path stops the fake cell, the
-    recording survives the interrupt, and the resumed run reports estimate and truth."""
-    job = write_job(tmp_path)
-    out = tmp_path / "out"
+@pytest.fixture(scope="module")
+def interrupted_dry_run(tmp_path_factory: pytest.TempPathFactory) -> InterruptedDryRun:
+    """The tests' short job interrupted and resumed: its own test checks both halves and the
+    replay, the engine test compares the engine's document and files with the resumed CLI's."""
+    folder = tmp_path_factory.mktemp("interrupted")
+    job = write_job(folder)
+    out = folder / "out"
     process = subprocess.Popen(
         lasercal("--dry-run", "--json", "--config", str(job), "--out", str(out)),
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True, cwd=tmp_path,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True, cwd=folder,
     )
     cell_pid = None
     lines = []
@@ -93,21 +105,65 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
         if process.poll() is None:
             process.kill()
             process.wait()
-    stderr = "".join(lines) + rest
-    assert process.returncode == ExitCode.INTERRUPTED, stderr[-3000:]
+    recording = read_session(out / "session.mcap")
+    result_written = (out / "result.json").exists()
+    resumed = subprocess.run(
+        lasercal("--dry-run", "--json", "--resume", str(out / "session.mcap")),
+        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=folder,
+    )
+    return InterruptedDryRun(
+        out, process.returncode, "".join(lines) + rest, cell_pid, recording, result_written, resumed
+    )
+
+
+@pytest.fixture(scope="module")
+def scanner_drop_engine_run(tmp_path_factory: pytest.TempPathFactory) -> EngineDryRun:
+    """The tests' short job through the engine, its scanner dropping the connection during
+    waypoint 2's dwell (a scene fault): the scanner-drop test checks the repeated dwell, the
+    engine test the document, files and events."""
+    folder = tmp_path_factory.mktemp("scanner-drop")
+    scene = folder / "scene.toml"
+    scene.write_text("[faults]\nscanner_drop_at_waypoint = 2\n")
+    events: list[RunEvent] = []
+    request = RunRequest(job=load_job(write_job(folder)), out_dir=folder / "out", dry_run=True, scene=scene)
+    report = calibrate(request, on_event=events.append)
+    return EngineDryRun(folder / "out", report, events)
+
+
+def test_free_address_is_random_loopback_with_free_ports() -> None:
+    address = free_loopback_address()
+    assert address.startswith("127.") and address != "127.0.0.1"
+    assert ports_free(address)
+
+
+def test_fake_cell_child_reports_truth_and_is_stopped() -> None:
+    with FakeCellProcess() as cell:
+        pid = cell.pid
+        assert cell.scanner_url == f"scip+tcp://{cell.address}:10940"
+        assert cell.robot_host == cell.address
+        assert np.allclose(cell.ground_truth[:3, 3], [0.30, 0.50, 0.20])
+        assert not ports_free(cell.address)
+    assert process_gone(pid)
+
+
+def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(
+    interrupted_dry_run: InterruptedDryRun,
+) -> None:
+    """One dry run, interrupted and resumed: every exit path stops the fake cell, the
+    recording survives the interrupt, and the resumed run reports estimate and truth
+    (the run: the fixture above)."""
+    run = interrupted_dry_run
+    out, stderr, cell_pid, recording = run.out, run.stderr, run.cell_pid, run.recording
+    assert run.returncode == ExitCode.INTERRUPTED, stderr[-3000:]
     assert "interrupted" in stderr and "--resume" in stderr
     assert cell_pid is not None and process_gone(cell_pid)
-    recording = read_session(out / "session.mcap")
     done = [event["index"] for event in recording.events_of("observation")]
     done += [event["index"] for event in recording.events_of("waypoint_skipped")]
     assert set(range(3)) <= set(done) and len(done) < WAYPOINTS
     assert recording.events_of("abort")[-1]["cause"] == "interrupted"
-    assert not (out / "result.json").exists()
+    assert not run.result_written
 
-    resumed = subprocess.run(
-        lasercal("--dry-run", "--json", "--resume", str(out / "session.mcap")),
-        capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=tmp_path,
-    )
+    resumed = run.resumed
     assert resumed.returncode == ExitCode.OK, resumed.stderr[-3000:]
     document = json.loads(resumed.stdout)
     estimate = np.array(document["T_base_laser"])
@@ -145,7 +201,7 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
     # `lasercal solve session.mcap` replays extraction and solve: the live transform to 1e-9.
     replay = subprocess.run(
         [sys.executable, "-m", "lasercal_hw.cli.main", "solve", str(out / "session.mcap"), "--json"],
-        capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL, cwd=tmp_path,
+        capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL, cwd=out,
     )
     assert replay.returncode == ExitCode.OK, replay.stderr[-3000:]
     np.testing.assert_allclose(
@@ -153,16 +209,49 @@ def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(tmp_path:
     )
 
 
-def test_scanner_drop_at_a_waypoint_repeats_that_waypoint(scanner_drop_dry_run: DryRunResult) -> None:
+def test_scanner_drop_at_a_waypoint_repeats_that_waypoint(scanner_drop_engine_run: EngineDryRun) -> None:
     """The scene fault drops the scanner's connection during waypoint 2's dwell: the driver
-    reconnects, the dwell is repeated and the run completes."""
-    out, result = scanner_drop_dry_run
-    assert result.returncode == ExitCode.OK, result.stderr[-3000:]
-    recording = read_session(out / "session.mcap")
+    reconnects, the dwell is repeated and the run completes (the run: the fixture above)."""
+    recording = read_session(scanner_drop_engine_run.out / "session.mcap")
     dwells = [event["index"] for event in recording.events_of("dwell_start")]
     assert dwells.count(2) == 2, dwells
     assert all(dwells.count(i) == 1 for i in set(dwells) - {2})
-    assert json.loads(result.stdout)["observations"] >= WAYPOINTS - 3
+    assert scanner_drop_engine_run.report.document()["observations"] >= WAYPOINTS - 3
+
+
+def test_engine_and_cli_give_the_same_document_and_files(
+    scanner_drop_engine_run: EngineDryRun, interrupted_dry_run: InterruptedDryRun
+) -> None:
+    """The engine's dry run of the tests' job against the CLI's (the fixtures above; the
+    engine's rides out a dropped scanner connection, the CLI's was interrupted and resumed:
+    neither changes the document's fields, the files or the scene)."""
+    report, events = scanner_drop_engine_run.report, scanner_drop_engine_run.events
+    cli = interrupted_dry_run.resumed
+    assert cli.returncode == 0, cli.stderr[-3000:]
+    from_cli, from_engine = json.loads(cli.stdout), report.document()
+    assert from_engine.keys() == from_cli.keys()
+    assert from_engine["passed"] and from_cli["passed"]
+    assert {Path(p).name for p in from_engine["outputs"].values()} == {
+        Path(p).name for p in from_cli["outputs"].values()
+    }
+    # Two runs of one scene differ only by scan noise: within a few reported std.
+    difference_mm = 1000 * np.abs(np.subtract(from_engine["translation_m"], from_cli["translation_m"]))
+    combined_std_mm = np.hypot(from_engine["std_translation_mm"], from_cli["std_translation_mm"])
+    assert np.all(difference_mm < 4 * combined_std_mm + 0.5)
+    assert from_engine["ground_truth"]["error"]["translation_mm"] < 5.0
+
+    seqs = [event.seq for event in events]
+    assert seqs == list(range(1, len(events) + 1))
+    kinds = {event.kind for event in events}
+    assert {"stage", "progress", "centre", "scan", "result"} <= kinds
+    scans = [event for event in events if event.kind == "scan"]
+    assert len(scans) == from_engine["observations"] + len(from_engine["skipped"])
+    picture = scans[0].data
+    assert len(picture["ranges_m"]) == 1081 and picture["rod_beams"] and picture["circle"] is not None
+    json.dumps([event.as_dict() for event in events], allow_nan=False)  # every event is JSON-ready
+    last_progress = [event for event in events if event.kind == "progress"][-1].data
+    assert last_progress["completed"] == last_progress["waypoint_count"]
+    assert events[-1].kind == "result" and events[-1].data["passed"] is True
 
 
 def test_protective_stop_aborts_with_device_error_and_no_further_motion(tmp_path: Path) -> None:
