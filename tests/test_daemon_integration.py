@@ -162,8 +162,9 @@ def test_cancel_stops_the_arm_keeps_the_recording_and_resume_finishes(daemon: Da
             assert finished.returncode == 3
             wait_for(client, job_id, lambda job: job["state"] == "succeeded")
         else:
+            assert done["state"] == "succeeded", (done, finished.stderr[-2000:])
             assert finished.returncode == (0 if done["passed"] else 1), finished.stderr[-2000:]
-            assert done["state"] == "succeeded" and done["calibration_id"]
+            assert done["calibration_id"]
             assert done["job_id"] == job_id and len(done["T_base_laser"]) == 4
         job = client.get(f"/v1/jobs/{job_id}").json()
         assert job["progress"]["completed"] == job["progress"]["waypoint_count"]
