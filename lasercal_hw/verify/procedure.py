@@ -21,7 +21,7 @@ from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_euler_zyx
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.cancel import CancelToken
-from lasercal_hw.run.engine import MotionPlan, RunRequest, open_sequencer
+from lasercal_hw.run.engine import MotionPlan, ProcedureReport, RunRequest, open_sequencer
 from lasercal_hw.run.events import EventSink, RunEvent
 from lasercal_hw.run.sequencer import Measured, Timings, WaypointMeasurement, refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
@@ -51,15 +51,8 @@ class VerifyRequest:
 
 
 @dataclass(frozen=True)
-class VerifyReport:
+class VerifyReport(ProcedureReport[VerifyOutcome]):
     """A finished verify: the outcome, the files, and the dry run's ground truth."""
-
-    outcome: VerifyOutcome
-    files: dict[str, Path]
-    out_dir: Path
-    ground_truth: FloatArray | None
-    fake_cell: dict[str, Any] | None
-    command_s: float
 
     @property
     def verdict(self) -> Verdict:
@@ -68,12 +61,8 @@ class VerifyReport:
 
     def document(self) -> dict[str, Any]:
         """What ``lasercal verify --json`` prints (``verify.json`` plus the file list)."""
-        document = verify_document(self.outcome, ground_truth=self.ground_truth)
-        document["outputs"] = {name: str(path) for name, path in self.files.items()}
-        document["dry_run"] = self.fake_cell is not None
+        document = self.with_outputs(verify_document(self.outcome, ground_truth=self.ground_truth))
         document["timings"]["command_s"] = self.command_s
-        if self.fake_cell is not None:
-            document["fake_cell"] = self.fake_cell
         return document
 
 
