@@ -197,15 +197,15 @@ def verify(
     rod = job.rod.rod_line()
     found: dict[str, Any] = {}
 
-    def before_motion(plan: MotionPlan) -> None:
+    def before_motion(motion: MotionPlan) -> None:
         identity = check_identity(
-            active.robot, active.scanner, active.rod, plan.preflight.robot, plan.preflight.scanner, rod
+            active.robot, active.scanner, active.rod, motion.preflight.robot, motion.preflight.scanner, rod
         )
         found["identity"] = identity
         if not all(check.matches for check in identity):
             raise _OtherDevicesError()  # the verdict is known: nothing moves
         if confirm is not None:
-            confirm(plan)
+            confirm(motion)
 
     try:
         with open_sequencer(
