@@ -12,13 +12,17 @@ absolute-accuracy error field. Cases:
 
 * ``default-3s``, ``default-1s``, ``default-0.5s``: the default job (``paper`` preset, 20 mm
   rod) on the default scene with 3, 1 and 0.5 s dwell;
-* ``drill-fixed``, ``drill-estimated``: the drill job (``examples/drill.toml``) whose real bit is
-  2 mm off and tilted 1 degree from the job file's axis, solved with the job's axis and
-  with ``rod.estimate_axis = true``;
-* ``drill-varied-fixed``, ``drill-varied-estimated``: the same with the tool also turned about
-  its axis and moved in height between waypoints (``with_varied_tool``): the drill preset
-  keeps the tool's turn and the crossing's place on the bit nearly constant, which leaves
-  the bit's axis nearly unobservable;
+* ``designed-0.5s``: the same rod and dwell 0.5 s on the 20 waypoints ``lasercal trajectory
+  design`` lays out for the scene's scanner;
+* ``drill-known``: the drill job (``examples/drill.toml``: waypoints designed for the cell with
+  the bit's axis estimated) with the bit exactly where the job file says, the axis not
+  estimated (the reference);
+* ``drill-fixed``, ``drill-estimated``: the same job whose real bit is 2 mm off and tilted
+  1 degree from the job file's axis, solved with the job's axis (the bias it causes) and
+  with ``rod.estimate_axis = true`` (the job as shipped);
+* ``drill-preset-estimated``: the same bit and estimation on the ``drill`` preset's
+  semicircles, which keep the tool's turn about the bit nearly constant (why the drill job
+  uses designed waypoints);
 * ``offset-fixed``, ``offset-estimated``: the default job on a scanner reading 20 mm long,
   without and with ``scanner.estimate_range_offset``.
 
@@ -38,13 +42,17 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.dry_run_accuracy import Trial, simulate, world_with
-from fakes.scene import load_scene
-from lasercal_hw.calibration.model import axis_basis, moved_rod
+from fakes.scene import Scene, load_scene
+from lasercal_hw.calibration.model import extended_fisher_information, moved_rod
+from lasercal_hw.calibration.result import RodAxisEstimate
+from lasercal_hw.calibration.solver import axis_deviation
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import LasercalError
-from lasercal_hw.geometry import euler_zyx_to_matrix, matrix_to_pose, pose_to_matrix
+from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
 from lasercal_hw.models import RodLine
 from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.ur_kinematics import UR5
+from trajectories.design import design, request_for_job
 
 DRILL_JOB = Path(__file__).resolve().parent.parent / "examples" / "drill.toml"
 #: The real bit against the job file's axis: 2 mm across it and 1 degree of tilt, both at 45 deg.
@@ -63,7 +71,8 @@ class Case:
     true_rod: RodLine
     dwell_s: float
     range_offset_m: float = 0.0
-    varied_tool: bool = False
+    #: Waypoints from ``lasercal trajectory design`` for the scene instead of the job's.
+    designed: bool = False
 
 
 def real_bit(nominal: RodLine) -> RodLine:
@@ -79,58 +88,46 @@ def cases() -> list[Case]:
     """Every case of the module docstring."""
     default = load_job(None)
     drill = load_job(DRILL_JOB)
+    drill_fixed = with_overrides(drill, {"rod.estimate_axis": False})
+    preset = drill.trajectory.model_copy(update={"preset": "drill", "waypoints_file": None})
+    drill_preset = drill.model_copy(update={"trajectory": preset})
     bit = real_bit(drill.rod.rod_line())
     offset = with_overrides(default, {"scanner.estimate_range_offset": True})
     return [
         Case("default-3s", default, default.rod.rod_line(), 3.0),
         Case("default-1s", default, default.rod.rod_line(), 1.0),
         Case("default-0.5s", default, default.rod.rod_line(), 0.5),
-        Case("drill-fixed", drill, bit, drill.dwell_s),
-        Case("drill-estimated", with_overrides(drill, {"rod.estimate_axis": True}), bit, drill.dwell_s),
-        Case("drill-varied-fixed", drill, bit, drill.dwell_s, varied_tool=True),
-        Case(
-            "drill-varied-estimated",
-            with_overrides(drill, {"rod.estimate_axis": True}),
-            bit,
-            drill.dwell_s,
-            varied_tool=True,
-        ),
+        Case("designed-0.5s", default, default.rod.rod_line(), 0.5, designed=True),
+        Case("drill-known", drill_fixed, drill.rod.rod_line(), drill.dwell_s),
+        Case("drill-fixed", drill_fixed, bit, drill.dwell_s),
+        Case("drill-estimated", drill, bit, drill.dwell_s),
+        Case("drill-preset-estimated", drill_preset, bit, drill.dwell_s),
         Case("offset-fixed", default, default.rod.rod_line(), 3.0, RANGE_OFFSET_M),
         Case("offset-estimated", offset, default.rod.rod_line(), 3.0, RANGE_OFFSET_M),
     ]
 
 
-def with_varied_tool(waypoints: np.ndarray) -> np.ndarray:
-    """The waypoints with the tool turned about its z axis (-90, -30, 30, 90 deg in turn) and
-    the TCP moved -2, 0, +2 cm in height in turn: the two tool motions that make the bit's
-    axis observable (turning separates its offset from the scanner's position, crossing the
-    plane at different points along the bit separates its tilt from its offset)."""
-    varied = []
-    for i, pose in enumerate(np.asarray(waypoints, dtype=float)):
-        T = pose_to_matrix(pose)
-        spin = np.radians((-90.0, -30.0, 30.0, 90.0)[i % 4])
-        T[:3, :3] = T[:3, :3] @ euler_zyx_to_matrix(spin, 0.0, 0.0)
-        T[2, 3] += 0.02 * (i % 3 - 1)
-        varied.append(matrix_to_pose(T))
-    return np.array(varied)
+def designed_waypoints(job: JobConfig, scene: Scene) -> np.ndarray:
+    """What ``lasercal trajectory design`` lays out for the scene's scanner (seed 0, the
+    default 5 cm / 5 deg uncertainty, 20 waypoints, a UR5)."""
+    mounting = scene.scanner
+    T_base_laser = make_transform(
+        euler_zyx_to_matrix(*np.radians(mounting.euler_zyx_deg)), mounting.translation_m
+    )
+    result = design(request_for_job(job, T_base_laser, UR5), extended_fisher_information)
+    return np.array([w.tcp_pose for w in result.waypoints])
 
 
-def axis_truth(case: Case) -> tuple[np.ndarray, np.ndarray]:
-    """The true bit's offset (mm) and tilt (deg) along the nominal axis basis."""
-    nominal = case.job.rod.rod_line()
-    basis = axis_basis(nominal.direction)
-    direction = case.true_rod.unit_direction()
-    offset = (np.asarray(case.true_rod.origin_m) - np.asarray(nominal.origin_m)) @ basis
-    tilt = np.arctan2(direction @ basis, direction @ nominal.unit_direction())
-    return offset * 1e3, np.degrees(tilt)
+def axis_truth(case: Case) -> np.ndarray:
+    """The true bit against the job's axis, as ``axis_deviation``: offset (m) at the nominal
+    origin and tilt (tangent) along the nominal axis basis."""
+    return axis_deviation(case.job.rod.rod_line(), case.true_rod)
 
 
 def run_case(case: Case, seeds: int) -> None:
     """Run one case over ``seeds`` seeds and print its distributions."""
-    waypoints = job_waypoints(case.job)
-    if case.varied_tool:
-        waypoints = with_varied_tool(waypoints)
     scene = load_scene(None)
+    waypoints = designed_waypoints(case.job, scene) if case.designed else job_waypoints(case.job)
     scans = round(case.dwell_s / scene.scanner.scan_period_s)
     trials: list[Trial] = []
     failures = 0
@@ -177,26 +174,7 @@ def run_case(case: Case, seeds: int) -> None:
         t.result.rod_axis for t in trials if t.result.rod_axis is not None and t.result.rod_axis.estimated
     ]
     if axes:
-        offset, tilt = axis_truth(case)
-        z = np.array(
-            [
-                np.concatenate(
-                    [
-                        (np.asarray(a.offset_mm) - offset) / np.asarray(a.offset_std_mm),
-                        (np.asarray(a.tilt_deg) - tilt) / np.asarray(a.tilt_std_deg),
-                    ]
-                )
-                for a in axes
-            ]
-        )
-        errors_mm = np.array([np.linalg.norm(np.asarray(a.offset_mm) - offset) for a in axes])
-        errors_deg = np.array([np.linalg.norm(np.asarray(a.tilt_deg) - tilt) for a in axes])
-        print(
-            f"  axis: truth offset {np.round(offset, 2)} mm tilt {np.round(tilt, 3)} deg; estimate off by "
-            f"median {np.median(errors_mm):.2f} mm / {np.median(errors_deg):.3f} deg; components within "
-            f"2.5 std "
-            f"{np.mean(np.abs(z) < 2.5):.1%} (worst {np.abs(z).max():.2f})"
-        )
+        print_axis_errors(axes, axis_truth(case))
     offsets = [t.result.range_offset for t in trials if t.result.range_offset is not None]
     if offsets:
         z = np.array([(o.offset_mm - case.range_offset_m * 1e3) / o.std_mm for o in offsets])
@@ -206,6 +184,34 @@ def run_case(case: Case, seeds: int) -> None:
             f"{np.median(values):.2f} mm (std reported {np.median([o.std_mm for o in offsets]):.2f} mm), "
             f"within 2.5 std {np.mean(np.abs(z) < 2.5):.1%}"
         )
+
+
+def print_axis_errors(axes: list[RodAxisEstimate], truth: np.ndarray) -> None:
+    """The estimated axes against the truth: offset and tilt at the nominal origin, and the
+    offset where the rod crossed the plane, in mm / deg and in reported std."""
+    offset_mm, tilt_deg = truth[:2] * 1e3, np.degrees(np.arctan(truth[2:]))
+    rows = []
+    for a in axes:
+        crossing_mm = (truth[:2] + a.crossing_along_mm / 1e3 * truth[2:]) * 1e3
+        errors = np.concatenate(
+            [
+                np.asarray(a.offset_mm) - offset_mm,
+                np.asarray(a.tilt_deg) - tilt_deg,
+                np.asarray(a.crossing_offset_mm) - crossing_mm,
+            ]
+        )
+        stds = np.concatenate([a.offset_std_mm, a.tilt_std_deg, a.crossing_offset_std_mm])
+        rows.append((errors, errors / stds))
+    errors = np.array([r[0] for r in rows])
+    z = np.abs(np.array([r[1] for r in rows]))
+    print(
+        f"  axis: truth offset {np.round(offset_mm, 2)} mm, tilt {np.round(tilt_deg, 3)} deg; "
+        f"estimate off by median {np.median(np.linalg.norm(errors[:, :2], axis=1)):.2f} mm / "
+        f"{np.median(np.linalg.norm(errors[:, 2:4], axis=1)):.3f} deg, where it crosses the plane "
+        f"{np.median(np.linalg.norm(errors[:, 4:], axis=1)):.2f} mm (reported std there "
+        f"{np.median([a.crossing_offset_std_mm for a in axes]):.2f} mm); components within 2.5 std "
+        f"{np.mean(z < 2.5):.1%} (worst {z.max():.2f})"
+    )
 
 
 def main() -> None:

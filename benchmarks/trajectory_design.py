@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.dry_run_accuracy import simulate, world_for
-from lasercal_hw.calibration.model import fisher_information, rod_lines_in_base
+from lasercal_hw.calibration.model import extended_fisher_information, fisher_information, rod_lines_in_base
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import (
@@ -174,7 +174,7 @@ def main() -> None:
             job = nominal_job(base, rough)
             request = request_for_job(job, rough, UR5, waypoints=args.waypoints, seed=index)
             started = time.perf_counter()
-            result = design(request, fisher_information)
+            result = design(request, extended_fisher_information)
             design_s = time.perf_counter() - started
             poses = np.array([w.tcp_pose for w in result.waypoints]).reshape(-1, 6)
             print(

@@ -9,11 +9,12 @@ Per seed, no devices and no sockets, all through the product's own code: a calib
 simulated in the fake world (``benchmarks.dry_run_accuracy.simulate``: the job's
 trajectory, averaged noisy scans, ``find_rod_centre``, the two-pass solve; a new robot
 error field per seed), then the verify's waypoints are chosen from the job's trajectory
-(``select_waypoints``) and visited three times in the same robot's world: scanner unmoved,
-scanner shifted 3 mm in a random direction, scanner turned 0.3 deg about a random axis
-through its origin.  Each visit: a background at the retract pose, new noisy scans,
-``find_rod_centre``, the re-fit with the active calibration's rod axes (``refit_centres``),
-the drift test and the verdict (``verify.verdict.decide``, the job's tolerance).
+(``verify.procedure.plan_verify``, as ``lasercal verify`` does) and visited three times in
+the same robot's world: scanner unmoved, scanner shifted 3 mm in a random direction, scanner
+turned 0.3 deg about a random axis through its origin.  Each visit: a background at the
+retract pose, new noisy scans, ``find_rod_centre``, the re-fit with the active calibration's
+rod axes and the drift test (``verify.procedure.refit_and_test``), and the verdict
+(``verify.verdict.decide``, the job's tolerance).
 
 Printed: per seed the chi-square values; the false-alarm rate (unmoved scanner flagged,
 with a 95 % Clopper-Pearson interval) against the stated rate; the detection rates (the
@@ -34,15 +35,12 @@ from scipy.stats import beta
 
 from benchmarks.dry_run_accuracy import measure_waypoints, simulate, world_for
 from fakes.world import World
-from lasercal_hw.config import JobConfig, load_job
+from lasercal_hw.config import load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_to_matrix
-from lasercal_hw.run.sequencer import refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
-from lasercal_hw.verify.active import recorded_residuals
-from lasercal_hw.verify.drift import DriftModel, DriftTest
-from lasercal_hw.verify.procedure import drift_model, drift_test_of, verify_job
-from lasercal_hw.verify.selection import select_waypoints
+from lasercal_hw.verify.drift import DriftTest
+from lasercal_hw.verify.procedure import VerifyPlan, plan_verify, refit_and_test
 from lasercal_hw.verify.timing import visit_time_s
 from lasercal_hw.verify.verdict import decide
 
@@ -73,23 +71,12 @@ def moved_world(world: World, rng: np.random.Generator, shift_m: float, turn_deg
     return World(world.scene.model_copy(update={"scanner": scanner}))
 
 
-def visit(
-    verify_job: JobConfig,
-    world: World,
-    poses: np.ndarray,
-    indices: list[int],
-    model: DriftModel,
-    reference: np.ndarray,
-    scans: int,
-    rng: np.random.Generator,
-) -> DriftTest | None:
+def visit(plan: VerifyPlan, world: World, scans: int, rng: np.random.Generator) -> DriftTest | None:
     """One offline verify: background, dwell at each chosen waypoint, extraction looking
     where the calibration predicts (the verify job's nominal pose), re-fit, test."""
-    measurements, background = measure_waypoints(verify_job, poses[indices], world, scans, rng)
-    if len(measurements) < 2:
-        return None
-    refitted, _ = refit_centres(measurements, model.T_base_laser, verify_job.rod.rod_line(), background)
-    return drift_test_of(model, refitted, indices, reference)
+    poses = plan.waypoints[plan.selection.indices]
+    measurements, background = measure_waypoints(plan.job, poses, world, scans, rng)
+    return refit_and_test(plan, measurements, background)[0]
 
 
 def clopper_pearson(hits: int, trials: int) -> tuple[float, float]:
@@ -138,28 +125,27 @@ def main() -> None:
         except LasercalError as exc:
             print(f"seed {seed}: calibration failed: {exc}")
             continue
-        checking = verify_job(job, calibration.matrix())
-        model = drift_model(calibration.matrix(), np.asarray(calibration.covariance), checking)
-        reference = recorded_residuals(calibration.residuals, None if args.no_reference else poses, poses)
-        selection = select_waypoints(
-            model,
-            poses,
-            count,
-            np.isfinite(reference).all(axis=1),
-            time_of=lambda indices: visit_time_s(job, poses[indices]),
+        plan = plan_verify(
+            job,
+            calibration.matrix(),
+            np.asarray(calibration.covariance),
+            calibration.residuals,
+            None if args.no_reference else poses,
+            count=count,
             budget_s=budget_s,
         )
+        selection = plan.selection
         shifted = moved_world(world, rng, SHIFT_M, 0.0)
         turned = moved_world(world, rng, 0.0, TURN_DEG)
         line = [f"seed {seed:3d}: waypoints {selection.indices}"]
         for name, case_world in (("unmoved", world), ("shifted", shifted), ("turned", turned)):
-            test = visit(checking, case_world, poses, selection.indices, model, reference, scans, rng)
+            test = visit(plan, case_world, scans, rng)
             outcomes[name].append(test)
             verdict = decide([], test, settings.tolerance_mm, settings.tolerance_deg)
             verdicts[name][verdict.status] = verdicts[name].get(verdict.status, 0) + 1
             # With the calibration's residuals the correction is the move since the calibration;
             # from the model alone it is the move away from the active (imperfect) transform.
-            before = model.T_base_laser if args.no_reference else world.ground_truth_T_base_laser
+            before = plan.model.T_base_laser if args.no_reference else world.ground_truth_T_base_laser
             truths[name].append(move_between(before, case_world.ground_truth_T_base_laser))
             line.append(f"{name} chi2 {test.chi_square:6.1f}" if test else f"{name} not measured")
         ratios.append((selection.estimated_time_s or np.nan) / (calibration_s or np.nan))

@@ -96,6 +96,16 @@ class RodConfig(_Strict):
         "transform; "
         "auto: when the trajectory makes it observable",
     )
+    axis_std_mm: float = Field(
+        5.0,
+        gt=0.0,
+        le=100.0,
+        description="how far the real axis may be off origin_m across itself (one std, mm): an estimated "
+        "axis is held to it where the waypoints cannot see it",
+    )
+    axis_std_deg: float = Field(
+        3.0, gt=0.0, le=45.0, description="how far the real axis may be tilted from direction (one std, deg)"
+    )
 
     @field_validator("direction")
     @classmethod
@@ -131,7 +141,9 @@ class TrajectoryConfig(_Strict):
     first_waypoints: int = Field(8, ge=6, le=100, description="adaptive: waypoints of the first design")
     design_waypoints: int = Field(20, ge=6, le=200, description="adaptive: waypoints in all")
     pose_uncertainty: tuple[float, float] = Field(
-        (0.05, 5.0), description="adaptive: how far off scanner.nominal may be (m, deg)"
+        (0.05, 5.0),
+        description="how far off scanner.nominal may be (m, deg): the designs (trajectory design, adaptive) "
+        "keep every crossing on the rod anywhere within it",
     )
 
     @model_validator(mode="before")

@@ -49,6 +49,11 @@ class ScanGeometry:
         """Number of values per scan."""
         return -(-(self.last_step - self.first_step + 1) // max(self.cluster, 1))
 
+    @property
+    def angle_increment_rad(self) -> float:
+        """Angle between neighbouring beams (one cluster of steps)."""
+        return max(self.cluster, 1) * 2.0 * np.pi / self.steps_per_revolution
+
     def angles_rad(self) -> FloatArray:
         """Beam angles in radians (centre of each cluster)."""
         cluster = max(self.cluster, 1)

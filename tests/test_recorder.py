@@ -256,9 +256,11 @@ def test_fast_scan_decoder_matches_the_reference_decoder(tmp_path):
         decoded = list(reader.iter_decoded_messages(topics=[TOPIC_SCAN]))
     assert len(decoded) == 2
     for _, _, message, reference in decoded:
-        ranges, intensities = _laser_scan_arrays(message.data)
-        assert ranges.tolist() == list(reference.ranges)
-        assert intensities.tolist() == list(reference.intensities)
+        fast = _laser_scan_arrays(message.data)
+        assert fast.ranges.tolist() == list(reference.ranges)
+        assert fast.intensities.tolist() == list(reference.intensities)
+        angles = (fast.angle_min_rad, fast.angle_increment_rad)
+        assert angles == (reference.angle_min, reference.angle_increment)
         assert _laser_scan_arrays(message.data[:-1]) is None  # not the expected layout
         assert _laser_scan_arrays(b"\x00\x03" + message.data[2:]) is None  # not plain CDR
 

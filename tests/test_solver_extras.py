@@ -14,7 +14,7 @@ from lasercal_hw.calibration.model import (
 )
 from lasercal_hw.calibration.simulate import Protocol, protocol_tcp_poses
 from lasercal_hw.calibration.solver import SolverOptions, solve
-from lasercal_hw.geometry import pose_to_matrix, rotvec_to_matrix
+from lasercal_hw.geometry import make_transform, matrix_to_pose, pose_to_matrix, rotvec_to_matrix
 from lasercal_hw.models import Observation, RodLine
 from tests.test_solver_helpers import TRUTH, translation_error_mm
 
@@ -24,11 +24,33 @@ REAL = moved_rod(NOMINAL, np.array([0.0015, -0.0013, np.radians(0.8), np.radians
 OPTIONS = SolverOptions(default_sigma_uv_m=0.0005, robot_sigma_m=0.0002)
 
 
+def _without_spin(poses: np.ndarray) -> np.ndarray:
+    """The same TCP positions and rod directions, the tool never turned about its z axis:
+    each orientation is the shortest turn from tool-z-down that points z the same way."""
+    rotations = pose_to_matrix(poses)[:, :3, :3]
+    down = np.array([0.0, 0.0, -1.0])
+    unspun = []
+    for rotation in rotations:
+        axis = np.cross(down, rotation[:, 2])
+        angle = np.arctan2(np.linalg.norm(axis), down @ rotation[:, 2])
+        turn = rotvec_to_matrix(axis / np.linalg.norm(axis) * angle)
+        unspun.append(turn @ np.diag([1.0, -1.0, -1.0]))
+    return matrix_to_pose(make_transform(np.array(unspun), poses[:, :3]))
+
+
 def _observations(
-    rod: RodLine, *, range_offset_m: float = 0.0, noise_m: float = 0.0005, seed: int = 3, **protocol: float
+    rod: RodLine,
+    *,
+    range_offset_m: float = 0.0,
+    noise_m: float = 0.0005,
+    seed: int = 3,
+    spin: bool = True,
+    **protocol: float,
 ) -> list[Observation]:
     rng = np.random.default_rng(seed)
     poses = protocol_tcp_poses(Protocol(points=40, **protocol), rng)
+    if not spin:
+        poses = _without_spin(poses)
     origins, directions = rod_lines_in_base(poses, rod)
     crossing, _, _ = plane_crossing(TRUTH[:3, :3], TRUTH[:3, 3], origins, directions)
     seen = crossing * (1.0 + range_offset_m / np.linalg.norm(crossing, axis=1))[:, None]
@@ -104,7 +126,7 @@ def test_range_offset_is_estimated_with_its_std() -> None:
 
 
 def test_auto_leaves_an_unobservable_axis_out_and_says_which_motion_is_missing() -> None:
-    obs = _observations(REAL, tilt_deg=2.0, noise_m=0.002)  # nearly one tool orientation
+    obs = _observations(REAL, tilt_deg=5.0, noise_m=0.002, spin=False)  # nearly one tool orientation
     result = solve(obs, NOMINAL, options=OPTIONS.model_copy(update={"estimate_axis": "auto"}))
     assert result.rod_axis is not None and not result.rod_axis.estimated
     assert "turn the tool about the rod axis" in result.rod_axis.note
@@ -122,3 +144,58 @@ def test_paper_formulation_refuses_extra_parameters() -> None:
             options=OPTIONS.model_copy(update={"estimate_axis": True}),
             formulation="paper",
         )
+
+
+def _crossing_at_one_stretch(rod: RodLine, along_m: float, count: int = 30) -> list[Observation]:
+    """Waypoints whose rod crosses the plane ``along_m`` along ``NOMINAL`` every time (as a
+    short drill bit must), turned about the rod and tilted up to 25 deg in any direction;
+    the centres are where ``rod`` really crosses."""
+    rng = np.random.default_rng(11)
+    rotation, scanner = TRUTH[:3, :3], TRUTH[:3, 3]
+    poses = []
+    for _ in range(count):
+        range_m, bearing = rng.uniform(0.3, 1.0), rng.uniform(-2.0, 2.0)
+        u, v = range_m * np.cos(bearing), range_m * np.sin(bearing)
+        tilt, heading, spin = (
+            np.radians(rng.uniform(10, 25)),
+            rng.uniform(0, 2 * np.pi),
+            rng.uniform(-np.pi, np.pi),
+        )
+        direction_laser = np.array(
+            [np.sin(tilt) * np.cos(heading), np.sin(tilt) * np.sin(heading), -np.cos(tilt)]
+        )
+        direction = rotation @ direction_laser
+        axis = np.cross([0.0, 0.0, 1.0], direction)
+        tool = rotvec_to_matrix(axis / np.linalg.norm(axis) * np.arccos(direction[2])) @ rotvec_to_matrix(
+            [0, 0, spin]
+        )
+        origin = rotation @ np.array([u, v, 0.0]) + scanner - along_m * direction
+        poses.append(matrix_to_pose(make_transform(tool, origin - tool @ NOMINAL.origin_m)))
+    poses = np.array(poses)
+    origins, directions = rod_lines_in_base(poses, rod)
+    crossing, _, _ = plane_crossing(rotation, scanner, origins, directions)
+    seen = crossing + rng.normal(0.0, 0.0005, crossing.shape)
+    return [Observation(i, poses[i], seen[i], np.eye(2) * 0.0005**2) for i in range(count)]
+
+
+def test_axis_crossing_one_stretch_of_the_rod_reports_its_offset_there_and_a_weak_tilt() -> None:
+    along_m = 0.05
+    result = solve(
+        _crossing_at_one_stretch(REAL, along_m),
+        NOMINAL,
+        options=OPTIONS.model_copy(update={"estimate_axis": True}),
+    )
+    axis = result.rod_axis
+    assert axis is not None and axis.estimated
+    assert "tilt weakly determined" in axis.note
+    assert abs(axis.crossing_along_mm - along_m * 1e3) < 3.0
+    basis = axis_basis(NOMINAL.direction)
+    true_direction = REAL.unit_direction()
+    true_offset_mm = (
+        (np.asarray(REAL.origin_m) - NOMINAL.origin_m) @ basis
+        + along_m * (true_direction @ basis) / (true_direction @ NOMINAL.unit_direction())
+    ) * 1e3
+    error = np.asarray(axis.crossing_offset_mm) - true_offset_mm
+    assert np.all(np.abs(error) < 2.5 * np.asarray(axis.crossing_offset_std_mm))
+    assert max(axis.crossing_offset_std_mm) < 0.5 < max(axis.tilt_std_deg)
+    assert translation_error_mm(result.matrix()) < 2.5 * np.linalg.norm(result.std_translation_mm)

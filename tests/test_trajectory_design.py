@@ -14,16 +14,17 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from lasercal_hw.calibration.model import fisher_information
+from lasercal_hw.calibration.model import extended_fisher_information
 from lasercal_hw.cli.main import app
-from lasercal_hw.config import JobConfig, with_overrides
+from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ExitCode
-from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, rotvec_to_matrix
+from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, pose_to_matrix, rotvec_to_matrix
 from lasercal_hw.ur_kinematics import UR5, UR5E, URModel, inverse_kinematics_pose
 from trajectories.candidates import END_MARGIN_M, PoseUncertainty
 from trajectories.checks import check_waypoints
-from trajectories.design import Design, DesignRequest, design, request_for_job
+from trajectories.design import Design, DesignRequest, design, information_blocks, request_for_job, std_of
 from trajectories.plane_crossing import rod_plane_crossings
+from trajectories.presets import preset_waypoints
 from trajectories.waypoint import waypoint_matrices
 from trajectories.waypoint_file import load_waypoints
 
@@ -42,7 +43,7 @@ def small_request(
 
 @pytest.fixture(scope="module")
 def right_low() -> Design:
-    return design(small_request(JobConfig(), RIGHT_LOW), fisher_information)
+    return design(small_request(JobConfig(), RIGHT_LOW), extended_fisher_information)
 
 
 def test_every_designed_waypoint_passes_trajectory_check(right_low: Design) -> None:
@@ -82,16 +83,16 @@ def test_the_design_predicts_its_std_and_beats_the_gates(right_low: Design) -> N
 
 def test_the_search_is_seeded() -> None:
     job = JobConfig()
-    first = design(small_request(job, RIGHT_LOW, seed=4), fisher_information)
-    again = design(small_request(job, RIGHT_LOW, seed=4), fisher_information)
-    other = design(small_request(job, RIGHT_LOW, seed=5), fisher_information)
+    first = design(small_request(job, RIGHT_LOW, seed=4), extended_fisher_information)
+    again = design(small_request(job, RIGHT_LOW, seed=4), extended_fisher_information)
+    other = design(small_request(job, RIGHT_LOW, seed=5), extended_fisher_information)
     assert [w.tcp_pose for w in first.waypoints] == [w.tcp_pose for w in again.waypoints]
     assert [w.tcp_pose for w in first.waypoints] != [w.tcp_pose for w in other.waypoints]
 
 
 def test_a_ur5e_design_is_checked_with_ur5e_kinematics() -> None:
     job = JobConfig()
-    result = design(small_request(job, RIGHT_LOW, model=UR5E), fisher_information)
+    result = design(small_request(job, RIGHT_LOW, model=UR5E), extended_fisher_information)
     report = check_waypoints(
         result.waypoints,
         inverse_kinematics=lambda pose: inverse_kinematics_pose(pose, model=UR5E),
@@ -104,7 +105,7 @@ def test_a_ur5e_design_is_checked_with_ur5e_kinematics() -> None:
 def test_a_placement_the_rod_cannot_serve_says_what_stays_weak_and_why() -> None:
     # A 10 cm drill bit cannot keep a crossing window under 5 cm / 5 deg of doubt.
     job = with_overrides(JobConfig(), {"rod.length_m": 0.10, "rod.radius_m": 0.005})
-    result = design(small_request(job, RIGHT_LOW), fisher_information)
+    result = design(small_request(job, RIGHT_LOW), extended_fisher_information)
     assert result.waypoints == []
     assert result.weak_direction is not None
     assert result.weak_direction.startswith("no pose passes every rule")
@@ -112,7 +113,40 @@ def test_a_placement_the_rod_cannot_serve_says_what_stays_weak_and_why() -> None
     tighter = dataclasses.replace(
         small_request(job, RIGHT_LOW), uncertainty=PoseUncertainty(translation_m=0.005, rotation_deg=0.5)
     )
-    assert len(design(tighter, fisher_information).waypoints) == 10
+    assert len(design(tighter, extended_fisher_information).waypoints) == 10
+
+
+def _pose_std_with_axis(job: JobConfig, request: DesignRequest, poses: list) -> np.ndarray:
+    """Largest translation std (mm) of ``poses`` with the rod axis estimated, at the design's noise."""
+    blocks = information_blocks(
+        pose_to_matrix(np.array(poses)), np.full(len(poses), 0.45), request, extended_fisher_information
+    )
+    return std_of(blocks.sum(axis=0))[0].max()
+
+
+def test_a_design_that_estimates_the_axis_turns_the_tool_about_the_bit() -> None:
+    # The drill job: a 10 cm bit whose axis is estimated, the scanner known to 1 cm / 1 deg.
+    job = load_job(Path(__file__).parents[1] / "examples" / "drill.toml")
+    assert job.rod.estimate_axis is True
+    request = dataclasses.replace(
+        request_for_job(job, job.scanner.nominal.matrix(), UR5, uncertainty=PoseUncertainty(0.01, 1.0),
+                        waypoints=10),
+        candidates=2500,
+    )
+    assert request.estimate_axis and request.parameters == 10
+    result = design(request, extended_fisher_information)
+    assert len(result.waypoints) == 10
+    # The tool's x axis, seen along the bit, points many ways: that tells the bit's offset
+    # from the scanner's position. The drill preset's semicircles barely turn it.
+    def turn_spread_deg(poses: list) -> float:
+        x_axes = pose_to_matrix(np.array(poses))[:, :3, 0]
+        return float(np.degrees(np.ptp(np.unwrap(np.arctan2(x_axes[:, 1], x_axes[:, 0])))))
+
+    designed = [w.tcp_pose for w in result.waypoints]
+    preset = [w.tcp_pose for w in preset_waypoints("drill")]
+    assert turn_spread_deg(designed) > 120.0
+    assert _pose_std_with_axis(job, request, designed) < 0.3 * _pose_std_with_axis(job, request, preset)
+    assert result.std_translation_mm.max() < job.quality.max_std_translation_mm
 
 
 def test_design_command_writes_a_file_that_check_accepts(tmp_path: Path) -> None:

@@ -4,7 +4,8 @@ uncertainty.
 
 A candidate is drawn as a crossing point in the scan plane (range and bearing from the
 scanner), a rod direction tilted from the plane normal, where along the rod the crossing
-falls, and a small turn of the tool about the rod. Each is then kept only if:
+falls, and a turn of the tool about the rod (small, or wide when the rod's axis is
+estimated). Each is then kept only if:
 
 - the crossing lies 0.30 m (clear of the scanner) to ``max_range_m`` from the scanner, where
   the rod still covers enough beams, and inside the field of view with a margin;
@@ -51,6 +52,9 @@ COLUMN_CLEARANCE_M = 0.13
 TILT_RANGE_DEG = (10.0, 30.0)
 #: Turn of the tool about the rod around its reference heading (deg): keeps joint 6 calm.
 TOOL_TURN_SPREAD_DEG = 30.0
+#: The same when the rod's axis is estimated: turning the tool about the rod moves an axis
+#: offset around in the base frame, which tells it apart from the scanner's position.
+AXIS_TOOL_TURN_SPREAD_DEG = 150.0
 #: Elbow (|theta3|) and wrist (|theta5|) kept this far from stretched, folded or flipped (rad).
 ELBOW_RANGE_RAD = (0.45, np.pi - 0.8)
 WRIST_MARGIN_RAD = 0.5
@@ -182,8 +186,10 @@ def draw_candidates(
     count: int,
     rng: np.random.Generator,
     on_progress: Callable[[float], None] | None = None,
+    turn_spread_deg: float = TOOL_TURN_SPREAD_DEG,
 ) -> CandidatePool:
-    """Draw ``count`` candidates around the rough scanner pose and keep those that pass."""
+    """Draw ``count`` candidates around the rough scanner pose and keep those that pass; the
+    tool turns up to ``turn_spread_deg`` either way about the rod."""
     rod = rules.rod
     removed: dict[str, int] = {}
 
@@ -197,7 +203,7 @@ def draw_candidates(
     tilt_rad = np.deg2rad(rng.uniform(*TILT_RANGE_DEG, count))
     tilt_direction_rad = rng.uniform(0.0, 2.0 * np.pi, count)
     side = rng.choice([-1.0, 1.0], count)
-    turn_rad = np.deg2rad(rng.uniform(-TOOL_TURN_SPREAD_DEG, TOOL_TURN_SPREAD_DEG, count))
+    turn_rad = np.deg2rad(rng.uniform(-turn_spread_deg, turn_spread_deg, count))
     along_fraction = rng.uniform(0.0, 1.0, count)
 
     margin_deg = (

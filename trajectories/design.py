@@ -2,8 +2,12 @@
 candidates that keep every rule a run checks (``trajectories.candidates``).
 
 The objective is the worse of the largest translation std and the largest rotation std
-(base axes), each divided by the job's quality gate. The Fisher information of a set of
-waypoints is the sum of theirs, so the search works on per-candidate 6 x 6 blocks: a
+(base axes), each divided by the job's quality gate. When the job estimates the rod's axis
+(``rod.estimate_axis``), the four axis parameters join the information and the std are those
+of the pose with the axis unknown; the tool then also turns widely about the rod
+(``AXIS_TOOL_TURN_SPREAD_DEG``), the motion that tells the axis offset from the scanner's
+position. The Fisher information of a set of
+waypoints is the sum of theirs, so the search works on per-candidate k x k blocks: a
 greedy pass adds the candidate that lowers the objective most, exchange passes swap a
 chosen waypoint for a better one until none helps. Chosen crossings keep
 ``MIN_SEPARATION_M`` apart (the robot's error is smooth, so neighbours would not add
@@ -12,7 +16,7 @@ from the waypoint nearest the start posture (UR's home unless given), improved b
 then walked with the nearest IK solution: every step must stay on the design's branch (that
 of the home posture) and below ``MAX_JOINT_STEP_RAD`` on every joint.
 
-The information model (``lasercal_hw.calibration.model.fisher_information``) is passed in,
+The information model (``lasercal_hw.calibration.model.extended_fisher_information``) is passed in,
 as the IK is to ``trajectories.checks``: this package depends only on the ground of
 ``lasercal_hw``.
 """
@@ -21,15 +25,19 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
 from lasercal_hw.config import JobConfig
 from lasercal_hw.geometry import FloatArray, matrix_to_pose
+from lasercal_hw.models import RodLine
 from lasercal_hw.ur_kinematics import URModel, inverse_kinematics
 from trajectories.candidates import (
+    AXIS_TOOL_TURN_SPREAD_DEG,
     DEFAULT_UNCERTAINTY,
     HOME_Q_RAD,
+    TOOL_TURN_SPREAD_DEG,
     CandidatePool,
     CellRules,
     PoseUncertainty,
@@ -39,9 +47,26 @@ from trajectories.candidates import (
 from trajectories.plane_crossing import rod_plane_crossings
 from trajectories.waypoint import Waypoint
 
-#: ``information(rotation, translation_m, origins, directions, covariance_uv_m2, robot_sigma_m)``
-#: -> Fisher information (6, 6) of (translation, rotation about base axes).
-InformationModel = Callable[[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, float], FloatArray]
+
+class InformationModel(Protocol):
+    """Fisher information (k, k) of (translation, rotation about base axes[, rod axis offset (2),
+    tilt (2)]) of the rod held at ``tcp_transforms`` (n, 4, 4) for a scanner at (rotation,
+    translation_m)."""
+
+    def __call__(
+        self,
+        rotation: FloatArray,
+        translation_m: FloatArray,
+        tcp_transforms: FloatArray,
+        rod: RodLine,
+        covariance_uv_m2: FloatArray,
+        robot_sigma_m: float,
+        *,
+        with_axis: bool,
+    ) -> FloatArray: ...
+
+
+
 #: ``on_progress(stage, fraction)`` while the design runs.
 ProgressCallback = Callable[[str, float], None]
 
@@ -57,8 +82,8 @@ EXCHANGE_PASSES = 3
 SCAN_PERIOD_S = 0.025
 #: Rounds of "drop the waypoint that breaks the walk and choose again".
 _WALK_ROUNDS = 12
-# Weak prior that keeps the first greedy steps invertible (1 m, 1 rad): not in the reported CRB.
-_REGULARISER = np.eye(6)
+#: Pose parameters (the rest of an information matrix are the rod axis's).
+POSE_PARAMETERS = 6
 _AXES = [f"translation along base {a}" for a in "xyz"] + [f"rotation about base {a}" for a in "xyz"]
 
 
@@ -108,6 +133,13 @@ class DesignRequest:
     first_index: int = 0
     #: Joints the arm starts from: the tour begins at the waypoint nearest them (home if None).
     start_q_rad: FloatArray | None = None
+    #: Design for a run that estimates the rod's axis with the pose (``rod.estimate_axis``).
+    estimate_axis: bool = False
+
+    @property
+    def parameters(self) -> int:
+        """Size of the information: the pose's six, and the axis's four when estimated."""
+        return POSE_PARAMETERS + 4 * self.estimate_axis
 
 
 @dataclass(frozen=True)
@@ -150,6 +182,7 @@ def request_for_job(
     )
     targets = Targets(job.quality.max_std_translation_mm, job.quality.max_std_rotation_deg)
     return DesignRequest(
+        estimate_axis=job.rod.estimate_axis is not False,
         T_base_laser=np.asarray(T_base_laser, dtype=float),
         rules=rules,
         targets=targets,
@@ -160,13 +193,19 @@ def request_for_job(
     )
 
 
+def _regulariser(size: int) -> FloatArray:
+    """Weak prior that keeps the first greedy steps invertible (1 m, 1 rad): not in the reported CRB."""
+    return np.eye(size)
+
+
 def std_of(information: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Std of translation (mm) and rotation (deg) from a Fisher information (inf if singular)."""
+    """Std of translation (mm) and rotation (deg) from a Fisher information (inf if singular);
+    any parameters after the pose's six (the rod axis) count as unknown."""
     try:
         covariance = np.linalg.inv(information)
     except np.linalg.LinAlgError:
         return np.full(3, np.inf), np.full(3, np.inf)
-    std = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    std = np.sqrt(np.clip(np.diag(covariance)[:POSE_PARAMETERS], 0.0, None))
     if not np.all(np.isfinite(std)) or np.linalg.cond(information) > 1e14:
         return np.full(3, np.inf), np.full(3, np.inf)
     return std[:3] * 1e3, np.degrees(std[3:])
@@ -178,32 +217,30 @@ def _scale(targets: Targets) -> FloatArray:
 
 
 def _scores(information: FloatArray, scale: FloatArray) -> FloatArray:
-    """The objective for a stack of information matrices (..., 6, 6)."""
-    diagonal = np.diagonal(np.linalg.inv(information), axis1=-2, axis2=-1)
+    """The objective for a stack of information matrices (..., k, k)."""
+    diagonal = np.diagonal(np.linalg.inv(information), axis1=-2, axis2=-1)[..., :POSE_PARAMETERS]
     return (np.sqrt(np.clip(diagonal, 0.0, None)) / scale).max(axis=-1)
 
 
 def information_blocks(
     T_base_tcp: FloatArray, range_m: FloatArray, request: DesignRequest, information: InformationModel
 ) -> FloatArray:
-    """Fisher information block (n, 6, 6) of each TCP pose at the request's scanner pose,
+    """Fisher information block (n, k, k) of each TCP pose at the request's scanner pose,
     the crossing ``range_m`` setting its centre noise."""
     rod = request.rules.rod
     rotation, translation = request.T_base_laser[:3, :3], request.T_base_laser[:3, 3]
-    tcp_rotation = T_base_tcp[:, :3, :3]
-    origins = tcp_rotation @ np.asarray(rod.origin_m, dtype=float) + T_base_tcp[:, :3, 3]
-    directions = tcp_rotation @ rod.unit_direction()
     sigma = request.noise.centre_sigma_of(range_m, rod.radius_m)
-    blocks = np.empty((len(T_base_tcp), 6, 6))
+    blocks = np.empty((len(T_base_tcp), request.parameters, request.parameters))
     for i in range(len(T_base_tcp)):
         covariance = np.eye(2)[None] * sigma[i] ** 2
         blocks[i] = information(
             rotation,
             translation,
-            origins[i : i + 1],
-            directions[i : i + 1],
+            T_base_tcp[i : i + 1],
+            rod,
             covariance,
             request.noise.robot_sigma_m,
+            with_axis=request.estimate_axis,
         )
     return blocks
 
@@ -219,7 +256,7 @@ def visited_crossings(
 
 
 def _rank_two_factors(blocks: FloatArray) -> FloatArray:
-    """``L`` (n, 6, 2) with ``L L^T`` = each block (a waypoint gives two residual rows)."""
+    """``L`` (n, k, 2) with ``L L^T`` = each block (a waypoint gives two residual rows)."""
     values, vectors = np.linalg.eigh(blocks)
     return vectors[:, :, -2:] * np.sqrt(np.clip(values[:, None, -2:], 0.0, None))
 
@@ -231,7 +268,7 @@ def _scores_with_each(total: FloatArray, factors: FloatArray, scale: FloatArray)
     cl = np.einsum("ij,kja->kia", covariance, factors)
     inner = np.eye(2) + np.einsum("kja,kjb->kab", factors, cl)
     diagonal = np.diag(covariance)[None, :] - np.einsum("kia,kab,kib->ki", cl, np.linalg.inv(inner), cl)
-    return (np.sqrt(np.clip(diagonal, 0.0, None)) / scale).max(axis=1)
+    return (np.sqrt(np.clip(diagonal[:, :POSE_PARAMETERS], 0.0, None)) / scale).max(axis=1)
 
 
 @dataclass
@@ -277,7 +314,7 @@ def select(
     factors = _rank_two_factors(blocks)
     neighbours = _Neighbours(pool.crossing_base_m, pool.joints_rad)
     chosen: list[int] = []
-    total = prior + _REGULARISER
+    total = prior + _regulariser(len(prior))
     for _ in range(count):
         options = np.flatnonzero(usable & neighbours.allowed(len(chosen)))
         if options.size == 0:
@@ -373,7 +410,8 @@ def describe_weakness(
         covariance = np.linalg.inv(information)
     except np.linalg.LinAlgError:
         covariance = np.linalg.pinv(information)
-    normalised = covariance / np.outer(scale, scale)
+    pose = covariance[:POSE_PARAMETERS, :POSE_PARAMETERS]
+    normalised = pose / np.outer(scale, scale)
     _, vectors = np.linalg.eigh(normalised)
     vector = vectors[:, -1] / np.abs(vectors[:, -1]).max()
     parts = [_AXES[k] for k in np.argsort(-np.abs(vector)) if abs(vector[k]) >= 0.35]
@@ -436,12 +474,14 @@ def design(
         rules,
         request.candidates,
         rng,
+        turn_spread_deg=AXIS_TOOL_TURN_SPREAD_DEG if request.estimate_axis else TOOL_TURN_SPREAD_DEG,
         on_progress=None if on_progress is None else (lambda f: on_progress("candidate poses", f)),
     )
     if on_progress is not None:
         on_progress("information", 0.0)
     blocks = information_blocks(pool.T_base_tcp, pool.crossing_range_m, request, information)
-    prior = np.zeros((6, 6)) if request.prior_information is None else np.asarray(request.prior_information)
+    size = request.parameters
+    prior = np.zeros((size, size)) if request.prior_information is None else request.prior_information
     visited = (
         np.zeros((0, 3)) if request.visited_crossings_m is None else np.asarray(request.visited_crossings_m)
     )
@@ -458,7 +498,7 @@ def design(
             blocks, pool, request, prior, ~excluded & (pool.side == side),
             None if on_progress is None else (lambda f, k=k: on_progress("search", (k + f) / len(sides))),
         )
-        score = float(_scores((prior + _REGULARISER + blocks[chosen].sum(axis=0))[None], scale)[0])
+        score = float(_scores((prior + _regulariser(size) + blocks[chosen].sum(axis=0))[None], scale)[0])
         if best is None or (len(chosen), -score) > (len(best[1]), -best[0]):
             best = (score, chosen, walked, complete)
     chosen, walked, complete = ([], np.zeros((0, 6)), True) if best is None else best[1:]

@@ -225,3 +225,33 @@ def extended_residuals_and_jacobian(
         if with_offset:
             full = np.concatenate([full, unit[:, :, None]], axis=2)
     return residual, full, slope
+
+
+def extended_fisher_information(
+    rotation: FloatArray,
+    translation_m: FloatArray,
+    tcp_transforms: FloatArray,
+    rod: RodLine,
+    covariance_uv_m2: FloatArray,
+    robot_sigma_m: float,
+    range_offset_m: float = 0.0,
+    *,
+    with_axis: bool,
+    with_offset: bool = False,
+) -> FloatArray:
+    """Fisher information (6 [+4] [+1] square) of (dt, e[, a1, a2, b1, b2][, k]) for the rod
+    held at ``tcp_transforms`` (N, 4, 4) and the noise model of ``fisher_information``."""
+    zeros = np.zeros((len(tcp_transforms), 2))
+    _, jac, slope = extended_residuals_and_jacobian(
+        rotation,
+        translation_m,
+        tcp_transforms,
+        rod,
+        zeros,
+        range_offset_m,
+        with_axis=with_axis,
+        with_offset=with_offset,
+    )
+    white = whitening(effective_covariance(covariance_uv_m2, slope, robot_sigma_m))
+    _, j = whiten(white, zeros, jac)
+    return j.T @ j

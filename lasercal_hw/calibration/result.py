@@ -67,13 +67,22 @@ class RodAxisEstimate(BaseModel):
     estimated: bool
     nominal_origin_m: list[float]
     nominal_direction: list[float]
-    origin_m: list[float] = Field(description="point of the estimated line nearest the nominal origin")
+    origin_m: list[float] = Field(
+        description="point of the estimated line level with the nominal origin along the nominal axis"
+    )
     direction: list[float] = Field(description="unit direction of the estimated line")
     basis_tcp: list[list[float]] = Field(description="e1, e2: TCP-frame unit vectors across the nominal axis")
     offset_mm: list[float] = Field(description="line moved along e1, e2")
     offset_std_mm: list[float]
     tilt_deg: list[float] = Field(description="line tilted towards e1, e2")
     tilt_std_deg: list[float]
+    crossing_along_mm: float = Field(
+        0.0, description="mean distance along the rod, from the nominal origin, where it crossed the plane"
+    )
+    crossing_offset_mm: list[float] = Field(
+        default_factory=lambda: [0.0, 0.0], description="line moved along e1, e2 at crossing_along_mm"
+    )
+    crossing_offset_std_mm: list[float] = Field(default_factory=lambda: [0.0, 0.0])
     note: str = ""
 
 
@@ -131,8 +140,15 @@ class CalibrationResult(BaseModel):
             moved = f"moved {_pm(axis.offset_mm, axis.offset_std_mm, 2)} mm"
             tilted = f"tilted {_pm(axis.tilt_deg, axis.tilt_std_deg, 3)} deg"
             basis = f"{_vec(axis.basis_tcp[0])}, {_vec(axis.basis_tcp[1])}"
-            lines.append(f"rod axis (TCP frame): {estimated}; {nominal}; {moved} and {tilted} along {basis}")
-        elif axis is not None:
+            crossing = (
+                f"where it crossed the scan plane ({axis.crossing_along_mm:.0f} mm along the rod) moved "
+                f"{_pm(axis.crossing_offset_mm, axis.crossing_offset_std_mm, 2)} mm"
+            )
+            lines.append(
+                f"rod axis (TCP frame): {estimated}; {nominal}; {moved} and {tilted} along {basis}; "
+                f"{crossing}"
+            )
+        if axis is not None and axis.note:
             lines.append(axis.note)
         if self.range_offset is not None:
             offset = self.range_offset

@@ -32,6 +32,7 @@ from lasercal_hw.calibration.model import (
     axis_basis,
     effective_covariance,
     euler_zyx_axes,
+    extended_fisher_information,
     extended_residuals_and_jacobian,
     fisher_information,
     left_jacobian_so3,
@@ -100,10 +101,20 @@ class SolverOptions(BaseModel):
         0.0, description="range offset already removed from the centres (added to the reported offset)"
     )
     auto_axis_max_offset_std_m: float = Field(
-        0.001, gt=0, description="auto: estimate the axis when its offsets' Cramér-Rao std is below this"
+        0.001,
+        gt=0,
+        description="auto: estimate the axis when the Cramér-Rao std of its offset where the rod crosses "
+        "the plane is below this",
     )
-    auto_axis_max_tilt_std_deg: float = Field(
-        0.5, gt=0, description="auto: ... and its tilts' Cramér-Rao std below this"
+    axis_prior_std_m: float = Field(
+        0.005,
+        gt=0,
+        description="how far the given rod axis may be off across itself (one std): an estimated axis is "
+        "held to it where the waypoints cannot see it",
+    )
+    axis_prior_std_deg: float = Field(3.0, gt=0, description="... and how far it may be tilted (one std)")
+    weak_axis_tilt_std_deg: float = Field(
+        0.5, gt=0, description="note a rod-axis tilt whose Cramér-Rao std is above this as weakly determined"
     )
 
 
@@ -372,6 +383,8 @@ def _refine(
         rod = moved_rod(data.rod, x[6:10]) if extras.axis else data.rod
         return rod, data.range_offset_m + (float(x[-1]) if extras.offset else 0.0)
 
+    prior_weight = _axis_prior_weight(opts)
+
     def evaluate(x: FloatArray) -> tuple[FloatArray, FloatArray]:
         key = x.tobytes()
         if key not in cache:
@@ -390,7 +403,15 @@ def _refine(
                 with_offset=extras.offset,
             )
             jac[:, :, 3:6] = (jac[:, :, 3:6].reshape(-1, 3) @ left_jacobian_so3(x[3:6])).reshape(-1, 2, 3)
-            cache[key] = whiten(white, residual, jac)
+            residual_white, jac_white = whiten(white, residual, jac)
+            if extras.axis:
+                # The axis prior: four more residuals, the line's deviation from the job's in std.
+                prior_jac = np.zeros((4, jac_white.shape[1]))
+                prior_jac[:, 6:10] = np.diag(prior_weight)
+                deviation = axis_deviation(data.nominal_rod, rod)
+                residual_white = np.concatenate([residual_white, prior_weight * deviation])
+                jac_white = np.vstack([jac_white, prior_jac])
+            cache[key] = residual_white, jac_white
         return cache[key]
 
     fit = least_squares(
@@ -547,7 +568,10 @@ def _result(
     extras: _Extras,
 ) -> CalibrationResult:
     _, observability = _check_observability(rotation, translation, data, used, opts, stage="final")
-    crb_full = np.linalg.inv(_extended_fisher(rotation, translation, data, used, opts, extras))
+    information = _extended_fisher(rotation, translation, data, used, opts, extras)
+    if extras.axis:
+        information[6:10, 6:10] += np.diag(_axis_prior_weight(opts) ** 2)
+    crb_full = np.linalg.inv(information)
     crb = crb_full[:6, :6]
     m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
     dof = 2 * int(used.sum()) - 6 - extras.count
@@ -621,7 +645,12 @@ def _result(
             iterations=0,
             solve_time_s=0.0,
         ),
-        rod_axis=_axis_estimate(data, extras, crb_full * max(1.0, reduced)),
+        rod_axis=_axis_estimate(
+            data,
+            extras,
+            crb_full * max(1.0, reduced),
+            _mean_crossing_along_m(rotation, translation, data, used),
+        ),
         range_offset=_range_offset(data, extras, crb_full * max(1.0, reduced), opts),
     )
 
@@ -635,22 +664,17 @@ def _extended_fisher(
     extras: _Extras,
 ) -> FloatArray:
     """Fisher information of the pose and the extra parameters over the used waypoints."""
-    tcp, covariance = data.tcp_transforms[used], data.covariance[used]
-    zeros = np.zeros((int(used.sum()), 2))
-    _, slope = data.predicted(rotation, translation)
-    _, jac, _ = extended_residuals_and_jacobian(
+    return extended_fisher_information(
         rotation,
         translation,
-        tcp,
+        data.tcp_transforms[used],
         data.rod,
-        zeros,
+        data.covariance[used],
+        opts.robot_sigma_m,
         data.range_offset_m,
         with_axis=extras.axis,
         with_offset=extras.offset,
     )
-    white = whitening(effective_covariance(covariance, slope[used], opts.robot_sigma_m))
-    _, j = whiten(white, zeros, jac)
-    return j.T @ j
 
 
 def _extras(
@@ -658,7 +682,9 @@ def _extras(
 ) -> _Extras:
     """Which extra parameters to estimate: refuses a requested one the waypoints cannot
     determine; with ``estimate_axis="auto"`` leaves the axis out (with a note) unless the
-    Cramér-Rao bound at the start pins it down."""
+    Cramér-Rao bound at the start pins down its offset where the rod crosses the plane. A
+    tilt the crossings cannot see (they keep to a short stretch of the rod) is estimated
+    with a note: it then hardly moves the line where the waypoints measure it."""
     wanted_axis = opts.estimate_axis is True or opts.estimate_axis == "auto"
     if opts.formulation == "paper" and (wanted_axis or opts.estimate_range_offset):
         raise ConfigError("the paper formulation cannot estimate the rod axis or the range offset; use ours")
@@ -671,23 +697,43 @@ def _extras(
         return _Extras(offset=opts.estimate_range_offset)
     extras = _Extras(axis=True, offset=opts.estimate_range_offset)
     fisher = _extended_fisher(rotation, translation, data, usable, opts, extras)
+    along_m = _mean_crossing_along_m(rotation, translation, data, usable)
+    offset_std_m, tilt_std_deg = _axis_crb_std(fisher, along_m)
     if opts.estimate_axis is True:
         _require_observable(fisher, opts, extras)
-        return extras
-    std = _crb_std(fisher)
-    offset_std_m, tilt_std_deg = std[6:8], np.degrees(std[8:10])
-    if (
-        offset_std_m.max() <= opts.auto_axis_max_offset_std_m
-        and tilt_std_deg.max() <= opts.auto_axis_max_tilt_std_deg
-    ):
+    elif not offset_std_m.max() <= opts.auto_axis_max_offset_std_m:
+        note = (
+            f"rod axis not estimated (auto): the Cramér-Rao std of its offset where it crosses the scan "
+            f"plane would be {offset_std_m.max() * 1e3:.2g} mm (limit "
+            f"{opts.auto_axis_max_offset_std_m * 1e3:g} mm); {_axis_advice(offset_std_m, tilt_std_deg, opts)}"
+        )
+        return _Extras(offset=opts.estimate_range_offset, axis_note=note)
+    if tilt_std_deg.max() <= opts.weak_axis_tilt_std_deg:
         return extras
     note = (
-        f"rod axis not estimated (auto): its Cramér-Rao std would be {offset_std_m.max() * 1e3:.2g} mm "
-        f"across "
-        f"and {tilt_std_deg.max():.2g} deg of tilt (limits {opts.auto_axis_max_offset_std_m * 1e3:g} mm, "
-        f"{opts.auto_axis_max_tilt_std_deg:g} deg); {_axis_advice(offset_std_m, tilt_std_deg, opts)}"
+        f"rod axis tilt weakly determined by the waypoints (Cramér-Rao std {tilt_std_deg.max():.2g} deg), so "
+        f"held to the given direction ({opts.axis_prior_std_deg:g} deg std): the crossings keep to a short "
+        f"stretch of the rod, where its offset is what the pose relies on; "
+        f"{_axis_advice(np.zeros(2), tilt_std_deg, opts)}"
     )
-    return _Extras(offset=opts.estimate_range_offset, axis_note=note)
+    return replace(extras, axis_note=note)
+
+
+def _axis_crb_std(fisher: FloatArray, crossing_along_m: float) -> tuple[FloatArray, FloatArray]:
+    """Cramér-Rao std of the rod axis's offset where it crosses the plane (m, e1 and e2) and
+    of its tilt (deg), from the information of the pose, the axis (parameters 6-9) and more."""
+    if not np.all(np.isfinite(fisher)):
+        return np.full(2, np.inf), np.full(2, np.inf)
+    axis_covariance = np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)[6:10, 6:10]
+    tilt_std_rad = np.sqrt(np.clip(np.diag(axis_covariance)[2:], 0.0, None))
+    return _crossing_offset_std_m(axis_covariance, crossing_along_m), np.degrees(tilt_std_rad)
+
+
+def _crossing_offset_std_m(axis_covariance: FloatArray, crossing_along_m: float) -> FloatArray:
+    """Std (m) of the axis offset ``a + along * b`` where the rod crosses the plane, from the
+    covariance (4, 4) of the offset ``a`` and tilt ``b`` at the rod origin."""
+    to_crossing = np.hstack([np.eye(2), crossing_along_m * np.eye(2)])
+    return np.sqrt(np.clip(np.diag(to_crossing @ axis_covariance @ to_crossing.T), 0.0, None))
 
 
 def _crb_std(fisher: FloatArray) -> FloatArray:
@@ -726,7 +772,7 @@ def _axis_advice(offset_std_m: FloatArray, tilt_std_deg: FloatArray, opts: Solve
             "to see the axis offset, turn the tool about the rod axis between waypoints (spin it 90 deg or "
             "more) and tilt it about two different axes"
         )
-    if not tilt_std_deg.max() <= opts.auto_axis_max_tilt_std_deg:
+    if not tilt_std_deg.max() <= opts.weak_axis_tilt_std_deg:
         advice.append(
             "to see the axis tilt, vary where along the rod it crosses the scan plane (crossings spread "
             "5 cm or more along the rod)"
@@ -734,29 +780,63 @@ def _axis_advice(offset_std_m: FloatArray, tilt_std_deg: FloatArray, opts: Solve
     return "; ".join(advice) or "the trajectory is too short"
 
 
-def _axis_estimate(data: _Data, extras: _Extras, covariance: FloatArray) -> RodAxisEstimate | None:
-    """The estimated rod line next to the nominal one (None when the axis was never asked for)."""
+def _axis_prior_weight(opts: SolverOptions) -> FloatArray:
+    """1 / std of the axis prior for (offset e1, e2 (m), tilt e1, e2 (rad))."""
+    return 1.0 / np.array([opts.axis_prior_std_m] * 2 + [np.radians(opts.axis_prior_std_deg)] * 2)
+
+
+def axis_deviation(nominal: RodLine, rod: RodLine) -> FloatArray:
+    """How ``rod`` lies off ``nominal``: its offset (m) across the nominal axis at the nominal
+    origin and its tilt (the tangent) along ``axis_basis`` of the nominal direction, the
+    parameters of ``moved_rod``."""
+    basis = axis_basis(nominal.direction)
+    direction = rod.unit_direction()
+    nominal_direction = nominal.unit_direction()
+    along = direction @ nominal_direction
+    nominal_origin = np.asarray(nominal.origin_m, dtype=float)
+    origin = np.asarray(rod.origin_m, dtype=float)
+    level = origin + ((nominal_origin - origin) @ nominal_direction) / along * direction
+    offset = (level - nominal_origin) @ basis
+    return np.concatenate([offset, (direction @ basis) / along])
+
+
+def _mean_crossing_along_m(
+    rotation: FloatArray, translation: FloatArray, data: _Data, used: np.ndarray
+) -> float:
+    """Mean distance along the rod, from its origin, at which the used waypoints cross the plane."""
+    _, _, along_m = plane_crossing(rotation, translation, data.origins[used], data.directions[used])
+    return float(np.mean(along_m))
+
+
+def _axis_estimate(
+    data: _Data, extras: _Extras, covariance: FloatArray, crossing_along_m: float
+) -> RodAxisEstimate | None:
+    """The estimated rod line next to the nominal one (None when the axis was never asked for),
+    with its offset where the rod crossed the plane: the part of the line the waypoints pin
+    down best when the crossings keep to a short stretch of the rod."""
     nominal = data.nominal_rod
     if not extras.axis and not extras.axis_note:
         return None
     basis = axis_basis(nominal.direction)
-    direction = data.rod.unit_direction()
-    origin = np.asarray(data.rod.origin_m, dtype=float)
-    origin = origin + ((np.asarray(nominal.origin_m, dtype=float) - origin) @ direction) * direction
-    offset = (origin - np.asarray(nominal.origin_m, dtype=float)) @ basis
-    tilt = np.arctan2(direction @ basis, direction @ nominal.unit_direction())
-    std = np.sqrt(np.diag(covariance))[6:10] if extras.axis else np.zeros(4)
+    deviation = axis_deviation(nominal, data.rod)
+    offset, tilt = deviation[:2], np.arctan(deviation[2:])
+    axis_covariance = covariance[6:10, 6:10] if extras.axis else np.zeros((4, 4))
+    std = np.sqrt(np.diag(axis_covariance))
+    crossing_std = _crossing_offset_std_m(axis_covariance, crossing_along_m)
     return RodAxisEstimate(
         estimated=extras.axis,
         nominal_origin_m=_list(nominal.origin_m),
         nominal_direction=_list(nominal.unit_direction()),
-        origin_m=_list(origin),
-        direction=_list(direction),
+        origin_m=_list(np.asarray(nominal.origin_m, dtype=float) + basis @ offset),
+        direction=_list(data.rod.unit_direction()),
         basis_tcp=basis.T.tolist(),
         offset_mm=_list(offset * 1e3),
         offset_std_mm=_list(std[:2] * 1e3),
         tilt_deg=_list(np.degrees(tilt)),
         tilt_std_deg=_list(np.degrees(std[2:])),
+        crossing_along_mm=crossing_along_m * 1e3,
+        crossing_offset_mm=_list((offset + crossing_along_m * deviation[2:]) * 1e3),
+        crossing_offset_std_mm=_list(crossing_std * 1e3),
         note=extras.axis_note,
     )
 

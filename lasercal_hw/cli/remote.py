@@ -102,6 +102,22 @@ def _job(config: Path | None, preset: str | None) -> dict[str, Any] | None:
     return job | {"trajectory": trajectory | {"preset": preset}}
 
 
+def _motion_client(yes: bool, doing: str, daemon: str, token_file: Path | None) -> Any:
+    """A client for a request that moves the arm, once ``--yes`` confirmed the motion."""
+    if not yes:
+        raise ConfigError(f"{doing} moves the arm: check the cell and pass --yes to confirm the motion")
+    return _client(daemon, token_file)
+
+
+def _print_or_follow(client: Any, job: dict[str, Any], wait: bool, as_json: bool) -> None:
+    """Print the job as the daemon took it, or with ``--wait`` follow its events and exit
+    with the code 'lasercal run' would give."""
+    if not wait:
+        _print(job, as_json)
+        return
+    _finish(client.wait(job["id"], on_event=_show_event), as_json)
+
+
 def _start(
     kind: str,
     daemon: str,
@@ -113,16 +129,11 @@ def _start(
     as_json: bool,
     extra: dict[str, Any],
 ) -> None:
-    if not yes:
-        raise ConfigError("this job moves the arm: check the cell and pass --yes to confirm the motion")
-    client = _client(daemon, token_file)
-    body = {"kind": kind, "confirm_motion": True, "job": job, "dwell_s": dwell} | extra
-    job = client.start_job(body)
-    if not wait:
-        _print(job, as_json)
-        return
-    typer.echo(f"job {job['id']} started; following its events", err=True)
-    _finish(client.wait(job["id"], on_event=_show_event), as_json)
+    client = _motion_client(yes, "this job", daemon, token_file)
+    started = client.start_job({"kind": kind, "confirm_motion": True, "job": job, "dwell_s": dwell} | extra)
+    if wait:
+        typer.echo(f"job {started['id']} started; following its events", err=True)
+    _print_or_follow(client, started, wait, as_json)
 
 
 @remote_app.command("calibrate")
@@ -245,13 +256,8 @@ def resume_command(
     as_json: JsonOption = False,
 ) -> None:
     """Continue a cancelled or interrupted job from its recording."""
-    if not yes:
-        raise ConfigError("resuming moves the arm: check the cell and pass --yes to confirm the motion")
-    client = _client(daemon, token_file)
-    job = client.resume(job_id)
-    if wait:
-        _finish(client.wait(job["id"], on_event=_show_event), as_json)
-    _print(job, as_json)
+    client = _motion_client(yes, "resuming", daemon, token_file)
+    _print_or_follow(client, client.resume(job_id), wait, as_json)
 
 
 @remote_app.command("diff")

@@ -159,8 +159,12 @@ DesignModelOption = Annotated[
 OutOption = Annotated[Path, typer.Option("--out", help="Waypoint file to write (CSV).")]
 SeedOption = Annotated[int, typer.Option("--seed", help="Seed of the search (same seed, same waypoints).")]
 UncertaintyOption = Annotated[
-    tuple[float, float],
-    typer.Option("--pose-uncertainty", help="How far off the rough pose may be: metres and degrees."),
+    tuple[float, float] | None,
+    typer.Option(
+        "--pose-uncertainty",
+        help="How far off the rough pose may be: metres and degrees; default: the job's "
+        "trajectory.pose_uncertainty (0.05 m, 5 deg unless set).",
+    ),
 ]
 
 
@@ -179,7 +183,7 @@ def _rough_pose(job: JobConfig, scanner_pose: tuple[float, ...] | None) -> np.nd
 
 def design(
     scanner_pose: ScannerPoseOption = None,
-    pose_uncertainty: UncertaintyOption = (0.05, 5.0),
+    pose_uncertainty: UncertaintyOption = None,
     config: ConfigOption = None,
     waypoints: WaypointCountOption = 20,
     robot_model_name: DesignModelOption = None,
@@ -194,17 +198,19 @@ def design(
     holds anywhere inside the pose uncertainty, field of view, range, line of sight past the
     robot's base), in a short visiting order. Prints the predicted std per axis and writes a
     waypoint file for `lasercal run` (trajectory.waypoints_file) and `trajectory check`.
+    With rod.estimate_axis in the job, the std are those of the pose with the rod's axis
+    estimated alongside, and the tool turns widely about the rod to make that possible.
     """
     from rich.progress import BarColumn, Progress, TextColumn
 
-    from lasercal_hw.calibration.model import fisher_information
+    from lasercal_hw.calibration.model import extended_fisher_information
     from trajectories.candidates import PoseUncertainty
     from trajectories.design import design as design_waypoints
     from trajectories.design import request_for_job
     from trajectories.waypoint_file import waypoints_to_csv
 
     job = load_job(config)
-    translation_m, rotation_deg = pose_uncertainty
+    translation_m, rotation_deg = pose_uncertainty or job.trajectory.pose_uncertainty
     if not (0.0 <= translation_m <= 0.5 and 0.0 <= rotation_deg <= 45.0):
         raise ConfigError(
             f"--pose-uncertainty {translation_m:g} {rotation_deg:g}: give 0-0.5 m and 0-45 deg"
@@ -221,7 +227,9 @@ def design(
     with Progress(TextColumn("{task.description}"), BarColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task("designing", total=1.0)
         result = design_waypoints(
-            request, fisher_information, lambda stage, f: bar.update(task, description=stage, completed=f)
+            request,
+            extended_fisher_information,
+            lambda stage, f: bar.update(task, description=stage, completed=f),
         )
     if not result.waypoints:
         raise ConfigError(f"no waypoint keeps every rule for this scanner pose: {result.weak_direction}")
@@ -245,6 +253,7 @@ def design(
                 "waypoints": [w.model_dump(mode="json") for w in result.waypoints],
                 "predicted_std_translation_mm": result.std_translation_mm.tolist(),
                 "predicted_std_rotation_deg": result.std_rotation_deg.tolist(),
+                "rod_axis_estimated": request.estimate_axis,
                 "score": result.score,
                 "weak_direction": result.weak_direction,
                 "notes": result.notes,
@@ -252,12 +261,15 @@ def design(
             }
         )
         return
-    _print_design(result, request.targets.translation_mm, request.targets.rotation_deg, model, out)
+    _print_design(result, request, model, out)
 
 
-def _print_design(result: Any, gate_mm: float, gate_deg: float, model: URModel, out: Path) -> None:
+def _print_design(result: Any, request: Any, model: URModel, out: Path) -> None:
     """The predicted std per axis, what stays weak, and how to use the file."""
-    title = f"{len(result.waypoints)} waypoints for a {model.name}"
+    gate_mm, gate_deg = request.targets.translation_mm, request.targets.rotation_deg
+    title = f"{len(result.waypoints)} waypoints for a {model.name}" + (
+        ", rod axis estimated with the pose" if request.estimate_axis else ""
+    )
     table = Table("axis", "predicted std", "gate", title=title)
     for axis, value in zip("xyz", result.std_translation_mm, strict=True):
         table.add_row(f"translation {axis}", f"{value:.2f} mm", f"{gate_mm:g} mm")

@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lasercal_hw.calibration.model import fisher_information
+from lasercal_hw.calibration.model import extended_fisher_information
 from lasercal_hw.config import JobConfig
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import pose_to_matrix
@@ -60,7 +60,7 @@ def first_design(job: JobConfig) -> Design:
         uncertainty=PoseUncertainty(*job.trajectory.pose_uncertainty),
         waypoints=job.trajectory.first_waypoints,
     )
-    result = design(request, fisher_information)
+    result = design(request, extended_fisher_information)
     if len(result.waypoints) < job.trajectory.first_waypoints:
         raise ConfigError(
             f"the adaptive run's first design found {len(result.waypoints)} of "
@@ -90,7 +90,7 @@ def second_design(job: JobConfig, estimate: FloatArray, estimate_std: tuple[floa
     )
     measured = pose_to_matrix(np.asarray(measured_poses, dtype=float).reshape(-1, 6))
     points_m, range_m = visited_crossings(measured, request)
-    prior = information_blocks(measured, range_m, request, fisher_information).sum(axis=0)
+    prior = information_blocks(measured, range_m, request, extended_fisher_information).sum(axis=0)
     last_q = inverse_kinematics_branches(measured[-1:], model=request.rules.model)[0, request.rules.branch]
     request = dataclasses.replace(
         request,
@@ -99,7 +99,7 @@ def second_design(job: JobConfig, estimate: FloatArray, estimate_std: tuple[floa
         first_index=first_index,
         start_q_rad=last_q if np.all(np.isfinite(last_q)) else None,
     )
-    return design(request, fisher_information)
+    return design(request, extended_fisher_information)
 
 
 def _record_design(

@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
@@ -37,8 +37,8 @@ from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
 
 __all__ = [
-    "CancelToken", "MotionPlan", "RunEvent", "RunReport", "RunRequest", "SequencerSession", "calibrate",
-    "default_out_dir", "open_sequencer",
+    "CancelToken", "MotionPlan", "ProcedureReport", "RunEvent", "RunReport", "RunRequest", "SequencerSession",
+    "calibrate", "default_out_dir", "open_sequencer",
 ]
 
 DRY_RUN_SCENE_FILE = "dry_run_scene.toml"
@@ -61,16 +61,33 @@ class RunRequest:
     title: str = "lasercal run"
 
 
-@dataclass(frozen=True)
-class RunReport:
-    """A finished run: the sequencer's outcome and the files written."""
+OutcomeT = TypeVar("OutcomeT")
 
-    outcome: RunOutcome
+
+@dataclass(frozen=True)
+class ProcedureReport(Generic[OutcomeT]):
+    """A finished procedure on the engine's machinery (a run, a verify): its outcome, the
+    files written, the dry run's ground truth and fake cell, and the whole call's time."""
+
+    outcome: OutcomeT
     files: dict[str, Path]
     out_dir: Path
     ground_truth: FloatArray | None
     fake_cell: dict[str, Any] | None
     command_s: float
+
+    def with_outputs(self, document: dict[str, Any]) -> dict[str, Any]:
+        """``document`` with the files written, whether it was a dry run and the fake cell."""
+        document["outputs"] = {name: str(path) for name, path in self.files.items()}
+        document["dry_run"] = self.fake_cell is not None
+        if self.fake_cell is not None:
+            document["fake_cell"] = self.fake_cell
+        return document
+
+
+@dataclass(frozen=True)
+class RunReport(ProcedureReport[RunOutcome]):
+    """A finished run: the sequencer's outcome and the files written."""
 
     @property
     def overhead_fraction_with_io(self) -> float:
@@ -111,11 +128,8 @@ class RunReport:
                 "command_s": self.command_s,
                 "overhead_fraction_with_io": self.overhead_fraction_with_io,
             },
-            "outputs": {name: str(path) for name, path in self.files.items()},
-            "dry_run": self.fake_cell is not None,
         }
-        if self.fake_cell is not None:
-            document["fake_cell"] = self.fake_cell
+        self.with_outputs(document)
         if self.ground_truth is not None:
             document["ground_truth"] = {
                 "T_base_laser": np.asarray(self.ground_truth).tolist(),

@@ -291,6 +291,8 @@ def solve_two_pass(
     options = SolverOptions(
         robot_sigma_m=job.robot.position_accuracy_mm / 1000.0,
         estimate_axis=job.rod.estimate_axis,
+        axis_prior_std_m=job.rod.axis_std_mm / 1000.0,
+        axis_prior_std_deg=job.rod.axis_std_deg,
         estimate_range_offset=job.scanner.estimate_range_offset,
     )
     first = solve([m.observation() for m in measurements], rod, options=options)

@@ -29,6 +29,10 @@ from lasercal_hw.service.sd_notify import notify, watchdog_interval_s
 logger = logging.getLogger(__name__)
 
 SSE_HEADERS = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
+# Where an event stream starts: the Last-Event-ID header a reconnecting EventSource sends,
+# or ?last_event_id= (which wins) for clients that cannot set headers.
+LastEventIdHeader = Annotated[str | None, Header()]
+AfterQuery = Annotated[int | None, Query(alias="last_event_id", ge=0)]
 
 
 class ActivateBody(BaseModel):
@@ -68,6 +72,11 @@ def _after_id(last_event_id: str | None, query_id: int | None) -> int:
             "Last-Event-ID must be an event id (an integer)",
             {"field": "Last-Event-ID"},
         ) from None
+
+
+def _event_stream(events: AsyncIterator[bytes]) -> StreamingResponse:
+    """An SSE response that no proxy buffers or caches."""
+    return StreamingResponse(events, media_type="text/event-stream", headers=SSE_HEADERS)
 
 
 def create_app(daemon: Daemon) -> FastAPI:
@@ -184,30 +193,17 @@ def create_app(daemon: Daemon) -> FastAPI:
 
     @app.get("/v1/jobs/{job_id}/events")
     def job_events(
-        job_id: str,
-        last_event_id: Annotated[str | None, Header()] = None,
-        after: Annotated[int | None, Query(alias="last_event_id", ge=0)] = None,
+        job_id: str, last_event_id: LastEventIdHeader = None, after: AfterQuery = None
     ) -> StreamingResponse:
         """The job's events (SSE); ends after its final state."""
         daemon.jobs.get(job_id)
         finished = lambda: daemon.jobs.get(job_id)["state"] in TERMINAL_STATES  # noqa: E731
-        return StreamingResponse(
-            daemon.bus.stream(_after_id(last_event_id, after), job_id, finished),
-            media_type="text/event-stream",
-            headers=SSE_HEADERS,
-        )
+        return _event_stream(daemon.bus.stream(_after_id(last_event_id, after), job_id, finished))
 
     @app.get("/v1/events")
-    def all_events(
-        last_event_id: Annotated[str | None, Header()] = None,
-        after: Annotated[int | None, Query(alias="last_event_id", ge=0)] = None,
-    ) -> StreamingResponse:
+    def all_events(last_event_id: LastEventIdHeader = None, after: AfterQuery = None) -> StreamingResponse:
         """Every job's and the daemon's events (SSE)."""
-        return StreamingResponse(
-            daemon.bus.stream(_after_id(last_event_id, after)),
-            media_type="text/event-stream",
-            headers=SSE_HEADERS,
-        )
+        return _event_stream(daemon.bus.stream(_after_id(last_event_id, after)))
 
     @app.get("/v1/calibration")
     def active_calibration() -> dict[str, Any]:

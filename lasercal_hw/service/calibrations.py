@@ -12,7 +12,7 @@ import numpy as np
 from lasercal_hw.geometry import matrix_to_rotvec
 from lasercal_hw.outputs.exports import static_transform_publisher_args, urdf_joint
 from lasercal_hw.service.events import EventBus
-from lasercal_hw.service.problems import ApiError, not_found
+from lasercal_hw.service.problems import ApiError, folder_file, not_found
 from lasercal_hw.service.store import HistoryStore, new_id, utc_now
 
 RESULT_FILE = "result.json"
@@ -107,16 +107,12 @@ class CalibrationHistory:
     def file(self, calibration_id: str, name: str) -> Path:
         """A file of a calibration (404 when there is no such file)."""
         _, directory = self._stored(calibration_id)
-        path = directory / name
-        if "/" in name or name.startswith(".") or not path.is_file():
-            raise ApiError(
-                404,
-                "not_found",
-                f"calibration {calibration_id} has no file {name!r}; its files "
-                f"are listed in GET /v1/calibrations/{calibration_id}",
-                {"file": name},
-            )
-        return path
+        return folder_file(
+            directory,
+            name,
+            f"calibration {calibration_id} has no file {name!r}; its files "
+            f"are listed in GET /v1/calibrations/{calibration_id}",
+        )
 
     def activate(self, calibration_id: str, reason: str, *, force: bool = False) -> dict[str, Any]:
         """Make a calibration the active one (recorded in the activation log). One that failed

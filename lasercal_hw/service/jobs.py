@@ -20,7 +20,7 @@ from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import InterruptedRunError, LasercalError
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.service.events import EventBus
-from lasercal_hw.service.problems import ApiError, error_code, not_found
+from lasercal_hw.service.problems import ApiError, error_code, folder_file, not_found
 from lasercal_hw.service.store import HistoryStore, new_id, utc_now
 
 logger = logging.getLogger(__name__)
@@ -135,10 +135,7 @@ class JobManager:
 
     def file(self, job_id: str, name: str) -> Path:
         """A file in a job's folder (404 when there is no such file)."""
-        path = Path(self.get(job_id)["out_dir"]) / name
-        if "/" in name or name.startswith(".") or not path.is_file():
-            raise ApiError(404, "not_found", f"job {job_id} has no file {name!r}", {"file": name})
-        return path
+        return folder_file(Path(self.get(job_id)["out_dir"]), name, f"job {job_id} has no file {name!r}")
 
     def running_id(self) -> str | None:
         """The id of the running job, if any."""

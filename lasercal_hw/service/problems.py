@@ -5,6 +5,7 @@ Every 4xx answer has the body ``{"code": "snake_case", "message": "one line", "d
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from lasercal_hw.errors import (
@@ -40,6 +41,15 @@ def not_found(what: str, ident: str) -> ApiError:
         f"no {what} with id {ident!r}; list them with GET /v1/{what}s",
         {what + "_id": ident},
     )
+
+
+def folder_file(folder: Path, name: str, missing: str) -> Path:
+    """The file ``name`` right inside ``folder``; a hidden name, one reaching into another
+    folder or a missing file is a 404 whose message is ``missing``."""
+    path = folder / name
+    if "/" in name or name.startswith(".") or not path.is_file():
+        raise ApiError(404, "not_found", missing, {"file": name})
+    return path
 
 
 def error_code(exc: BaseException) -> str:

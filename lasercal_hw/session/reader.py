@@ -25,10 +25,9 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, McapRecord, Message, Schema
 from mcap.stream_reader import MAGIC_SIZE, StreamReader
 from mcap_ros2.decoder import DecoderFactory
-from numpy.typing import NDArray
 
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.models import FloatArray, LaserScan
+from lasercal_hw.models import FloatArray, LaserScan, ScanGeometry
 from lasercal_hw.session.format import (
     TOPIC_EVENT,
     TOPIC_JOINT_STATES_EXACT,
@@ -288,12 +287,18 @@ def read_session(path: str | Path, *, include_scans: bool = True) -> SessionReco
                 if arrays is None:
                     decoder = decoders.decoder_for("cdr", schema)
                     message = decoder(record.data) if decoder is not None else None
-                    arrays = None if message is None else (message.ranges, message.intensities)
+                    arrays = (
+                        None
+                        if message is None
+                        else _LaserScanArrays(
+                            message.ranges, message.intensities, message.angle_min, message.angle_increment
+                        )
+                    )
                 if arrays is not None:
                     pending_scan = (record.sequence, arrays)
             elif topic == TOPIC_SCAN_INFO and include_scans:
                 if pending_scan is not None and pending_scan[0] == record.sequence:
-                    recording.scans.append(_scan_from(_json(record), pending_scan[1]))
+                    recording.scans.append(_scan_from(_json(record), pending_scan[1], Path(path)))
                 else:
                     logger.warning("%s: scan %d has no LaserScan message; skipped", path, record.sequence)
                 pending_scan = None
@@ -321,16 +326,34 @@ def read_session(path: str | Path, *, include_scans: bool = True) -> SessionReco
     return recording
 
 
-def _laser_scan_arrays(data: bytes) -> tuple[NDArray[np.float32], NDArray[np.float32]] | None:
-    """``ranges`` and ``intensities`` of a plain-CDR ``sensor_msgs/msg/LaserScan`` read
-    with numpy (mcap_ros2's decoder reads them one float at a time, 5x slower); None when
+@dataclass(frozen=True)
+class _LaserScanArrays:
+    """What the reader takes from a ``sensor_msgs/msg/LaserScan``."""
+
+    ranges: Any
+    intensities: Any
+    angle_min_rad: float
+    angle_increment_rad: float
+
+
+#: Agreement asked of a LaserScan's angles and its scan_info's beam layout (float32 of ~2 rad).
+_ANGLE_TOLERANCE_RAD = 1e-6
+
+
+def _laser_scan_arrays(data: bytes) -> _LaserScanArrays | None:
+    """``ranges``, ``intensities`` and the angles of a plain-CDR ``sensor_msgs/msg/LaserScan``
+    read with numpy (mcap_ros2's decoder reads them one float at a time, 5x slower); None when
     the bytes are not the layout expected, and the caller falls back to that decoder."""
     if len(data) < 16 or data[0] != 0 or data[1] not in (0, 1):
         return None
     order = "<" if data[1] == 1 else ">"
     uint32 = struct.Struct(order + "I")
     frame_id_end = 16 + uint32.unpack_from(data, 12)[0]  # after stamp and the string length
-    offset = 4 + -(-(frame_id_end - 4) // 4) * 4 + 7 * 4  # align 4, skip seven float32 fields
+    offset = 4 + -(-(frame_id_end - 4) // 4) * 4  # align 4: angle_min, angle_max, angle_increment, ...
+    if offset + 7 * 4 > len(data):
+        return None
+    angle_min, _, angle_increment = struct.unpack_from(order + "3f", data, offset)
+    offset += 7 * 4  # skip the seven float32 fields
     arrays = []
     for _ in range(2):
         if offset + 4 > len(data):
@@ -343,24 +366,45 @@ def _laser_scan_arrays(data: bytes) -> tuple[NDArray[np.float32], NDArray[np.flo
         offset += 4 * count
     if offset != len(data):
         return None
-    return arrays[0], arrays[1]
+    return _LaserScanArrays(arrays[0], arrays[1], angle_min, angle_increment)
+
+
+def _check_angles(geometry: ScanGeometry, arrays: _LaserScanArrays, sequence: object, path: Path) -> None:
+    """Refuse a scan whose LaserScan angles disagree with the beam layout of its scan_info
+    (the angles every fit uses): a replay must not place the beams where they were not."""
+    angles = geometry.angles_rad()
+    increment = geometry.angle_increment_rad
+    first = float(angles[0]) if angles.size else 0.0
+    if (
+        abs(arrays.angle_min_rad - first) > _ANGLE_TOLERANCE_RAD
+        or abs(arrays.angle_increment_rad - increment) > _ANGLE_TOLERANCE_RAD
+    ):
+        said = np.degrees([arrays.angle_min_rad, arrays.angle_increment_rad])
+        layout = f"first step {geometry.first_step}, cluster {geometry.cluster}"
+        raise ConfigError(
+            f"{path}: scan {sequence}'s LaserScan says angle_min {said[0]:.4f}, increment {said[1]:.4f} deg, "
+            f"but its scan_info beam layout ({layout}) gives {np.degrees(first):.4f}, "
+            f"{np.degrees(increment):.4f} deg: the recording contradicts itself (edited, or written by "
+            "another tool?) and cannot be replayed; record the run again"
+        )
 
 
 def _json(record: Message) -> Any:
     return json.loads(record.data)
 
 
-def _scan_from(info: dict[str, Any], arrays: tuple[Any, Any]) -> LaserScan:
+def _scan_from(info: dict[str, Any], arrays: _LaserScanArrays, path: Path) -> LaserScan:
     geometry = geometry_from_dict(info["geometry"])
+    _check_angles(geometry, arrays, info.get("sequence"), path)
     if "raw_ranges_mm" in info:
         raw_mm = np.asarray(info["raw_ranges_mm"], dtype=np.int64)
     else:
-        raw_mm = ros_ranges_to_raw_mm(arrays[0])
+        raw_mm = ros_ranges_to_raw_mm(arrays.ranges)
     intensities = None
     if "intensities" in info:
         intensities = np.asarray(info["intensities"], dtype=np.int64)
     elif info.get("has_intensities", False):
-        intensities = np.asarray(arrays[1], dtype=np.float32).astype(np.int64)
+        intensities = np.asarray(arrays.intensities, dtype=np.float32).astype(np.int64)
     if "ranges_m_f64le_b64" in info:
         ranges_m = decode_float64_array(info["ranges_m_f64le_b64"])
     else:

@@ -194,7 +194,7 @@ class SessionRecorder:
             "header": {"stamp": ros_stamp(scan.host_time_s), "frame_id": FRAME_LASER},
             "angle_min": float(angles[0]) if angles.size else 0.0,
             "angle_max": float(angles[-1]) if angles.size else 0.0,
-            "angle_increment": cluster * 2.0 * np.pi / geometry.steps_per_revolution,
+            "angle_increment": geometry.angle_increment_rad,
             "time_increment": cluster * geometry.scan_period_s / geometry.steps_per_revolution,
             "scan_time": geometry.scan_period_s,
             "range_min": geometry.min_range_m,

@@ -16,15 +16,17 @@ from typing import Any
 
 import numpy as np
 
+from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_euler_zyx
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.cancel import CancelToken
-from lasercal_hw.run.engine import MotionPlan, RunRequest, open_sequencer
+from lasercal_hw.run.engine import MotionPlan, ProcedureReport, RunRequest, open_sequencer
 from lasercal_hw.run.events import EventSink, RunEvent
 from lasercal_hw.run.sequencer import Measured, Timings, WaypointMeasurement, refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.verify.active import ActiveCalibration, load_active_calibration, recorded_residuals
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
 from lasercal_hw.verify.identity import IdentityCheck, check_identity
@@ -51,15 +53,8 @@ class VerifyRequest:
 
 
 @dataclass(frozen=True)
-class VerifyReport:
+class VerifyReport(ProcedureReport[VerifyOutcome]):
     """A finished verify: the outcome, the files, and the dry run's ground truth."""
-
-    outcome: VerifyOutcome
-    files: dict[str, Path]
-    out_dir: Path
-    ground_truth: FloatArray | None
-    fake_cell: dict[str, Any] | None
-    command_s: float
 
     @property
     def verdict(self) -> Verdict:
@@ -68,12 +63,8 @@ class VerifyReport:
 
     def document(self) -> dict[str, Any]:
         """What ``lasercal verify --json`` prints (``verify.json`` plus the file list)."""
-        document = verify_document(self.outcome, ground_truth=self.ground_truth)
-        document["outputs"] = {name: str(path) for name, path in self.files.items()}
-        document["dry_run"] = self.fake_cell is not None
+        document = self.with_outputs(verify_document(self.outcome, ground_truth=self.ground_truth))
         document["timings"]["command_s"] = self.command_s
-        if self.fake_cell is not None:
-            document["fake_cell"] = self.fake_cell
         return document
 
 
@@ -111,6 +102,47 @@ def time_budget_s(active: ActiveCalibration, job: JobConfig) -> float | None:
     return None if estimate_s is None else job.verify.max_time_fraction * estimate_s
 
 
+@dataclass(frozen=True)
+class VerifyPlan:
+    """A verify decided before anything moves: its job (the calibration as the scanner's
+    nominal pose), the drift test's model, the job's waypoints, the calibration's residual
+    at each of them (NaN where it has none) and the waypoints chosen."""
+
+    job: JobConfig
+    model: DriftModel
+    waypoints: FloatArray
+    reference: FloatArray
+    selection: Selection
+
+
+def plan_verify(
+    job: JobConfig,
+    T_base_laser: FloatArray,
+    covariance: FloatArray,
+    residuals: Sequence[WaypointResidual],
+    recorded_waypoints: FloatArray | None,
+    *,
+    count: int | None = None,
+    budget_s: float | None = None,
+) -> VerifyPlan:
+    """How to check the calibration ``T_base_laser`` (with its ``covariance``, and its
+    ``residuals`` at ``recorded_waypoints``, None: not recorded) with ``job``: ``count``
+    waypoints (None: the job's ``verify.waypoints``) chosen within ``budget_s``."""
+    checking = verify_job(job, T_base_laser)
+    model = drift_model(T_base_laser, covariance, checking)
+    waypoints = job_waypoints(checking)
+    reference = recorded_residuals(residuals, recorded_waypoints, waypoints)
+    selection = select_waypoints(
+        model,
+        waypoints,
+        count or checking.verify.waypoints,
+        np.isfinite(reference).all(axis=1),
+        time_of=lambda indices: visit_time_s(checking, waypoints[indices]),
+        budget_s=budget_s,
+    )
+    return VerifyPlan(checking, model, waypoints, reference, selection)
+
+
 def verify(
     request: VerifyRequest,
     calibration_result_path: Path,
@@ -132,19 +164,16 @@ def verify(
         raise ConfigError(
             f"{active.path} does not record the job it was made with: pass the job file with --config"
         )
-    job = verify_job(chosen_job, active.T_base_laser)
-    model = drift_model(active.T_base_laser, active.covariance, job)
-    waypoints = job_waypoints(job)
-    reference = recorded_residuals(active.result.residuals, active.waypoints(), waypoints)
-    count = request.waypoints or job.verify.waypoints
-    selection = select_waypoints(
-        model,
-        waypoints,
-        count,
-        np.isfinite(reference).all(axis=1),
-        time_of=lambda indices: visit_time_s(job, waypoints[indices]),
-        budget_s=time_budget_s(active, job),
+    plan = plan_verify(
+        chosen_job,
+        active.T_base_laser,
+        active.covariance,
+        active.result.residuals,
+        active.waypoints(),
+        count=request.waypoints,
+        budget_s=time_budget_s(active, chosen_job),
     )
+    job, waypoints, selection = plan.job, plan.waypoints, plan.selection
     sink.emit(
         "stage",
         f"verifying {active.path} at waypoints {selection.indices} of {len(waypoints)}",
@@ -168,15 +197,15 @@ def verify(
     rod = job.rod.rod_line()
     found: dict[str, Any] = {}
 
-    def before_motion(plan: MotionPlan) -> None:
+    def before_motion(motion: MotionPlan) -> None:
         identity = check_identity(
-            active.robot, active.scanner, active.rod, plan.preflight.robot, plan.preflight.scanner, rod
+            active.robot, active.scanner, active.rod, motion.preflight.robot, motion.preflight.scanner, rod
         )
         found["identity"] = identity
         if not all(check.matches for check in identity):
             raise _OtherDevicesError()  # the verdict is known: nothing moves
         if confirm is not None:
-            confirm(plan)
+            confirm(motion)
 
     try:
         with open_sequencer(
@@ -187,7 +216,7 @@ def verify(
                 time.time(), "verify_start", calibration=str(active.path), waypoints=selection.indices
             )
             measured = session.sequencer.measure()
-            outcome = _evaluate(active, job, model, selection, measured, reference, found["identity"])
+            outcome = _evaluate(active, plan, measured, found["identity"])
             session.recorder.write_event(
                 time.time(), "verify_verdict", verdict=outcome.verdict.status, reason=outcome.verdict.reason
             )
@@ -214,20 +243,25 @@ def verify(
     return report
 
 
-def drift_test_of(
-    model: DriftModel, measurements: Sequence[WaypointMeasurement], indices: list[int], reference: FloatArray
-) -> DriftTest:
-    """The drift test of re-fitted measurements of the chosen waypoints ``indices`` (their
-    ``index`` counts those); ``reference``: the calibration's residuals at every job waypoint."""
-    job_index = [indices[m.index] for m in measurements]
-    return run_drift_test(
-        model,
+def refit_and_test(
+    plan: VerifyPlan, measurements: Sequence[WaypointMeasurement], background: AveragedScan | None
+) -> tuple[DriftTest | None, list[tuple[int, str]]]:
+    """The chosen waypoints' measurements (their ``index`` counts the chosen ones) fitted
+    again with the rod axes the calibration predicts, their drift test (None with fewer
+    than MIN_MEASURED), and the waypoints (index, reason) that kept their first centre."""
+    refitted, kept = refit_centres(measurements, plan.model.T_base_laser, plan.job.rod.rod_line(), background)
+    if len(refitted) < MIN_MEASURED:
+        return None, kept
+    job_index = [plan.selection.indices[m.index] for m in refitted]
+    test = run_drift_test(
+        plan.model,
         job_index,
-        np.array([m.tcp_pose for m in measurements]),
-        np.array([m.centre.centre_uv_m for m in measurements]),
-        np.array([m.centre.covariance_uv_m2 for m in measurements]),
-        reference[job_index],
+        np.array([m.tcp_pose for m in refitted]),
+        np.array([m.centre.centre_uv_m for m in refitted]),
+        np.array([m.centre.covariance_uv_m2 for m in refitted]),
+        plan.reference[job_index],
     )
+    return test, kept
 
 
 class _OtherDevicesError(Exception):
@@ -236,28 +270,18 @@ class _OtherDevicesError(Exception):
 
 
 def _evaluate(
-    active: ActiveCalibration,
-    job: JobConfig,
-    model: DriftModel,
-    selection: Selection,
-    measured: Measured,
-    reference: FloatArray,
-    identity: list[IdentityCheck],
+    active: ActiveCalibration, plan: VerifyPlan, measured: Measured, identity: list[IdentityCheck]
 ) -> VerifyOutcome:
     """Re-fit, test and verdict for what the sequencer measured (its indices count the
     chosen waypoints; the outcome speaks of the job's waypoint numbers)."""
-    refitted, kept = refit_centres(
-        measured.measurements, active.T_base_laser, job.rod.rod_line(), measured.background
-    )
-    test: DriftTest | None = None
+    job, selection, reference = plan.job, plan.selection, plan.reference
+    test, kept = refit_and_test(plan, measured.measurements, measured.background)
     missing = None
-    if len(refitted) >= MIN_MEASURED:
-        test = drift_test_of(model, refitted, selection.indices, reference)
-    else:
+    if test is None:
         reasons = "; ".join(f"waypoint {selection.indices[s.index]}: {s.reason}" for s in measured.skipped)
         missing = (
-            f"the rod was found at only {len(refitted)} of {len(selection.indices)} waypoints where the "
-            f"calibration predicts it ({reasons})"
+            f"the rod was found at only {len(measured.measurements)} of {len(selection.indices)} waypoints "
+            f"where the calibration predicts it ({reasons})"
         )
     verdict = decide(identity, test, job.verify.tolerance_mm, job.verify.tolerance_deg, missing)
     return VerifyOutcome(
