@@ -70,9 +70,11 @@ class ScannerConfig(_Strict):
     url: str = DEFAULT_SCANNER_URL
     timeout_s: float = Field(2.0, gt=0.0, le=60.0)
     nominal: NominalPose | None = None
-    estimate_range_offset: bool = Field(
-        False,
-        description="estimate the scanner's range offset (measured minus true range) with the transform",
+    estimate_range_offset: bool | Literal["auto"] = Field(
+        "auto",
+        description="estimate the scanner's range offset (measured minus true range) with the transform; "
+        "auto: when the waypoints pin it down (a UTM-30LX may read tens of millimetres long, and an "
+        "offset left out moves the result by as much)",
     )
 
     @field_validator("url")

@@ -125,6 +125,18 @@ def test_range_offset_is_estimated_with_its_std() -> None:
     assert translation_error_mm(result.matrix()) < 0.5 < translation_error_mm(plain.matrix())
 
 
+def test_auto_estimates_a_range_offset_the_waypoints_pin_down_and_otherwise_says_why_not() -> None:
+    obs = _observations(NOMINAL, range_offset_m=0.02)
+    auto = OPTIONS.model_copy(update={"estimate_range_offset": "auto"})
+    result = solve(obs, NOMINAL, options=auto)
+    assert result.range_offset is not None
+    assert abs(result.range_offset.offset_mm - 20.0) < 2.5 * result.range_offset.std_mm
+    strict = auto.model_copy(update={"auto_range_offset_max_std_m": 1e-6})
+    left_out = solve(obs, NOMINAL, options=strict)
+    assert left_out.range_offset is None
+    assert any("range offset not estimated (auto)" in note for note in left_out.observability.notes)
+
+
 def test_auto_leaves_an_unobservable_axis_out_and_says_which_motion_is_missing() -> None:
     obs = _observations(REAL, tilt_deg=5.0, noise_m=0.002, spin=False)  # nearly one tool orientation
     result = solve(obs, NOMINAL, options=OPTIONS.model_copy(update={"estimate_axis": "auto"}))

@@ -96,7 +96,12 @@ class SolverOptions(BaseModel):
         False,
         description="estimate the rod line in the TCP frame (2 offsets, 2 tilts); auto: when observable",
     )
-    estimate_range_offset: bool = Field(False, description="estimate the scanner's range offset")
+    estimate_range_offset: bool | Literal["auto"] = Field(
+        False, description="estimate the scanner's range offset; auto: when the waypoints pin it down"
+    )
+    auto_range_offset_max_std_m: float = Field(
+        0.002, gt=0, description="auto: estimate the range offset when its Cramér-Rao std is below this"
+    )
     range_offset_applied_m: float = Field(
         0.0, description="range offset already removed from the centres (added to the reported offset)"
     )
@@ -153,6 +158,7 @@ class _Extras:
     axis: bool = False
     offset: bool = False
     axis_note: str = ""
+    offset_note: str = ""
 
     @property
     def count(self) -> int:
@@ -580,6 +586,8 @@ def _result(
     # chance, or robot errors that are smooth over the waypoints and partly absorbed by the
     # fit) must not shrink the std below the bound.
     covariance = crb * max(1.0, reduced)
+    if extras.offset_note:
+        observability.notes.append(extras.offset_note)
     if reduced > 4.0:
         observability.notes.append(
             f"residuals are {np.sqrt(reduced):.1f} times the stated noise (reduced chi-square "
@@ -686,16 +694,14 @@ def _extras(
     tilt the crossings cannot see (they keep to a short stretch of the rod) is estimated
     with a note: it then hardly moves the line where the waypoints measure it."""
     wanted_axis = opts.estimate_axis is True or opts.estimate_axis == "auto"
-    if opts.formulation == "paper" and (wanted_axis or opts.estimate_range_offset):
+    if opts.formulation == "paper" and (opts.estimate_axis is True or opts.estimate_range_offset is True):
         raise ConfigError("the paper formulation cannot estimate the rod axis or the range offset; use ours")
-    if opts.estimate_range_offset:
-        offset_only = _Extras(offset=True)
-        _require_observable(
-            _extended_fisher(rotation, translation, data, usable, opts, offset_only), opts, offset_only
-        )
+    if opts.formulation == "paper":
+        return _Extras()
+    offset, offset_note = _range_offset_wanted(rotation, translation, data, usable, opts)
     if not wanted_axis:
-        return _Extras(offset=opts.estimate_range_offset)
-    extras = _Extras(axis=True, offset=opts.estimate_range_offset)
+        return _Extras(offset=offset, offset_note=offset_note)
+    extras = _Extras(axis=True, offset=offset, offset_note=offset_note)
     fisher = _extended_fisher(rotation, translation, data, usable, opts, extras)
     along_m = _mean_crossing_along_m(rotation, translation, data, usable)
     offset_std_m, tilt_std_deg = _axis_crb_std(fisher, along_m)
@@ -707,7 +713,7 @@ def _extras(
             f"plane would be {offset_std_m.max() * 1e3:.2g} mm (limit "
             f"{opts.auto_axis_max_offset_std_m * 1e3:g} mm); {_axis_advice(offset_std_m, tilt_std_deg, opts)}"
         )
-        return _Extras(offset=opts.estimate_range_offset, axis_note=note)
+        return replace(extras, axis=False, axis_note=note)
     if tilt_std_deg.max() <= opts.weak_axis_tilt_std_deg:
         return extras
     note = (
@@ -717,6 +723,28 @@ def _extras(
         f"{_axis_advice(np.zeros(2), tilt_std_deg, opts)}"
     )
     return replace(extras, axis_note=note)
+
+
+def _range_offset_wanted(
+    rotation: FloatArray, translation: FloatArray, data: _Data, usable: np.ndarray, opts: SolverOptions
+) -> tuple[bool, str]:
+    """Whether to estimate the range offset, and the note when ``auto`` leaves it out;
+    refuses (``DegenerateDataError``) a requested one the waypoints cannot determine."""
+    if opts.estimate_range_offset is False:
+        return False, ""
+    offset_only = _Extras(offset=True)
+    fisher = _extended_fisher(rotation, translation, data, usable, opts, offset_only)
+    if opts.estimate_range_offset is True:
+        _require_observable(fisher, opts, offset_only)
+        return True, ""
+    std_m = float(_crb_std(fisher)[-1])
+    if std_m <= opts.auto_range_offset_max_std_m:
+        return True, ""
+    return False, (
+        f"scanner range offset not estimated (auto): its Cramér-Rao std would be {std_m * 1e3:.2g} mm "
+        f"(limit {opts.auto_range_offset_max_std_m * 1e3:g} mm); vary the crossings' distance from the "
+        "scanner (0.3 m or more apart) to see it"
+    )
 
 
 def _axis_crb_std(fisher: FloatArray, crossing_along_m: float) -> tuple[FloatArray, FloatArray]:

@@ -307,7 +307,11 @@ def solve_two_pass(
         _without_range_offset(m.observation(), range_offset_m) if m.index in kept_indices else m.observation()
         for m in refitted
     ]
-    applied = options.model_copy(update={"range_offset_applied_m": range_offset_m})
+    # The second pass keeps estimating an offset the first one estimated (and removed above).
+    estimate_offset = True if first.range_offset is not None else options.estimate_range_offset
+    applied = options.model_copy(
+        update={"range_offset_applied_m": range_offset_m, "estimate_range_offset": estimate_offset}
+    )
     result = solve(observations, rod, options=applied)
     refinement = (
         f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
