@@ -87,7 +87,22 @@ def test_run_completes_records_and_recovers_the_transform() -> None:
     assert {"preflight", "background", "move", "dwell", "centre", "solve", "refine", "done"} <= stages
     centre_events = [p for p in progress if p.stage == "centre"]
     assert all(p.scans_averaged and p.scans_averaged >= 9 for p in centre_events)
+    assert all(p.expected_uv_m is None for p in centre_events)  # no [scanner.nominal] to predict from
     assert progress[-1].time_left_s == pytest.approx(0.0)
+
+
+def test_centre_progress_says_where_the_nominal_mounting_expected_the_rod() -> None:
+    nominal = {"translation_m": [0.30, 0.50, 0.20], "euler_zyx_deg": [5.0, 7.0, 3.0]}  # the truth
+    job = fast_job(scanner={"nominal": nominal})
+    clock, robot, scanner = make_cell(job)
+    progress: list[Progress] = []
+    Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), on_progress=progress.append,
+              clock=clock).run()
+    centres = [p for p in progress if p.stage == "centre"]
+    assert len(centres) == 8 and all(p.expected_uv_m is not None for p in centres)
+    # The live page draws these before any solve: the rod's axis crossing, seen within its radius.
+    misses_m = [np.hypot(*np.subtract(p.centre_uv_m, p.expected_uv_m)) for p in centres]
+    assert max(misses_m) < job.rod.radius_m
 
 
 def _settle_time(robot: SimRobot, move_number: int) -> float:

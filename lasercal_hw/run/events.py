@@ -131,6 +131,7 @@ class EventSink:
                     centre_uv_m=step.centre.centre_uv_m,
                     covariance_uv_m2=step.centre.covariance_uv_m2,
                     scans=step.scans_averaged,
+                    **({} if step.expected_uv_m is None else {"expected_uv_m": step.expected_uv_m}),
                 )
             elif step.stage == "skip":
                 self.emit("skip", step.message, waypoint=step.waypoint, reason=step.reason)

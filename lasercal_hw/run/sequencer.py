@@ -69,6 +69,8 @@ class Progress:
     completed: int = 0
     scans_averaged: int | None = None
     centre_uv_m: tuple[float, float] | None = None
+    #: Where the nominal mounting said the rod would be (None without ``scanner.nominal``).
+    expected_uv_m: tuple[float, float] | None = None
     time_left_s: float | None = None
     reason: str | None = None
     averaged: AveragedScan | None = field(default=None, repr=False)
@@ -198,6 +200,11 @@ def _without_range_offset(observation: Observation, range_offset_m: float) -> Ob
     centre = np.asarray(observation.centre_uv_m, dtype=float)
     moved = centre * (1.0 - range_offset_m / float(np.linalg.norm(centre)))
     return replace(observation, centre_uv_m=moved)
+
+
+def _pair(point: FloatArray | None) -> tuple[float, float] | None:
+    """A 2-vector as plain floats (None stays None)."""
+    return None if point is None else (float(point[0]), float(point[1]))
 
 
 def estimated_rod(result: CalibrationResult, nominal: RodLine) -> RodLine:
@@ -573,12 +580,13 @@ class Sequencer:
         )
         self._check_capture(capture, drift_mm)
         averaged = average_scans(capture.scans)
+        expected_uv_m = self._nominal_expected_uv(tcp_start)
         try:
             centre = find_rod_centre(
                 averaged,
                 radius_m=self._rod.radius_m,
                 background=self._background,
-                expected_uv_m=self._nominal_expected_uv(tcp_start),
+                expected_uv_m=expected_uv_m,
             )
         except RodNotFoundError as exc:
             self._skip(index, str(exc), averaged)
@@ -602,6 +610,7 @@ class Sequencer:
             waypoint=index,
             scans_averaged=len(capture.scans),
             centre_uv_m=(u, v),
+            expected_uv_m=_pair(expected_uv_m),
             averaged=averaged,
             centre=centre,
         )
