@@ -131,6 +131,12 @@ def test_auto_estimates_a_range_offset_the_waypoints_pin_down_and_otherwise_says
     result = solve(obs, NOMINAL, options=auto)
     assert result.range_offset is not None
     assert abs(result.range_offset.offset_mm - 20.0) < 2.5 * result.range_offset.std_mm
+    # No offset: what auto estimates is not significant, and the pose is solved without it.
+    none = solve(_observations(NOMINAL), NOMINAL, options=auto)
+    assert none.range_offset is None
+    assert any("is not significant (auto): left out" in note for note in none.observability.notes)
+    plain = solve(_observations(NOMINAL), NOMINAL, options=OPTIONS)
+    np.testing.assert_allclose(none.matrix(), plain.matrix(), atol=1e-9)
     strict = auto.model_copy(update={"auto_range_offset_max_std_m": 1e-6})
     left_out = solve(obs, NOMINAL, options=strict)
     assert left_out.range_offset is None

@@ -102,6 +102,9 @@ class SolverOptions(BaseModel):
     auto_range_offset_max_std_m: float = Field(
         0.002, gt=0, description="auto: estimate the range offset when its Cramér-Rao std is below this"
     )
+    auto_range_offset_min_sigmas: float = Field(
+        3.3, gt=0, description="auto: ... and keep it only when it is this many std from zero"
+    )
     range_offset_applied_m: float = Field(
         0.0, description="range offset already removed from the centres (added to the reported offset)"
     )
@@ -210,6 +213,13 @@ def solve(
         rotation, translation, data, used, evaluations = _fit(
             rotation, translation, data, usable, start, robust, opts, extras
         )
+        if extras.offset and opts.estimate_range_offset == "auto":
+            kept, extras = _significant_offset(rotation, translation, data, used, opts, extras)
+            if not kept:
+                rotation, translation, data, used, more = _fit(
+                    rotation, translation, data.with_line(data.rod, 0.0), usable, used, robust, opts, extras
+                )
+                evaluations += more
         outliers += _rejected(rotation, translation, data, usable & ~used, opts)
         converged, message = True, "converged"
     try:
@@ -723,6 +733,28 @@ def _extras(
         f"{_axis_advice(np.zeros(2), tilt_std_deg, opts)}"
     )
     return replace(extras, axis_note=note)
+
+
+def _significant_offset(
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    used: np.ndarray,
+    opts: SolverOptions,
+    extras: _Extras,
+) -> tuple[bool, _Extras]:
+    """``auto``: keep an estimated range offset only when the data show one (at least
+    ``auto_range_offset_min_sigmas`` std from zero); estimating a parameter that is not there
+    costs the pose precision. Returns whether it is kept, and the extras to go on with."""
+    std_m = float(_crb_std(_extended_fisher(rotation, translation, data, used, opts, extras))[-1])
+    offset_m = data.range_offset_m
+    if abs(offset_m) >= opts.auto_range_offset_min_sigmas * std_m:
+        return True, extras
+    note = (
+        f"scanner range offset {offset_m * 1e3:+.2f} ± {std_m * 1e3:.2f} mm is not significant (auto): "
+        "left out"
+    )
+    return False, replace(extras, offset=False, offset_note=note)
 
 
 def _range_offset_wanted(
