@@ -50,6 +50,13 @@ class ScanGeometry:
         return -(-(self.last_step - self.first_step + 1) // max(self.cluster, 1))
 
     @property
+    def angle_min_rad(self) -> float:
+        """Angle of the first beam (the first of ``angles_rad``, without building them all)."""
+        cluster = max(self.cluster, 1)
+        step = self.first_step + (cluster - 1) / 2.0
+        return (step - self.front_step) * (2.0 * np.pi / self.steps_per_revolution)
+
+    @property
     def angle_increment_rad(self) -> float:
         """Angle between neighbouring beams (one cluster of steps)."""
         return max(self.cluster, 1) * 2.0 * np.pi / self.steps_per_revolution

@@ -6,11 +6,10 @@ The objective is the worse of the largest translation std and the largest rotati
 (``rod.estimate_axis``), the four axis parameters join the information and the std are those
 of the pose with the axis unknown; the tool then also turns widely about the rod
 (``AXIS_TOOL_TURN_SPREAD_DEG``), the motion that tells the axis offset from the scanner's
-position. The Fisher information of a set of
-waypoints is the sum of theirs, so the search works on per-candidate k x k blocks: a
-greedy pass adds the candidate that lowers the objective most, exchange passes swap a
-chosen waypoint for a better one until none helps. Chosen crossings keep
-``MIN_SEPARATION_M`` apart (the robot's error is smooth, so neighbours would not add
+position. The Fisher information of a set of waypoints is the sum of theirs, so the search
+works on per-candidate k x k blocks: a greedy pass adds the candidate that lowers the
+objective most, exchange passes swap a chosen waypoint for a better one until none helps.
+Chosen crossings keep ``MIN_SEPARATION_M`` apart (the robot's error is smooth, so neighbours would not add
 independent information). The visiting order is a nearest-neighbour tour in joint space
 from the waypoint nearest the start posture (UR's home unless given), improved by 2-opt,
 then walked with the nearest IK solution: every step must stay on the design's branch (that

@@ -372,9 +372,7 @@ def _laser_scan_arrays(data: bytes) -> _LaserScanArrays | None:
 def _check_angles(geometry: ScanGeometry, arrays: _LaserScanArrays, sequence: object, path: Path) -> None:
     """Refuse a scan whose LaserScan angles disagree with the beam layout of its scan_info
     (the angles every fit uses): a replay must not place the beams where they were not."""
-    angles = geometry.angles_rad()
-    increment = geometry.angle_increment_rad
-    first = float(angles[0]) if angles.size else 0.0
+    first, increment = geometry.angle_min_rad, geometry.angle_increment_rad
     if (
         abs(arrays.angle_min_rad - first) > _ANGLE_TOLERANCE_RAD
         or abs(arrays.angle_increment_rad - increment) > _ANGLE_TOLERANCE_RAD
