@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fakes.cell_process import FakeCellProcess, free_loopback_address, ports_free
 from lasercal_hw.config import load_job
 from lasercal_hw.errors import ExitCode
-from lasercal_hw.run.dry_run import FakeCellProcess, free_loopback_address, ports_free
 from lasercal_hw.run.engine import RunEvent, RunReport, RunRequest, calibrate
 from lasercal_hw.session.reader import SessionRecording, read_session
 from trajectories.presets import preset_waypoints

@@ -308,7 +308,7 @@ def _start_fake_cell(
 ) -> tuple[JobConfig, FloatArray, dict[str, Any]]:
     """Start the dry run's fake cell and point the job at it; if the cell dies during the
     run, the run stops at once with a DeviceError that says so."""
-    from lasercal_hw.run.dry_run import FakeCellProcess
+    from fakes.cell_process import FakeCellProcess
     from lasercal_hw.run.dry_run_scene import rods_differ, write_rod_scene
 
     sink.emit("stage", "starting a fake cell for the dry run", stage="fake_cell")

@@ -90,7 +90,7 @@ class Daemon:
     def start(self) -> None:
         """Start the fake cell (dry run), mark jobs a crash left running as interrupted, poll devices."""
         if self.config.dry_run:
-            from lasercal_hw.run.dry_run import FakeCellProcess
+            from fakes.cell_process import FakeCellProcess
 
             self.fake_cell = FakeCellProcess().start()
             self.robot_host, self.scanner_url = self.fake_cell.robot_host, self.fake_cell.scanner_url
@@ -115,7 +115,7 @@ class Daemon:
         if self.monitor is not None:
             self.monitor.stop()
         if self.fake_cell is not None:
-            self.fake_cell.close()
+            self.fake_cell.stop()
         self.store.close()
 
     def status(self) -> dict[str, Any]:
