@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import random
 import selectors
 import socket
@@ -48,6 +49,10 @@ from lasercal_hw.models import FloatArray
 logger = logging.getLogger(__name__)
 
 CELL_PORTS = (29999, 30004, 30003, 10940)
+#: One BLAS thread in the cell unless the environment says otherwise, as ``lasercal`` sets for
+#: itself and its children (``lasercal_hw.cli.threads``): a cell started from a script or the
+#: daemon's library code runs as one the CLI started did.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")
 _ADDRESS_TRIES = 20
 
 
@@ -140,9 +145,10 @@ class FakeCellProcess:
     def start(self) -> FakeCellProcess:
         """Launch the child and wait for its ready line."""
         logger.info("starting fake cell: %s", " ".join(self.args))
+        environment = {name: "1" for name in BLAS_THREAD_VARIABLES} | dict(os.environ)
         self.process = subprocess.Popen(
             self.args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
-            start_new_session=True,
+            start_new_session=True, env=environment,
         )
         try:
             return self._await_ready()
