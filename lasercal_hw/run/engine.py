@@ -28,10 +28,12 @@ from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
 from lasercal_hw.run.events import EventSink, RunEvent
+from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
 from lasercal_hw.run.preflight import PreflightReport
+from lasercal_hw.run.records import ProgressCallback, ResumeState, RunOutcome
 from lasercal_hw.run.resume import META_JOB, META_WAYPOINTS, recorded_job, resume_state
-from lasercal_hw.run.sequencer import ResumeState, RunOutcome, Sequencer
+from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
@@ -181,11 +183,14 @@ def calibrate(
     cancel = cancel or CancelToken()
     started_s = time.monotonic()
     with open_sequencer(request, sink, cancel, confirm) as session:
-        outcome = session.sequencer.run()
+        outcome = solve_run(
+            session.sequencer.measure(), session.job, session.recorder,
+            waypoint_count=len(session.waypoints), on_progress=session.on_progress, cancel=cancel,
+        )
         if session.job.trajectory.adaptive:  # design the rest from this estimate, measure it, solve all
             outcome = run_second_design(
                 session.robot, session.scanner, session.recorder, session.job, session.waypoints, outcome,
-                on_progress=sink.progress_listener(session.job.rod.radius_m), cancel=cancel,
+                on_progress=session.on_progress, cancel=cancel,
             )
         sink.emit("stage", "writing the outputs", stage="outputs")
         files = {"session": session.session_path} | write_outputs(
@@ -222,6 +227,7 @@ class SequencerSession:
     recorder: SessionRecorder
     ground_truth: FloatArray | None
     fake_cell: dict[str, Any] | None
+    on_progress: ProgressCallback
 
 
 @contextlib.contextmanager
@@ -252,13 +258,14 @@ def open_sequencer(
             robot, scanner = _connect(job, stack)
             recorder = _open_recorder(request, job, waypoints, robot, scanner, ground_truth, session_path)
             stack.callback(recorder.close)
+            on_progress = sink.progress_listener(job.rod.radius_m)
             sequencer = Sequencer(
                 robot,
                 scanner,
                 recorder,
                 job,
                 waypoints,
-                on_progress=sink.progress_listener(job.rod.radius_m),
+                on_progress=on_progress,
                 before_motion=None if confirm is None else lambda report: confirm(
                     MotionPlan(report, job, len(waypoints))
                 ),
@@ -267,7 +274,7 @@ def open_sequencer(
             )
             yield SequencerSession(
                 job, waypoints, out_dir, session_path, sequencer, robot, scanner, recorder, ground_truth,
-                fake_cell,
+                fake_cell, on_progress,
             )
     except (LasercalError, KeyboardInterrupt) as exc:
         _after_failure(out_dir, session_path, created, sink, exc, resumable)
