@@ -141,3 +141,23 @@ def test_the_pure_codec_imports_only_the_ground() -> None:
     codec = [edge for edge in our_imports() if edge.module == PURE_CODEC]
     assert all(folder(edge.target) in GROUND for edge in codec)
 
+
+
+def test_the_library_names_actions_not_command_line_flags() -> None:
+    """Below the front ends a message says "resume this run from its recording"; the CLI adds
+    ``--resume`` and the daemon ``POST /v1/jobs/{id}/resume``."""
+    front_ends = {"lasercal_hw.cli", "lasercal_hw.service"}
+    flagged = []
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            if folder(".".join(path.relative_to(ROOT).with_suffix("").parts)) in front_ends:
+                continue
+            tree = ast.parse(path.read_text(), str(path))
+            docstrings = {id(node.value) for node in ast.walk(tree) if isinstance(node, ast.Expr)}
+            flagged += [
+                f"{path.relative_to(ROOT)}:{node.lineno}"
+                for node in ast.walk(tree)
+                if isinstance(node, ast.Constant) and isinstance(node.value, str) and "--resume" in node.value
+                and id(node) not in docstrings
+            ]
+    assert flagged == []

@@ -22,7 +22,7 @@ import numpy as np
 
 from lasercal_hw import __version__
 from lasercal_hw.config import JobConfig, with_overrides
-from lasercal_hw.errors import ConfigError, DeviceError, LasercalError
+from lasercal_hw.errors import ConfigError, DeviceError, InterruptedRunError, LasercalError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
@@ -242,7 +242,7 @@ def open_sequencer(
     """Everything a run does around its sequencer, for ``calibrate`` and for other
     procedures on the same machinery (``lasercal verify`` measures without solving):
     output folder, fake cell, devices, recording, and on failure where the recording is
-    (with the ``--resume`` hint when ``resumable``)."""
+    (and that the run can be resumed from it, when ``resumable``)."""
     job, waypoints, out_dir, state, created = _prepare(request)
     session_path = request.resume or out_dir / SESSION_FILE
     try:
@@ -253,7 +253,7 @@ def open_sequencer(
                 job, ground_truth, fake_cell = _start_fake_cell(request, job, out_dir, stack, sink, cancel)
             cancel.raise_if_cancelled()
             if job.robot.host is None:
-                raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
+                raise ConfigError("no robot given: say where the robot is (robot.host in the job file)")
             sink.emit("stage", "connecting to the scanner and the robot", stage="connect")
             robot, scanner = _connect(job, stack)
             recorder = _open_recorder(request, job, waypoints, robot, scanner, ground_truth, session_path)
@@ -277,7 +277,9 @@ def open_sequencer(
                 fake_cell, on_progress,
             )
     except (LasercalError, KeyboardInterrupt) as exc:
-        _after_failure(out_dir, session_path, created, sink, exc, resumable)
+        _after_failure(
+            out_dir, session_path, created, sink, exc, resumable=resumable, dry_run=request.dry_run
+        )
         raise
 
 
@@ -301,7 +303,10 @@ def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeSt
     except OSError as exc:
         raise ConfigError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}") from exc
     if (out_dir / SESSION_FILE).exists():
-        raise ConfigError(f"{out_dir / SESSION_FILE} already exists; choose another --out or use --resume")
+        raise ConfigError(
+            f"{out_dir / SESSION_FILE} already exists: choose another output folder, "
+            "or resume that run from its recording"
+        )
     return job, np.asarray(waypoints, dtype=float).reshape(-1, 6), out_dir, None, created
 
 
@@ -387,18 +392,24 @@ def _open_recorder(
 
 
 def _after_failure(
-    out_dir: Path, session_path: Path, created: bool, sink: EventSink, exc: BaseException, resumable: bool
+    out_dir: Path, session_path: Path, created: bool, sink: EventSink, exc: BaseException, *,
+    resumable: bool, dry_run: bool,
 ) -> None:
-    """Say where the recording is, or remove an output folder the run left empty."""
+    """Say where the recording is (the ``stopped`` event: ``session``, ``resumable``,
+    ``interrupted``, ``dry_run``, so each front end can say how to resume in its own words),
+    or remove an output folder the run left empty."""
     if session_path.exists():
-        hint = "after fixing the cause " + (
-            f"continue with: lasercal run --resume {session_path}" if resumable else "start again"
-        )
+        interrupted = isinstance(exc, InterruptedRunError | KeyboardInterrupt)
+        action = "resume this run from its recording" if resumable else "start again"
+        when = "" if interrupted else "once the cause is fixed, "
         sink.emit(
             "stopped",
-            f"recording kept in {session_path}; {hint}",
+            f"recording kept in {session_path}; {when}{action}",
             session=str(session_path),
             error=str(exc),
+            resumable=resumable,
+            interrupted=interrupted,
+            dry_run=dry_run,
         )
         return
     leftovers = [p for p in out_dir.iterdir() if p.name != DRY_RUN_SCENE_FILE]

@@ -145,14 +145,15 @@ class Sequencer:
             self._halt("interrupted", reason)
             raise InterruptedRunError(
                 f"run interrupted{self._where()} ({reason}): the arm was stopped and the recording kept; "
-                "continue later with --resume"
+                "resume this run from its recording"
             ) from None
         except ProtectiveStopError as exc:
             # The controller already stopped the arm; no command is sent to it any more.
             self._event("abort", cause="protective_stop", index=self._current, message=str(exc))
             raise ProtectiveStopError(
                 f"protective stop{self._where()}: {exc}. The run is aborted and will not resume by "
-                "itself: find the cause, clear the stop on the teach pendant, then continue with --resume"
+                "itself: find the cause, clear the stop on the teach pendant, then resume this run from "
+                "its recording"
             ) from exc
         except BaseException as exc:
             self._halt("error", f"{type(exc).__name__}: {exc}")
@@ -248,7 +249,7 @@ class Sequencer:
         if last.scanner_fault:
             raise DeviceError(
                 f"waypoint {index}: the scanner failed {attempts} times ({last.reason}); "
-                "check its cable and power, then continue with --resume"
+                "check its cable and power, then resume this run from its recording"
             )
         self._skip(index, f"{last.reason} ({attempts} attempts)")
 

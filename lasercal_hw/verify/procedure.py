@@ -163,7 +163,7 @@ def verify(
     chosen_job = request.job if request.job is not None else active.job
     if chosen_job is None:
         raise ConfigError(
-            f"{active.path} does not record the job it was made with: pass the job file with --config"
+            f"{active.path} does not record the job it was made with: give verify that job file"
         )
     plan = plan_verify(
         chosen_job,
