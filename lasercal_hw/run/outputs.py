@@ -22,7 +22,7 @@ from lasercal_hw.geometry import rotation_angle_rad
 from lasercal_hw.models import FloatArray
 from lasercal_hw.outputs.exports import exports, static_transform_publisher_args, urdf_joint
 from lasercal_hw.outputs.report import ReportData, render_report
-from lasercal_hw.run.sequencer import RunOutcome
+from lasercal_hw.run.records import RunOutcome
 
 logger = logging.getLogger(__name__)
 
@@ -144,8 +144,10 @@ def read_result_file(path: Path) -> ResultFile:
     )
 
 
-def report_data(outcome: RunOutcome, job: JobConfig, title: str) -> ReportData:
-    """What the report PNG shows for this run."""
+def report_data(
+    outcome: RunOutcome, job: JobConfig, title: str, ground_truth: FloatArray | None = None
+) -> ReportData:
+    """What the report PNG shows for this run (a dry run's error against its truth too)."""
     result = outcome.result
     T = result.matrix()
     poses = np.array([o.tcp_pose for o in outcome.observations])
@@ -168,6 +170,7 @@ def report_data(outcome: RunOutcome, job: JobConfig, title: str) -> ReportData:
         background_angles_rad=background.angles_rad if background is not None else [],
         background_ranges_m=background.ranges_m if background is not None else [],
         notes=notes,
+        truth_error_mm_deg=None if ground_truth is None else tuple(transform_error(T, ground_truth).values()),
     )
 
 
@@ -197,7 +200,7 @@ def write_outputs(
         "observations": out_dir / OBSERVATIONS_FILE,
         "result": out_dir / RESULT_FILE,
     }
-    write_observations_csv(files["observations"], outcome.observations)
+    write_observations_csv(files["observations"], outcome.observations, outcome.solve_settings)
     document = result_document(outcome, job, ground_truth=ground_truth)
     write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
     T = outcome.result.matrix()
@@ -213,5 +216,7 @@ def write_outputs(
         logger.warning("quality gate failed: %s and %s are not written (result.json has the transform "
                        "and its verdict)", URDF_FILE, TF_ARGS_FILE)
     if job.output.report:
-        files["report"] = render_report(report_data(outcome, job, title), out_dir / REPORT_FILE)
+        files["report"] = render_report(
+            report_data(outcome, job, title, ground_truth), out_dir / REPORT_FILE
+        )
     return files

@@ -9,7 +9,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from drivers.access import DeviceAccess
 from lasercal_hw import __version__
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.auth import ensure_token
@@ -21,6 +20,7 @@ from lasercal_hw.service.monitor import DeviceMonitor
 from lasercal_hw.service.store import DB_FILE, HistoryStore, utc_now
 
 if TYPE_CHECKING:
+    from drivers.access import DeviceAccess
     from fakes.cell_process import FakeCellProcess
     from lasercal_hw.service.runners import ActiveCalibration
 
@@ -54,7 +54,9 @@ class Daemon:
         self.store = HistoryStore(self.data_dir / DB_FILE)
         self.bus = EventBus(self.store)
         self.history = CalibrationHistory(self.store, self.bus)
-        self.devices = DeviceAccess(config.robot_host, config.scanner_url)
+        from drivers.access import DeviceAccess  # the daemon's one door to its devices
+
+        self.devices: DeviceAccess = DeviceAccess(config.robot_host, config.scanner_url)
         self.fake_cell: FakeCellProcess | None = None
         self.started_utc = utc_now()
         if runners is None:

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from drivers.access import DeviceAccess
-from drivers.ur.dashboard import robot_unknown
+if TYPE_CHECKING:
+    from drivers.access import DeviceAccess
 
 logger = logging.getLogger(__name__)
 
@@ -28,6 +28,8 @@ class DeviceMonitor:
         self._devices = devices
         self._poll_s = poll_s
         self._lock = threading.Lock()
+        from drivers.ur.dashboard import robot_unknown  # the status of a robot not asked yet
+
         self._robot_status = robot_unknown(
             devices.robot_host, None if devices.robot_host else "no robot configured"
         )
