@@ -39,12 +39,6 @@ def problem(status: int, code: str, message: str, detail: dict[str, Any] | None 
     return JSONResponse({"code": code, "message": message, "detail": detail or {}}, status_code=status)
 
 
-def status_of(error: ServiceError) -> int:
-    """The HTTP status of a service error (its nearest kind's)."""
-    kind = next(k for k in type(error).__mro__ if k in STATUS_OF or k is ServiceError)
-    return STATUS_OF.get(kind, 400)
-
-
 def _validation_problem(exc: RequestValidationError) -> JSONResponse:
     errors = exc.errors()
     first = errors[0] if errors else {"loc": (), "msg": "invalid request"}
@@ -62,7 +56,7 @@ def install_problem_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(ServiceError)
     async def _service_problem(_request: Request, exc: ServiceError) -> JSONResponse:
-        return problem(status_of(exc), exc.code, exc.message, exc.detail)
+        return problem(STATUS_OF[type(exc)], exc.code, exc.message, exc.detail)
 
     @app.exception_handler(RequestValidationError)
     async def _request_problem(_request: Request, exc: RequestValidationError) -> JSONResponse:
