@@ -90,4 +90,5 @@ def test_a_documented_command_parses(where: str, args: str) -> None:
     except KeyError as exc:
         pytest.fail(f"{where}: no sub-command {exc} in: lasercal {args}")
     except Exception as exc:
-        pytest.fail(f"{where}: lasercal {args}: {getattr(exc, 'format_message', lambda: str(exc))()}")
+        message = exc.format_message() if hasattr(exc, "format_message") else str(exc)
+        pytest.fail(f"{where}: lasercal {args}: {message}")
