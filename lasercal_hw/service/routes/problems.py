@@ -15,10 +15,13 @@ from lasercal_hw.service.errors import (
     ConfirmationRequiredError,
     ConflictError,
     ForbiddenError,
+    HistoryUnavailableError,
     InvalidRequestError,
     NotAvailableError,
     NotFoundError,
+    PayloadTooLargeError,
     ServiceError,
+    StorageFullError,
     UnauthenticatedError,
 )
 
@@ -28,8 +31,11 @@ STATUS_OF: dict[type[ServiceError], int] = {
     ForbiddenError: 403,
     NotFoundError: 404,
     ConflictError: 409,
+    PayloadTooLargeError: 413,
     InvalidRequestError: 422,
     NotAvailableError: 501,
+    HistoryUnavailableError: 503,
+    StorageFullError: 507,
 }
 _HTTP_CODES = {404: "not_found", 405: "method_not_allowed"}
 

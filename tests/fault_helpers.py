@@ -1,0 +1,58 @@
+"""Real faults for the daemon's fault tests: a small disk that fills (a tmpfs of a few MB,
+mounted for the test; where mounting is refused, a file-size limit on the daemon process,
+which fails its writes with EFBIG), and a damaged SQLite file."""
+
+from __future__ import annotations
+
+import contextlib
+import subprocess
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+SMALL_DISK_BYTES = 3 * 1024 * 1024
+FILLER_BYTES = 1_300_000
+"""Written beside the data folder so a dry run fills the disk within its first waypoints;
+deleting it is how the tests free space again."""
+
+
+@dataclass(frozen=True)
+class SmallDisk:
+    """Where the daemon's data folder goes, and how the disk is made full.
+
+    ``how`` is ``"tmpfs"`` (a real file system of ``SMALL_DISK_BYTES``: ENOSPC) or
+    ``"rlimit"`` (RLIMIT_FSIZE of ``file_size_limit_bytes`` on the daemon: EFBIG)."""
+
+    root: Path
+    how: str
+    file_size_limit_bytes: int | None = None
+
+    @property
+    def filler(self) -> Path:
+        """The file that takes up space until a test frees it."""
+        return self.root / "filler"
+
+
+@contextlib.contextmanager
+def small_disk(where: Path) -> Iterator[SmallDisk]:
+    """A small real file system at ``where`` (unmounted at the end), or the rlimit fallback."""
+    where.mkdir(parents=True, exist_ok=True)
+    mounted = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={SMALL_DISK_BYTES}", "tmpfs", str(where)],
+        capture_output=True,
+        check=False,
+    )
+    if mounted.returncode != 0:
+        yield SmallDisk(where, "rlimit", file_size_limit_bytes=SMALL_DISK_BYTES - FILLER_BYTES)
+        return
+    try:
+        yield SmallDisk(where, "tmpfs")
+    finally:
+        subprocess.run(["umount", "--lazy", str(where)], check=False)
+
+
+def damage_page(database: Path, page: int, page_size: int = 4096) -> None:
+    """Overwrite one page of a SQLite file (not its header) with garbage, as a bad sector would."""
+    with database.open("r+b") as db:
+        db.seek(page * page_size)
+        db.write(b"\xa5" * page_size)

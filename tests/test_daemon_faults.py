@@ -1,0 +1,343 @@
+"""The daemon under faults and hostile input (issue 21): every hostile request of
+tests/hostile_inputs.py gets its 4xx JSON answer, nothing of a file outside the data
+folder leaks, a full disk ends the job cleanly and recovers without a restart, a missing or
+damaged history stops the start with one line, and the history rebuilds from the job
+folders. The long runs (kill -9 at every state, repeated) are in benchmarks/daemon_faults.py."""
+
+from __future__ import annotations
+
+import contextlib
+import shutil
+import sqlite3
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from fastapi.testclient import TestClient
+
+from lasercal_hw.errors import ConfigError
+from lasercal_hw.service.app import create_app
+from lasercal_hw.service.config import load_daemon_config
+from lasercal_hw.service.daemon import Daemon
+from lasercal_hw.service.store import DB_FILE, SCHEMA_VERSION, HistoryStore
+from lasercal_hw.session.reader import read_session
+from tests.daemon_helpers import QUICK_DRY_RUN, DaemonProcess, FakeEngine, fake_runners, read_sse, wait_for
+from tests.fault_helpers import FILLER_BYTES, damage_page, small_disk
+from tests.hostile_inputs import CASES, DRY, SECRET, Hostile
+
+FINISHED = ("succeeded", "failed", "cancelled", "interrupted")
+
+
+def _in_process(data_dir: Path) -> tuple[Daemon, FakeEngine]:
+    engine = FakeEngine()
+    return Daemon(load_daemon_config(None, {"data_dir": data_dir}), runners=fake_runners(engine)), engine
+
+
+def _finish(client: TestClient | httpx.Client, job_id: str) -> dict[str, Any]:
+    return wait_for(client, job_id, lambda job: job["state"] in FINISHED, timeout_s=30.0)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, dict[str, str]]]:
+    """One in-process daemon (fake engine) for every hostile case, with a finished job."""
+    root = tmp_path_factory.mktemp("hostile")
+    outside = root / "outside"
+    outside.mkdir()
+    (outside / "secret.csv").write_text(f"index,x,y,z,rx,ry,rz\n0,{SECRET},0,0,0,0,0\n")
+    daemon, _engine = _in_process(root / "data")
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
+        client.headers["Authorization"] = f"Bearer {daemon.token}"
+        job = _finish(client, client.post("/v1/jobs", json=DRY).json()["id"])
+        names = {
+            "job": job["id"],
+            "cal": job["calibration_id"],
+            "outside": str(outside),
+            "token": daemon.token,
+            "token_prefix": daemon.token[:-1],
+        }
+        yield client, names
+
+
+def _filled(value: Any, names: dict[str, str]) -> Any:
+    if isinstance(value, str):
+        for key, text in names.items():
+            value = value.replace("{" + key + "}", text)
+        return value
+    if isinstance(value, dict):
+        return {key: _filled(item, names) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_filled(item, names) for item in value]
+    return value
+
+
+def send(client: TestClient | httpx.Client, case: Hostile, names: dict[str, str]) -> httpx.Response:
+    """Send one hostile case (used by benchmarks/daemon_faults.py too)."""
+    headers = _filled(case.headers, names)
+    if not case.token and "Authorization" not in headers:
+        headers["Authorization"] = ""
+    return client.request(
+        case.method,
+        _filled(case.path, names),
+        json=_filled(case.json, names) if case.content is None else None,
+        content=case.content,
+        headers={key: value.encode("latin-1") for key, value in headers.items()},
+    )
+
+
+@pytest.mark.parametrize("case", CASES, ids=[case.name for case in CASES])
+def test_hostile_request_gets_its_json_answer(
+    served: tuple[TestClient, dict[str, str]], case: Hostile
+) -> None:
+    client, names = served
+    answer = send(client, case, names)
+    assert (answer.status_code, answer.json()["code"]) == (case.status, case.code), answer.text[:500]
+    assert answer.json()["message"] and SECRET not in answer.text
+
+
+def test_a_file_outside_says_nothing_of_itself(served: tuple[TestClient, dict[str, str]]) -> None:
+    client, names = served
+
+    def message(path: str) -> str:
+        body = DRY | {"job": {"trajectory": {"preset": None, "waypoints_file": path}}}
+        return str(client.post("/v1/jobs", json=body).json()["message"]).replace(path, "PATH")
+
+    secret, missing, unreadable = (
+        message(f"{names['outside']}/secret.csv"),
+        message(f"{names['outside']}/missing.csv"),
+        message("/etc/shadow"),
+    )
+    assert secret == missing == unreadable and SECRET not in secret
+    assert "must be a file under" in secret
+
+
+def test_a_waypoint_file_in_the_data_folder_is_read(served: tuple[TestClient, dict[str, str]]) -> None:
+    client, _names = served
+    data_dir = Path(client.get("/v1/status").json()["daemon"]["data_dir"])
+    (data_dir / "bad.csv").write_text("index,x,y,z,rx,ry,rz\n0,not_a_number,0,0,0,0,0\n")
+    answer = client.post(
+        "/v1/jobs",
+        json=DRY | {"job": {"trajectory": {"preset": None, "waypoints_file": str(data_dir / "bad.csv")}}},
+    )
+    assert answer.status_code == 422 and "not_a_number" in answer.json()["message"]
+
+
+def test_a_configured_host_name_is_served(tmp_path: Path) -> None:
+    config = load_daemon_config(None, {"data_dir": tmp_path / "data", "allowed_hosts": ["cell-7.local"]})
+    with TestClient(create_app(Daemon(config)), base_url="http://cell-7.local:8766") as client:
+        assert client.get("/v1/health").status_code == 200
+        assert client.get("/v1/health", headers={"Host": "[::1]:8766"}).status_code == 200
+        assert client.get("/v1/health", headers={"Host": "other.local"}).status_code == 400
+
+
+# -- the history at start ---------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def history_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A data folder with two finished jobs (one calibration active) and one cancelled."""
+    data_dir = tmp_path_factory.mktemp("history") / "data"
+    daemon, engine = _in_process(data_dir)
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
+        client.headers["Authorization"] = f"Bearer {daemon.token}"
+        for _ in range(2):
+            _finish(client, client.post("/v1/jobs", json=DRY | {"activate_on_pass": True}).json()["id"])
+        engine.release.clear()
+        running = client.post("/v1/jobs", json=DRY).json()["id"]
+        assert engine.started.wait(5.0)
+        client.post(f"/v1/jobs/{running}/cancel")
+        engine.release.set()
+        _finish(client, running)
+    return data_dir
+
+
+def _copy(history_dir: Path, tmp_path: Path) -> Path:
+    data_dir = tmp_path / "data"
+    shutil.copytree(history_dir, data_dir)
+    return data_dir
+
+
+def _truncate(db: Path) -> None:
+    db.write_bytes(b"")
+
+
+def _delete(db: Path) -> None:
+    db.unlink()
+
+
+def _damage_second_page(db: Path) -> None:
+    damage_page(db, 1)
+
+
+def _drop_jobs_table(db: Path) -> None:
+    with sqlite3.connect(db) as connection:
+        connection.execute("DROP TABLE jobs")
+
+
+def _damage_header(db: Path) -> None:
+    with db.open("r+b") as handle:
+        handle.write(b"not a database at all")
+
+
+@pytest.mark.parametrize(
+    ("damage", "says"),
+    [
+        (_truncate, "is empty"),
+        (_delete, "is missing"),
+        (_damage_second_page, "rebuild"),
+        (_drop_jobs_table, "lacks the table(s) jobs"),
+        (_damage_header, "rebuild"),
+    ],
+    ids=["truncated", "deleted", "damaged page", "dropped table", "damaged header"],
+)
+def test_a_lost_or_damaged_history_stops_the_start(
+    history_dir: Path, tmp_path: Path, damage, says: str
+) -> None:
+    data_dir = _copy(history_dir, tmp_path)
+    damage(data_dir / DB_FILE)
+    with pytest.raises(ConfigError, match="rebuild") as raised:
+        Daemon(load_daemon_config(None, {"data_dir": data_dir}))
+    assert says in str(raised.value) and "\n" not in str(raised.value)
+
+
+def test_the_cli_refuses_a_damaged_history_in_one_line(history_dir: Path, tmp_path: Path) -> None:
+    data_dir = _copy(history_dir, tmp_path)
+    _truncate(data_dir / DB_FILE)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "lasercal_hw.cli.main",
+            "serve",
+            "--listen",
+            "127.0.0.1:0",
+            "--data-dir",
+            str(data_dir),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode != 0 and "Traceback" not in done.stderr
+    assert "--rebuild-history" in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_rebuild_history_from_the_job_folders(history_dir: Path, tmp_path: Path) -> None:
+    data_dir = _copy(history_dir, tmp_path)
+    _truncate(data_dir / DB_FILE)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "lasercal_hw.cli.main",
+            "serve",
+            "--rebuild-history",
+            "--data-dir",
+            str(data_dir),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "2 succeeded" in done.stdout and "2 calibrations" in done.stdout
+    daemon = Daemon(load_daemon_config(None, {"data_dir": data_dir}))
+    try:
+        assert len(daemon.store.jobs()) == 3 and len(daemon.store.calibrations()) == 2
+        assert daemon.store.active_calibration_id() is None  # the activation log lived only in the database
+    finally:
+        daemon.store.close()
+    assert list(data_dir.glob(f"{DB_FILE}.before-rebuild-*"))  # the emptied file is kept
+
+
+def test_a_migration_backs_the_database_up_first(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from lasercal_hw.service import store as store_module
+
+    HistoryStore(tmp_path / DB_FILE).close()
+    monkeypatch.setattr(store_module, "SCHEMA_VERSION", SCHEMA_VERSION + 1)
+    monkeypatch.setitem(store_module._MIGRATIONS, SCHEMA_VERSION + 1, "CREATE TABLE later (id INTEGER)")
+    HistoryStore(tmp_path / DB_FILE).close()
+    backup = tmp_path / f"{DB_FILE}.v{SCHEMA_VERSION}.bak"
+    with sqlite3.connect(backup) as connection:
+        assert connection.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+
+
+# -- a full disk, for real --------------------------------------------------------------------
+
+
+def test_a_full_disk_mid_job_fails_it_cleanly_and_recovers_without_a_restart(tmp_path: Path) -> None:
+    with small_disk(tmp_path / "small") as disk:
+        if disk.how == "tmpfs":
+            disk.filler.write_bytes(b"\0" * FILLER_BYTES)
+        daemon = DaemonProcess(disk.root / "data", file_size_limit_bytes=disk.file_size_limit_bytes).start()
+        try:
+            with daemon.client() as client:
+                job_id = client.post("/v1/jobs", json=QUICK_DRY_RUN).json()["id"]
+                followed: list[tuple[int, str, dict[str, Any]]] = []
+
+                def follow() -> None:
+                    with client.stream("GET", f"/v1/jobs/{job_id}/events") as stream:
+                        followed.extend(read_sse(stream))
+
+                follower = threading.Thread(target=follow)
+                follower.start()
+                job = wait_for(client, job_id, lambda job: job["state"] in FINISHED, timeout_s=240.0)
+                follower.join(30.0)
+                assert (
+                    not follower.is_alive() and followed[-1][2]["state"] == "failed"
+                )  # the final state, sent
+                assert job["state"] == "failed" and job["error"]["code"] == "storage_full", job["error"]
+                assert "stopped" in job["error"]["message"]
+                stops = [data for _id, kind, data in followed if kind == "stopped"]
+                assert stops, "the arm was not stopped"
+                recording = read_session(disk.root / "data" / "jobs" / job_id / "session.mcap")
+                assert recording.metas  # what was written is kept and readable
+                if disk.how == "tmpfs":
+                    refused = client.post("/v1/jobs", json=QUICK_DRY_RUN)
+                    assert (refused.status_code, refused.json()["code"]) == (507, "storage_full"), (
+                        refused.text
+                    )
+                    assert len(list((disk.root / "data" / "jobs").iterdir())) == 1  # no empty job folder
+                    disk.filler.unlink()
+                    again = client.post("/v1/jobs", json=QUICK_DRY_RUN)
+                    assert again.status_code == 202, again.text
+                    client.post(f"/v1/jobs/{again.json()['id']}/cancel")
+                    wait_for(
+                        client, again.json()["id"], lambda job: job["state"] in FINISHED, timeout_s=120.0
+                    )
+                assert client.get(f"/v1/jobs/{job_id}").json()["error"]["code"] == "storage_full"
+        finally:
+            daemon.stop()
+    print(f"full disk made by {disk.how}")
+
+
+def test_starting_on_a_full_disk_is_one_line(tmp_path: Path) -> None:
+    with small_disk(tmp_path / "small") as disk:
+        if disk.how != "tmpfs":
+            pytest.skip("a file system full at start needs a tmpfs (mount refused here)")
+        data_dir = disk.root / "data"
+        daemon, _engine = _in_process(data_dir)
+        daemon.store.insert_job(
+            {
+                "id": "job-x",
+                "kind": "dry_run",
+                "state": "running",
+                "created_utc": "2026-01-01T00:00:00",
+                "request": {},
+                "progress": {},
+                "out_dir": str(data_dir / "jobs" / "job-x"),
+            }
+        )
+        daemon.store.close()
+        with disk.filler.open("wb", buffering=0) as filler, contextlib.suppress(OSError):  # to the last byte
+            while True:
+                filler.write(b"\0" * 4096)
+        with pytest.raises(ConfigError, match="full") as raised:
+            _in_process(data_dir)
+        assert "\n" not in str(raised.value)
