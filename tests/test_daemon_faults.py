@@ -7,11 +7,14 @@ folders. The long runs (kill -9 at every state, repeated) are in benchmarks/daem
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
+import signal
 import sqlite3
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -341,3 +344,74 @@ def test_starting_on_a_full_disk_is_one_line(tmp_path: Path) -> None:
         with pytest.raises(ConfigError, match="full") as raised:
             _in_process(data_dir)
         assert "\n" not in str(raised.value)
+
+
+# -- the process under signals ----------------------------------------------------------------
+
+
+def child_pids(pid: int) -> list[int]:
+    """The direct children of process ``pid`` (Linux /proc)."""
+    children: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        children += [int(child) for child in (task / "children").read_text().split()]
+    return children
+
+
+def test_the_idle_fake_cell_killed_is_said_truly_and_started_again(tmp_path: Path) -> None:
+    daemon = DaemonProcess(tmp_path / "data").start()
+    try:
+        with daemon.client() as client:
+            before = client.get("/v1/status").json()["robot"]["host"]
+            (cell,) = [
+                pid
+                for pid in child_pids(daemon.pid)
+                if b"fakes.cell" in Path(f"/proc/{pid}/cmdline").read_bytes()
+            ]
+            os.kill(cell, signal.SIGKILL)
+            deadline = time.monotonic() + 60.0
+            while "started a new one" not in daemon.log.read_text() and time.monotonic() < deadline:
+                time.sleep(0.2)
+            log = daemon.log.read_text()
+            assert f"(pid {cell}) was killed by signal 9 serving the dry-run daemon" in log
+            assert "during the run" not in log
+            while time.monotonic() < deadline:
+                robot = client.get("/v1/status").json()["robot"]
+                if robot["host"] != before and robot["connected"]:
+                    break
+                time.sleep(0.3)
+            assert robot["host"] != before and robot["connected"], robot
+    finally:
+        daemon.stop()
+
+
+def test_sigterm_sends_followers_the_interrupted_state(tmp_path: Path) -> None:
+    daemon = DaemonProcess(tmp_path / "data").start()
+    try:
+        with daemon.client() as client:
+            job_id = client.post("/v1/jobs", json=QUICK_DRY_RUN).json()["id"]
+            followed: list[tuple[int, str, dict[str, Any]]] = []
+
+            def follow() -> None:
+                with httpx.stream("GET", f"{daemon.url}/v1/jobs/{job_id}/events", timeout=60.0) as stream:
+                    followed.extend(read_sse(stream))
+
+            follower = threading.Thread(target=follow)
+            follower.start()
+            wait_for(client, job_id, lambda job: job["progress"]["completed"] >= 1, timeout_s=120.0)
+            daemon.process.send_signal(signal.SIGTERM)  # type: ignore[union-attr]
+            follower.join(30.0)
+            assert not follower.is_alive()
+            assert (
+                followed[-1][1:] == ("state", followed[-1][2]) and followed[-1][2]["state"] == "interrupted"
+            )
+    finally:
+        daemon.stop()
+
+
+@pytest.mark.parametrize(
+    ("host", "shown"), [("127.0.0.1", "127.0.0.1"), ("::1", "[::1]"), ("localhost", "localhost")]
+)
+def test_the_ready_line_brackets_an_ipv6_host(host: str, shown: str) -> None:
+    from lasercal_hw.cli.serve import url_host
+
+    assert url_host(host) == shown

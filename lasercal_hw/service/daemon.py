@@ -4,17 +4,18 @@ instead of hardware."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lasercal_hw import __version__
-from lasercal_hw.errors import ConfigError
+from lasercal_hw.errors import ConfigError, LasercalError
 from lasercal_hw.service.auth import ensure_token
 from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.config import DaemonConfig
-from lasercal_hw.service.errors import StorageFullError
+from lasercal_hw.service.errors import ServiceError, StorageFullError
 from lasercal_hw.service.events import EventBus
 from lasercal_hw.service.jobs import JobManager, Runner
 from lasercal_hw.service.monitor import DeviceMonitor
@@ -77,6 +78,7 @@ class Daemon:
 
         self.devices: DeviceAccess = DeviceAccess(config.robot_host, config.scanner_url)
         self.fake_cell: FakeCellProcess | None = None
+        self._stopping = False
         self.started_utc = utc_now()
         if runners is None:
             from lasercal_hw.service.runners import build_runners
@@ -114,11 +116,7 @@ class Daemon:
         """Start the fake cell (dry run) and the device polling; announce the start (the jobs a
         crash left running were marked interrupted when the daemon was built)."""
         if self.config.dry_run:
-            from fakes.cell_process import FakeCellProcess
-
-            self.fake_cell = FakeCellProcess().start()
-            self.devices.robot_host = self.fake_cell.robot_host
-            self.devices.scanner_url = self.fake_cell.scanner_url
+            self._start_fake_cell()
         self.monitor = DeviceMonitor(self.devices, self.config.status_poll_s)
         self.monitor.start()
         try:
@@ -133,8 +131,36 @@ class Daemon:
         except StorageFullError as exc:  # reads still work; new jobs are refused until space is back
             logger.warning("%s", exc.message)
 
+    def _start_fake_cell(self) -> None:
+        """The dry-run daemon's fake cell, its devices the daemon's; started again if it dies."""
+        from fakes.cell_process import FakeCellProcess
+
+        self.fake_cell = FakeCellProcess(
+            on_death=self._fake_cell_died, serving="serving the dry-run daemon"
+        ).start()
+        self.devices.robot_host = self.fake_cell.robot_host
+        self.devices.scanner_url = self.fake_cell.scanner_url
+
+    def _fake_cell_died(self, why: str) -> None:
+        if self._stopping:
+            return
+        if self.fake_cell is not None:
+            self.fake_cell.stop()  # reaps the dead child, closes its files
+        try:
+            self._start_fake_cell()
+        except LasercalError as exc:
+            logger.error("the fake cell could not be started again: %s", exc)
+            return
+        message = (
+            f"{why}; started a new one (robot {self.devices.robot_host}, scanner {self.devices.scanner_url})"
+        )
+        logger.warning("%s", message)
+        with contextlib.suppress(ServiceError):
+            self.bus.publish("daemon", {"message": message, "dry_run": True})
+
     def stop(self) -> None:
         """Stop a running job's arm (the job becomes ``interrupted``) and release everything."""
+        self._stopping = True
         self.jobs.shutdown()
         if self.monitor is not None:
             self.monitor.stop()
