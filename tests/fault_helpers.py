@@ -5,8 +5,9 @@ which fails its writes with EFBIG), and a damaged SQLite file."""
 from __future__ import annotations
 
 import contextlib
+import sqlite3
 import subprocess
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,8 +52,35 @@ def small_disk(where: Path) -> Iterator[SmallDisk]:
         subprocess.run(["umount", "--lazy", str(where)], check=False)
 
 
-def damage_page(database: Path, page: int, page_size: int = 4096) -> None:
+def damage_page(database: Path, page: int = 1, page_size: int = 4096) -> None:
     """Overwrite one page of a SQLite file (not its header) with garbage, as a bad sector would."""
     with database.open("r+b") as db:
         db.seek(page * page_size)
         db.write(b"\xa5" * page_size)
+
+
+def truncate(database: Path) -> None:
+    """``: > lasercal.sqlite3``."""
+    database.write_bytes(b"")
+
+
+def drop_jobs_table(database: Path) -> None:
+    """A table gone (a bad manual repair)."""
+    with sqlite3.connect(database) as connection:
+        connection.execute("DROP TABLE jobs")
+
+
+def damage_header(database: Path) -> None:
+    """The first bytes overwritten: not a database any more."""
+    with database.open("r+b") as handle:
+        handle.write(b"not a database at all")
+
+
+DAMAGES: dict[str, tuple[Callable[[Path], None], str]] = {
+    "truncated": (truncate, "is empty"),
+    "deleted": (Path.unlink, "is missing"),
+    "damaged page": (damage_page, "rebuild"),
+    "dropped table": (drop_jobs_table, "lacks the table(s) jobs"),
+    "damaged header": (damage_header, "rebuild"),
+}
+"""Ways to lose a history database, and words the refused start must say for each."""

@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import httpx
+
 from tests.daemon_helpers import QUICK_JOB
 
 SECRET = "SECRET_FROM_CSV"
@@ -217,3 +219,29 @@ CASES: list[Hostile] = [
         )
     ),
 ]
+
+
+def _filled(value: Any, names: dict[str, str]) -> Any:
+    if isinstance(value, str):
+        for key, text in names.items():
+            value = value.replace("{" + key + "}", text)
+        return value
+    if isinstance(value, dict):
+        return {key: _filled(item, names) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_filled(item, names) for item in value]
+    return value
+
+
+def send(client: httpx.Client, case: Hostile, names: dict[str, str]) -> httpx.Response:
+    """Send one hostile case (used by benchmarks/daemon_faults.py too)."""
+    headers = _filled(case.headers, names)
+    if not case.token and "Authorization" not in headers:
+        headers["Authorization"] = ""
+    return client.request(
+        case.method,
+        _filled(case.path, names),
+        json=_filled(case.json, names) if case.content is None else None,
+        content=case.content,
+        headers={key: value.encode("latin-1") for key, value in headers.items()},
+    )

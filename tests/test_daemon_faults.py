@@ -30,8 +30,8 @@ from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.store import DB_FILE, SCHEMA_VERSION, HistoryStore
 from lasercal_hw.session.reader import read_session
 from tests.daemon_helpers import QUICK_DRY_RUN, DaemonProcess, FakeEngine, fake_runners, read_sse, wait_for
-from tests.fault_helpers import FILLER_BYTES, damage_page, small_disk
-from tests.hostile_inputs import CASES, DRY, SECRET, Hostile
+from tests.fault_helpers import DAMAGES, FILLER_BYTES, small_disk, truncate
+from tests.hostile_inputs import CASES, DRY, SECRET, Hostile, send
 
 FINISHED = ("succeeded", "failed", "cancelled", "interrupted")
 
@@ -64,32 +64,6 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClien
             "token_prefix": daemon.token[:-1],
         }
         yield client, names
-
-
-def _filled(value: Any, names: dict[str, str]) -> Any:
-    if isinstance(value, str):
-        for key, text in names.items():
-            value = value.replace("{" + key + "}", text)
-        return value
-    if isinstance(value, dict):
-        return {key: _filled(item, names) for key, item in value.items()}
-    if isinstance(value, list):
-        return [_filled(item, names) for item in value]
-    return value
-
-
-def send(client: TestClient | httpx.Client, case: Hostile, names: dict[str, str]) -> httpx.Response:
-    """Send one hostile case (used by benchmarks/daemon_faults.py too)."""
-    headers = _filled(case.headers, names)
-    if not case.token and "Authorization" not in headers:
-        headers["Authorization"] = ""
-    return client.request(
-        case.method,
-        _filled(case.path, names),
-        json=_filled(case.json, names) if case.content is None else None,
-        content=case.content,
-        headers={key: value.encode("latin-1") for key, value in headers.items()},
-    )
 
 
 @pytest.mark.parametrize("case", CASES, ids=[case.name for case in CASES])
@@ -164,44 +138,11 @@ def _copy(history_dir: Path, tmp_path: Path) -> Path:
     return data_dir
 
 
-def _truncate(db: Path) -> None:
-    db.write_bytes(b"")
-
-
-def _delete(db: Path) -> None:
-    db.unlink()
-
-
-def _damage_second_page(db: Path) -> None:
-    damage_page(db, 1)
-
-
-def _drop_jobs_table(db: Path) -> None:
-    with sqlite3.connect(db) as connection:
-        connection.execute("DROP TABLE jobs")
-
-
-def _damage_header(db: Path) -> None:
-    with db.open("r+b") as handle:
-        handle.write(b"not a database at all")
-
-
-@pytest.mark.parametrize(
-    ("damage", "says"),
-    [
-        (_truncate, "is empty"),
-        (_delete, "is missing"),
-        (_damage_second_page, "rebuild"),
-        (_drop_jobs_table, "lacks the table(s) jobs"),
-        (_damage_header, "rebuild"),
-    ],
-    ids=["truncated", "deleted", "damaged page", "dropped table", "damaged header"],
-)
-def test_a_lost_or_damaged_history_stops_the_start(
-    history_dir: Path, tmp_path: Path, damage, says: str
-) -> None:
+@pytest.mark.parametrize("damage", DAMAGES)
+def test_a_lost_or_damaged_history_stops_the_start(history_dir: Path, tmp_path: Path, damage: str) -> None:
     data_dir = _copy(history_dir, tmp_path)
-    damage(data_dir / DB_FILE)
+    harm, says = DAMAGES[damage]
+    harm(data_dir / DB_FILE)
     with pytest.raises(ConfigError, match="rebuild") as raised:
         Daemon(load_daemon_config(None, {"data_dir": data_dir}))
     assert says in str(raised.value) and "\n" not in str(raised.value)
@@ -209,7 +150,7 @@ def test_a_lost_or_damaged_history_stops_the_start(
 
 def test_the_cli_refuses_a_damaged_history_in_one_line(history_dir: Path, tmp_path: Path) -> None:
     data_dir = _copy(history_dir, tmp_path)
-    _truncate(data_dir / DB_FILE)
+    truncate(data_dir / DB_FILE)
     done = subprocess.run(
         [
             sys.executable,
@@ -232,7 +173,7 @@ def test_the_cli_refuses_a_damaged_history_in_one_line(history_dir: Path, tmp_pa
 
 def test_rebuild_history_from_the_job_folders(history_dir: Path, tmp_path: Path) -> None:
     data_dir = _copy(history_dir, tmp_path)
-    _truncate(data_dir / DB_FILE)
+    truncate(data_dir / DB_FILE)
     done = subprocess.run(
         [
             sys.executable,
