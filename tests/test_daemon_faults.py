@@ -215,6 +215,23 @@ def test_a_migration_backs_the_database_up_first(tmp_path: Path, monkeypatch: py
 # -- a full disk, for real --------------------------------------------------------------------
 
 
+def follow_to_the_end(
+    client: httpx.Client, job_id: str
+) -> tuple[dict[str, Any], list[tuple[int, str, dict[str, Any]]]]:
+    """Follow a job's events until its stream ends; a job the loaded machine's fakes stalled
+    (device_error) is resumed and followed on, up to 3 times, as an operator would."""
+    followed: list[tuple[int, str, dict[str, Any]]] = []
+    for _attempt in range(4):
+        after = {"Last-Event-ID": str(followed[-1][0])} if followed else {}
+        with client.stream("GET", f"/v1/jobs/{job_id}/events", headers=after, timeout=240.0) as stream:
+            followed.extend(read_sse(stream))
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if job["error"] is None or job["error"]["code"] != "device_error":
+            break
+        client.post(f"/v1/jobs/{job_id}/resume", json={"confirm_motion": True}).raise_for_status()
+    return job, followed
+
+
 def test_a_full_disk_mid_job_fails_it_cleanly_and_recovers_without_a_restart(tmp_path: Path) -> None:
     with small_disk(tmp_path / "small") as disk:
         if disk.how == "tmpfs":
@@ -223,23 +240,12 @@ def test_a_full_disk_mid_job_fails_it_cleanly_and_recovers_without_a_restart(tmp
         try:
             with daemon.client() as client:
                 job_id = client.post("/v1/jobs", json=QUICK_DRY_RUN).json()["id"]
-                followed: list[tuple[int, str, dict[str, Any]]] = []
-
-                def follow() -> None:
-                    with client.stream("GET", f"/v1/jobs/{job_id}/events") as stream:
-                        followed.extend(read_sse(stream))
-
-                follower = threading.Thread(target=follow)
-                follower.start()
-                job = wait_for(client, job_id, lambda job: job["state"] in FINISHED, timeout_s=240.0)
-                follower.join(30.0)
-                assert (
-                    not follower.is_alive() and followed[-1][2]["state"] == "failed"
-                )  # the final state, sent
+                job, followed = follow_to_the_end(client, job_id)
+                assert followed[-1][1] == "state" and followed[-1][2]["state"] == "failed"  # followers told
                 assert job["state"] == "failed" and job["error"]["code"] == "storage_full", job["error"]
                 assert "stopped" in job["error"]["message"]
                 stops = [data for _id, kind, data in followed if kind == "stopped"]
-                assert stops, "the arm was not stopped"
+                assert stops, "no stopped event: the follower was not told the recording is kept"
                 recording = read_session(disk.root / "data" / "jobs" / job_id / "session.mcap")
                 assert recording.metas  # what was written is kept and readable
                 if disk.how == "tmpfs":
@@ -298,35 +304,42 @@ def child_pids(pid: int) -> list[int]:
     return children
 
 
-def test_the_idle_fake_cell_killed_is_said_truly_and_started_again(tmp_path: Path) -> None:
-    daemon = DaemonProcess(tmp_path / "data").start()
+@pytest.fixture(scope="module")
+def dry_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+    """One dry-run daemon for the signal tests: its cell is killed first, SIGTERM ends it last."""
+    daemon = DaemonProcess(tmp_path_factory.mktemp("signals") / "data").start()
     try:
-        with daemon.client() as client:
-            before = client.get("/v1/status").json()["robot"]["host"]
-            (cell,) = [
-                pid
-                for pid in child_pids(daemon.pid)
-                if b"fakes.cell" in Path(f"/proc/{pid}/cmdline").read_bytes()
-            ]
-            os.kill(cell, signal.SIGKILL)
-            deadline = time.monotonic() + 60.0
-            while "started a new one" not in daemon.log.read_text() and time.monotonic() < deadline:
-                time.sleep(0.2)
-            log = daemon.log.read_text()
-            assert f"(pid {cell}) was killed by signal 9 serving the dry-run daemon" in log
-            assert "during the run" not in log
-            while time.monotonic() < deadline:
-                robot = client.get("/v1/status").json()["robot"]
-                if robot["host"] != before and robot["connected"]:
-                    break
-                time.sleep(0.3)
-            assert robot["host"] != before and robot["connected"], robot
+        yield daemon
     finally:
         daemon.stop()
 
 
-def test_sigterm_sends_followers_the_interrupted_state(tmp_path: Path) -> None:
-    daemon = DaemonProcess(tmp_path / "data").start()
+def test_the_idle_fake_cell_killed_is_said_truly_and_started_again(dry_daemon: DaemonProcess) -> None:
+    daemon = dry_daemon
+    with daemon.client() as client:
+        before = client.get("/v1/status").json()["robot"]["host"]
+        (cell,) = [
+            pid
+            for pid in child_pids(daemon.pid)
+            if b"fakes.cell" in Path(f"/proc/{pid}/cmdline").read_bytes()
+        ]
+        os.kill(cell, signal.SIGKILL)
+        deadline = time.monotonic() + 60.0
+        while "started a new one" not in daemon.log.read_text() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        log = daemon.log.read_text()
+        assert f"(pid {cell}) was killed by signal 9 serving the dry-run daemon" in log
+        assert "during the run" not in log
+        while time.monotonic() < deadline:
+            robot = client.get("/v1/status").json()["robot"]
+            if robot["host"] != before and robot["connected"]:
+                break
+            time.sleep(0.3)
+        assert robot["host"] != before and robot["connected"], robot
+
+
+def test_sigterm_sends_followers_the_interrupted_state(dry_daemon: DaemonProcess) -> None:
+    daemon = dry_daemon  # the last test of this daemon: SIGTERM ends it
     try:
         with daemon.client() as client:
             job_id = client.post("/v1/jobs", json=QUICK_DRY_RUN).json()["id"]
@@ -342,9 +355,7 @@ def test_sigterm_sends_followers_the_interrupted_state(tmp_path: Path) -> None:
             daemon.process.send_signal(signal.SIGTERM)  # type: ignore[union-attr]
             follower.join(30.0)
             assert not follower.is_alive()
-            assert (
-                followed[-1][1:] == ("state", followed[-1][2]) and followed[-1][2]["state"] == "interrupted"
-            )
+            assert followed[-1][1] == "state" and followed[-1][2]["state"] == "interrupted", followed[-3:]
     finally:
         daemon.stop()
 
