@@ -84,3 +84,11 @@ DAMAGES: dict[str, tuple[Callable[[Path], None], str]] = {
     "damaged header": (damage_header, "rebuild"),
 }
 """Ways to lose a history database, and words the refused start must say for each."""
+
+
+def child_pids(pid: int) -> list[int]:
+    """The direct children of process ``pid``, started from any of its threads (Linux /proc)."""
+    children: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        children += [int(child) for child in (task / "children").read_text().split()]
+    return children

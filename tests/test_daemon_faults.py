@@ -30,7 +30,7 @@ from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.store import DB_FILE, SCHEMA_VERSION, HistoryStore
 from lasercal_hw.session.reader import read_session
 from tests.daemon_helpers import QUICK_DRY_RUN, DaemonProcess, FakeEngine, fake_runners, read_sse, wait_for
-from tests.fault_helpers import DAMAGES, FILLER_BYTES, small_disk, truncate
+from tests.fault_helpers import DAMAGES, FILLER_BYTES, child_pids, small_disk, truncate
 from tests.hostile_inputs import CASES, DRY, SECRET, Hostile, send
 
 FINISHED = ("succeeded", "failed", "cancelled", "interrupted")
@@ -294,14 +294,6 @@ def test_starting_on_a_full_disk_is_one_line(tmp_path: Path) -> None:
 
 
 # -- the process under signals ----------------------------------------------------------------
-
-
-def child_pids(pid: int) -> list[int]:
-    """The direct children of process ``pid`` (Linux /proc)."""
-    children: list[int] = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        children += [int(child) for child in (task / "children").read_text().split()]
-    return children
 
 
 @pytest.fixture(scope="module")
