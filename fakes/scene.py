@@ -11,7 +11,7 @@ import math
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -21,6 +21,11 @@ Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Vector2 = Annotated[list[float], Field(min_length=2, max_length=2)]
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 Reflectivity = Annotated[float, Field(gt=0.0, le=1.0)]
+Material = Literal["matte", "painted", "bare_metal", "steel_drill", "retro_tape", "dark"]
+"""Surface materials of the physical scanner model (``fakes/scanner_model/materials.py``)."""
+ModelName = Literal["physical", "ideal"]
+"""``physical``: the UTM-30LX-EW model of ``fakes/scanner_model``; ``ideal``: exact ray
+casting with the ``[noise]`` settings (gaussian noise, flipping mixed pixels)."""
 
 
 class _Strict(BaseModel):
@@ -63,6 +68,17 @@ class RodSettings(_Strict):
     radius_m: float = Field(0.02, gt=0.0)
     length_m: float = Field(0.3, gt=0.0)
     reflectivity: Reflectivity = 0.8
+    material: Material = "painted"
+    shape: Literal["cylinder", "twist_drill"] = "cylinder"
+    """``twist_drill``: the section has two flutes and a web (physical model only)."""
+    web_fraction: float = Field(0.16, gt=0.0, lt=0.5)
+    """Twist drill: web thickness over the diameter."""
+    helix_lead_m: float = Field(0.0, ge=0.0)
+    """Twist drill: axial length of one flute turn (0 = 6 diameters, a 30 deg helix)."""
+    chuck_radius_m: float = Field(0.0, ge=0.0)
+    """A chuck (collet nut) coaxial with the rod above it, ``s`` in [-chuck_length_m, 0]; 0 = none."""
+    chuck_length_m: float = Field(0.05, gt=0.0)
+    chuck_material: Material = "bare_metal"
 
     _direction_non_zero = field_validator("direction")(_non_zero)
 
@@ -74,6 +90,7 @@ class ColumnSettings(_Strict):
     radius_m: float = Field(0.075, gt=0.0)
     height_m: float = Field(0.25, gt=0.0)
     reflectivity: Reflectivity = 0.5
+    material: Material = "painted"
 
 
 class WallSettings(_Strict):
@@ -85,6 +102,7 @@ class WallSettings(_Strict):
     z_min_m: float = 0.0
     z_max_m: float = 2.5
     reflectivity: Reflectivity = 0.7
+    material: Material = "matte"
 
     @model_validator(mode="after")
     def _proper_rectangle(self) -> WallSettings:
@@ -101,6 +119,7 @@ class FloorSettings(_Strict):
     enabled: bool = True
     z_m: float = 0.0
     reflectivity: Reflectivity = 0.4
+    material: Material = "painted"
 
 
 class NoiseSettings(_Strict):
@@ -120,6 +139,39 @@ class NoiseSettings(_Strict):
     robot_position_error_m: float = Field(0.00058, ge=0.0)  # per axis: 1.0 mm RMS in 3D
     robot_rotation_error_deg: float = Field(0.02, ge=0.0)
     robot_error_seed: int = 0
+
+
+class PhysicsSettings(_Strict):
+    """Parameters of the physical UTM-30LX-EW model; docs/scanner-model.md gives each one's source."""
+
+    spot_width_at_scanner_m: float = Field(0.020, ge=0.0)
+    divergence_rad: float = Field(0.011, ge=0.0)
+    halo_fraction: float = Field(0.015, ge=0.0, lt=1.0)
+    halo_scale: float = Field(2.5, ge=1.0)
+    sub_rays: int = Field(21, ge=1, le=63)
+    pulse_fwhm_m: float = Field(1.0, gt=0.0)
+    echo_choice: Literal["strongest", "first"] = "strongest"
+    intensity_at_1m: float = Field(7000.0, gt=0.0)
+    overlap_range_m: float = Field(0.35, ge=0.0)
+    detection_threshold: float = Field(150.0, ge=0.0)
+    intensity_max: float = Field(40000.0, gt=0.0)
+    speckle_sigma: float = Field(0.03, ge=0.0)
+    intensity_noise: float = Field(0.03, ge=0.0)
+    noise_floor_m: float = Field(0.0015, ge=0.0)
+    noise_at_reference_m: float = Field(0.0035, ge=0.0)
+    reference_intensity: float = Field(4000.0, gt=0.0)
+    walk_m_per_efold: float = Field(0.0025, ge=0.0)
+    walk_limit_m: float = Field(0.010, ge=0.0)
+    near_bias_m: float = 0.020
+    near_bias_at_m: float = Field(0.10, gt=0.0)
+    near_bias_decay_m: float = Field(0.09, gt=0.0)
+    unit_bias_m: float = Field(0.010, ge=0.0)
+    unit_seed: int = 0
+    bias_limit_m: float = Field(0.030, ge=0.0)
+    warmup_drift_m: float = 0.010
+    warmup_time_constant_s: float = Field(900.0, gt=0.0)
+    warm_at_start: bool = False
+    duplicate_step_probability: Probability = 0.24
 
 
 class FaultSettings(_Strict):
@@ -151,6 +203,10 @@ class Scene(_Strict):
     floor: FloorSettings = FloorSettings()
     noise: NoiseSettings = NoiseSettings()
     faults: FaultSettings = FaultSettings()
+    model: ModelName = "physical"
+    """Which scanner model casts the scans: switch the fake cell's default here and in
+    ``fakes/scenes/default.toml``."""
+    physics: PhysicsSettings = PhysicsSettings()
 
 
 def _format_errors(error: ValidationError) -> str:

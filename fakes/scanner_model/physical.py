@@ -1,0 +1,173 @@
+"""The physical UTM-30LX-EW: footprint, echo, intensity, noise, bias, drift, per scan.
+
+``PhysicalScanner`` holds the beam layout (``K`` sub-rays per beam: parallel offsets across
+the exit aperture plus the divergence, so the spot is ``w0 + divergence * range`` wide)
+and the static scene cast once.  ``scan`` adds the moving shapes (the rod, the chuck),
+lets each beam's footprint return its light (``materials``), picks the first detectable
+echo (``echo``), and adds the range error (``range_error``).  docs/scanner-model.md
+describes the model and the source of every parameter.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fakes.raycast import beams_near_sphere
+from fakes.scanner_model.echo import detect_echo
+from fakes.scanner_model.materials import backscatter
+from fakes.scanner_model.range_error import range_bias_m, range_sigma_m, warmup_drift_m
+from fakes.scene import PhysicsSettings
+from fakes.shapes import Shape
+from lasercal_hw.models import FloatArray
+
+MovingShape = tuple[Shape, FloatArray, float]
+"""A shape that moves with the robot, the centre and radius of a sphere bounding it."""
+
+
+class PhysicalScanner:
+    """Beams of a UTM-30LX-EW with a real footprint, looking at a static scene."""
+
+    def __init__(self, physics: PhysicsSettings, angles_rad: FloatArray, static: Sequence[Shape]) -> None:
+        self.physics = physics
+        self.angles_rad = np.asarray(angles_rad, dtype=float)
+        self._u, self._weights = beam_profile(physics)
+        angles = self.angles_rad[:, None] + 0.5 * physics.divergence_rad * self._u[None, :]
+        self._dirs = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], -1)
+        angles_1 = self.angles_rad
+        across = np.stack([-np.sin(angles_1), np.cos(angles_1), np.zeros_like(angles_1)], -1)
+        self._origins = 0.5 * physics.spot_width_at_scanner_m * self._u[None, :, None] * across[:, None, :]
+        self._static_count = len(static)
+        every_beam = np.arange(self.angles_rad.size)
+        self._static_t, self._static_power, self._static_id = self._cast(list(static), every_beam)
+        # A beam that sees one static surface keeps its echo from scan to scan but for the
+        # surface's speckle, which scales its power: its echo is found once, here.
+        ids = np.where(np.isfinite(self._static_t), self._static_id, -1)
+        first = ids.max(axis=1)
+        self._static_mixed = np.flatnonzero(((ids != first[:, None]) & (ids >= 0)).any(axis=1))
+        self._static_range, self._static_peak = detect_echo(
+            self._static_t, self._static_power, physics.pulse_fwhm_m, 0.0, physics.echo_choice
+        )
+
+    def _cast(
+        self, shapes: list[Shape], beams: NDArray[np.int64]
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+        """Nearest hit of every sub-ray of ``beams``, the power it returns, the shape's index."""
+        k = self._u.size
+        dirs = self._dirs[beams].reshape(-1, 3)
+        origins = self._origins[beams].reshape(-1, 3)
+        best_t = np.full(dirs.shape[0], np.inf)
+        best_power = np.zeros(dirs.shape[0])
+        best_id = np.full(dirs.shape[0], -1, dtype=np.int64)
+        for index, shape in enumerate(shapes):
+            t, cos = shape.hit(dirs, origins)
+            nearer = t < best_t
+            if nearer.any():
+                best_t = np.where(nearer, t, best_t)
+                best_power = np.where(nearer, self._power(t, cos, shape.material), best_power)
+                best_id = np.where(nearer, index, best_id)
+        power = best_power.reshape(-1, k) * self._weights[None, :]
+        return best_t.reshape(-1, k), power, best_id.reshape(-1, k)
+
+    def _power(self, t: FloatArray, cos: FloatArray, material: str) -> FloatArray:
+        """Received power relative to white Kent sheet at 1 m: back-scatter, 1/r^2, and the
+        receiver's overlap with the beam, which starves the nearest range."""
+        p = self.physics
+        r = np.fmax(np.where(np.isfinite(t), t, 1.0), 1e-3)
+        overlap = 1.0 - np.exp(-((r / p.overlap_range_m) ** 2)) if p.overlap_range_m > 0.0 else 1.0
+        return backscatter(material, cos) * overlap / r**2
+
+    def beams_near(self, centre_m: FloatArray, radius_m: float) -> NDArray[np.int64]:
+        """Beams whose footprint can touch a sphere (the beam's own width included)."""
+        distance = float(np.linalg.norm(centre_m[:2])) + radius_m
+        margin = 0.5 * (self.physics.spot_width_at_scanner_m + self.physics.divergence_rad * distance)
+        return beams_near_sphere(self.angles_rad, centre_m, radius_m + margin)
+
+    def scan(
+        self,
+        moving: Sequence[MovingShape],
+        rng: np.random.Generator | None,
+        elapsed_s: float | None = None,
+    ) -> tuple[FloatArray, FloatArray]:
+        """Ranges (m, inf: no echo) and intensities (device units) of one revolution.
+
+        ``moving``: shapes that move with the robot, each with a bounding sphere; ``rng``:
+        None for the noise-free scan (no speckle, noise, drift or duplicated steps, but
+        footprint, mixed pixels and bias are there: they are deterministic).
+        """
+        p = self.physics
+        threshold = (p.detection_threshold / p.intensity_at_1m) ** 2
+        count = self.angles_rad.size
+        ranges, peak = self._static_range.copy(), self._static_peak.copy()
+        shapes = [shape for shape, _, _ in moving]
+        near_moving = [self.beams_near(centre, radius) for _, centre, radius in moving]
+        beams = np.unique(np.concatenate([self._static_mixed, *near_moving])).astype(np.int64)
+        speckle = np.ones((count, self._static_count + len(shapes) + 1))
+        if rng is not None and p.speckle_sigma > 0.0:
+            speckle = np.exp(rng.normal(-0.5 * p.speckle_sigma**2, p.speckle_sigma, speckle.shape))
+        first_surface = np.where(np.isfinite(self._static_t), self._static_id, 0).max(axis=1)
+        peak *= speckle[np.arange(count), first_surface]
+        ranges = np.where(peak >= threshold, ranges, np.inf)
+        if beams.size:
+            t, power, ids = self._static_t[beams], self._static_power[beams], self._static_id[beams]
+            if shapes:
+                moving_t, moving_power, moving_id = self._cast(shapes, beams)
+                nearer = moving_t < t
+                t = np.where(nearer, moving_t, t)
+                power = np.where(nearer, moving_power, power)
+                ids = np.where(nearer, self._static_count + moving_id, ids)
+            power = power * np.take_along_axis(speckle[beams], np.where(ids >= 0, ids, 0), axis=1)
+            ranges[beams], peak[beams] = detect_echo(t, power, p.pulse_fwhm_m, threshold, p.echo_choice)
+        intensity = intensity_for(p, peak)
+        found = np.isfinite(ranges)
+        ranges[found] += range_bias_m(ranges[found], intensity[found], p)
+        if rng is not None:
+            ranges[found] += warmup_drift_m(elapsed_s, p)
+            ranges[found] += rng.normal(0.0, 1.0, int(found.sum())) * range_sigma_m(intensity[found], p)
+            intensity = intensity * (1.0 + p.intensity_noise * rng.normal(0.0, 1.0, intensity.size))
+            ranges, intensity = _duplicate_steps(ranges, intensity, p.duplicate_step_probability, rng)
+        return ranges, np.where(np.isfinite(ranges), np.fmax(intensity, 0.0), 0.0)
+
+
+def beam_profile(physics: PhysicsSettings) -> tuple[FloatArray, FloatArray]:
+    """Sub-ray positions across the spot (1 = the core's 1/e^2 edge) and their weights.
+
+    The profile is a gaussian core plus a wider, faint halo (``halo_fraction`` of the
+    power, ``halo_scale`` times wider): a real laser spot's skirt, which a bright surface
+    (retro-reflective tape) lights up far beyond the core.  Sub-rays are denser in the
+    core (sinh spacing) and span the halo.
+    """
+    k = physics.sub_rays
+    if k == 1:
+        return np.zeros(1), np.ones(1)
+    span = physics.halo_scale if physics.halo_fraction > 0.0 else 1.0
+    x = np.linspace(-1.0, 1.0, k)
+    stretch = 2.0 if span > 1.0 else 1e-6
+    u = span * np.sinh(stretch * x) / np.sinh(stretch)
+    du = np.gradient(u)
+    core = np.exp(-2.0 * u**2)
+    halo = np.exp(-2.0 * (u / physics.halo_scale) ** 2) / physics.halo_scale
+    profile = (1.0 - physics.halo_fraction) * core + physics.halo_fraction * halo
+    weights = profile * du
+    return u, weights / weights.sum()
+
+
+def _duplicate_steps(
+    ranges: FloatArray, intensity: FloatArray, probability: float, rng: np.random.Generator
+) -> tuple[FloatArray, FloatArray]:
+    """Some steps repeat the previous step's reading exactly (range and intensity), as
+    the UTM-30LX-EW's own logs show."""
+    if probability <= 0.0:
+        return ranges, intensity
+    repeat = rng.random(ranges.size) < probability
+    repeat[0] = False
+    source = np.maximum.accumulate(np.where(repeat, 0, np.arange(ranges.size)))
+    return ranges[source], intensity[source]
+
+
+def intensity_for(physics: PhysicsSettings, power: FloatArray) -> FloatArray:
+    """Device intensity for a received power (white Kent sheet at 1 m = 1): the UTM's
+    intensity grows like the square root of the power (measured: docs/scanner-model.md)."""
+    return np.fmin(physics.intensity_at_1m * np.sqrt(power), physics.intensity_max)
