@@ -151,14 +151,14 @@ class PhysicsSettings(_Strict):
     sub_rays: int = Field(21, ge=1, le=63)
     pulse_fwhm_m: float = Field(1.0, gt=0.0)
     echo_choice: Literal["strongest", "first"] = "strongest"
-    intensity_at_1m: float = Field(7000.0, gt=0.0)
-    overlap_range_m: float = Field(0.35, ge=0.0)
+    intensity_at_1m: float = Field(3600.0, gt=0.0)
+    overlap_range_m: float = Field(0.45, ge=0.0)
     detection_threshold: float = Field(150.0, ge=0.0)
     intensity_max: float = Field(40000.0, gt=0.0)
     speckle_sigma: float = Field(0.03, ge=0.0)
     intensity_noise: float = Field(0.03, ge=0.0)
-    noise_floor_m: float = Field(0.0015, ge=0.0)
-    noise_at_reference_m: float = Field(0.0035, ge=0.0)
+    noise_floor_m: float = Field(0.0020, ge=0.0)
+    noise_at_reference_m: float = Field(0.0028, ge=0.0)
     reference_intensity: float = Field(4000.0, gt=0.0)
     walk_m_per_efold: float = Field(0.0025, ge=0.0)
     walk_limit_m: float = Field(0.010, ge=0.0)
@@ -171,7 +171,7 @@ class PhysicsSettings(_Strict):
     warmup_drift_m: float = 0.010
     warmup_time_constant_s: float = Field(900.0, gt=0.0)
     warm_at_start: bool = False
-    duplicate_step_probability: Probability = 0.24
+    duplicate_step_probability: Probability = 0.28
 
 
 class FaultSettings(_Strict):

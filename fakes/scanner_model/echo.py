@@ -19,6 +19,8 @@ from lasercal_hw.models import FloatArray
 
 _FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 _MEAN_SHIFT_STEPS = 30
+_TOLERANCE_M = 2e-5
+_MAX_LOBES = 4
 _SIMPLE_SPREAD_SIGMAS = 0.125
 
 
@@ -58,13 +60,13 @@ def _chosen_lobe(
 ) -> tuple[FloatArray, FloatArray]:
     """Mean-shift from the nearest unexplained sub-ray climbs to the next lobe's peak; the
     search then restarts beyond that lobe, until the first detectable lobe is found
-    (``first``) or every lobe was seen (``strongest``)."""
+    (``first``) or the first ``_MAX_LOBES`` lobes were seen (``strongest``)."""
     rows = t.shape[0]
     ranges = np.full(rows, np.inf)
     peaks = np.zeros(rows)
     start = np.where(hit, t, np.inf).min(axis=1)
     active = np.isfinite(start)
-    for _ in range(t.shape[1]):
+    for _ in range(min(t.shape[1], _MAX_LOBES)):
         if not active.any():
             break
         idx = np.flatnonzero(active)
@@ -73,7 +75,7 @@ def _chosen_lobe(
         for _step in range(_MEAN_SHIFT_STEPS):
             w = pp * np.exp(-0.5 * ((x[:, None] - tt) / sigma) ** 2)
             x_new = (w * tt).sum(axis=1) / np.fmax(w.sum(axis=1), 1e-300)
-            done = np.abs(x_new - x) < 1e-6
+            done = np.abs(x_new - x) < _TOLERANCE_M
             x = x_new
             if done.all():
                 break

@@ -42,11 +42,13 @@ class PhysicalScanner:
         self._static_count = len(static)
         every_beam = np.arange(self.angles_rad.size)
         self._static_t, self._static_power, self._static_id = self._cast(list(static), every_beam)
-        # A beam that sees one static surface keeps its echo from scan to scan but for the
-        # surface's speckle, which scales its power: its echo is found once, here.
+        # The static scene's echoes are found once: from scan to scan only the speckle of
+        # the surface a beam's echo comes from scales its power (static depth edges keep
+        # their mixed value; flips are modelled where the moving shapes are).
         ids = np.where(np.isfinite(self._static_t), self._static_id, -1)
-        first = ids.max(axis=1)
-        self._static_mixed = np.flatnonzero(((ids != first[:, None]) & (ids >= 0)).any(axis=1))
+        power_by_surface = [np.where(ids == k, self._static_power, 0.0).sum(axis=1)
+                            for k in range(len(static))]
+        self._static_surface = np.argmax(np.stack(power_by_surface or [ids[:, 0] * 0.0], -1), axis=1)
         self._static_range, self._static_peak = detect_echo(
             self._static_t, self._static_power, physics.pulse_fwhm_m, 0.0, physics.echo_choice
         )
@@ -76,8 +78,7 @@ class PhysicalScanner:
         receiver's overlap with the beam, which starves the nearest range."""
         p = self.physics
         r = np.fmax(np.where(np.isfinite(t), t, 1.0), 1e-3)
-        overlap = 1.0 - np.exp(-((r / p.overlap_range_m) ** 2)) if p.overlap_range_m > 0.0 else 1.0
-        return backscatter(material, cos) * overlap / r**2
+        return backscatter(material, cos) * receiver_overlap(r, p) / r**2
 
     def beams_near(self, centre_m: FloatArray, radius_m: float) -> NDArray[np.int64]:
         """Beams whose footprint can touch a sphere (the beam's own width included)."""
@@ -103,12 +104,11 @@ class PhysicalScanner:
         ranges, peak = self._static_range.copy(), self._static_peak.copy()
         shapes = [shape for shape, _, _ in moving]
         near_moving = [self.beams_near(centre, radius) for _, centre, radius in moving]
-        beams = np.unique(np.concatenate([self._static_mixed, *near_moving])).astype(np.int64)
+        beams = np.unique(np.concatenate([np.zeros(0, np.int64), *near_moving])).astype(np.int64)
         speckle = np.ones((count, self._static_count + len(shapes) + 1))
         if rng is not None and p.speckle_sigma > 0.0:
             speckle = np.exp(rng.normal(-0.5 * p.speckle_sigma**2, p.speckle_sigma, speckle.shape))
-        first_surface = np.where(np.isfinite(self._static_t), self._static_id, 0).max(axis=1)
-        peak *= speckle[np.arange(count), first_surface]
+        peak *= speckle[np.arange(count), self._static_surface]
         ranges = np.where(peak >= threshold, ranges, np.inf)
         if beams.size:
             t, power, ids = self._static_t[beams], self._static_power[beams], self._static_id[beams]
@@ -165,6 +165,14 @@ def _duplicate_steps(
     repeat[0] = False
     source = np.maximum.accumulate(np.where(repeat, 0, np.arange(ranges.size)))
     return ranges[source], intensity[source]
+
+
+def receiver_overlap(range_m: FloatArray, physics: PhysicsSettings) -> FloatArray:
+    """Share of the returned light the receiver sees: the beam leaves beside the receiving
+    lens, so the nearest targets fall outside its view (``1 / (1 + (r0 / r)^4)``)."""
+    if physics.overlap_range_m <= 0.0:
+        return np.ones_like(range_m)
+    return 1.0 / (1.0 + (physics.overlap_range_m / np.fmax(range_m, 1e-3)) ** 4)
 
 
 def intensity_for(physics: PhysicsSettings, power: FloatArray) -> FloatArray:

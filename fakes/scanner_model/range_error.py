@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from fakes.scene import PhysicsSettings
@@ -27,15 +29,22 @@ def range_sigma_m(intensity: FloatArray, physics: PhysicsSettings) -> FloatArray
 
 def unit_curve_m(ranges_m: FloatArray, physics: PhysicsSettings) -> FloatArray:
     """The unit's own smooth range error over distance (two sinusoids in log range)."""
-    rng = np.random.default_rng([physics.unit_seed, 18])
-    phases = rng.uniform(0.0, 2.0 * np.pi, 2)
-    weights = np.array([0.75, 0.45]) * rng.choice([-1.0, 1.0], 2)
+    weights, phases = _unit_terms(physics.unit_seed)
     x = np.log(np.fmax(ranges_m, 1e-3) / _LOG_RANGE_ORIGIN_M)
     curve = sum(
         w * np.sin(2.0 * np.pi * f * x + phase)
         for w, f, phase in zip(weights, _UNIT_CURVE_CYCLES_PER_EFOLD, phases, strict=True)
     )
     return physics.unit_bias_m * curve
+
+
+@lru_cache(maxsize=8)
+def _unit_terms(unit_seed: int) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Weights and phases of a unit's curve: the same seed, the same unit."""
+    rng = np.random.default_rng([unit_seed, 18])
+    phases = rng.uniform(0.0, 2.0 * np.pi, 2)
+    weights = np.array([0.75, 0.45]) * rng.choice([-1.0, 1.0], 2)
+    return (float(weights[0]), float(weights[1])), (float(phases[0]), float(phases[1]))
 
 
 def range_bias_m(ranges_m: FloatArray, intensity: FloatArray, physics: PhysicsSettings) -> FloatArray:
