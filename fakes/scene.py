@@ -153,9 +153,9 @@ class PhysicsSettings(_Strict):
     echo_choice: Literal["strongest", "first"] = "strongest"
     intensity_at_1m: float = Field(3600.0, gt=0.0)
     overlap_range_m: float = Field(0.45, ge=0.0)
-    detection_threshold: float = Field(150.0, ge=0.0)
+    detection_threshold: float = Field(100.0, ge=0.0)
     intensity_max: float = Field(40000.0, gt=0.0)
-    speckle_sigma: float = Field(0.03, ge=0.0)
+    speckle_sigma: float = Field(0.10, ge=0.0)
     intensity_noise: float = Field(0.03, ge=0.0)
     noise_floor_m: float = Field(0.0020, ge=0.0)
     noise_at_reference_m: float = Field(0.0028, ge=0.0)

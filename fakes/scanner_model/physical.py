@@ -11,12 +11,13 @@ describes the model and the source of every parameter.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fakes.raycast import beams_near_sphere
-from fakes.scanner_model.echo import detect_echo
+from fakes.scanner_model.echo import Echoes, detect_echo
 from fakes.scanner_model.materials import backscatter
 from fakes.scanner_model.range_error import range_bias_m, range_sigma_m, warmup_drift_m
 from fakes.scene import PhysicsSettings
@@ -49,9 +50,11 @@ class PhysicalScanner:
         power_by_surface = [np.where(ids == k, self._static_power, 0.0).sum(axis=1)
                             for k in range(len(static))]
         self._static_surface = np.argmax(np.stack(power_by_surface or [ids[:, 0] * 0.0], -1), axis=1)
-        self._static_range, self._static_peak = detect_echo(
+        static_echo = detect_echo(
             self._static_t, self._static_power, physics.pulse_fwhm_m, 0.0, physics.echo_choice
         )
+        self._static_range, self._static_peak = static_echo.range_m, static_echo.peak
+        self._pose: _PoseCache | None = None
 
     def _cast(
         self, shapes: list[Shape], beams: NDArray[np.int64]
@@ -80,6 +83,34 @@ class PhysicalScanner:
         r = np.fmax(np.where(np.isfinite(t), t, 1.0), 1e-3)
         return backscatter(material, cos) * receiver_overlap(r, p) / r**2
 
+    def _pose_cache(self, moving: Sequence[MovingShape], threshold: float) -> _PoseCache:
+        """Cast the moving shapes once per pose (a dwell scans one pose many times) and find
+        their echoes without speckle; rows whose two strongest lobes are close are marked."""
+        key = b"".join(np.asarray(v).tobytes() for shape, _, _ in moving for v in shape.params)
+        if self._pose is not None and self._pose.key == key:
+            return self._pose
+        near = [self.beams_near(centre, radius) for _, centre, radius in moving]
+        beams = np.unique(np.concatenate([np.zeros(0, np.int64), *near])).astype(np.int64)
+        t, power, ids = self._static_t[beams], self._static_power[beams], self._static_id[beams]
+        if beams.size and moving:
+            moving_t, moving_power, moving_id = self._cast([shape for shape, _, _ in moving], beams)
+            nearer = moving_t < t
+            t = np.where(nearer, moving_t, t)
+            power = np.where(nearer, moving_power, power)
+            ids = np.where(nearer, self._static_count + moving_id, ids)
+        ids = np.where(ids >= 0, ids, 0)
+        p = self.physics
+        echo = detect_echo(t, power, p.pulse_fwhm_m, threshold, p.echo_choice)
+        surface = np.array(
+            [np.bincount(row, weights=w).argmax() if w.any() else 0
+             for row, w in zip(ids, power, strict=True)],
+            dtype=np.int64,
+        )
+        contest = np.exp(-3.0 * np.sqrt(2.0) * p.speckle_sigma)
+        contested = np.flatnonzero((echo.rival > 0.0) & (echo.rival >= contest * echo.peak))
+        self._pose = _PoseCache(key, beams, t, power, ids, echo, surface, contested)
+        return self._pose
+
     def beams_near(self, centre_m: FloatArray, radius_m: float) -> NDArray[np.int64]:
         """Beams whose footprint can touch a sphere (the beam's own width included)."""
         distance = float(np.linalg.norm(centre_m[:2])) + radius_m
@@ -101,25 +132,23 @@ class PhysicalScanner:
         p = self.physics
         threshold = (p.detection_threshold / p.intensity_at_1m) ** 2
         count = self.angles_rad.size
-        ranges, peak = self._static_range.copy(), self._static_peak.copy()
-        shapes = [shape for shape, _, _ in moving]
-        near_moving = [self.beams_near(centre, radius) for _, centre, radius in moving]
-        beams = np.unique(np.concatenate([np.zeros(0, np.int64), *near_moving])).astype(np.int64)
-        speckle = np.ones((count, self._static_count + len(shapes) + 1))
+        speckle = np.ones((count, self._static_count + len(moving) + 1))
         if rng is not None and p.speckle_sigma > 0.0:
             speckle = np.exp(rng.normal(-0.5 * p.speckle_sigma**2, p.speckle_sigma, speckle.shape))
-        peak *= speckle[np.arange(count), self._static_surface]
+        ranges = self._static_range.copy()
+        peak = self._static_peak * speckle[np.arange(count), self._static_surface]
+        pose = self._pose_cache(moving, threshold)
+        if pose.beams.size:
+            ranges[pose.beams] = pose.echo.range_m
+            peak[pose.beams] = pose.echo.peak * speckle[pose.beams, pose.surface]
+            # Where two lobes compete, the speckle of this scan picks the winner: re-detect.
+            rows = pose.contested
+            if rows.size and rng is not None:
+                scale = np.take_along_axis(speckle[pose.beams[rows]], pose.ids[rows], axis=1)
+                power = pose.power[rows] * scale
+                echo = detect_echo(pose.t[rows], power, p.pulse_fwhm_m, threshold, p.echo_choice)
+                ranges[pose.beams[rows]], peak[pose.beams[rows]] = echo.range_m, echo.peak
         ranges = np.where(peak >= threshold, ranges, np.inf)
-        if beams.size:
-            t, power, ids = self._static_t[beams], self._static_power[beams], self._static_id[beams]
-            if shapes:
-                moving_t, moving_power, moving_id = self._cast(shapes, beams)
-                nearer = moving_t < t
-                t = np.where(nearer, moving_t, t)
-                power = np.where(nearer, moving_power, power)
-                ids = np.where(nearer, self._static_count + moving_id, ids)
-            power = power * np.take_along_axis(speckle[beams], np.where(ids >= 0, ids, 0), axis=1)
-            ranges[beams], peak[beams] = detect_echo(t, power, p.pulse_fwhm_m, threshold, p.echo_choice)
         intensity = intensity_for(p, peak)
         found = np.isfinite(ranges)
         ranges[found] += range_bias_m(ranges[found], intensity[found], p)
@@ -152,6 +181,21 @@ def beam_profile(physics: PhysicsSettings) -> tuple[FloatArray, FloatArray]:
     profile = (1.0 - physics.halo_fraction) * core + physics.halo_fraction * halo
     weights = profile * du
     return u, weights / weights.sum()
+
+
+@dataclass(frozen=True)
+class _PoseCache:
+    """The moving shapes' beams at one pose: sub-ray ranges, powers, surface ids, the
+    speckle-free echo, each beam's brightest surface and the contested rows."""
+
+    key: bytes
+    beams: NDArray[np.int64]
+    t: FloatArray
+    power: FloatArray
+    ids: NDArray[np.int64]
+    echo: Echoes
+    surface: NDArray[np.int64]
+    contested: NDArray[np.int64]
 
 
 def _duplicate_steps(
