@@ -7,9 +7,10 @@ import pytest
 
 from fakes.scanner_model.dwell import simulate_dwell
 from fakes.scanner_model.range_error import range_bias_m, range_sigma_m
-from fakes.scene import PhysicsSettings, Scene, load_scene, parse_scene
+from fakes.scene import MODEL_ENV, PhysicsSettings, Scene, load_scene, parse_scene, with_model_override
 from fakes.shapes import drill_section
 from fakes.world import World
+from lasercal_hw.errors import ConfigError
 from lasercal_hw.scan.average import average_scans
 
 PHYSICS = PhysicsSettings()
@@ -104,3 +105,13 @@ def test_a_twist_drill_turned_by_the_spindle_changes_its_scan() -> None:
     np.testing.assert_allclose(noise_free("cylinder", 0.0), noise_free("cylinder", 90.0), atol=1e-9)
     turned = np.abs(noise_free("twist_drill", 0.0) - noise_free("twist_drill", 90.0))
     assert turned.max() > 0.001  # flutes or lands face the scanner
+
+
+def test_the_fake_cells_model_can_be_overridden_by_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(MODEL_ENV, "physical")
+    assert with_model_override(parse_scene('model = "ideal"\n')).model == "physical"
+    monkeypatch.setenv(MODEL_ENV, "")
+    assert with_model_override(parse_scene('model = "ideal"\n')).model == "ideal"
+    monkeypatch.setenv(MODEL_ENV, "perfect")
+    with pytest.raises(ConfigError, match="LASERCAL_FAKE_SCANNER_MODEL='perfect' is not a scanner model"):
+        with_model_override(Scene())
