@@ -20,7 +20,7 @@ from lasercal_hw.geometry import rotation_angle_rad
 from lasercal_hw.models import FloatArray
 from lasercal_hw.outputs.exports import exports, static_transform_publisher_args, urdf_joint
 from lasercal_hw.outputs.report import ReportData, render_report
-from lasercal_hw.run.sequencer import RunOutcome
+from lasercal_hw.run.records import RunOutcome
 
 logger = logging.getLogger(__name__)
 

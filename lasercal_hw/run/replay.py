@@ -21,6 +21,7 @@ import numpy as np
 
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import CalibrationError, ConfigError
+from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.resume import (
     check_observation_events,
     recorded_background,
@@ -28,7 +29,7 @@ from lasercal_hw.run.resume import (
     recorded_job,
     window_average,
 )
-from lasercal_hw.run.sequencer import TwoPassSolution, WaypointMeasurement, predict_rod, solve_two_pass
+from lasercal_hw.run.two_pass import TwoPassSolution, predict_rod, solve_two_pass
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 from lasercal_hw.session.reader import SessionRecording, read_session
