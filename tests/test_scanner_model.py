@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from fakes.scanner_model.range_error import range_bias_m, range_sigma_m
 from fakes.scene import MODEL_ENV, PhysicsSettings, Scene, load_scene, parse_scene, with_model_override
 from fakes.shapes import drill_section
 from fakes.world import World
+from lasercal_hw.config import load_job
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.scan.average import average_scans
 
@@ -115,3 +118,13 @@ def test_the_fake_cells_model_can_be_overridden_by_the_environment(monkeypatch: 
     monkeypatch.setenv(MODEL_ENV, "perfect")
     with pytest.raises(ConfigError, match="LASERCAL_FAKE_SCANNER_MODEL='perfect' is not a scanner model"):
         with_model_override(Scene())
+
+
+def test_the_packaged_drill_scene_holds_the_drill_jobs_bit() -> None:
+    root = Path(__file__).resolve().parents[1]
+    scene = load_scene(root / "fakes" / "scenes" / "drill.toml")
+    job_rod = load_job(root / "examples" / "drill.toml").rod
+    assert scene.rod.shape == "twist_drill" and scene.rod.chuck_radius_m > 0.0
+    np.testing.assert_allclose(scene.rod.origin_m, job_rod.origin_m)
+    np.testing.assert_allclose(scene.rod.direction, job_rod.direction)
+    assert scene.rod.radius_m == job_rod.radius_m

@@ -3,8 +3,8 @@
 ``PhysicalScanner`` holds the beam layout (``K`` sub-rays per beam: parallel offsets across
 the exit aperture plus the divergence, so the spot is ``w0 + divergence * range`` wide)
 and the static scene cast once.  ``scan`` adds the moving shapes (the rod, the chuck),
-lets each beam's footprint return its light (``materials``), picks the first detectable
-echo (``echo``), and adds the range error (``range_error``).  docs/scanner-model.md
+lets each beam's footprint return its light (``materials``), picks the echo the scanner
+reports (``echo``), and adds the range error (``range_error``).  docs/scanner-model.md
 describes the model and the source of every parameter.
 """
 
@@ -37,8 +37,8 @@ class PhysicalScanner:
         self._u, self._weights = beam_profile(physics)
         angles = self.angles_rad[:, None] + 0.5 * physics.divergence_rad * self._u[None, :]
         self._dirs = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], -1)
-        angles_1 = self.angles_rad
-        across = np.stack([-np.sin(angles_1), np.cos(angles_1), np.zeros_like(angles_1)], -1)
+        beam = self.angles_rad
+        across = np.stack([-np.sin(beam), np.cos(beam), np.zeros_like(beam)], -1)
         self._origins = 0.5 * physics.spot_width_at_scanner_m * self._u[None, :, None] * across[:, None, :]
         self._static_count = len(static)
         every_beam = np.arange(self.angles_rad.size)
@@ -47,9 +47,11 @@ class PhysicalScanner:
         # the surface a beam's echo comes from scales its power (static depth edges keep
         # their mixed value; flips are modelled where the moving shapes are).
         ids = np.where(np.isfinite(self._static_t), self._static_id, -1)
-        power_by_surface = [np.where(ids == k, self._static_power, 0.0).sum(axis=1)
-                            for k in range(len(static))]
-        self._static_surface = np.argmax(np.stack(power_by_surface or [ids[:, 0] * 0.0], -1), axis=1)
+        power_by_surface = [
+            np.where(ids == k, self._static_power, 0.0).sum(axis=1) for k in range(len(static))
+        ]
+        power_by_surface.append(np.zeros(self.angles_rad.size))  # a scene without static shapes
+        self._static_surface = np.argmax(np.stack(power_by_surface, -1), axis=1)
         static_echo = detect_echo(
             self._static_t, self._static_power, physics.pulse_fwhm_m, 0.0, physics.echo_choice
         )
