@@ -114,6 +114,25 @@ class WallSettings(_Strict):
         return self
 
 
+class PostSettings(_Strict):
+    """A vertical cylinder standing in the cell (a pole, a fixture leg): clutter the size of
+    a rod, at ``centre_m`` (base frame), from ``z_min_m`` to ``z_max_m``."""
+
+    name: str = "post"
+    centre_m: Vector2
+    radius_m: float = Field(0.02, gt=0.0)
+    z_min_m: float = 0.0
+    z_max_m: float = 2.0
+    reflectivity: Reflectivity = 0.6
+    material: Material = "painted"
+
+    @model_validator(mode="after")
+    def _proper_height(self) -> PostSettings:
+        if self.z_max_m <= self.z_min_m:
+            raise ValueError(f"post {self.name!r}: z_max_m must be above z_min_m")
+        return self
+
+
 class FloorSettings(_Strict):
     """A horizontal plane (the floor or the table the robot stands on)."""
 
@@ -201,6 +220,7 @@ class Scene(_Strict):
     rod: RodSettings = RodSettings()
     column: ColumnSettings = ColumnSettings()
     walls: list[WallSettings] = Field(default_factory=_default_walls)
+    posts: list[PostSettings] = Field(default_factory=list)
     floor: FloorSettings = FloorSettings()
     noise: NoiseSettings = NoiseSettings()
     faults: FaultSettings = FaultSettings()

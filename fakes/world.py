@@ -377,7 +377,7 @@ def _bias_m(ranges: FloatArray, noise: NoiseSettings) -> FloatArray:
 
 
 def _static_shapes(scene: Scene) -> list[Shape]:
-    """Walls, floor and base column in the base frame."""
+    """Walls, floor, posts and base column in the base frame."""
     shapes = []
     for wall in scene.walls:
         start = np.array([*wall.start_m, wall.z_min_m])
@@ -387,6 +387,10 @@ def _static_shapes(scene: Scene) -> list[Shape]:
     if scene.floor.enabled:
         plane = (np.array([0.0, 0.0, scene.floor.z_m]), np.array([0.0, 0.0, 1.0]))
         shapes.append(Shape("plane", plane, (), scene.floor.reflectivity, scene.floor.material))
+    for post in scene.posts:
+        axis = (np.array([*post.centre_m, 0.0]), np.array([0.0, 0.0, 1.0]))
+        limits = (post.radius_m, post.z_min_m, post.z_max_m)
+        shapes.append(Shape("cylinder", axis, limits, post.reflectivity, post.material))
     if scene.column.enabled:
         column = scene.column
         axis = (np.zeros(3), np.array([0.0, 0.0, 1.0]))

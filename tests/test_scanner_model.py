@@ -128,3 +128,12 @@ def test_the_packaged_drill_scene_holds_the_drill_jobs_bit() -> None:
     np.testing.assert_allclose(scene.rod.origin_m, job_rod.origin_m)
     np.testing.assert_allclose(scene.rod.direction, job_rod.direction)
     assert scene.rod.radius_m == job_rod.radius_m
+
+
+def test_a_post_elsewhere_is_clutter_the_size_of_the_rod() -> None:
+    dwell = simulate_dwell((0.8, 0.1), 0.02, posts=[(0.9, -0.4, 0.02)], scan_count=0)
+    ranges = dwell.world.scan_ranges_m(dwell.T_base_tcp)
+    towards_post = int(np.argmin(np.abs(dwell.world.angles_rad - np.arctan2(-0.4, 0.9))))
+    assert abs(ranges[towards_post] - (np.hypot(0.9, -0.4) - 0.02)) < 0.03
+    with pytest.raises(ConfigError, match="posts.0: Value error, post 'p': z_max_m must be above z_min_m"):
+        parse_scene('posts = [{ name = "p", centre_m = [1.0, 0.0], z_min_m = 1.0, z_max_m = 0.5 }]\n')

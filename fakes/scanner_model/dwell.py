@@ -53,6 +53,8 @@ def simulate_dwell(
     spindle_deg: float = 0.0,
     background_m: float | None = 0.5,
     wall_material: Material = "matte",
+    posts: Sequence[tuple[float, float, float]] = (),
+    post_material: Material = "painted",
     scan_count: int = 40,
     background_count: int = 0,
     seed: int = 0,
@@ -63,10 +65,18 @@ def simulate_dwell(
     """``scan_count`` scans (40 per second) of a rod of ``radius_m`` crossing the scan plane
     at ``centre_uv_m``; ``shape`` is ``cylinder`` or ``twist_drill`` (turned by
     ``spindle_deg`` about its axis); ``background_m``: distance from the rod's centre to a
-    wall behind it (None: open space); ``elapsed_s``: time since power-on at the first scan
-    (None: warm).  Seeded by ``seed``: the same arguments give the same scans."""
+    wall behind it (None: open space); ``posts``: other vertical cylinders ``(u, v, radius)``
+    in the scanner frame, of ``post_material`` (clutter the size of a rod); ``elapsed_s``:
+    time since power-on at the first scan (None: warm).  Seeded by ``seed``: the same
+    arguments give the same scans."""
     centre = np.array([float(centre_uv_m[0]), float(centre_uv_m[1]), 0.0])
-    world = World(_scene(centre, radius_m, material, shape, background_m, wall_material, model, physics))
+    post_list = [
+        {"name": f"post {k}", "centre_m": [u, v], "radius_m": r, "material": post_material}
+        for k, (u, v, r) in enumerate(posts)
+    ]
+    world = World(
+        _scene(centre, radius_m, material, shape, background_m, wall_material, post_list, model, physics)
+    )
     z = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
     x = np.cross([0.0, 1.0, 0.0], z) if abs(z[1]) < 0.9 else np.cross(z, [1.0, 0.0, 0.0])
     x /= np.linalg.norm(x)
@@ -93,6 +103,7 @@ def _scene(
     shape: str,
     background_m: float | None,
     wall_material: str,
+    posts: list[dict[str, object]],
     model: str,
     physics: PhysicsSettings | None,
 ) -> Scene:
@@ -117,6 +128,7 @@ def _scene(
         "column": {"enabled": False},
         "floor": {"enabled": False},
         "walls": walls,
+        "posts": posts,
         "noise": {"robot_position_error_m": 0.0, "robot_rotation_error_deg": 0.0},
     }
     scene = Scene.model_validate(data)
