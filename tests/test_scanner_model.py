@@ -135,5 +135,5 @@ def test_a_post_elsewhere_is_clutter_the_size_of_the_rod() -> None:
     ranges = dwell.world.scan_ranges_m(dwell.T_base_tcp)
     towards_post = int(np.argmin(np.abs(dwell.world.angles_rad - np.arctan2(-0.4, 0.9))))
     assert abs(ranges[towards_post] - (np.hypot(0.9, -0.4) - 0.02)) < 0.03
-    with pytest.raises(ConfigError, match="posts.0: Value error, post 'p': z_max_m must be above z_min_m"):
+    with pytest.raises(ConfigError, match=r"posts\.0: Value error, post .p.: z_max_m must be above z_min_m"):
         parse_scene('posts = [{ name = "p", centre_m = [1.0, 0.0], z_min_m = 1.0, z_max_m = 0.5 }]\n')
