@@ -94,6 +94,11 @@ class ColumnSettings(_Strict):
     material: Material = "painted"
 
 
+def _check_height(kind: str, name: str, z_min_m: float, z_max_m: float) -> None:
+    if z_max_m <= z_min_m:
+        raise ValueError(f"{kind} {name!r}: z_max_m must be above z_min_m")
+
+
 class WallSettings(_Strict):
     """A vertical wall between two floor points (base frame), from z_min_m to z_max_m."""
 
@@ -109,8 +114,7 @@ class WallSettings(_Strict):
     def _proper_rectangle(self) -> WallSettings:
         if self.start_m == self.end_m:
             raise ValueError(f"wall {self.name!r}: start_m and end_m are the same point")
-        if self.z_max_m <= self.z_min_m:
-            raise ValueError(f"wall {self.name!r}: z_max_m must be above z_min_m")
+        _check_height("wall", self.name, self.z_min_m, self.z_max_m)
         return self
 
 
@@ -128,8 +132,7 @@ class PostSettings(_Strict):
 
     @model_validator(mode="after")
     def _proper_height(self) -> PostSettings:
-        if self.z_max_m <= self.z_min_m:
-            raise ValueError(f"post {self.name!r}: z_max_m must be above z_min_m")
+        _check_height("post", self.name, self.z_min_m, self.z_max_m)
         return self
 
 
