@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from fakes.scanner_model.dwell import simulate_dwell
+from fakes.scanner_model.echo import detect_echo
 from fakes.scanner_model.range_error import range_bias_m, range_sigma_m
 from fakes.scene import MODEL_ENV, PhysicsSettings, Scene, load_scene, parse_scene, with_model_override
 from fakes.shapes import drill_section
@@ -137,3 +138,19 @@ def test_a_post_elsewhere_is_clutter_the_size_of_the_rod() -> None:
     assert abs(ranges[towards_post] - (np.hypot(0.9, -0.4) - 0.02)) < 0.03
     with pytest.raises(ConfigError, match=r"posts\.0: Value error, post .p.: z_max_m must be above z_min_m"):
         parse_scene('posts = [{ name = "p", centre_m = [1.0, 0.0], z_min_m = 1.0, z_max_m = 0.5 }]\n')
+
+
+def test_echoes_merge_when_close_and_compete_when_far() -> None:
+    fwhm = PHYSICS.pulse_fwhm_m
+    # Two surfaces 0.2 m apart, the nearer with a third of the power: one lobe between them.
+    merged = detect_echo(np.array([[1.0, 1.2]]), np.array([[1.0, 2.0]]), fwhm, 0.1)
+    assert 1.0 < merged.range_m[0] < 1.2 and merged.rival[0] == 0.0
+    # Three metres apart: two lobes; the strongest is reported, the other is its rival.
+    far_t, far_power = np.array([[1.0, 4.0]]), np.array([[1.0, 2.0]])
+    strongest = detect_echo(far_t, far_power, fwhm, 0.1)
+    assert strongest.range_m[0] == pytest.approx(4.0, abs=1e-3)
+    assert strongest.rival[0] == pytest.approx(1.0, rel=1e-3)
+    first = detect_echo(far_t, far_power, fwhm, 0.1, "first")
+    assert first.range_m[0] == pytest.approx(1.0, abs=1e-3)
+    # Below the threshold nothing is reported.
+    assert np.isinf(detect_echo(far_t, far_power * 0.01, fwhm, 0.1).range_m[0])
