@@ -94,6 +94,7 @@ def solve_run(
         timings=timings,
         resumed_from=measured.resumed_from,
         background=measured.background,
+        solve_settings=solution.settings,
     )
 
 

@@ -133,7 +133,7 @@ def write_outputs(
         "observations": out_dir / OBSERVATIONS_FILE,
         "result": out_dir / RESULT_FILE,
     }
-    write_observations_csv(files["observations"], outcome.observations)
+    write_observations_csv(files["observations"], outcome.observations, outcome.solve_settings)
     document = result_document(outcome, job, ground_truth=ground_truth)
     write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
     T = outcome.result.matrix()

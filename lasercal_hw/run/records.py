@@ -14,6 +14,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from lasercal_hw.calibration.observations import SolveSettings
 from lasercal_hw.calibration.quality import Verdict
 from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.models import FloatArray, LaserScan, Observation
@@ -132,6 +133,8 @@ class RunOutcome:
     timings: Timings
     resumed_from: int
     background: AveragedScan | None
+    #: How ``observations`` solve to ``result`` (the rod, solver settings and gates).
+    solve_settings: SolveSettings
 
 
 @dataclass(frozen=True)

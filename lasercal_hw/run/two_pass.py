@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from lasercal_hw.calibration.model import lines_in_scanner, plane_crossing, rod_lines_in_base
+from lasercal_hw.calibration.observations import SolveSettings
 from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig
@@ -73,6 +74,9 @@ class TwoPassSolution:
     observations: list[Observation]
     refinement: str
     kept_first_pass: list[tuple[int, str]]
+    #: The second pass's rod, solver settings and gates: ``observations`` solved with them
+    #: give ``result`` again (``observations.csv`` carries them).
+    settings: SolveSettings
 
 
 def solve_two_pass(
@@ -114,7 +118,8 @@ def solve_two_pass(
         f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
         "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
     )
-    return TwoPassSolution(first, result, observations, refinement, kept)
+    settings = SolveSettings(rod, applied, job.quality)
+    return TwoPassSolution(first, result, observations, refinement, kept, settings)
 
 
 def refit_centres(
