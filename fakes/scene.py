@@ -225,12 +225,12 @@ class Scene(_Strict):
     walls: list[WallSettings] = Field(default_factory=_default_walls)
     posts: list[PostSettings] = Field(default_factory=list)
     floor: FloorSettings = FloorSettings()
-    noise: NoiseSettings = NoiseSettings()
-    faults: FaultSettings = FaultSettings()
     model: ModelName = "physical"
     """Which scanner model casts the scans: switch the fake cell's default here and in
     ``fakes/scenes/default.toml``."""
     physics: PhysicsSettings = PhysicsSettings()
+    noise: NoiseSettings = NoiseSettings()
+    faults: FaultSettings = FaultSettings()
 
 
 MODEL_ENV = "LASERCAL_FAKE_SCANNER_MODEL"
