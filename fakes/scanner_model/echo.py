@@ -22,7 +22,6 @@ from lasercal_hw.models import FloatArray
 _FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 _MEAN_SHIFT_STEPS = 30
 _TOLERANCE_M = 2e-5
-_MAX_LOBES = 4
 _FAINT_SHARE = 0.003
 _SIMPLE_SPREAD_SIGMAS = 0.125
 
@@ -66,49 +65,49 @@ def detect_echo(
     return Echoes(ranges, peaks, rival)
 
 
-def _waveform(x: FloatArray, t: FloatArray, p: FloatArray, sigma: float) -> FloatArray:
-    return (p * np.exp(-0.5 * ((x[:, None] - t) / sigma) ** 2)).sum(axis=1)
-
-
 def _chosen_lobe(
     t: FloatArray, p: FloatArray, hit: NDArray[np.bool_], sigma: float, threshold: float, choice: str
 ) -> Echoes:
-    """Mean-shift from the nearest unexplained sub-ray climbs to the next lobe's peak; the
-    search then restarts beyond that lobe, until the first detectable lobe is found
-    (``first``) or the first ``_MAX_LOBES`` lobes were seen (``strongest``)."""
-    rows = t.shape[0]
-    ranges = np.full(rows, np.inf)
-    peaks = np.zeros(rows)
-    rival = np.zeros(rows)
-    last_x = np.full(rows, -np.inf)
-    start = np.where(hit, t, np.inf).min(axis=1)
-    active = np.isfinite(start)
-    for _ in range(min(t.shape[1], _MAX_LOBES)):
-        if not active.any():
+    """Every lobe at once: the waveform sampled at the sub-rays' own ranges and halfway
+    between them has one local maximum per lobe; each is refined by mean shift (the fixed
+    point of a gaussian mixture's peak), then the strongest (``strongest``) or nearest
+    (``first``) detectable one is chosen and the strongest of the others is its rival."""
+    rows, k = t.shape
+    order = np.argsort(np.where(hit, t, np.inf), axis=1)
+    tt = np.take_along_axis(np.where(hit, t, np.inf), order, axis=1)
+    pp = np.take_along_axis(np.where(hit, p, 0.0), order, axis=1)
+    samples = np.full((rows, 2 * k - 1), np.inf)
+    samples[:, 0::2] = tt
+    samples[:, 1::2] = 0.5 * (tt[:, :-1] + tt[:, 1:])
+    valid = np.isfinite(samples)
+    finite_tt = np.where(np.isfinite(tt), tt, 0.0)
+    at = np.where(valid, samples, 0.0)
+    wave = (pp[:, None, :] * np.exp(-0.5 * ((at[:, :, None] - finite_tt[:, None, :]) / sigma) ** 2)).sum(axis=2)
+    wave = np.where(valid, wave, -np.inf)
+    before = np.concatenate([np.full((rows, 1), -np.inf), wave[:, :-1]], axis=1)
+    after = np.concatenate([wave[:, 1:], np.full((rows, 1), -np.inf)], axis=1)
+    peak_row, peak_col = np.nonzero(valid & (wave >= before) & (wave > after))
+    x = samples[peak_row, peak_col]
+    tp, ppp = finite_tt[peak_row], pp[peak_row]
+    for _step in range(_MEAN_SHIFT_STEPS):
+        w = ppp * np.exp(-0.5 * ((x[:, None] - tp) / sigma) ** 2)
+        x_new = (w * tp).sum(axis=1) / np.fmax(w.sum(axis=1), 1e-300)
+        converged = np.all(np.abs(x_new - x) < _TOLERANCE_M)
+        x = x_new
+        if converged:
             break
-        idx = np.flatnonzero(active)
-        x = x_start = start[idx]
-        tt, pp = t[idx], p[idx]
-        for _step in range(_MEAN_SHIFT_STEPS):
-            w = pp * np.exp(-0.5 * ((x[:, None] - tt) / sigma) ** 2)
-            x_new = (w * tt).sum(axis=1) / np.fmax(w.sum(axis=1), 1e-300)
-            done = np.abs(x_new - x) < _TOLERANCE_M
-            x = x_new
-            if done.all():
-                break
-        amplitude = _waveform(x, tt, pp, sigma)
-        new_lobe = x > last_x[idx] + sigma  # not the previous lobe climbed again
-        amplitude = np.where(new_lobe, amplitude, 0.0)
-        last_x[idx] = np.where(new_lobe, x, last_x[idx])
-        found = (amplitude >= threshold) & (amplitude > peaks[idx])
-        rival[idx] = np.fmax(rival[idx], np.where(found, peaks[idx], amplitude))
-        ranges[idx[found]], peaks[idx[found]] = x[found], amplitude[found]
-        if choice == "first":
-            active[idx[found]] = False
-        # Restart at the first sub-ray clearly beyond this lobe's peak (or beyond this start
-        # when it climbed back to the previous lobe).
-        anchor = np.where(new_lobe, x + 2.0 * sigma, x_start)
-        beyond = np.where(hit[idx] & (tt > anchor[:, None]), tt, np.inf).min(axis=1)
-        start[idx] = beyond
-        active[idx] = active[idx] & np.isfinite(beyond)
-    return Echoes(ranges, peaks, rival)
+    amplitude = (ppp * np.exp(-0.5 * ((x[:, None] - tp) / sigma) ** 2)).sum(axis=1)
+    lobe_x = np.full((rows, 2 * k - 1), np.inf)
+    lobe_a = np.zeros((rows, 2 * k - 1))
+    lobe_x[peak_row, peak_col], lobe_a[peak_row, peak_col] = x, amplitude
+    detectable = lobe_a >= threshold
+    if choice == "first":
+        pick = np.argmax(detectable, axis=1)  # samples, and so lobes, are in range order
+    else:
+        pick = np.argmax(np.where(detectable, lobe_a, -1.0), axis=1)
+    every = np.arange(rows)
+    found = detectable[every, pick]
+    same_lobe = np.abs(lobe_x - lobe_x[every, pick][:, None]) < 0.25 * sigma  # maxima met at one peak
+    rival = np.where(same_lobe, 0.0, lobe_a).max(axis=1)
+    ranges = np.where(found, lobe_x[every, pick], np.inf)
+    return Echoes(ranges, np.where(found, lobe_a[every, pick], 0.0), np.where(found, rival, 0.0))

@@ -97,17 +97,18 @@ class PhysicalScanner:
         if beams.size and moving:
             moving_t, moving_power, moving_id = self._cast([shape for shape, _, _ in moving], beams)
             nearer = moving_t < t
-            t = np.where(nearer, moving_t, t)
-            power = np.where(nearer, moving_power, power)
-            ids = np.where(nearer, self._static_count + moving_id, ids)
+            touched = nearer.any(axis=1)  # the bounding spheres are generous: keep real hits
+            beams, nearer = beams[touched], nearer[touched]
+            t = np.where(nearer, moving_t[touched], t[touched])
+            power = np.where(nearer, moving_power[touched], power[touched])
+            ids = np.where(nearer, self._static_count + moving_id[touched], ids[touched])
         ids = np.where(ids >= 0, ids, 0)
         p = self.physics
         echo = detect_echo(t, power, p.pulse_fwhm_m, threshold, p.echo_choice)
-        surface = np.array(
-            [np.bincount(row, weights=w).argmax() if w.any() else 0
-             for row, w in zip(ids, power, strict=True)],
-            dtype=np.int64,
-        )
+        power_by_surface = np.zeros((beams.size, self._static_count + len(moving) + 1))
+        rows = np.repeat(np.arange(beams.size), ids.shape[1])
+        np.add.at(power_by_surface, (rows, ids.ravel()), power.ravel())
+        surface = np.argmax(power_by_surface, axis=1)
         contest = np.exp(-3.0 * np.sqrt(2.0) * p.speckle_sigma)
         contested = np.flatnonzero((echo.rival > 0.0) & (echo.rival >= contest * echo.peak))
         self._pose = _PoseCache(key, beams, t, power, ids, echo, surface, contested)
