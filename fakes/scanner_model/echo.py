@@ -82,7 +82,8 @@ def _chosen_lobe(
     valid = np.isfinite(samples)
     finite_tt = np.where(np.isfinite(tt), tt, 0.0)
     at = np.where(valid, samples, 0.0)
-    wave = (pp[:, None, :] * np.exp(-0.5 * ((at[:, :, None] - finite_tt[:, None, :]) / sigma) ** 2)).sum(axis=2)
+    gap = (at[:, :, None] - finite_tt[:, None, :]) / sigma
+    wave = (pp[:, None, :] * np.exp(-0.5 * gap**2)).sum(axis=2)
     wave = np.where(valid, wave, -np.inf)
     before = np.concatenate([np.full((rows, 1), -np.inf), wave[:, :-1]], axis=1)
     after = np.concatenate([wave[:, 1:], np.full((rows, 1), -np.inf)], axis=1)
