@@ -178,7 +178,6 @@ class World:
         bounding sphere, in the scanner frame (physical model)."""
         rod = self.scene.rod
         point, axis = self.rod_shape_in_scanner(T_base_tcp_true)
-        half = 0.5 * rod.length_m
         bit = self._rod_shape(T_base_tcp_true)
         if rod.shape == "twist_drill":
             T_laser_tcp = self._T_laser_base @ np.asarray(T_base_tcp_true, dtype=float)
@@ -189,13 +188,12 @@ class World:
             scalars = (rod.radius_m, 0.0, rod.length_m, rod.web_fraction, lead)
             params = (point, axis, ref / np.linalg.norm(ref))
             bit = Shape("drill", params, scalars, rod.reflectivity, rod.material)
-        moving: list[MovingShape] = [(bit, point + half * axis, float(np.hypot(half, rod.radius_m)))]
+        moving: list[MovingShape] = [(bit, *_in_plane_bound(point, axis, rod.radius_m, 0.0, rod.length_m))]
         if rod.chuck_radius_m > 0.0:
-            length = rod.chuck_length_m
-            limits = (rod.chuck_radius_m, -length, 0.0)
+            limits = (rod.chuck_radius_m, -rod.chuck_length_m, 0.0)
             chuck = Shape("cylinder", (point, axis), limits, rod.reflectivity, rod.chuck_material)
-            bound_m = float(np.hypot(0.5 * length, rod.chuck_radius_m))
-            moving.append((chuck, point - 0.5 * length * axis, bound_m))
+            bound = _in_plane_bound(point, axis, rod.chuck_radius_m, -rod.chuck_length_m, 0.0)
+            moving.append((chuck, *bound))
         return moving
 
     def _trace(
@@ -358,6 +356,26 @@ class WorldRangeSource:
         if self._power_on_s is None:
             self._power_on_s = time_s
         return self._world.scan_mm(pose, rng, elapsed_s=time_s - self._power_on_s)
+
+
+def _in_plane_bound(
+    point: FloatArray, axis: FloatArray, radius_m: float, s_min: float, s_max: float
+) -> tuple[FloatArray, float]:
+    """A sphere holding every point of a solid cylinder (axis ``point + s axis``, ``s`` in
+    [s_min, s_max]) that lies in the scan plane z = 0: such a point is within ``radius_m``
+    of an axis point with |z| <= radius_m, so only that part of the axis counts (radius 0
+    when the cylinder does not reach the plane)."""
+    if abs(axis[2]) > 1e-12:
+        ends = sorted(((-radius_m - point[2]) / axis[2], (radius_m - point[2]) / axis[2]))
+        low, high = max(s_min, ends[0]), min(s_max, ends[1])
+    elif abs(point[2]) <= radius_m:
+        low, high = s_min, s_max
+    else:
+        low, high = 1.0, 0.0
+    if low > high:
+        return np.array([0.0, 0.0, 1e9]), 0.0
+    half = 0.5 * (high - low)
+    return point + 0.5 * (low + high) * axis, float(np.hypot(half, radius_m))
 
 
 def _beam_dirs(angles_rad: FloatArray) -> FloatArray:

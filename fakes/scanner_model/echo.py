@@ -90,12 +90,14 @@ def _chosen_lobe(
     peak_row, peak_col = np.nonzero(valid & (wave >= before) & (wave > after))
     x = samples[peak_row, peak_col]
     tp, ppp = finite_tt[peak_row], pp[peak_row]
+    moving = np.arange(x.size)
     for _step in range(_MEAN_SHIFT_STEPS):
-        w = ppp * np.exp(-0.5 * ((x[:, None] - tp) / sigma) ** 2)
-        x_new = (w * tp).sum(axis=1) / np.fmax(w.sum(axis=1), 1e-300)
-        converged = np.all(np.abs(x_new - x) < _TOLERANCE_M)
-        x = x_new
-        if converged:
+        w = ppp[moving] * np.exp(-0.5 * ((x[moving, None] - tp[moving]) / sigma) ** 2)
+        x_new = (w * tp[moving]).sum(axis=1) / np.fmax(w.sum(axis=1), 1e-300)
+        still = np.abs(x_new - x[moving]) >= _TOLERANCE_M
+        x[moving] = x_new
+        moving = moving[still]
+        if not moving.size:
             break
     amplitude = (ppp * np.exp(-0.5 * ((x[:, None] - tp) / sigma) ** 2)).sum(axis=1)
     lobe_x = np.full((rows, 2 * k - 1), np.inf)
@@ -108,7 +110,8 @@ def _chosen_lobe(
         pick = np.argmax(np.where(detectable, lobe_a, -1.0), axis=1)
     every = np.arange(rows)
     found = detectable[every, pick]
-    same_lobe = np.abs(lobe_x - lobe_x[every, pick][:, None]) < 0.25 * sigma  # maxima met at one peak
+    with np.errstate(invalid="ignore"):  # inf - inf where a row has no lobe
+        same_lobe = np.abs(lobe_x - lobe_x[every, pick][:, None]) < 0.25 * sigma  # maxima met at one peak
     rival = np.where(same_lobe, 0.0, lobe_a).max(axis=1)
     ranges = np.where(found, lobe_x[every, pick], np.inf)
     return Echoes(ranges, np.where(found, lobe_a[every, pick], 0.0), np.where(found, rival, 0.0))
