@@ -27,7 +27,7 @@ from lasercal_hw.models import FloatArray
 from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
-from lasercal_hw.run.events import EventSink, RunEvent
+from lasercal_hw.run.events import EventSink, RunEvent, Stage
 from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
 from lasercal_hw.run.preflight import PreflightReport
@@ -192,7 +192,7 @@ def calibrate(
                 session.robot, session.scanner, session.recorder, session.job, session.waypoints, outcome,
                 on_progress=session.on_progress, cancel=cancel,
             )
-        sink.emit("stage", "writing the outputs", stage="outputs")
+        sink.emit("stage", "writing the outputs", stage=Stage.OUTPUTS)
         files = {"session": session.session_path} | write_outputs(
             session.out_dir, outcome, session.job, ground_truth=session.ground_truth, title=request.title
         )
@@ -254,8 +254,10 @@ def open_sequencer(
             cancel.raise_if_cancelled()
             if job.robot.host is None:
                 raise ConfigError("no robot given: say where the robot is (robot.host in the job file)")
-            sink.emit("stage", "connecting to the scanner and the robot", stage="connect")
-            robot, scanner = _connect(job, stack)
+            sink.emit("stage", "connecting to the scanner and the robot", stage=Stage.CONNECT)
+            from drivers.access import DeviceAccess  # the connect step: nothing above needs a driver
+
+            robot, scanner = DeviceAccess().connect(job, stack)
             recorder = _open_recorder(request, job, waypoints, robot, scanner, ground_truth, session_path)
             stack.callback(recorder.close)
             on_progress = sink.progress_listener(job.rod.radius_m)
@@ -320,10 +322,10 @@ def _start_fake_cell(
 ) -> tuple[JobConfig, FloatArray, dict[str, Any]]:
     """Start the dry run's fake cell and point the job at it; if the cell dies during the
     run, the run stops at once with a DeviceError that says so."""
-    from lasercal_hw.run.dry_run import FakeCellProcess
+    from fakes.cell_process import FakeCellProcess
     from lasercal_hw.run.dry_run_scene import rods_differ, write_rod_scene
 
-    sink.emit("stage", "starting a fake cell for the dry run", stage="fake_cell")
+    sink.emit("stage", "starting a fake cell for the dry run", stage=Stage.FAKE_CELL)
     scene = request.scene
     if scene is None:  # the fake cell holds the rod the job describes
         scene = write_rod_scene(job.rod.rod_line(), out_dir / DRY_RUN_SCENE_FILE)
@@ -335,7 +337,7 @@ def _start_fake_cell(
     sink.emit(
         "stage",
         f"fake cell on {cell.address} (pid {cell.pid}): scanner {cell.scanner_url}",
-        stage="fake_cell",
+        stage=Stage.FAKE_CELL,
         address=cell.address,
         pid=cell.pid,
     )
@@ -343,26 +345,6 @@ def _start_fake_cell(
     if difference is not None:
         sink.emit("warning", difference)
     return job, cell.ground_truth, {"address": cell.address, "pid": cell.pid}
-
-
-def _connect(job: JobConfig, stack: contextlib.ExitStack) -> tuple[Robot, Scanner]:
-    """The scanner first: a typo in its URL must not touch the robot, whose control
-    interface stops the program running on it as soon as it opens."""
-    from drivers.hokuyo.client import HokuyoScanner
-    from drivers.ur.client import MotionLimits, URRobot
-
-    assert job.robot.host is not None
-    scanner = HokuyoScanner.open(job.scanner.url, timeout_s=job.scanner.timeout_s)
-    stack.callback(scanner.close)
-    limits = MotionLimits(
-        max_speed_m_s=job.motion.speed_m_s,
-        max_accel_m_s2=job.motion.accel_m_s2,
-        max_joint_speed_rad_s=job.motion.joint_speed_rad_s,
-        max_joint_accel_rad_s2=job.motion.joint_accel_rad_s2,
-    )
-    robot = URRobot.connect(job.robot.host, limits=limits)
-    stack.callback(robot.close)
-    return robot, scanner
 
 
 def _open_recorder(
