@@ -7,6 +7,7 @@ import json
 import os
 import pty
 import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -58,7 +59,8 @@ def process_gone(pid: int) -> bool:
 @dataclass(frozen=True)
 class InterruptedDryRun:
     """A ``lasercal run --dry-run --json`` stopped by SIGINT once waypoint 3 is done, then
-    continued with ``--resume``."""
+    continued with the command it printed (``lasercal run --resume PATH``: the recording
+    alone says it is a dry run's and which scene its fake cell held)."""
 
     out: Path
     returncode: int
@@ -107,8 +109,10 @@ def interrupted_dry_run(tmp_path_factory: pytest.TempPathFactory) -> Interrupted
             process.wait()
     recording = read_session(out / "session.mcap")
     result_written = (out / "result.json").exists()
+    printed = re.search(r"continue with: lasercal run (.+)$", "".join(lines) + rest, re.MULTILINE)
+    assert printed is not None, "".join(lines) + rest
     resumed = subprocess.run(
-        lasercal("--dry-run", "--json", "--resume", str(out / "session.mcap")),
+        lasercal(*shlex.split(printed.group(1)), "--json"),
         capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=folder,
     )
     return InterruptedDryRun(

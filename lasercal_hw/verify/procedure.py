@@ -192,6 +192,7 @@ def verify(
         dry_run=request.dry_run,
         scene=request.scene,
         waypoints=waypoints[selection.indices],
+        waypoint_names=tuple(selection.indices),
         title="lasercal verify",
     )
     started_s = time.monotonic()
