@@ -23,6 +23,9 @@ from lasercal_hw.models import LaserScan
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import find_rod_centre
 
+IDEAL = 'model = "ideal"\n'
+"""The exact-ray model with the [noise] settings: these tests pin its behaviour."""
+
 QUIET = """
 [noise]
 robot_position_error_m = 0.0
@@ -70,7 +73,7 @@ def test_default_scene_matches_the_documented_defaults() -> None:
 
 
 def test_perpendicular_rod_gives_the_circle() -> None:
-    world = World(parse_scene(QUIET))
+    world = World(parse_scene(IDEAL + QUIET))
     centre, radius = np.array([0.8, 0.15]), world.rod.radius_m
     T = _tcp_for_rod_in_scanner(world, [*centre, 0.0], [0.0, 0.0, 1.0])
     ranges = world.scan_ranges_m(T)
@@ -86,7 +89,7 @@ def test_perpendicular_rod_gives_the_circle() -> None:
 
 
 def test_tilted_rod_gives_the_ellipse() -> None:
-    world = World(parse_scene(QUIET))
+    world = World(parse_scene(IDEAL + QUIET))
     tilt = np.radians(35.0)
     axis = np.array([np.sin(tilt) * np.cos(0.7), np.sin(tilt) * np.sin(0.7), np.cos(tilt)])
     centre = np.array([0.6, -0.2, 0.0])
@@ -106,7 +109,7 @@ def test_tilted_rod_gives_the_ellipse() -> None:
 
 def test_rod_end_caps_limit_a_drill_bit() -> None:
     drill = QUIET + "\n[rod]\nradius_m = 0.005\norigin_m = [0.0, 0.0, 0.12]\nlength_m = 0.10\n"
-    world = World(parse_scene(drill))
+    world = World(parse_scene(IDEAL + drill))
     clear = world.scan_ranges_m(_tcp_for_rod_in_scanner(world, [0.0, 0.0, 5.0], [0.0, 0.0, 1.0]))
     flange_in_scanner = make_transform(np.eye(3), [0.5, 0.0, -0.17])  # plane crosses the bit
     hit = world.scan_ranges_m(world.ground_truth_T_base_laser @ flange_in_scanner)
@@ -117,7 +120,7 @@ def test_rod_end_caps_limit_a_drill_bit() -> None:
 
 
 def test_wall_at_a_known_distance() -> None:
-    world = World(parse_scene(WALL_AHEAD + QUIET))
+    world = World(parse_scene(IDEAL + WALL_AHEAD + QUIET))
     ranges = world.scan_ranges_m(make_transform(np.eye(3), [0.0, 0.0, 5.0]))
     angles = world.angles_rad
     on_wall = np.abs(np.tan(angles)) * 2.0 < 3.0
@@ -128,14 +131,14 @@ def test_wall_at_a_known_distance() -> None:
 
 def test_beyond_dmax_and_nearer_than_dmin_become_error_codes() -> None:
     far = WALL_AHEAD.replace("[scanner]", "[scanner]\nmax_range_m = 1.5")
-    world = World(parse_scene(far + QUIET))
+    world = World(parse_scene(IDEAL + far + QUIET))
     T_away = make_transform(np.eye(3), [0.0, 0.0, 5.0])
     assert np.all(np.isinf(world.scan_ranges_m(T_away)))
     ranges_mm, intensities = world.scan_mm(T_away)
     assert np.all(ranges_mm == NO_RETURN_CODE)
     assert np.all(intensities == 0)
     near = WALL_AHEAD.replace("[2.0, -3.0], end_m = [2.0, 3.0]", "[0.015, -3.0], end_m = [0.015, 3.0]")
-    ranges_mm, _ = World(parse_scene(near + QUIET)).scan_mm(T_away)
+    ranges_mm, _ = World(parse_scene(IDEAL + near + QUIET)).scan_mm(T_away)
     assert ranges_mm[540] == TOO_NEAR_CODE
 
 
@@ -152,7 +155,7 @@ mixed_pixel_probability = 0.0
 robot_position_error_m = 0.0
 robot_rotation_error_deg = 0.0
 """
-    world = World(parse_scene(noisy))
+    world = World(parse_scene(IDEAL + noisy))
     rng = np.random.default_rng(1)
     T_away = make_transform(np.eye(3), [0.0, 0.0, 5.0])
     scans = np.stack([world.scan_ranges_m(T_away, rng) for _ in range(400)])
@@ -167,7 +170,7 @@ robot_rotation_error_deg = 0.0
 
 
 def test_dropouts_become_error_codes_at_the_set_rate() -> None:
-    world = World(parse_scene(WALL_AHEAD + "[noise]\ndropout_probability = 0.05\n"))
+    world = World(parse_scene(IDEAL + WALL_AHEAD + "[noise]\ndropout_probability = 0.05\n"))
     rng = np.random.default_rng(2)
     T_away = make_transform(np.eye(3), [0.0, 0.0, 5.0])
     codes = np.stack([world.scan_mm(T_away, rng)[0] for _ in range(100)])
@@ -185,7 +188,7 @@ mixed_pixel_probability = {probability}
 robot_position_error_m = 0.0
 robot_rotation_error_deg = 0.0
 """
-    world = World(parse_scene(scene))
+    world = World(parse_scene(IDEAL + scene))
     rng = np.random.default_rng(3)
     between = []
     for offset in np.linspace(0.0, 0.004, 9):  # slide the rod across one beam spacing
@@ -221,7 +224,7 @@ def test_robot_error_is_small_repeatable_and_smooth() -> None:
     rms = np.sqrt(np.mean(np.square(offsets), axis=0))
     np.testing.assert_allclose(rms, 0.001, rtol=0.35)
     assert np.degrees(np.sqrt(np.mean(np.square(angles)) / 3)) == pytest.approx(0.02, rel=0.35)
-    quiet = World(parse_scene(QUIET))
+    quiet = World(parse_scene(IDEAL + QUIET))
     T = make_transform(np.eye(3), [0.4, 0.1, 0.3])
     np.testing.assert_array_equal(quiet.robot_error.true_pose(T), T)
 
@@ -243,8 +246,8 @@ def _dwell(world: World, T_base_tcp: np.ndarray, rng: np.random.Generator, count
     return average_scans(scans)
 
 
-def test_default_world_dwell_gives_the_rod_centre_through_extraction() -> None:
-    world = World.from_scene()
+def test_ideal_world_dwell_gives_the_rod_centre_through_extraction() -> None:
+    world = World(parse_scene(IDEAL))
     rng = np.random.default_rng(5)
     T_base_laser = world.ground_truth_T_base_laser
     T = T_base_laser @ make_transform(euler_zyx_to_matrix(0.3, 0.2, -0.1), [0.7, 0.1, -0.15])
@@ -261,7 +264,7 @@ def test_range_source_gives_one_repeatable_scan_per_time() -> None:
     world = World.from_scene()
     T = world.ground_truth_T_base_laser @ make_transform(np.eye(3), [0.7, 0.0, -0.15])
     pose = matrix_to_pose(T)
-    source = WorldRangeSource(world, lambda time_s: pose, seed=6)
+    source = WorldRangeSource(world, lambda time_s: pose, seed=6, power_on_s=-3600.0)  # warm
     ranges, intensities = source.ranges_mm(0.0)
     assert ranges.shape == intensities.shape == (1081,)
     assert ranges.dtype == intensities.dtype == np.int64
@@ -333,7 +336,7 @@ mixed_pixel_probability = 1.0
 robot_position_error_m = 0.0
 robot_rotation_error_deg = 0.0
 """
-    world = World(parse_scene(scene))
+    world = World(parse_scene(IDEAL + scene))
     rng = np.random.default_rng(7)
     for offset in np.linspace(0.0, 0.004, 9):
         ranges = world.scan_ranges_m(_tcp_for_rod_in_scanner(world, [1.0, offset, 0.0], [0, 0, 1]), rng)
@@ -342,7 +345,7 @@ robot_rotation_error_deg = 0.0
         assert np.all(finite < 1.0)  # edge beams keep the rod or return nothing
 
 
-_QUIET_WORLD = World(parse_scene(QUIET))
+_QUIET_WORLD = World(parse_scene(IDEAL + QUIET))
 _CLEAR = _QUIET_WORLD.scan_ranges_m(_tcp_for_rod_in_scanner(_QUIET_WORLD, [0.0, 0.0, 5.0], [0.0, 0.0, 1.0]))
 
 
