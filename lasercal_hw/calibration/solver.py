@@ -628,8 +628,8 @@ def _result(
         used.tolist(),
         strict=True,
     )
-    residuals = [  # values computed here: skip validation (10k waypoints would cost ~50 ms)
-        WaypointResidual.model_construct(index=i, du_mm=du, dv_mm=dv, norm_mm=nm, whitened_norm=wn, used=u)
+    residuals = [  # validated construction: in pydantic 2 it is faster than model_construct
+        WaypointResidual(index=i, du_mm=du, dv_mm=dv, norm_mm=nm, whitened_norm=wn, used=u)
         for i, du, dv, nm, wn, u in columns
     ]
     transform = make_transform(rotation, translation)
