@@ -89,6 +89,19 @@ class ExtractionSettings:
     min_stable_fraction: float = 0.8
     #: ... or when its reading spread exceeds this many times the scan's median reading spread.
     max_spread_ratio: float = 4.0
+    #: Steady mixed pixels: a real scanner's spot is wider than its beam step, so at a depth
+    #: edge up to this many beams per side ramp from the rod's range out to the background
+    #: (issue 18: 4-16 beams in 25-100 mm steps, as steady as the rod). A segment may be this
+    #: much wider than the rod; the rod's own beams are picked out of it (``_rod_core``).
+    max_ramp_beams: int = 16
+    #: How far a beam may lie off the rod's surface and still be taken as the rod's, beyond
+    #: ``edge_residual_sigmas`` of its noise: the rod's shape and the scanner's range bias
+    #: (a fraction of the radius, at least ``min_shape_tolerance_m``).
+    shape_tolerance_fraction: float = 0.1
+    min_shape_tolerance_m: float = 0.002
+    #: The scanner's range error the size checks allow for (UTM-30LX-EW data sheet: +-30 mm
+    #: accuracy): a near rod seen 12 mm too far looks narrower than its range says.
+    range_bias_allowance_m: float = 0.03
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -199,17 +212,65 @@ def find_rod_centre(
     sigma = _range_sigma(scan, settings)
     expected = None if expected_uv_m is None else np.asarray(expected_uv_m, dtype=float)
     candidates, notes = _candidate_segments(scan, sigma, section, background, settings)
-    if expected is not None:
-        candidates = _near_expected(scan, candidates, expected, section, settings)
-    if not candidates:
-        raise RodNotFoundError(_diagnose(scan, section, background, expected, settings, notes))
-    reasons: list[str] = []
-    for beams in candidates:
+    found, reasons = [], []
+    for beams, ramp_beams in candidates:
         try:
-            return _fit_segment(scan, sigma, beams, section, settings)
+            found.append(_fit_segment(scan, sigma, beams, section, settings, ramp_beams=ramp_beams))
         except RodNotFoundError as exc:
             reasons.append(str(exc))
-    raise RodNotFoundError("; ".join(dict.fromkeys(reasons)))
+    found = _distinct(found, section)
+    if expected is not None:
+        return _nearest_to_expected(scan, found, expected, section, background, settings, notes)
+    if len(found) == 1:
+        return found[0]
+    if len(found) > 1:
+        places = ", ".join(_place(f.centre_uv_m) for f in found)
+        raise RodNotFoundError(
+            f"{len(found)} rod-like objects in view ({places}) and no expected position to tell the rod: "
+            "give the scanner's nominal mounting, or record a background scan without the rod"
+        )
+    if reasons:
+        raise RodNotFoundError("; ".join(dict.fromkeys(reasons)))
+    raise RodNotFoundError(_diagnose(scan, section, background, expected, settings, notes))
+
+
+def _place(centre_uv_m: FloatArray) -> str:
+    """A centre as an operator reads it: position, range and bearing."""
+    u, v = (float(c) for c in centre_uv_m)
+    return f"({u:+.3f}, {v:+.3f}) m, {np.hypot(u, v):.2f} m at {np.degrees(np.arctan2(v, u)):+.0f} deg"
+
+
+def _distinct(found: list[RodCentre], section: _Section) -> list[RodCentre]:
+    """The fits with one per object: fits of parts of one rod (a segment split by a lost
+    beam) have centres within a radius of each other; the one with most beams is kept."""
+    kept: list[RodCentre] = []
+    for fit in sorted(found, key=lambda f: -f.quality.beams_used):
+        if all(np.linalg.norm(fit.centre_uv_m - k.centre_uv_m) > section.radius_m for k in kept):
+            kept.append(fit)
+    return kept
+
+
+def _nearest_to_expected(
+    scan: AveragedScan,
+    found: list[RodCentre],
+    expected: FloatArray,
+    section: _Section,
+    background: AveragedScan | None,
+    settings: ExtractionSettings,
+    notes: list[str],
+) -> RodCentre:
+    """The fit nearest the expected centre if within the search radius; otherwise
+    ``RodNotFoundError`` naming every rod-like object refused for being elsewhere."""
+    distances = [float(np.linalg.norm(f.centre_uv_m - expected)) for f in found]
+    if found and min(distances) <= settings.search_radius_m:
+        return found[int(np.argmin(distances))]
+    reason = _diagnose(scan, section, background, expected, settings, notes)
+    refused = [
+        f"a rod-like object at {_place(f.centre_uv_m)} was refused: {d:.2f} m from where the rod should be "
+        f"(limit {settings.search_radius_m:g} m)"
+        for f, d in zip(found, distances, strict=True)
+    ]
+    raise RodNotFoundError("; ".join([reason, *refused]))
 
 
 def _unit_axis(axis: FloatArray | None) -> FloatArray:
@@ -248,9 +309,10 @@ def _candidate_segments(
     section: _Section,
     background: AveragedScan | None,
     settings: ExtractionSettings,
-) -> tuple[list[NDArray[np.int64]], list[str]]:
-    """Beam index runs that could be the rod, best first (size match), and why rod-sized
-    runs were refused (cut by the field of view, partly hidden)."""
+) -> tuple[list[tuple[NDArray[np.int64], int]], list[str]]:
+    """Beam index runs that could be the rod, best first (size match), each with how many
+    mixed-pixel beams of a ramp were cut off it, and why rod-sized runs were refused (cut by
+    the field of view, partly hidden)."""
     ranges = scan.ranges_m
     valid = np.isfinite(ranges)
     if background is None:
@@ -274,9 +336,13 @@ def _candidate_segments(
         segments.extend(_trim_unstable(part, unstable) for part in np.split(run, cuts))
     scored, notes = [], []
     last_beam = ranges.size - 1
-    for beams in segments:
-        if beams.size == 0:
+    for part in segments:
+        if part.size == 0:
             continue
+        core = _rod_core(scan, sigma, part, section, settings)
+        # Without a rod-sized core the segment is judged whole, so that its fit says why.
+        rod_sized = core.size >= settings.min_beams
+        beams = core if rod_sized and _size_mismatch(scan, core, section, settings) is not None else part
         if beams[0] == 0 or beams[-1] == last_beam:
             if _size_mismatch(scan, beams, section, settings, partial=True) is not None:
                 problem = "is cut by the edge of the field of view; move the rod inward"
@@ -289,9 +355,92 @@ def _candidate_segments(
             problem = "is partly hidden behind a nearer object; clear the line of sight"
             _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
             continue
-        scored.append((fit, beams))
+        scored.append((fit, beams, part.size - beams.size))
     scored.sort(key=lambda item: item[0])
-    return [beams for _, beams in scored], notes
+    return [(beams, ramp) for _, beams, ramp in scored], notes
+
+
+def _rod_core(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    part: NDArray[np.int64],
+    section: _Section,
+    settings: ExtractionSettings,
+) -> NDArray[np.int64]:
+    """The rod's own beams in a segment that may carry steady mixed-pixel ramps on its sides.
+
+    A ramp beam steps from the rod's edge out towards the background and does not lie on the
+    rod: its ray passes beside the rod, or its range is well behind the surface. Starting
+    from the segment's nearest beam (the rod's front faces the scanner), a circle of the
+    rod's radius is placed behind it, and the run of beams whose rays hit it and whose
+    points lie on its surface (noise, shape and range bias allowed) is fitted; repeated
+    until the run is stable. With intensities, beams at the background's level beside a
+    bright rod are no rod beams either. Segments too wide even for a rod with ramps give nothing."""
+    if part.size < settings.min_beams:
+        return part
+    step = _beam_step_rad(scan)
+    ranges = scan.ranges_m[part]
+    nearest = int(np.argmin(ranges))
+    centre_range = float(ranges[nearest]) + section.radius_m
+    nearest_centre_m = max(centre_range - settings.range_bias_allowance_m, section.widest_semi_axis_m)
+    width_max = 2.0 * np.arcsin(min(1.0, section.widest_semi_axis_m / nearest_centre_m))
+    if abs(float(scan.angles_rad[part[-1]] - scan.angles_rad[part[0]])) > width_max + 2 * (
+        settings.max_ramp_beams + 1
+    ) * step:
+        return part[:0]
+    bearing = float(scan.angles_rad[part[nearest]])
+    centre = centre_range * np.array([np.cos(bearing), np.sin(bearing)])
+    points = scan.points_m()[part]
+    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
+    run = part[:0]
+    for _ in range(4):
+        residuals, _ = _residuals(points, centre, section, section.radius_m)
+        on_surface = np.abs(residuals) <= settings.edge_residual_sigmas * sigma[part] + tolerance
+        hits = on_surface & _rays_hit(points, centre, section, step, sigma[part]) & _bright(scan, part, run)
+        runs = [r for r in _runs(hits) if r.size]
+        if not runs:
+            return part[:0]
+        best = max(runs, key=lambda r: (r.size, -abs(int(r[0]) + int(r[-1]) - 2 * nearest)))
+        if np.array_equal(part[best], run) or best.size < settings.min_beams:
+            return part[best]
+        run = part[best]
+        solved = _gauss_newton(points[best], sigma[part][best], centre, section, settings, free_radius=False)
+        if solved is None:
+            return run
+        centre = solved[0]
+    return run
+
+
+def _bright(scan: AveragedScan, part: NDArray[np.int64], run: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """With intensities (SCIP ME) and a rod clearly brighter than the rest of its segment
+    (retro-reflective tape; a mixed pixel returns at the background's level), the beams of
+    ``part`` at least as bright as the geometric mean of the two; else every beam."""
+    everything = np.ones(part.size, dtype=bool)
+    if scan.intensities is None or run.size == 0 or run.size == part.size:
+        return everything
+    intensity = scan.intensities[part]
+    on_run = np.isin(part, run)
+    with np.errstate(invalid="ignore"):
+        rod_level, rest_level = np.nanmedian(intensity[on_run]), np.nanmedian(intensity[~on_run])
+    if not (np.isfinite(rod_level) and np.isfinite(rest_level)) or rod_level < 2.0 * max(rest_level, 1.0):
+        return everything
+    return ~(intensity < np.sqrt(rod_level * max(rest_level, 1.0)))
+
+
+def _rays_hit(
+    points: FloatArray, centre: FloatArray, section: _Section, step_rad: float, sigma: FloatArray
+) -> NDArray[np.bool_]:
+    """Which beams' rays (through the points, from the scanner) pass through the rod's
+    cross-section centred at ``centre`` (squeezed frame, where the ellipse is a circle of the
+    radius; rays stay rays), with a beam's spot and three noise sigmas of grace (a thin rod's
+    centre is uncertain by a fair part of its radius; the surface test then sorts the beams)."""
+    squeezed = section.to_circle(points)
+    c = section.to_circle(centre[None, :])[0]
+    directions = squeezed / np.linalg.norm(squeezed, axis=1)[:, None]
+    miss = np.abs(directions[:, 0] * c[1] - directions[:, 1] * c[0])
+    grace = step_rad * float(np.linalg.norm(c)) + 3.0 * float(np.median(sigma))
+    radius = section.radius_m / section.unknown_tilt_cos
+    return (miss <= radius + grace) & (directions @ c > 0.0)
 
 
 def _unstable_beams(scan: AveragedScan, settings: ExtractionSettings) -> NDArray[np.bool_]:
@@ -304,7 +453,10 @@ def _unstable_beams(scan: AveragedScan, settings: ExtractionSettings) -> NDArray
     """
     if scan.scan_count < 2:
         return np.zeros(scan.ranges_m.size, dtype=bool)
-    few = scan.count < settings.min_stable_fraction * scan.scan_count
+    # Readings the beam did not give at all (a weak echo at a far edge) are no flipping: only
+    # the valid readings that disagree with the rest count against it.
+    valid = scan.scan_count if scan.valid_count is None else scan.valid_count
+    few = scan.count < settings.min_stable_fraction * valid
     spread = scan.reading_std_m
     finite = np.isfinite(spread) & np.isfinite(scan.ranges_m)
     if not finite.any():
@@ -362,11 +514,14 @@ def _size_mismatch(
     centre_range = float(np.min(scan.ranges_m[beams])) + section.radius_m
     if centre_range <= section.widest_semi_axis_m:
         return None
-    width_min = 2.0 * np.arcsin(section.radius_m / centre_range)
-    width_max = 2.0 * np.arcsin(min(1.0, section.widest_semi_axis_m / centre_range))
-    width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]]))
+    width_min = 2.0 * np.arcsin(min(1.0, section.radius_m / (centre_range + settings.range_bias_allowance_m)))
+    nearest_centre_m = max(centre_range - settings.range_bias_allowance_m, section.widest_semi_axis_m)
+    width_max = 2.0 * np.arcsin(min(1.0, section.widest_semi_axis_m / nearest_centre_m))
+    # Each beam stands for one step of angle: n beams cover n steps (a far rod's 3 beams
+    # cover 3 steps, not the 2 between their centres).
+    width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]])) + step
     low = 0.0 if partial else settings.min_visible_fraction * width_min - 2.0 * step
-    high = width_max + 2.0 * step
+    high = width_max + 3.0 * step
     if not low <= width <= high:
         return None
     return abs(width - 0.5 * (width_min + width_max)) / max(step, 1e-9)
@@ -381,25 +536,6 @@ def _in_front(scan: AveragedScan, beams: NDArray[np.int64], sigma: FloatArray) -
             if np.isfinite(value) and value < nearest - 3.0 * sigma[neighbour]:
                 return False
     return True
-
-
-def _near_expected(
-    scan: AveragedScan,
-    candidates: list[NDArray[np.int64]],
-    expected: FloatArray,
-    section: _Section,
-    settings: ExtractionSettings,
-) -> list[NDArray[np.int64]]:
-    """Candidates whose seed lies within the search radius of the expected centre, nearest first."""
-    points = scan.points_m()
-    kept = []
-    for beams in candidates:
-        seed = seed_centre_pi4(points[beams], section.radius_m, section.axis)
-        distance = float(np.linalg.norm(seed - expected))
-        if distance <= settings.search_radius_m:
-            kept.append((distance, beams))
-    kept.sort(key=lambda item: item[0])
-    return [beams for _, beams in kept]
 
 
 def _diagnose(
@@ -552,13 +688,22 @@ def _fit_centre(
         raise RodNotFoundError(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
-    residuals, _ = _residuals(points, centre, section, section.radius_m)
+    residuals, normals = _residuals(points, centre, section, section.radius_m)
     dof = max(points.shape[0] - 2, 1)
     variance_factor = max(1.0, float(whitened @ whitened) / dof)
-    covariance = np.linalg.inv(normal) * variance_factor + np.eye(2) * _unknown_tilt_variance_m2(
-        section, settings
+    residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
+    covariance = np.linalg.inv(normal) * variance_factor + np.eye(2) * (
+        _unknown_tilt_variance_m2(section, settings) + _systematic_variance_m2(residuals, residual_sigma)
     )
     return _Fit(centre, covariance, residuals, whitened)
+
+
+def _systematic_variance_m2(residuals: FloatArray, residual_sigma: FloatArray) -> float:
+    """Variance per axis of what the dwell does not average away: the part of the fit's
+    mean squared residual the noise does not explain (the rod's shape, edge effects, a range
+    error that changes across the arc). Such residuals are shared by neighbouring beams, so
+    they move the centre by about their own size, not by their size over sqrt(beams)."""
+    return max(0.0, float(np.mean(residuals**2) - np.mean(residual_sigma**2)))
 
 
 def _unknown_tilt_variance_m2(section: _Section, settings: ExtractionSettings) -> float:
@@ -608,7 +753,10 @@ def _fit_segment(
     beams: NDArray[np.int64],
     section: _Section,
     settings: ExtractionSettings,
+    *,
+    ramp_beams: int = 0,
 ) -> RodCentre:
+    """Fit one candidate; ``ramp_beams`` mixed pixels were already cut off its sides."""
     if beams.size < settings.min_beams:
         range_m = float(np.min(scan.ranges_m[beams]))
         raise RodNotFoundError(
@@ -631,7 +779,7 @@ def _fit_segment(
         free = _gauss_newton(used, sigma[keep], fit.centre_uv_m, section, settings, free_radius=True)
         if free is not None and 0.0 < free[0][2] < 4.0 * section.radius_m:
             estimated_radius = float(free[0][2])
-    dropped = int(beams.size - keep.size)
+    dropped = int(beams.size - keep.size) + ramp_beams
     logger.debug(
         "rod centre (%.4f, %.4f) m from %d beams, rms %.2f mm, span %.0f deg, %d edge beams dropped",
         fit.centre_uv_m[0],
