@@ -70,6 +70,12 @@ class ScannerConfig(_Strict):
     url: str = DEFAULT_SCANNER_URL
     timeout_s: float = Field(2.0, gt=0.0, le=60.0)
     nominal: NominalPose | None = None
+    intensities: bool = Field(
+        False,
+        description="stream intensities with the ranges (SCIP ME instead of MD): the recording keeps them "
+        "and the rod extraction tells a bright rod (retro-reflective tape) from the background-level mixed "
+        "pixels beside it; twice the bytes per scan",
+    )
     estimate_range_offset: bool | Literal["auto"] = Field(
         "auto",
         description="estimate the scanner's range offset (measured minus true range) with the transform; "

@@ -105,6 +105,20 @@ def test_centre_progress_says_where_the_nominal_mounting_expected_the_rod() -> N
     assert max(misses_m) < job.rod.radius_m
 
 
+def test_a_job_that_wants_intensities_streams_records_and_averages_them() -> None:
+    job = fast_job(scanner={"intensities": True})
+    clock, robot, scanner = make_cell(job)
+    recorder = MemoryRecorder()
+    outcome = Sequencer(robot, scanner, recorder, job, semicircle_waypoints(6), clock=clock).run()
+    assert scanner.with_intensities
+    assert recorder.scans and all(s.intensities is not None for s in recorder.scans)
+    assert all(m.averaged.intensities is not None for m in outcome.measurements)
+    clock, robot, plain = make_cell(fast_job())
+    plain_recorder = MemoryRecorder()
+    Sequencer(robot, plain, plain_recorder, fast_job(), semicircle_waypoints(6), clock=clock).run()
+    assert not plain.with_intensities and all(s.intensities is None for s in plain_recorder.scans)
+
+
 def _settle_time(robot: SimRobot, move_number: int) -> float:
     """End of the robot's ``move_number``-th motion (0 is the retract move)."""
     return robot._path[move_number][1]

@@ -488,7 +488,7 @@ class Sequencer:
         )
         if self._before_motion is not None:
             self._before_motion(report)
-        self._scanner.start_streaming()
+        self._scanner.start_streaming(intensities=self._job.scanner.intensities)
         if self._background is None:
             self._capture_background(retract, retract_q)
         for index in range(count):
