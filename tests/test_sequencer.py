@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lasercal_hw.calibration.consensus import CONSENSUS_WAYPOINTS
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import (
     ConfigError,
@@ -87,7 +88,12 @@ def test_run_completes_records_and_recovers_the_transform() -> None:
     assert {"preflight", "background", "move", "dwell", "centre", "solve", "refine", "done"} <= stages
     centre_events = [p for p in progress if p.stage == "centre"]
     assert all(p.scans_averaged and p.scans_averaged >= 9 for p in centre_events)
-    assert all(p.expected_uv_m is None for p in centre_events)  # no [scanner.nominal] to predict from
+    # No [scanner.nominal]: nothing to predict from until the first waypoints agree on a pose.
+    consensus = CONSENSUS_WAYPOINTS
+    assert all(p.expected_uv_m is None for p in centre_events[:consensus])
+    assert all(p.expected_uv_m is not None for p in centre_events[consensus:])
+    misses_m = [np.hypot(*np.subtract(p.centre_uv_m, p.expected_uv_m)) for p in centre_events[consensus:]]
+    assert max(misses_m) < 0.005
     assert progress[-1].time_left_s == pytest.approx(0.0)
 
 
