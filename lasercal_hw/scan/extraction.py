@@ -102,6 +102,11 @@ class ExtractionSettings:
     #: The scanner's range error the size checks allow for (UTM-30LX-EW data sheet: +-30 mm
     #: accuracy): a near rod seen 12 mm too far looks narrower than its range says.
     range_bias_allowance_m: float = 0.03
+    #: A range error the solver's curve moves each centre by along its bearing; a near or thick
+    #: rod's centre moves by a little less (its beams fan out over the arc). What is left, for
+    #: a range error this large (issue 18's real data: +12 mm at 0.15 m, -13 mm at 0.75 m),
+    #: joins the covariance.
+    typical_range_error_m: float = 0.012
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -339,56 +344,109 @@ def _candidate_segments(
     for part in segments:
         if part.size == 0:
             continue
-        core = _rod_core(scan, sigma, part, section, settings)
+        cores = [
+            core
+            for core in _rod_cores(scan, sigma, part, section, settings)
+            if core.size >= settings.min_beams and _size_mismatch(scan, core, section, settings) is not None
+        ]
         # Without a rod-sized core the segment is judged whole, so that its fit says why.
-        rod_sized = core.size >= settings.min_beams
-        beams = core if rod_sized and _size_mismatch(scan, core, section, settings) is not None else part
-        if beams[0] == 0 or beams[-1] == last_beam:
-            if _size_mismatch(scan, beams, section, settings, partial=True) is not None:
-                problem = "is cut by the edge of the field of view; move the rod inward"
+        for beams in cores or [part]:
+            if beams[0] == 0 or beams[-1] == last_beam:
+                if _size_mismatch(scan, beams, section, settings, partial=True) is not None:
+                    problem = "is cut by the edge of the field of view; move the rod inward"
+                    _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
+                continue
+            fit = _size_mismatch(scan, beams, section, settings)
+            if fit is None:
+                continue
+            if background is None and not _in_front(scan, beams, sigma):
+                problem = "is partly hidden behind a nearer object; clear the line of sight"
                 _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
-            continue
-        fit = _size_mismatch(scan, beams, section, settings)
-        if fit is None:
-            continue
-        if background is None and not _in_front(scan, beams, sigma):
-            problem = "is partly hidden behind a nearer object; clear the line of sight"
-            _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
-            continue
-        scored.append((fit, beams, part.size - beams.size))
+                continue
+            ramps = min(part.size - beams.size, 2 * settings.max_ramp_beams)
+            scored.append((fit, beams, ramps))
     scored.sort(key=lambda item: item[0])
     return [(beams, ramp) for _, beams, ramp in scored], notes
+
+
+def _rod_cores(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    part: NDArray[np.int64],
+    section: _Section,
+    settings: ExtractionSettings,
+) -> list[NDArray[np.int64]]:
+    """The runs of beams in a segment that lie on a rod, without the steady mixed-pixel ramps
+    that may join it to its background (``_rod_core`` from each of the segment's fronts)."""
+    if part.size < settings.min_beams:
+        return []
+    return [core for front in _fronts(scan, part, section, settings) if (core := _rod_core(
+        scan, sigma, part, front, section, settings
+    )).size]
+
+
+def _fronts(
+    scan: AveragedScan, part: NDArray[np.int64], section: _Section, settings: ExtractionSettings
+) -> list[int]:
+    """Positions in ``part`` where a rod's front may be: its nearest beam when the segment is
+    no wider than a rod with ramps; else every beam nearest within a rod's width that stands
+    at least half a radius in front of the segment a rod-and-ramps' width to either side
+    (a rod whose ramps run into a background without a range jump, e.g. a wall close behind)."""
+    step = _beam_step_rad(scan)
+    ranges = scan.ranges_m[part]
+    nearest = int(np.argmin(ranges))
+    ramps_rad = 2 * (settings.max_ramp_beams + 1) * step
+    width = abs(float(scan.angles_rad[part[-1]] - scan.angles_rad[part[0]]))
+    if width <= _widest_rad(float(ranges[nearest]), section, settings) + ramps_rad:
+        return [nearest]
+    half_beams = np.ceil(0.5 * _widest_rad_array(ranges, section, settings) / max(step, 1e-9)).astype(int) + 1
+    reach = half_beams + settings.max_ramp_beams
+    positions = np.arange(part.size)
+    left = ranges[np.clip(positions - reach, 0, part.size - 1)]
+    right = ranges[np.clip(positions + reach, 0, part.size - 1)]
+    depth_m = max(0.5 * section.radius_m, settings.min_jump_m)  # a wall's nearest point rises less
+    standing = np.flatnonzero((left - ranges >= depth_m) & (right - ranges >= depth_m))
+    fronts = []
+    for position in standing:
+        half = half_beams[position]
+        nearest_around = ranges[max(0, position - half) : position + half + 1].min()
+        if ranges[position] <= nearest_around and not (fronts and position - fronts[-1] <= half):
+            fronts.append(int(position))
+    return fronts
+
+
+def _widest_rad(range_m: float, section: _Section, settings: ExtractionSettings) -> float:
+    """Widest angle a rod whose nearest point is at ``range_m`` may cover (range error allowed)."""
+    return float(_widest_rad_array(np.array([range_m]), section, settings)[0])
+
+
+def _widest_rad_array(range_m: FloatArray, section: _Section, settings: ExtractionSettings) -> FloatArray:
+    """``_widest_rad`` for each of several nearest ranges."""
+    nearest_centre_m = range_m + section.radius_m - settings.range_bias_allowance_m
+    centre_m = np.fmax(nearest_centre_m, section.widest_semi_axis_m)
+    return 2.0 * np.arcsin(np.fmin(1.0, section.widest_semi_axis_m / centre_m))
 
 
 def _rod_core(
     scan: AveragedScan,
     sigma: FloatArray,
     part: NDArray[np.int64],
+    front: int,
     section: _Section,
     settings: ExtractionSettings,
 ) -> NDArray[np.int64]:
-    """The rod's own beams in a segment that may carry steady mixed-pixel ramps on its sides.
+    """The rod's own beams around position ``front`` of a segment that may carry steady
+    mixed-pixel ramps on its sides.
 
     A ramp beam steps from the rod's edge out towards the background and does not lie on the
-    rod: its ray passes beside the rod, or its range is well behind the surface. Starting
-    from the segment's nearest beam (the rod's front faces the scanner), a circle of the
-    rod's radius is placed behind it, and the run of beams whose rays hit it and whose
-    points lie on its surface (noise, shape and range bias allowed) is fitted; repeated
-    until the run is stable. With intensities, beams at the background's level beside a
-    bright rod are no rod beams either. Segments too wide even for a rod with ramps give nothing."""
-    if part.size < settings.min_beams:
-        return part
+    rod: its ray passes beside the rod, or its range is well behind the surface. A circle of
+    the rod's radius is placed behind the front beam (the rod's front faces the scanner),
+    and the run of beams whose rays hit it and whose points lie on its surface (noise, shape
+    and range bias allowed) is fitted; repeated until the run is stable. With intensities,
+    beams at the background's level beside a bright rod are no rod beams either."""
     step = _beam_step_rad(scan)
-    ranges = scan.ranges_m[part]
-    nearest = int(np.argmin(ranges))
-    centre_range = float(ranges[nearest]) + section.radius_m
-    nearest_centre_m = max(centre_range - settings.range_bias_allowance_m, section.widest_semi_axis_m)
-    width_max = 2.0 * np.arcsin(min(1.0, section.widest_semi_axis_m / nearest_centre_m))
-    if abs(float(scan.angles_rad[part[-1]] - scan.angles_rad[part[0]])) > width_max + 2 * (
-        settings.max_ramp_beams + 1
-    ) * step:
-        return part[:0]
-    bearing = float(scan.angles_rad[part[nearest]])
+    centre_range = float(scan.ranges_m[part[front]]) + section.radius_m
+    bearing = float(scan.angles_rad[part[front]])
     centre = centre_range * np.array([np.cos(bearing), np.sin(bearing)])
     points = scan.points_m()[part]
     tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
@@ -400,7 +458,7 @@ def _rod_core(
         runs = [r for r in _runs(hits) if r.size]
         if not runs:
             return part[:0]
-        best = max(runs, key=lambda r: (r.size, -abs(int(r[0]) + int(r[-1]) - 2 * nearest)))
+        best = max(runs, key=lambda r: (r.size, -abs(int(r[0]) + int(r[-1]) - 2 * front)))
         if np.array_equal(part[best], run) or best.size < settings.min_beams:
             return part[best]
         run = part[best]
@@ -515,8 +573,7 @@ def _size_mismatch(
     if centre_range <= section.widest_semi_axis_m:
         return None
     width_min = 2.0 * np.arcsin(min(1.0, section.radius_m / (centre_range + settings.range_bias_allowance_m)))
-    nearest_centre_m = max(centre_range - settings.range_bias_allowance_m, section.widest_semi_axis_m)
-    width_max = 2.0 * np.arcsin(min(1.0, section.widest_semi_axis_m / nearest_centre_m))
+    width_max = _widest_rad(float(np.min(scan.ranges_m[beams])), section, settings)
     # Each beam stands for one step of angle: n beams cover n steps (a far rod's 3 beams
     # cover 3 steps, not the 2 between their centres).
     width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]])) + step
@@ -695,7 +752,25 @@ def _fit_centre(
     covariance = np.linalg.inv(normal) * variance_factor + np.eye(2) * (
         _unknown_tilt_variance_m2(section, settings) + _systematic_variance_m2(residuals, residual_sigma)
     )
+    mismatch = _range_error_mismatch(points, centre, normals, residual_sigma, normal)
+    covariance += np.outer(mismatch, mismatch) * settings.typical_range_error_m**2
     return _Fit(centre, covariance, residuals, whitened)
+
+
+def _range_error_mismatch(
+    points: FloatArray,
+    centre: FloatArray,
+    normals: FloatArray,
+    residual_sigma: FloatArray,
+    normal: FloatArray,
+) -> FloatArray:
+    """How the fitted centre moves for a range error of 1 (every point pushed 1 along its
+    beam) minus how the solver's model moves it (1 along its bearing): zero for a far rod
+    whose beams are parallel, a few per cent for a thick rod near the scanner."""
+    beams = points / np.linalg.norm(points, axis=1)[:, None]
+    push = np.einsum("ij,ij->i", beams, normals[:, :2]) / residual_sigma
+    moved = np.linalg.solve(normal, (normals[:, :2] / residual_sigma[:, None]).T @ push)
+    return moved - centre / np.linalg.norm(centre)
 
 
 def _systematic_variance_m2(residuals: FloatArray, residual_sigma: FloatArray) -> float:
