@@ -29,7 +29,8 @@ from benchmarks.trajectory_design import nominal_job, rough_pose
 from fakes.world import World
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.run.adaptive import first_design, second_design
-from lasercal_hw.run.sequencer import retract_candidates, solve_two_pass
+from lasercal_hw.run.retract import retract_candidates
+from lasercal_hw.run.two_pass import solve_two_pass
 from lasercal_hw.run.waypoints import job_waypoints
 
 

@@ -37,7 +37,9 @@ from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import matrix_to_rotvec, pose_to_matrix
 from lasercal_hw.models import LaserScan, RodLine
-from lasercal_hw.run.sequencer import WaypointMeasurement, predict_rod, retract_candidates, solve_two_pass
+from lasercal_hw.run.records import WaypointMeasurement
+from lasercal_hw.run.retract import retract_candidates
+from lasercal_hw.run.two_pass import predict_rod, solve_two_pass
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre

@@ -9,6 +9,7 @@ Scans carry their acquisition time (``device_time_s``) and a later read time.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -29,6 +30,9 @@ from lasercal_hw.models import (
     ScanGeometry,
     ScannerIdentity,
 )
+from lasercal_hw.run.outcome import solve_run
+from lasercal_hw.run.records import RunOutcome
+from lasercal_hw.run.sequencer import Sequencer
 
 PAPER_T_BASE_LASER = make_transform(
     euler_zyx_to_matrix(*np.radians([5.0, 7.0, 3.0])), [0.30, 0.50, 0.20]
@@ -286,3 +290,12 @@ def semicircle_waypoints(count: int = 12, tilt_rad: float = 0.4) -> FloatArray:
         tilt_x, tilt_y = rng.uniform(-tilt_rad, tilt_rad, 2)
         poses.append(rod_down_pose(xyz, tilt_x, tilt_y))
     return np.array(poses)
+
+
+def run_calibration(robot: Any, scanner: Any, recorder: Any, job: Any, waypoints: FloatArray,
+                    **options: Any) -> RunOutcome:
+    """Measure with a ``Sequencer`` and solve as the engine does (``run/outcome.solve_run``)."""
+    sequencer = Sequencer(robot, scanner, recorder, job, waypoints, **options)
+    solve_options = {key: options[key] for key in ("on_progress", "cancel", "clock") if key in options}
+    count = len(np.asarray(waypoints).reshape(-1, 6))
+    return solve_run(sequencer.measure(), job, recorder, waypoint_count=count, **solve_options)

@@ -10,9 +10,8 @@ from lasercal_hw.config import job_from_mapping
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.resume import DESIGN_EVENT
-from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.waypoints import job_waypoints
-from tests.doubles import PAPER_T_BASE_LASER, MemoryRecorder
+from tests.doubles import PAPER_T_BASE_LASER, MemoryRecorder, run_calibration
 from tests.test_sequencer import FAST_JOB, make_cell, transform_error
 
 ADAPTIVE = {
@@ -29,7 +28,7 @@ def test_adaptive_run_designs_the_rest_from_its_first_estimate_and_solves_all() 
     assert first.shape == (6, 6)
     clock, robot, scanner = make_cell(job)
     recorder = MemoryRecorder()
-    outcome = Sequencer(robot, scanner, recorder, job, first, clock=clock).run()
+    outcome = run_calibration(robot, scanner, recorder, job, first, clock=clock)
     final = run_second_design(robot, scanner, recorder, job, first, outcome, clock=clock)
 
     designs = [fields for _, kind, fields in recorder.events if kind == DESIGN_EVENT]

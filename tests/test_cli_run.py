@@ -59,3 +59,21 @@ def test_dry_run_scene_gives_the_fake_cell_the_jobs_rod(tmp_path: Path) -> None:
     np.testing.assert_array_equal(world_rod.origin_m, job_rod.origin_m)
     np.testing.assert_array_equal(world_rod.direction, job_rod.direction)
     assert (world_rod.radius_m, world_rod.length_m) == (job_rod.radius_m, job_rod.length_m) == (0.005, 0.10)
+
+
+def test_the_stopped_line_gives_the_command_that_resumes_the_recording() -> None:
+    from lasercal_hw.cli.run import stopped_line
+
+    interrupted_dry_run = {
+        "session": "out/session.mcap", "resumable": True, "interrupted": True, "dry_run": True,
+    }
+    assert stopped_line("", interrupted_dry_run) == (
+        "recording kept in out/session.mcap; continue with: lasercal run --resume out/session.mcap --dry-run"
+    )
+    failed_live = interrupted_dry_run | {"interrupted": False, "dry_run": False}
+    assert stopped_line("", failed_live).endswith(
+        "after fixing the cause, continue with: lasercal run --resume out/session.mcap"
+    )
+    not_resumable = failed_live | {"resumable": False}
+    assert stopped_line("", not_resumable) == "recording kept in out/session.mcap; start again"
+    assert stopped_line("nothing was recorded", {"error": "boom"}) == "nothing was recorded"

@@ -121,3 +121,43 @@ def test_simulate_table_and_bad_option() -> None:
     for fragment in ("paper mu", "9.581", "RMS translation error"):
         assert fragment in result.stdout
     assert_one_line_error(run_cli("simulate", "--points", "3"), 2, "--points at least 5")
+
+
+def test_a_runs_observations_csv_solves_exactly_as_the_run_did(tmp_path: Path) -> None:
+    """The rod axis, the noise model and the gates travel with the observations: the drill-like
+    case (axis estimated from a shifted nominal line, 2 mm robot noise, tight gates)."""
+    from lasercal_hw.run.outputs import write_outputs
+    from tests.doubles import MemoryRecorder, run_calibration, semicircle_waypoints
+    from tests.test_sequencer import fast_job, make_cell
+
+    job = fast_job(
+        rod={"origin_m": [0.0, 0.001, 0.0], "estimate_axis": True},
+        robot={"position_accuracy_mm": 2.0},
+        quality={"max_std_translation_mm": 0.05},
+        output={"report": False},
+    )
+    clock, robot, scanner = make_cell(job)
+    outcome = run_calibration(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(10), clock=clock)
+    files = write_outputs(tmp_path, outcome, job)
+    solved = run_cli("solve", str(files["observations"]), "--json")
+    assert solved.returncode == 1, solved.stderr  # the run failed its tight gate, and so does the solve
+    document = json.loads(solved.stdout)
+    np.testing.assert_allclose(document["T_base_laser"], outcome.result.T_base_laser, atol=1e-9)
+    np.testing.assert_allclose(document["covariance"], outcome.result.model_dump()["covariance"], rtol=1e-6)
+    assert document["rod_axis"]["estimated"]
+    live_checks = outcome.verdict.as_dict()["checks"]
+    assert [(c["name"], c["passed"], c["limit"]) for c in document["verdict"]["checks"]] == [
+        (c["name"], c["passed"], c["limit"]) for c in live_checks
+    ]
+    np.testing.assert_allclose([c["value"] for c in document["verdict"]["checks"]],
+                               [c["value"] for c in live_checks], rtol=1e-9)
+    # Given explicitly, an option still wins over the file's settings.
+    noisier_run = run_cli("solve", str(files["observations"]), "--json", "--robot-sigma-mm", "5")
+    noisier = json.loads(noisier_run.stdout)
+    assert noisier["std_translation_mm"] != document["std_translation_mm"]
+
+
+def test_an_unsupported_file_names_both_kinds_solve_reads(tmp_path: Path) -> None:
+    readme = tmp_path / "README.md"
+    readme.write_text("# not observations\n")
+    assert_one_line_error(run_cli("solve", str(readme)), 2, "supported: .csv observations, or a run's .mcap")

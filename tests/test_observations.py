@@ -115,3 +115,31 @@ def test_a_row_short_of_an_extra_column_is_still_rejected(tmp_path: Path) -> Non
 
 def test_a_file_of_only_a_header_has_no_observations(tmp_path: Path) -> None:
     assert read_observations_csv(_write(tmp_path, f"# nothing recorded\n{HEADER}\n")) == []
+
+
+def test_correlated_covariances_and_solve_settings_round_trip(tmp_path) -> None:
+    from lasercal_hw.calibration.observations import SolveSettings, read_solve_settings
+    from lasercal_hw.calibration.solver import SolverOptions
+    from lasercal_hw.config import QualityConfig
+    from lasercal_hw.models import Observation, RodLine
+
+    covariance = np.array([[4e-6, -1.5e-6], [-1.5e-6, 1e-6]])
+    written = [Observation(i, np.arange(6.0) + i, np.array([1.0, 0.5]), covariance) for i in range(3)]
+    settings = SolveSettings(
+        RodLine(origin_m=np.array([0.0, 0.002, 0.1]), direction=np.array([0.0, 0.1, 1.0]), radius_m=0.005),
+        SolverOptions(robot_sigma_m=0.002, estimate_axis=True),
+        QualityConfig(max_std_translation_mm=3.0),
+    )
+    path = tmp_path / "observations.csv"
+    write_observations_csv(path, written, settings)
+    for read in read_observations_csv(path):
+        np.testing.assert_allclose(read.covariance_uv_m2, covariance, rtol=1e-12)
+    again = read_solve_settings(path)
+    assert again is not None and again.solver == settings.solver and again.quality == settings.quality
+    np.testing.assert_array_equal(again.rod.origin_m, settings.rod.origin_m)
+    assert again.rod.radius_m == 0.005
+
+    path.write_text(path.read_text().replace('"robot_sigma_m":0.002', '"robot_sigma_m":-1'))
+    damaged = r"line 1: the lasercal-solve settings are damaged \(solver.robot_sigma_m"
+    with pytest.raises(ConfigError, match=damaged):
+        read_solve_settings(path)

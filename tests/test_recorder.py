@@ -202,7 +202,7 @@ def test_existing_session_is_never_overwritten(tmp_path):
     path = tmp_path / "session.mcap"
     _record(path, [make_scan(1)])
     before = path.read_bytes()
-    with pytest.raises(ConfigError, match="--resume"):
+    with pytest.raises(ConfigError, match="resume that run from its recording"):
         SessionRecorder(path, META)
     assert path.read_bytes() == before
 

@@ -14,12 +14,12 @@ from mcap.writer import Writer
 
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import LaserScan
+from lasercal_hw.run.records import RunOutcome
 from lasercal_hw.run.replay import solve_recording
-from lasercal_hw.run.sequencer import RunOutcome, Sequencer
 from lasercal_hw.session.format import TOPIC_EVENT, TOPIC_SCAN_INFO
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
-from tests.doubles import UTM_GEOMETRY, SimClock, SimRobot, SimScanner, semicircle_waypoints
+from tests.doubles import UTM_GEOMETRY, SimClock, SimRobot, SimScanner, run_calibration, semicircle_waypoints
 from tests.test_sequencer import fast_job
 
 # A recording made with another beam layout than the UTM-30LX-EW's default.
@@ -34,7 +34,7 @@ def _record(path: Path, **scanner_options: object) -> RunOutcome:
     waypoints = semicircle_waypoints(count=8)
     recorder = SessionRecorder(path, {"job": job.model_dump(mode="json"), "waypoints": waypoints.tolist()})
     try:
-        return Sequencer(robot, scanner, recorder, job, waypoints, clock=clock).run()
+        return run_calibration(robot, scanner, recorder, job, waypoints, clock=clock)
     finally:
         recorder.close()
 

@@ -21,9 +21,10 @@ from lasercal_hw.geometry import matrix_to_euler_zyx
 from lasercal_hw.models import RobotState
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.preflight import rod_end_points_m
+from lasercal_hw.run.records import Progress
 from lasercal_hw.run.replay import solve_recording
 from lasercal_hw.run.resume import resume_state
-from lasercal_hw.run.sequencer import NOMINAL_CLEARANCE_M, Progress, Sequencer, background_lift_m
+from lasercal_hw.run.retract import NOMINAL_CLEARANCE_M, background_lift_m
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
 from tests.doubles import (
@@ -32,6 +33,7 @@ from tests.doubles import (
     SimClock,
     SimRobot,
     SimScanner,
+    run_calibration,
     semicircle_waypoints,
 )
 
@@ -62,8 +64,8 @@ def test_run_completes_records_and_recovers_the_transform() -> None:
     recorder = MemoryRecorder()
     progress: list[Progress] = []
     waypoints = semicircle_waypoints(12)
-    outcome = Sequencer(robot, scanner, recorder, job, waypoints, on_progress=progress.append,
-                        clock=clock).run()
+    outcome = run_calibration(robot, scanner, recorder, job, waypoints, on_progress=progress.append,
+                        clock=clock)
 
     assert [m.index for m in outcome.measurements] == list(range(12))
     assert outcome.skipped == []
@@ -102,8 +104,8 @@ def test_centre_progress_says_where_the_nominal_mounting_expected_the_rod() -> N
     job = fast_job(scanner={"nominal": nominal})
     clock, robot, scanner = make_cell(job)
     progress: list[Progress] = []
-    Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), on_progress=progress.append,
-              clock=clock).run()
+    run_calibration(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8),
+                    on_progress=progress.append, clock=clock)
     centres = [p for p in progress if p.stage == "centre"]
     assert len(centres) == 8 and all(p.expected_uv_m is not None for p in centres)
     # The live page draws these before any solve: the rod's axis crossing, seen within its radius.
@@ -115,13 +117,13 @@ def test_a_job_that_wants_intensities_streams_records_and_averages_them() -> Non
     job = fast_job(scanner={"intensities": True})
     clock, robot, scanner = make_cell(job)
     recorder = MemoryRecorder()
-    outcome = Sequencer(robot, scanner, recorder, job, semicircle_waypoints(6), clock=clock).run()
+    outcome = run_calibration(robot, scanner, recorder, job, semicircle_waypoints(6), clock=clock)
     assert scanner.with_intensities
     assert recorder.scans and all(s.intensities is not None for s in recorder.scans)
     assert all(m.averaged.intensities is not None for m in outcome.measurements)
     clock, robot, plain = make_cell(fast_job())
     plain_recorder = MemoryRecorder()
-    Sequencer(robot, plain, plain_recorder, fast_job(), semicircle_waypoints(6), clock=clock).run()
+    run_calibration(robot, plain, plain_recorder, fast_job(), semicircle_waypoints(6), clock=clock)
     assert not plain.with_intensities and all(s.intensities is None for s in plain_recorder.scans)
 
 
@@ -134,7 +136,7 @@ def test_scans_taken_while_moving_are_not_averaged() -> None:
     job = fast_job()
     clock, robot, scanner = make_cell(job)
     recorder = MemoryRecorder()
-    outcome = Sequencer(robot, scanner, recorder, job, semicircle_waypoints(8), clock=clock).run()
+    outcome = run_calibration(robot, scanner, recorder, job, semicircle_waypoints(8), clock=clock)
     windows = [f for _, k, f in recorder.events if k == "observation"]
     for fields, measurement in zip(windows, outcome.measurements, strict=True):
         assert measurement.averaged.scan_count == fields["scans"]
@@ -148,7 +150,7 @@ def test_waypoint_with_rod_out_of_view_is_skipped_with_reason() -> None:
     waypoints = semicircle_waypoints(12)
     waypoints[4, 2] += 0.35  # the rod's lower end is now above the scan plane
     recorder = MemoryRecorder()
-    outcome = Sequencer(robot, scanner, recorder, job, waypoints, clock=clock).run()
+    outcome = run_calibration(robot, scanner, recorder, job, waypoints, clock=clock)
     assert [s.index for s in outcome.skipped] == [4]
     assert outcome.skipped[0].reason
     assert 4 not in [m.index for m in outcome.measurements]
@@ -161,7 +163,7 @@ def test_protective_stop_aborts_without_further_motion() -> None:
     clock, robot, scanner = make_cell(job, protective_stop_at_move=4)
     recorder = MemoryRecorder()
     with pytest.raises(ProtectiveStopError, match="protective stop at waypoint 3") as caught:
-        Sequencer(robot, scanner, recorder, job, semicircle_waypoints(12), clock=clock).run()
+        run_calibration(robot, scanner, recorder, job, semicircle_waypoints(12), clock=clock)
     assert "will not resume by itself" in str(caught.value)
     assert len(robot.moves) == 5  # retract + waypoints 0..3; the fourth raised
     assert robot.stops == 0
@@ -174,7 +176,7 @@ def test_failed_move_during_a_protective_stop_counts_as_one() -> None:
     job = fast_job()
     clock, robot, scanner = make_cell(job, protective_stop_at_move=2, stop_reported_late=True)
     with pytest.raises(ProtectiveStopError, match="safety status PROTECTIVE_STOP"):
-        Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(6), clock=clock).run()
+        run_calibration(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(6), clock=clock)
     assert len(robot.moves) == 3
 
 
@@ -191,8 +193,8 @@ def test_interrupt_from_progress_stops_the_robot_and_keeps_a_readable_recording(
     recorder = SessionRecorder(session, {"job": job.model_dump(mode="json"), "waypoints": waypoints.tolist()})
     try:
         with pytest.raises(InterruptedRunError, match="waypoint 5"):
-            Sequencer(robot, scanner, recorder, job, waypoints, on_progress=interrupt_at_waypoint_5,
-                      clock=clock).run()
+            run_calibration(robot, scanner, recorder, job, waypoints, on_progress=interrupt_at_waypoint_5,
+                      clock=clock)
     finally:
         recorder.close()
     assert robot.stops == 1
@@ -209,7 +211,7 @@ def test_interrupt_from_progress_stops_the_robot_and_keeps_a_readable_recording(
     robot.moves.clear()
     resumed = SessionRecorder.resume(session)
     try:
-        outcome = Sequencer(robot, scanner, resumed, job, waypoints, resume=state, clock=clock).run()
+        outcome = run_calibration(robot, scanner, resumed, job, waypoints, resume=state, clock=clock)
     finally:
         resumed.close()
     assert len(robot.moves) == 7  # waypoints 5..11, no new background
@@ -237,8 +239,8 @@ def _read_number_in_dwell(waypoint: int) -> int:
         if progress.stage == "centre" and progress.waypoint == waypoint:
             reads.append(scanner.reads)
 
-    Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), on_progress=note,
-              clock=clock).run()
+    run_calibration(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), on_progress=note,
+              clock=clock)
     return reads[0] - 5  # the dwell's last ~10 reads come just before its centre
 
 
@@ -252,7 +254,7 @@ def test_scanner_drop_repeats_the_waypoint(fault: str) -> None:
     else:
         scanner.gap_at_reads = {read}
     recorder = MemoryRecorder()
-    outcome = Sequencer(robot, scanner, recorder, job, semicircle_waypoints(8), clock=clock).run()
+    outcome = run_calibration(robot, scanner, recorder, job, semicircle_waypoints(8), clock=clock)
     retries = [f for _, k, f in recorder.events if k == "waypoint_retry"]
     assert [(r["index"], r["attempt"]) for r in retries] == [(3, 1)]
     assert "scanner" in retries[0]["reason"]
@@ -265,7 +267,7 @@ def test_scanner_that_keeps_failing_aborts_with_a_device_error() -> None:
     clock, robot, scanner = make_cell(job)
     scanner.fail_reads_at = set(range(30, 10_000))
     with pytest.raises(DeviceError, match="scanner failed 2 times"):
-        Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), clock=clock).run()
+        run_calibration(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), clock=clock)
     assert robot.stops == 1
 
 
@@ -275,7 +277,7 @@ def test_preflight_lists_every_problem_and_moves_nothing() -> None:
     waypoints[2, :3] = [1.5, 0.0, 0.4]  # unreachable and outside the box
     clock, robot, scanner = make_cell(job, forbidden_poses=[waypoints[5]])
     with pytest.raises(ConfigError) as caught:
-        Sequencer(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock).run()
+        run_calibration(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock)
     message = str(caught.value)
     assert "waypoint 2: not reachable" in message
     assert "waypoint 2: TCP x = 1.500 m is above the workspace maximum 0.900 m" in message
@@ -289,7 +291,7 @@ def test_preflight_refuses_a_robot_not_in_remote_control() -> None:
         job, state_value=RobotState("IDLE", "PROTECTIVE_STOP", False, False, True, False)
     )
     with pytest.raises(RobotError) as caught:
-        Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), clock=clock).run()
+        run_calibration(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), clock=clock)
     message = str(caught.value)
     for expected in ("protective stop", "mode is IDLE", "safety status is PROTECTIVE_STOP", "remote control"):
         assert expected in message
@@ -302,7 +304,7 @@ def test_background_pose_falls_back_to_another_lifted_waypoint() -> None:
     first_lifted = waypoints[0].copy()
     first_lifted[2] += job.background_lift_m()
     clock, robot, scanner = make_cell(job, forbidden_poses=[first_lifted])
-    Sequencer(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock).run()
+    run_calibration(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock)
     nearest = min(range(1, 8), key=lambda i: np.linalg.norm(waypoints[i][:3]))
     expected = waypoints[nearest].copy()
     expected[2] += job.background_lift_m()
@@ -328,7 +330,7 @@ def test_nominal_pose_predicts_where_to_look() -> None:
     nominal = {"translation_m": [0.32, 0.48, 0.21], "euler_zyx_deg": [yaw, pitch, roll]}
     job = fast_job(scanner={"nominal": nominal})
     clock, robot, scanner = make_cell(job)
-    outcome = Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(10), clock=clock).run()
+    outcome = run_calibration(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(10), clock=clock)
     assert len(outcome.measurements) == 10
     translation_mm, _ = transform_error(outcome.result.matrix(), PAPER_T_BASE_LASER)
     assert translation_mm < 5.0
@@ -340,7 +342,7 @@ def test_the_robots_stated_accuracy_is_in_the_solvers_noise_model() -> None:
         job = fast_job(robot={"position_accuracy_mm": accuracy_mm})
         clock, robot, scanner = make_cell(job)
         waypoints = semicircle_waypoints(12)
-        outcome = Sequencer(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock).run()
+        outcome = run_calibration(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock)
         for solved in (outcome.first_pass, outcome.result):
             assert solved.provenance.solver_options["robot_sigma_m"] == pytest.approx(accuracy_mm / 1000.0)
         results[accuracy_mm] = outcome.result
@@ -366,8 +368,8 @@ def test_cancel_from_another_thread_stops_the_arm_and_keeps_the_recording() -> N
             stops_at_cancel.append(robot.stops)
 
     with pytest.raises(InterruptedRunError, match="waypoint 3 \\(operator pressed cancel\\)"):
-        Sequencer(robot, scanner, recorder, job, semicircle_waypoints(8), on_progress=cancel_at_waypoint_3,
-                  cancel=cancel, clock=clock).run()
+        run_calibration(robot, scanner, recorder, job, semicircle_waypoints(8),
+                        on_progress=cancel_at_waypoint_3, cancel=cancel, clock=clock)
     assert stops_at_cancel == [1]  # stopped by the cancel itself, before the run noticed it
     assert [e["index"] for _, kind, e in recorder.events if kind == "observation"] == [0, 1, 2]
     assert recorder.kinds()[-1] == "abort"

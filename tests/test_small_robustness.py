@@ -96,13 +96,12 @@ def test_corrupted_scans_are_counted_and_summarised_not_warned_one_by_one(
 def test_a_failed_quality_gate_writes_no_ros_files(tmp_path) -> None:
     from lasercal_hw.calibration.quality import GateCheck, Verdict
     from lasercal_hw.run.outputs import TF_ARGS_FILE, URDF_FILE, write_outputs
-    from lasercal_hw.run.sequencer import Sequencer
-    from tests.doubles import MemoryRecorder, semicircle_waypoints
+    from tests.doubles import MemoryRecorder, run_calibration, semicircle_waypoints
     from tests.test_sequencer import fast_job, make_cell
 
     job = fast_job(output={"report": False})
     clock, robot, scanner = make_cell(job)
-    passed = Sequencer(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), clock=clock).run()
+    passed = run_calibration(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(8), clock=clock)
     failed = dataclasses.replace(passed, verdict=Verdict([GateCheck("residual RMS", 9.0, 1.0, "mm", False)]))
     assert passed.verdict.passed
     for outcome, written in ((passed, True), (failed, False)):

@@ -2,8 +2,13 @@
 
 Format: a header line, then one row per waypoint with the columns
 ``index,tcp_x,tcp_y,tcp_z,tcp_rx,tcp_ry,tcp_rz,u,v`` and optionally ``sigma_u,sigma_v``
-(metres; TCP pose as a UR pose vector, rotation vector in radians; (u, v) the rod centre
-in the scanner plane).  Extra columns are ignored; lines starting with ``#`` are comments.
+and then ``rho_uv`` (metres; TCP pose as a UR pose vector, rotation vector in radians;
+(u, v) the rod centre in the scanner plane; ``rho_uv`` the correlation of u and v). Extra
+columns are ignored; lines starting with ``#`` are comments.
+
+A run writes one comment line ``# lasercal-solve: {json}`` first: the rod line, the solver
+settings and the quality gates of its final solve, so that ``lasercal solve
+observations.csv`` solves exactly as the run did (``SolveSettings``).
 """
 
 from __future__ import annotations
@@ -15,13 +20,76 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from pydantic import BaseModel, ValidationError
 
+from lasercal_hw.calibration.solver import SolverOptions
+from lasercal_hw.config import QualityConfig
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.models import FloatArray, Observation
+from lasercal_hw.models import FloatArray, Observation, RodLine
 
 POSE_COLUMNS = ("tcp_x", "tcp_y", "tcp_z", "tcp_rx", "tcp_ry", "tcp_rz")
 REQUIRED_COLUMNS = ("index", *POSE_COLUMNS, "u", "v")
 SIGMA_COLUMNS = ("sigma_u", "sigma_v")
+CORRELATION_COLUMN = "rho_uv"
+SETTINGS_PREFIX = "# lasercal-solve: "
+
+
+class _RodDocument(BaseModel):
+    origin_m: list[float]
+    direction: list[float]
+    radius_m: float
+    length_m: float
+
+
+class _SettingsDocument(BaseModel):
+    rod: _RodDocument
+    solver: SolverOptions
+    quality: QualityConfig
+
+
+@dataclass(frozen=True)
+class SolveSettings:
+    """What a solve of these observations needs besides them: the rod line in the TCP frame
+    (the nominal one when the solve estimates it), the solver's settings and the gates."""
+
+    rod: RodLine
+    solver: SolverOptions
+    quality: QualityConfig
+
+    def comment_line(self) -> str:
+        """The settings as the CSV's ``# lasercal-solve:`` line."""
+        rod = _RodDocument(
+            origin_m=[float(v) for v in self.rod.origin_m],
+            direction=[float(v) for v in self.rod.direction],
+            radius_m=self.rod.radius_m,
+            length_m=self.rod.length_m,
+        )
+        document = _SettingsDocument(rod=rod, solver=self.solver, quality=self.quality)
+        return SETTINGS_PREFIX + document.model_dump_json()
+
+
+def read_solve_settings(path: str | Path) -> SolveSettings | None:
+    """The ``# lasercal-solve:`` settings of an ``observations.csv``, or None when it has none
+    (a file written by hand or by another tool)."""
+    with Path(path).open(encoding="utf-8") as stream:
+        for number, line in enumerate(stream, start=1):
+            if not line.startswith(SETTINGS_PREFIX):
+                continue
+            try:
+                document = _SettingsDocument.model_validate_json(line[len(SETTINGS_PREFIX):])
+            except ValidationError as exc:
+                problem = exc.errors()[0]
+                where = ".".join(str(part) for part in problem["loc"])
+                raise ConfigError(
+                    f"{Path(path).name} line {number}: the lasercal-solve settings are damaged "
+                    f"({where}: {problem['msg']}); delete that line to solve with the defaults"
+                ) from None
+            rod = RodLine(
+                origin_m=np.array(document.rod.origin_m), direction=np.array(document.rod.direction),
+                radius_m=document.rod.radius_m, length_m=document.rod.length_m,
+            )
+            return SolveSettings(rod, document.solver, document.quality)
+    return None
 
 
 def load_observations(path: str | Path) -> list[Observation]:
@@ -71,7 +139,11 @@ def read_observations_csv(path: str | Path) -> list[Observation]:
         raise ConfigError(
             f"{path.name}: column {absent} is missing (give both sigma_u and sigma_v or neither)"
         )
+    if CORRELATION_COLUMN in header and not all(has_sigma):
+        raise ConfigError(f"{path.name}: column {CORRELATION_COLUMN} needs sigma_u and sigma_v")
     names = [*REQUIRED_COLUMNS, *(SIGMA_COLUMNS if all(has_sigma) else ())]
+    if CORRELATION_COLUMN in header:
+        names.append(CORRELATION_COLUMN)
     columns = [header.index(name) for name in names]
     table = None if '"' in text else _plain_table([line for _, line in lines[1:]], columns, len(header))
     if table is None:
@@ -92,11 +164,14 @@ def _plain_table(lines: list[str], columns: list[int], width: int) -> FloatArray
     except ValueError:
         return None
     index = table[:, 0]
+    sigmas = table[:, len(REQUIRED_COLUMNS):len(REQUIRED_COLUMNS) + len(SIGMA_COLUMNS)]
+    correlation = table[:, len(REQUIRED_COLUMNS) + len(SIGMA_COLUMNS):]
     valid = (
         np.isfinite(table).all()
         and (index == np.trunc(index)).all()
         and np.unique(index).size == index.size
-        and (table[:, len(REQUIRED_COLUMNS):] > 0).all()
+        and (sigmas > 0).all()
+        and (np.abs(correlation) < 1).all()
     )
     return table if valid else None
 
@@ -155,14 +230,21 @@ def _parse_row(row: _Row, names: list[str]) -> list[float]:
         raise ConfigError(
             f"{row.file_name} line {row.line_number}, column index: {index_value!r} is not an integer"
         )
-    sigmas = [row.number(name) for name in names[len(REQUIRED_COLUMNS):]]
+    sigmas = [row.number(name) for name in names[len(REQUIRED_COLUMNS):] if name in SIGMA_COLUMNS]
     if sigmas and min(sigmas) <= 0:
         raise ConfigError(f"{row.file_name} line {row.line_number}: sigma_u and sigma_v must be positive")
-    return [index_value, *(row.number(name) for name in names[1:len(REQUIRED_COLUMNS)]), *sigmas]
+    correlation = [row.number(CORRELATION_COLUMN)] if CORRELATION_COLUMN in names else []
+    if correlation and abs(correlation[0]) >= 1:
+        raise ConfigError(
+            f"{row.file_name} line {row.line_number}, column {CORRELATION_COLUMN}: a correlation lies "
+            "strictly between -1 and 1"
+        )
+    values = [row.number(name) for name in names[1:len(REQUIRED_COLUMNS)]]
+    return [index_value, *values, *sigmas, *correlation]
 
 
 def _observations(table: FloatArray) -> list[Observation]:
-    """One observation per row of ``index, tcp pose (6), u, v[, sigma_u, sigma_v]``."""
+    """One observation per row of ``index, tcp pose (6), u, v[, sigma_u, sigma_v[, rho_uv]]``."""
     count = len(table)
     poses = table[:, 1:7].copy()
     centres = table[:, 7:9].copy()
@@ -170,21 +252,30 @@ def _observations(table: FloatArray) -> list[Observation]:
     if table.shape[1] > len(REQUIRED_COLUMNS):
         covariances = np.zeros((count, 2, 2))
         covariances[:, [0, 1], [0, 1]] = np.square(table[:, 9:11])
+        if table.shape[1] > 11:
+            covariances[:, 0, 1] = covariances[:, 1, 0] = table[:, 11] * table[:, 9] * table[:, 10]
     rows = zip(table[:, 0].tolist(), poses, centres, covariances, strict=True)
     return [Observation(int(index), pose, centre, covariance) for index, pose, centre, covariance in rows]
 
 
-def write_observations_csv(path: str | Path, observations: Sequence[Observation]) -> None:
-    """Write ``observations.csv``; sigma columns are written when every observation has a
-    covariance (its diagonal; a correlation between u and v is not representable)."""
+def write_observations_csv(
+    path: str | Path, observations: Sequence[Observation], settings: SolveSettings | None = None
+) -> None:
+    """Write ``observations.csv``: the ``settings`` line when given, and the sigma and
+    correlation columns when every observation has a covariance."""
     with_sigma = bool(observations) and all(o.covariance_uv_m2 is not None for o in observations)
     with Path(path).open("w", newline="", encoding="utf-8") as stream:
+        if settings is not None:
+            stream.write(settings.comment_line() + "\n")
         writer = csv.writer(stream, lineterminator="\n")
-        writer.writerow([*REQUIRED_COLUMNS, *(SIGMA_COLUMNS if with_sigma else ())])
+        writer.writerow([*REQUIRED_COLUMNS, *((*SIGMA_COLUMNS, CORRELATION_COLUMN) if with_sigma else ())])
         for o in observations:
             row = [str(o.index), *(repr(float(v)) for v in (*o.tcp_pose, *o.centre_uv_m))]
             if with_sigma:
-                row += [repr(float(v)) for v in np.sqrt(np.diag(np.asarray(o.covariance_uv_m2)))]
+                covariance = np.asarray(o.covariance_uv_m2, dtype=float)
+                sigma_u, sigma_v = np.sqrt(np.diag(covariance))
+                rho_uv = covariance[0, 1] / (sigma_u * sigma_v)
+                row += [repr(float(sigma_u)), repr(float(sigma_v)), repr(float(rho_uv))]
             writer.writerow(row)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 from typing import Annotated, Any
 
 import typer
@@ -14,6 +15,20 @@ from lasercal_hw.errors import ConfigError
 console = Console(stderr=False, highlight=False)
 err_console = Console(stderr=True, highlight=False)
 
+# Options that mean the same in every command that takes them (each command's own live there).
+RobotOption = Annotated[str | None, typer.Option("--robot", help="Robot controller host, e.g. 192.168.1.10.")]
+ScannerOption = Annotated[
+    str | None, typer.Option("--scanner", help="Scanner URL (default: the job's scanner.url).")
+]
+YesOption = Annotated[bool, typer.Option("--yes", "-y", help="Do not ask before moving the robot.")]
+JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON document (progress on stderr).")]
+DryRunOption = Annotated[
+    bool, typer.Option("--dry-run", help="Use a fake cell started on a free loopback address, not hardware.")
+]
+SceneOption = Annotated[
+    Path | None,
+    typer.Option("--scene", help="Scene file for the --dry-run fake cell (e.g. a moved scanner)."),
+]
 FoxgloveOption = Annotated[bool, typer.Option(
     "--foxglove", help="Serve runs live to the Foxglove app on 127.0.0.1 (needs the foxglove extra).")]
 FoxglovePortOption = Annotated[int, typer.Option("--foxglove-port", help="Port of the --foxglove server.")]

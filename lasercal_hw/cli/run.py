@@ -10,7 +10,7 @@ import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import FrameType
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -18,7 +18,19 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, SpinnerColumn, TextColumn
 from rich.progress import Progress as RichProgress
 
-from lasercal_hw.cli.common import FoxgloveOption, FoxglovePortOption, console, err_console, print_json
+from lasercal_hw.cli.common import (
+    DryRunOption,
+    FoxgloveOption,
+    FoxglovePortOption,
+    JsonOption,
+    RobotOption,
+    ScannerOption,
+    SceneOption,
+    YesOption,
+    console,
+    err_console,
+    print_json,
+)
 from lasercal_hw.cli.solve import print_result
 from lasercal_hw.config import load_job, with_overrides
 from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
@@ -85,7 +97,21 @@ class ProgressView:
         elif event.kind == "stage":
             self._progress.console.print(escape(event.message))
         elif event.kind == "stopped":  # where the recording is: with the error, on stderr
-            err_console.print(escape(event.message))
+            err_console.print(escape(stopped_line(event.message, event.data)))
+
+
+def stopped_line(message: str, data: dict[str, Any]) -> str:
+    """The engine's ``stopped`` event in the CLI's words: where the recording is and the
+    command that resumes it (``--dry-run`` again for a dry run's recording); the event's own
+    message when nothing was recorded."""
+    session = data.get("session")
+    if session is None:
+        return message
+    if not data.get("resumable"):
+        return f"recording kept in {session}; start again"
+    command = f"lasercal run --resume {session}" + (" --dry-run" if data.get("dry_run") else "")
+    when = "" if data.get("interrupted") else "after fixing the cause, "
+    return f"recording kept in {session}; {when}continue with: {command}"
 
 
 @contextlib.contextmanager
@@ -162,20 +188,10 @@ def _print_summary(report: RunReport) -> None:
     console.print(f"verdict: {verdict}")
 
 
-RobotOption = Annotated[str | None, typer.Option("--robot", help="Robot controller host, e.g. 192.168.1.10.")]
-ScannerOption = Annotated[
-    str | None, typer.Option("--scanner", help="Scanner URL (default scip+tcp://192.168.0.10:10940).")
-]
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Job file (TOML); defaults without it.")]
 DwellOption = Annotated[float | None, typer.Option("--dwell", help="Dwell per waypoint in s (default 3).")]
-YesOption = Annotated[bool, typer.Option("--yes", "-y", help="Do not ask before moving the robot.")]
-JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON document (progress on stderr).")]
 OutOption = Annotated[Path | None, typer.Option("--out", help="Output folder (./lasercal-out/<time>).")]
-DryRunOption = Annotated[
-    bool, typer.Option("--dry-run", help="Run against a fake cell started on a free loopback address.")
-]
 ResumeOption = Annotated[Path | None, typer.Option("--resume", help="Continue an interrupted session.mcap.")]
-SceneOption = Annotated[Path | None, typer.Option("--scene", help="Scene file for the --dry-run fake cell.")]
 
 
 def run_command(
@@ -207,6 +223,8 @@ def run_command(
         raise ConfigError("--resume continues the recorded job: leave out --config, --dwell and --out")
     flags = {"trajectory.adaptive": True} if adaptive else {}
     job = with_overrides(load_job(config), {"dwell_s": dwell, "output.dir": out} | flags)
+    if robot is None and job.robot.host is None and not dry_run and resume is None:
+        raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
     request = RunRequest(
         job=job,
         out_dir=job.output.dir or default_out_dir(),

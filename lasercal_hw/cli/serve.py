@@ -8,7 +8,7 @@ from typing import Annotated, Any
 
 import typer
 
-from lasercal_hw.cli.common import FoxgloveOption, FoxglovePortOption
+from lasercal_hw.cli.common import DryRunOption, FoxgloveOption, FoxglovePortOption
 
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Daemon configuration (TOML).")]
 ListenOption = Annotated[
@@ -17,9 +17,6 @@ ListenOption = Annotated[
 ]
 DataDirOption = Annotated[
     Path | None, typer.Option("--data-dir", help="History, job folders and token (~/.local/state/lasercal).")
-]
-DryRunOption = Annotated[
-    bool, typer.Option("--dry-run", help="Serve a fake cell started by the daemon instead of hardware.")
 ]
 
 READY_PREFIX = "lasercal daemon listening on "

@@ -3,34 +3,45 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 import numpy as np
 import typer
 from rich.markup import escape
 from rich.table import Table
 
-from lasercal_hw.calibration.observations import load_observations
+from lasercal_hw.calibration.observations import SolveSettings, load_observations, read_solve_settings
 from lasercal_hw.calibration.quality import evaluate_gates
 from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.cli.common import console, err_console, parse_vector, print_json
-from lasercal_hw.config import QualityConfig
+from lasercal_hw.config import QualityConfig, RobotConfig
 from lasercal_hw.errors import ConfigError, ExitCode
-from lasercal_hw.models import RodLine
+from lasercal_hw.models import FloatArray, RodLine
 
 
 def solve_command(
     input_path: Annotated[
         Path, typer.Argument(help="observations.csv, or the session.mcap of a run", show_default=False)
     ],
-    axis_origin: str = typer.Option("0,0,0", "--axis-origin", help="Rod axis origin in the TCP frame (m)."),
-    axis_direction: str = typer.Option("0,0,1", "--axis-direction", help="Rod axis direction, TCP frame."),
+    axis_origin: str | None = typer.Option(
+        None, "--axis-origin", help="Rod axis origin in the TCP frame (m) [default: the file's, else 0,0,0]."
+    ),
+    axis_direction: str | None = typer.Option(
+        None, "--axis-direction", help="Rod axis direction, TCP frame [default: the file's, else 0,0,1]."
+    ),
     robust: bool = typer.Option(True, "--robust/--no-robust", help="Robust loss and outlier rejection."),
-    formulation: str = typer.Option("ours", "--formulation", help="ours | paper (the paper's own problem)."),
-    sigma_mm: float = typer.Option(5.0, "--sigma-mm", help="Centre noise for rows without sigma_u, sigma_v."),
-    robot_sigma_mm: float = typer.Option(0.5, "--robot-sigma-mm", help="Robot TCP position noise per axis."),
+    formulation: str | None = typer.Option(
+        None, "--formulation", help="ours | paper (the paper's own problem) [default: ours]."
+    ),
+    sigma_mm: float | None = typer.Option(
+        None, "--sigma-mm", help="Centre noise for rows without sigma_u, sigma_v [default: 5]."
+    ),
+    robot_sigma_mm: float | None = typer.Option(
+        None, "--robot-sigma-mm", help="Robot TCP position noise per axis [default: the file's, else 1]."
+    ),
     output: Annotated[Path | None, typer.Option("--output", "-o", help="Also write result.json.")] = None,
     as_json: bool = typer.Option(False, "--json", help="Print the result.json document instead of a table."),
     estimate_axis: bool = typer.Option(
@@ -43,22 +54,29 @@ def solve_command(
         False, "--use-recorded-centres", help="session.mcap: keep recorded centres where re-extraction fails."
     ),
 ) -> None:
-    """Solve for T_base_laser from observations (index,tcp_x..tcp_rz,u,v[,sigma_u,sigma_v]) or from
-    a run's session.mcap (same extraction and solver as the live run; rod and noise from its job).
-    The quality gates of `lasercal run` apply (a recording's own, else the defaults): exit 1
-    when one fails."""
-    if formulation not in ("ours", "paper"):
+    """Solve for T_base_laser from observations (index,tcp_x..tcp_rz,u,v[,sigma_u,sigma_v[,rho_uv]]) or
+    from a run's session.mcap (same extraction and solver as the live run; rod and noise from its job).
+
+    A run's observations.csv carries the rod, solver settings and gates of the run's final
+    solve, so it solves as the run did; options given here change those. The quality gates of
+    `lasercal run` apply (the file's or recording's own, else the defaults): exit 1 when one fails."""
+    if formulation not in (None, "ours", "paper"):
         raise ConfigError(f"--formulation must be 'ours' or 'paper', got {formulation!r}")
-    if sigma_mm <= 0 or robot_sigma_mm < 0:
+    if (sigma_mm is not None and sigma_mm <= 0) or (robot_sigma_mm is not None and robot_sigma_mm < 0):
         raise ConfigError("--sigma-mm must be positive and --robot-sigma-mm not negative")
-    direction = np.array(parse_vector(axis_direction, 3, "--axis-direction"))
-    if np.linalg.norm(direction) < 1e-9:
-        raise ConfigError("--axis-direction must not be the zero vector")
+    if input_path.suffix.lower() not in (".csv", ".mcap") and not input_path.is_dir():
+        raise ConfigError(
+            f"cannot read {input_path.name!r}: unsupported file type {input_path.suffix!r} (supported: .csv "
+            "observations, or a run's .mcap recording)"
+        )
     if input_path.suffix.lower() == ".mcap":
-        if (axis_origin, axis_direction, robust, formulation) != ("0,0,0", "0,0,1", True, "ours"):
+        if (axis_origin, axis_direction, robust, formulation, sigma_mm, robot_sigma_mm) != (
+            None, None, True, None, None, None
+        ):
             raise ConfigError(
-                "--axis-origin, --axis-direction, --no-robust and --formulation apply to observations.csv; "
-                "a session.mcap is solved with the rod and settings of its recorded job"
+                "--axis-origin, --axis-direction, --no-robust, --formulation, --sigma-mm and "
+                "--robot-sigma-mm apply to observations.csv; a session.mcap is solved with the rod and "
+                "settings of its recorded job"
             )
         from lasercal_hw.run.replay import solve_recording  # its recording reader is not needed for a CSV
 
@@ -74,19 +92,29 @@ def solve_command(
             err_console.print(f"[yellow]replay:[/] {message}")
         result, gates = replay.solution.result, replay.job.quality
     else:
-        rod = RodLine(origin_m=np.array(parse_vector(axis_origin, 3, "--axis-origin")), direction=direction)
-        observations = load_observations(input_path)
         if use_recorded_centres:
             raise ConfigError("--use-recorded-centres applies to a session.mcap, not to observations.csv")
-        options = SolverOptions(
-            default_sigma_uv_m=sigma_mm / 1e3,
-            robot_sigma_m=robot_sigma_mm / 1e3,
-            estimate_axis=estimate_axis,
-            estimate_range_offset=estimate_range_offset,
+        observations = load_observations(input_path)
+        settings = read_solve_settings(input_path) or SolveSettings(
+            RodLine(), SolverOptions(robot_sigma_m=RobotConfig().position_accuracy_mm / 1e3), QualityConfig()
         )
-        mode: Literal["ours", "paper"] = "paper" if formulation == "paper" else "ours"
-        result = solve(observations, rod, robust=robust, options=options, formulation=mode)
-        gates = QualityConfig()
+        rod = replace(
+            settings.rod,
+            origin_m=settings.rod.origin_m if axis_origin is None else np.array(
+                parse_vector(axis_origin, 3, "--axis-origin")
+            ),
+            direction=settings.rod.direction if axis_direction is None else _direction(axis_direction),
+        )
+        changes: dict[str, object] = {
+            "default_sigma_uv_m": None if sigma_mm is None else sigma_mm / 1e3,
+            "robot_sigma_m": None if robot_sigma_mm is None else robot_sigma_mm / 1e3,
+            "estimate_axis": True if estimate_axis else None,
+            "estimate_range_offset": True if estimate_range_offset else None,
+            "formulation": formulation,
+        }
+        options = settings.solver.model_copy(update={k: v for k, v in changes.items() if v is not None})
+        result = solve(observations, rod, robust=robust, options=options)
+        gates = settings.quality
     verdict = evaluate_gates(result, gates, len(result.residuals))
     document = result.to_json_dict() | {"passed": verdict.passed, "verdict": verdict.as_dict()}
     if output is not None:
@@ -106,6 +134,13 @@ def solve_command(
     if not verdict.passed:
         err_console.print(f"[bold red]quality gate failed:[/] {escape('; '.join(verdict.failures()))}")
         raise typer.Exit(int(ExitCode.QUALITY_GATE_FAILED))
+
+
+def _direction(text: str) -> FloatArray:
+    direction = np.array(parse_vector(text, 3, "--axis-direction"))
+    if np.linalg.norm(direction) < 1e-9:
+        raise ConfigError("--axis-direction must not be the zero vector")
+    return direction
 
 
 def print_result(result: CalibrationResult) -> None:

@@ -9,6 +9,14 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from lasercal_hw.cli.common import (
+    DryRunOption,
+    JsonOption,
+    RobotOption,
+    ScannerOption,
+    SceneOption,
+    YesOption,
+)
 from lasercal_hw.errors import ConfigError, ExitCode
 
 if TYPE_CHECKING:
@@ -16,10 +24,6 @@ if TYPE_CHECKING:
 
 CalibrationOption = Annotated[
     Path, typer.Option("--calibration", help="The result.json of the calibration to check.")
-]
-RobotOption = Annotated[str | None, typer.Option("--robot", help="Robot controller host, e.g. 192.168.1.10.")]
-ScannerOption = Annotated[
-    str | None, typer.Option("--scanner", help="Scanner URL (default: the job's scanner.url).")
 ]
 ConfigOption = Annotated[
     Path | None,
@@ -29,17 +33,8 @@ WaypointsOption = Annotated[
     int | None,
     typer.Option("--waypoints", min=2, max=20, help="Waypoints to visit (default verify.waypoints, 4)."),
 ]
-YesOption = Annotated[bool, typer.Option("--yes", "-y", help="Do not ask before moving the robot.")]
-JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON document (progress on stderr).")]
 OutOption = Annotated[
     Path | None, typer.Option("--out", help="Output folder (./lasercal-out/verify-<time>).")
-]
-DryRunOption = Annotated[
-    bool, typer.Option("--dry-run", help="Verify against a fake cell started on a free loopback address.")
-]
-SceneOption = Annotated[
-    Path | None,
-    typer.Option("--scene", help="Scene file for the --dry-run fake cell (e.g. a moved scanner)."),
 ]
 
 _VERDICT_COLOURS = {"ok": "bold green", "degraded": "bold yellow", "recalibrate": "bold red"}

@@ -27,8 +27,10 @@ from lasercal_hw.geometry import pose_to_matrix
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
+from lasercal_hw.run.outcome import solve_run
+from lasercal_hw.run.records import ProgressCallback, ResumeState, RunOutcome, RunRecorder
 from lasercal_hw.run.resume import DESIGN_EVENT
-from lasercal_hw.run.sequencer import ProgressCallback, ResumeState, RunOutcome, RunRecorder, Sequencer
+from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.ur_kinematics import URModel, inverse_kinematics_branches, robot_model
 from trajectories.candidates import PoseUncertainty
 from trajectories.design import Design, design, information_blocks, request_for_job, visited_crossings
@@ -154,18 +156,22 @@ def run_second_design(
     _record_design(recorder, clock, 2, first_count, poses, estimate.matrix(), result)
     if len(poses) == 0:
         return first
+    every_waypoint = np.vstack([waypoints, poses])
     sequencer = Sequencer(
         robot,
         scanner,
         recorder,
         job,
-        np.vstack([waypoints, poses]),
+        every_waypoint,
         on_progress=on_progress,
         resume=ResumeState(first.measurements, first.skipped, first.background),
         cancel=cancel,
         clock=clock,
     )
-    outcome = sequencer.run()
+    outcome = solve_run(
+        sequencer.measure(), job, recorder,
+        waypoint_count=len(every_waypoint), on_progress=on_progress, cancel=cancel, clock=clock,
+    )
     outcome.timings.motion_s += first.timings.motion_s
     outcome.timings.dwell_s += first.timings.dwell_s
     outcome.timings.wall_s += first.timings.wall_s

@@ -40,7 +40,6 @@ from typing import Any
 
 import numpy as np
 
-from fakes.cell import READY_PREFIX
 from lasercal_hw.errors import DeviceTimeoutError, InterruptedRunError, TransportError
 from lasercal_hw.models import FloatArray
 
@@ -73,6 +72,8 @@ def free_loopback_address(rng: random.Random | None = None) -> str:
 
 def parse_ready_line(line: str) -> dict[str, Any]:
     """The JSON object of a fake cell's ready line (see the module docstring)."""
+    from fakes.cell import READY_PREFIX
+
     document = json.loads(line[len(READY_PREFIX):])
     missing = {"robot_host", "scanner_url", "T_base_laser"} - set(document)
     if missing:
@@ -145,6 +146,8 @@ class FakeCellProcess:
 
     def _await_ready(self) -> FakeCellProcess:
         """Wait for the child's ready line (its document goes to ``info``)."""
+        from fakes.cell import READY_PREFIX
+
         assert self.process is not None and self.process.stdout is not None
         deadline = time.monotonic() + self.startup_timeout_s
         with selectors.DefaultSelector() as selector:

@@ -22,16 +22,18 @@ import numpy as np
 
 from lasercal_hw import __version__
 from lasercal_hw.config import JobConfig, with_overrides
-from lasercal_hw.errors import ConfigError, DeviceError, LasercalError
+from lasercal_hw.errors import ConfigError, DeviceError, InterruptedRunError, LasercalError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
 from lasercal_hw.run.events import EventSink, RunEvent
+from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
 from lasercal_hw.run.preflight import PreflightReport
+from lasercal_hw.run.records import ProgressCallback, ResumeState, RunOutcome
 from lasercal_hw.run.resume import META_JOB, META_WAYPOINTS, recorded_job, resume_state
-from lasercal_hw.run.sequencer import ResumeState, RunOutcome, Sequencer
+from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
@@ -181,11 +183,14 @@ def calibrate(
     cancel = cancel or CancelToken()
     started_s = time.monotonic()
     with open_sequencer(request, sink, cancel, confirm) as session:
-        outcome = session.sequencer.run()
+        outcome = solve_run(
+            session.sequencer.measure(), session.job, session.recorder,
+            waypoint_count=len(session.waypoints), on_progress=session.on_progress, cancel=cancel,
+        )
         if session.job.trajectory.adaptive:  # design the rest from this estimate, measure it, solve all
             outcome = run_second_design(
                 session.robot, session.scanner, session.recorder, session.job, session.waypoints, outcome,
-                on_progress=sink.progress_listener(session.job.rod.radius_m), cancel=cancel,
+                on_progress=session.on_progress, cancel=cancel,
             )
         sink.emit("stage", "writing the outputs", stage="outputs")
         files = {"session": session.session_path} | write_outputs(
@@ -222,6 +227,7 @@ class SequencerSession:
     recorder: SessionRecorder
     ground_truth: FloatArray | None
     fake_cell: dict[str, Any] | None
+    on_progress: ProgressCallback
 
 
 @contextlib.contextmanager
@@ -236,7 +242,7 @@ def open_sequencer(
     """Everything a run does around its sequencer, for ``calibrate`` and for other
     procedures on the same machinery (``lasercal verify`` measures without solving):
     output folder, fake cell, devices, recording, and on failure where the recording is
-    (with the ``--resume`` hint when ``resumable``)."""
+    (and that the run can be resumed from it, when ``resumable``)."""
     job, waypoints, out_dir, state, created = _prepare(request)
     session_path = request.resume or out_dir / SESSION_FILE
     try:
@@ -247,18 +253,19 @@ def open_sequencer(
                 job, ground_truth, fake_cell = _start_fake_cell(request, job, out_dir, stack, sink, cancel)
             cancel.raise_if_cancelled()
             if job.robot.host is None:
-                raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
+                raise ConfigError("no robot given: say where the robot is (robot.host in the job file)")
             sink.emit("stage", "connecting to the scanner and the robot", stage="connect")
             robot, scanner = _connect(job, stack)
             recorder = _open_recorder(request, job, waypoints, robot, scanner, ground_truth, session_path)
             stack.callback(recorder.close)
+            on_progress = sink.progress_listener(job.rod.radius_m)
             sequencer = Sequencer(
                 robot,
                 scanner,
                 recorder,
                 job,
                 waypoints,
-                on_progress=sink.progress_listener(job.rod.radius_m),
+                on_progress=on_progress,
                 before_motion=None if confirm is None else lambda report: confirm(
                     MotionPlan(report, job, len(waypoints))
                 ),
@@ -267,10 +274,12 @@ def open_sequencer(
             )
             yield SequencerSession(
                 job, waypoints, out_dir, session_path, sequencer, robot, scanner, recorder, ground_truth,
-                fake_cell,
+                fake_cell, on_progress,
             )
     except (LasercalError, KeyboardInterrupt) as exc:
-        _after_failure(out_dir, session_path, created, sink, exc, resumable)
+        _after_failure(
+            out_dir, session_path, created, sink, exc, resumable=resumable, dry_run=request.dry_run
+        )
         raise
 
 
@@ -294,7 +303,10 @@ def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeSt
     except OSError as exc:
         raise ConfigError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}") from exc
     if (out_dir / SESSION_FILE).exists():
-        raise ConfigError(f"{out_dir / SESSION_FILE} already exists; choose another --out or use --resume")
+        raise ConfigError(
+            f"{out_dir / SESSION_FILE} already exists: choose another output folder, "
+            "or resume that run from its recording"
+        )
     return job, np.asarray(waypoints, dtype=float).reshape(-1, 6), out_dir, None, created
 
 
@@ -380,18 +392,24 @@ def _open_recorder(
 
 
 def _after_failure(
-    out_dir: Path, session_path: Path, created: bool, sink: EventSink, exc: BaseException, resumable: bool
+    out_dir: Path, session_path: Path, created: bool, sink: EventSink, exc: BaseException, *,
+    resumable: bool, dry_run: bool,
 ) -> None:
-    """Say where the recording is, or remove an output folder the run left empty."""
+    """Say where the recording is (the ``stopped`` event: ``session``, ``resumable``,
+    ``interrupted``, ``dry_run``, so each front end can say how to resume in its own words),
+    or remove an output folder the run left empty."""
     if session_path.exists():
-        hint = "after fixing the cause " + (
-            f"continue with: lasercal run --resume {session_path}" if resumable else "start again"
-        )
+        interrupted = isinstance(exc, InterruptedRunError | KeyboardInterrupt)
+        action = "resume this run from its recording" if resumable else "start again"
+        when = "" if interrupted else "once the cause is fixed, "
         sink.emit(
             "stopped",
-            f"recording kept in {session_path}; {hint}",
+            f"recording kept in {session_path}; {when}{action}",
             session=str(session_path),
             error=str(exc),
+            resumable=resumable,
+            interrupted=interrupted,
+            dry_run=dry_run,
         )
         return
     leftovers = [p for p in out_dir.iterdir() if p.name != DRY_RUN_SCENE_FILE]

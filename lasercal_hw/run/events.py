@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from lasercal_hw.run.sequencer import Progress
+from lasercal_hw.run.records import Progress
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import RodCentre
 

@@ -20,7 +20,7 @@ from lasercal_hw.geometry import rotation_angle_rad
 from lasercal_hw.models import FloatArray
 from lasercal_hw.outputs.exports import exports, static_transform_publisher_args, urdf_joint
 from lasercal_hw.outputs.report import ReportData, render_report
-from lasercal_hw.run.sequencer import RunOutcome
+from lasercal_hw.run.records import RunOutcome
 
 logger = logging.getLogger(__name__)
 
@@ -133,7 +133,7 @@ def write_outputs(
         "observations": out_dir / OBSERVATIONS_FILE,
         "result": out_dir / RESULT_FILE,
     }
-    write_observations_csv(files["observations"], outcome.observations)
+    write_observations_csv(files["observations"], outcome.observations, outcome.solve_settings)
     document = result_document(outcome, job, ground_truth=ground_truth)
     write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
     T = outcome.result.matrix()

@@ -23,6 +23,7 @@ from lasercal_hw.calibration.consensus import CONSENSUS_WAYPOINTS, provisional_p
 from lasercal_hw.config import JobConfig, NominalPose, with_overrides
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import FloatArray, RodLine
+from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.resume import (
     check_observation_events,
     recorded_background,
@@ -30,7 +31,7 @@ from lasercal_hw.run.resume import (
     recorded_job,
     window_average,
 )
-from lasercal_hw.run.sequencer import TwoPassSolution, WaypointMeasurement, predict_rod, solve_two_pass
+from lasercal_hw.run.two_pass import TwoPassSolution, predict_rod, solve_two_pass
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 from lasercal_hw.session.reader import SessionRecording, read_session

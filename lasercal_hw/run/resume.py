@@ -17,7 +17,7 @@ import numpy as np
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, LaserScan
-from lasercal_hw.run.sequencer import ResumeState, SkippedWaypoint, WaypointMeasurement
+from lasercal_hw.run.records import ResumeState, SkippedWaypoint, WaypointMeasurement
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodCentre, RodQuality
 from lasercal_hw.session.reader import SessionRecording

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from fakes.scene import parse_scene
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.problems import ApiError
 
@@ -42,6 +41,8 @@ def scene_toml(scene: dict[str, Any]) -> str:
         for item in items:
             lines += ["", f"[[{name}]]", *(f"{k} = {_value(v)}" for k, v in item.items())]
     text = "\n".join(lines) + "\n"
+    from fakes.scene import parse_scene
+
     try:
         parse_scene(text, "scene")
     except ConfigError as exc:

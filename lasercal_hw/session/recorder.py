@@ -93,7 +93,7 @@ class SessionRecorder:
         self.path = Path(path)
         if self.path.exists() and not overwrite:
             raise ConfigError(
-                f"session file {self.path} already exists; resume it with --resume, "
+                f"session file {self.path} already exists: resume that run from its recording, "
                 "or choose another output path"
             )
         self.previous: SessionRecording | None = None

@@ -16,7 +16,7 @@ from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray
 from lasercal_hw.outputs.report import ReportData, render_report
 from lasercal_hw.run.outputs import transform_error, write_text
-from lasercal_hw.run.sequencer import Timings
+from lasercal_hw.run.records import Timings
 from lasercal_hw.verify.active import ActiveCalibration
 from lasercal_hw.verify.drift import DriftTest
 from lasercal_hw.verify.identity import IdentityCheck

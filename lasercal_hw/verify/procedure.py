@@ -24,7 +24,8 @@ from lasercal_hw.models import FloatArray
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.engine import MotionPlan, ProcedureReport, RunRequest, open_sequencer
 from lasercal_hw.run.events import EventSink, RunEvent
-from lasercal_hw.run.sequencer import Measured, Timings, WaypointMeasurement, refit_centres
+from lasercal_hw.run.records import Measured, Timings, WaypointMeasurement
+from lasercal_hw.run.two_pass import refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.verify.active import ActiveCalibration, load_active_calibration, recorded_residuals
@@ -162,7 +163,7 @@ def verify(
     chosen_job = request.job if request.job is not None else active.job
     if chosen_job is None:
         raise ConfigError(
-            f"{active.path} does not record the job it was made with: pass the job file with --config"
+            f"{active.path} does not record the job it was made with: give verify that job file"
         )
     plan = plan_verify(
         chosen_job,

@@ -96,7 +96,7 @@ def select_waypoints(
     if len(usable) < MIN_WAYPOINTS:
         raise CalibrationError(
             f"only {len(usable)} of the trajectory's {len(poses)} waypoints put the rod through the scan "
-            "plane the calibration describes: check that --config and the calibration belong to this cell"
+            "plane the calibration describes: check that the job and the calibration belong to this cell"
         )
     information = waypoint_information(model, poses[usable], seen[usable], sigma_uv_m)
     base = np.linalg.inv(model.prior())

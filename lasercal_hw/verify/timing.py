@@ -17,7 +17,7 @@ import numpy as np
 
 from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray
-from lasercal_hw.run.sequencer import retract_candidates
+from lasercal_hw.run.retract import retract_candidates
 from lasercal_hw.ur_kinematics import inverse_kinematics_pose
 
 HOME_POSTURE_RAD = np.array([0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0])

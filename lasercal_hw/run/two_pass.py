@@ -1,0 +1,156 @@
+"""The solve of a run, live or replayed: the first pass on the circle-fit centres, then the
+second pass on centres re-fitted as the ellipse each waypoint's solved rod axis cuts from
+the plane (``solve_two_pass``); where a transform predicts the rod (``predict_rod``).
+
+No motion and no devices: ``lasercal solve session.mcap`` and verify use it as the live run does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from lasercal_hw.calibration.model import lines_in_scanner, plane_crossing, rod_lines_in_base
+from lasercal_hw.calibration.observations import SolveSettings
+from lasercal_hw.calibration.result import CalibrationResult
+from lasercal_hw.calibration.solver import SolverOptions, solve
+from lasercal_hw.config import JobConfig
+from lasercal_hw.models import FloatArray, Observation, RodLine
+from lasercal_hw.run.records import WaypointMeasurement
+from lasercal_hw.scan.average import AveragedScan
+from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
+
+
+@dataclass(frozen=True)
+class RodPrediction:
+    """Where a transform says the rod should be in the scanner: its axis direction and,
+    when the rod actually reaches the scan plane, the crossing point."""
+
+    axis_in_scanner: FloatArray
+    expected_uv_m: FloatArray | None
+
+
+def predict_rod(T_base_laser: FloatArray, tcp_pose: FloatArray, rod: RodLine) -> RodPrediction:
+    """The rod axis direction and plane crossing in the scanner frame for one TCP pose."""
+    rotation = np.asarray(T_base_laser, dtype=float)[:3, :3]
+    translation_m = np.asarray(T_base_laser, dtype=float)[:3, 3]
+    origins, directions = rod_lines_in_base(np.asarray(tcp_pose, dtype=float)[None, :], rod)
+    _, axes = lines_in_scanner(rotation, translation_m, origins, directions)
+    axis = axes[0] if axes[0, 2] >= 0.0 else -axes[0]
+    if abs(axes[0, 2]) < 1e-9:
+        return RodPrediction(axis, None)
+    crossing, _, line_s = plane_crossing(rotation, translation_m, origins, directions)
+    on_rod = 0.0 <= line_s[0] <= rod.length_m
+    return RodPrediction(axis, crossing[0] if on_rod else None)
+
+
+def _without_range_offset(observation: Observation, range_offset_m: float) -> Observation:
+    """A first-pass centre moved back along its bearing by the range offset (the solver's
+    first-order model of what the offset does to a centre)."""
+    if not range_offset_m:
+        return observation
+    centre = np.asarray(observation.centre_uv_m, dtype=float)
+    moved = centre * (1.0 - range_offset_m / float(np.linalg.norm(centre)))
+    return replace(observation, centre_uv_m=moved)
+
+
+def estimated_rod(result: CalibrationResult, nominal: RodLine) -> RodLine:
+    """The rod line a result estimated (the nominal one when it did not estimate it)."""
+    axis = result.rod_axis
+    if axis is None or not axis.estimated:
+        return nominal
+    return replace(nominal, origin_m=np.asarray(axis.origin_m), direction=np.asarray(axis.direction))
+
+
+@dataclass(frozen=True)
+class TwoPassSolution:
+    """The solve of a run: first pass on the circle-fit centres, then the second pass on
+    centres re-fitted as the ellipse each waypoint's solved rod axis cuts from the plane."""
+
+    first_pass: CalibrationResult
+    result: CalibrationResult
+    observations: list[Observation]
+    refinement: str
+    kept_first_pass: list[tuple[int, str]]
+    #: The second pass's rod, solver settings and gates: ``observations`` solved with them
+    #: give ``result`` again (``observations.csv`` carries them).
+    settings: SolveSettings
+
+
+def solve_two_pass(
+    measurements: Sequence[WaypointMeasurement],
+    job: JobConfig,
+    background: AveragedScan | None,
+    on_second_pass: Callable[[], None] | None = None,
+) -> TwoPassSolution:
+    """Solve a run's measurements as a live run does; ``lasercal solve session.mcap`` calls
+    this too, so a replay of the recording gives the live result to the last bit.
+    ``on_second_pass`` is called between the passes (progress display)."""
+    rod = job.rod.rod_line()
+    options = SolverOptions(
+        robot_sigma_m=job.robot.position_accuracy_mm / 1000.0,
+        estimate_axis=job.rod.estimate_axis,
+        axis_prior_std_m=job.rod.axis_std_mm / 1000.0,
+        axis_prior_std_deg=job.rod.axis_std_deg,
+        estimate_range_offset=job.scanner.estimate_range_offset,
+        max_range_terms=job.scanner.range_error_terms,
+    )
+    first = solve([m.observation() for m in measurements], rod, options=options)
+    if on_second_pass is not None:
+        on_second_pass()
+    range_offset_m = first.range_offset.offset_mm / 1000.0 if first.range_offset is not None else 0.0
+    refitted, kept = refit_centres(
+        measurements, first.matrix(), estimated_rod(first, rod), background, range_offset_m=range_offset_m
+    )
+    kept_indices = {index for index, _ in kept}
+    observations = [
+        _without_range_offset(m.observation(), range_offset_m) if m.index in kept_indices else m.observation()
+        for m in refitted
+    ]
+    # The second pass keeps estimating an offset the first one estimated (and removed above).
+    estimate_offset = True if first.range_offset is not None else options.estimate_range_offset
+    applied = options.model_copy(
+        update={"range_offset_applied_m": range_offset_m, "estimate_range_offset": estimate_offset}
+    )
+    result = solve(observations, rod, options=applied)
+    refinement = (
+        f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
+        "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
+    )
+    settings = SolveSettings(rod, applied, job.quality)
+    return TwoPassSolution(first, result, observations, refinement, kept, settings)
+
+
+def refit_centres(
+    measurements: Sequence[WaypointMeasurement],
+    T_base_laser: FloatArray,
+    rod: RodLine,
+    background: AveragedScan | None,
+    *,
+    range_offset_m: float = 0.0,
+) -> tuple[list[WaypointMeasurement], list[tuple[int, str]]]:
+    """The measurements with each centre fitted again as the ellipse the rod axis predicted
+    by ``T_base_laser`` cuts from the plane (the second pass; ``lasercal verify`` with the
+    active calibration), the scanner's ``range_offset_m`` removed, and the waypoints
+    (index, reason) that kept their first centre because the re-fit failed."""
+    refitted: list[WaypointMeasurement] = []
+    kept: list[tuple[int, str]] = []
+    for m in measurements:
+        predicted = predict_rod(T_base_laser, m.tcp_pose, rod)
+        try:
+            centre = find_rod_centre(
+                m.averaged,
+                radius_m=rod.radius_m,
+                background=background,
+                axis_in_scanner=predicted.axis_in_scanner,
+                expected_uv_m=predicted.expected_uv_m,
+                range_offset_m=range_offset_m,
+            )
+        except RodNotFoundError as exc:
+            kept.append((m.index, str(exc)))
+            refitted.append(m)
+            continue
+        refitted.append(WaypointMeasurement(m.index, m.tcp_pose, m.averaged, centre))
+    return refitted, kept
