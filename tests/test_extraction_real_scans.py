@@ -104,3 +104,24 @@ def test_a_rod_sized_object_far_from_the_expected_position_is_refused_and_named(
     named = r"rod-like object at \(\+0\.42\d, -0\.6\d\d\) m, 0\.80 m at -58 deg was refused"
     assert re.search(named, message)
     assert "m from where the rod should be (limit 0.15 m)" in message
+
+
+def test_with_intensities_a_dark_edge_beam_beside_a_bright_rod_is_left_out() -> None:
+    rng = np.random.default_rng(11)
+    truth = _at(0.7, 5.0)
+    dwell = real_like_scans(truth, RADIUS_M, rng, background_m=2.0, reading_sigma_m=0.003)
+    on_rod = np.flatnonzero(average_scans(dwell).ranges_m < 1.5)
+    edge = int(on_rod[0])
+    # The edge beam's spot is mostly on the wall: its range blends in only 2 mm (inside the
+    # surface tolerance), but its intensity is the wall's.
+    dark = [
+        replace(s, ranges_m=np.where(np.arange(s.ranges_m.size) == edge, s.ranges_m + 0.002, s.ranges_m),
+                intensities=np.where(np.arange(s.ranges_m.size) == edge, 1500, s.intensities))
+        for s in dwell
+    ]
+    with_intensity = find_rod_centre(average_scans(dark), radius_m=RADIUS_M, axis_in_scanner=Z_AXIS)
+    ranges_only = find_rod_centre(
+        average_scans([replace(s, intensities=None) for s in dark]), radius_m=RADIUS_M, axis_in_scanner=Z_AXIS
+    )
+    assert edge not in with_intensity.beam_indices.tolist()
+    assert edge in ranges_only.beam_indices.tolist()

@@ -454,7 +454,8 @@ def _rod_core(
     for _ in range(4):
         residuals, _ = _residuals(points, centre, section, section.radius_m)
         on_surface = np.abs(residuals) <= settings.edge_residual_sigmas * sigma[part] + tolerance
-        hits = on_surface & _rays_hit(points, centre, section, step, sigma[part]) & _bright(scan, part, run)
+        hits = on_surface & _rays_hit(points, centre, section, step, sigma[part])
+        hits &= _bright(scan, part, run, settings)
         runs = [r for r in _runs(hits) if r.size]
         if not runs:
             return part[:0]
@@ -469,20 +470,29 @@ def _rod_core(
     return run
 
 
-def _bright(scan: AveragedScan, part: NDArray[np.int64], run: NDArray[np.int64]) -> NDArray[np.bool_]:
-    """With intensities (SCIP ME) and a rod clearly brighter than the rest of its segment
-    (retro-reflective tape; a mixed pixel returns at the background's level), the beams of
-    ``part`` at least as bright as the geometric mean of the two; else every beam."""
+def _bright(
+    scan: AveragedScan, part: NDArray[np.int64], run: NDArray[np.int64], settings: ExtractionSettings
+) -> NDArray[np.bool_]:
+    """With intensities (SCIP ME) and a rod clearly brighter than what surrounds it (the rest
+    of its segment and ``max_ramp_beams`` beyond each end: retro-reflective tape against a
+    wall; a mixed pixel returns at the background's level), the beams of ``part`` at least
+    as bright as the geometric mean of the two; else every beam."""
     everything = np.ones(part.size, dtype=bool)
-    if scan.intensities is None or run.size == 0 or run.size == part.size:
+    if scan.intensities is None or run.size == 0:
         return everything
-    intensity = scan.intensities[part]
-    on_run = np.isin(part, run)
+    intensity = scan.intensities
+    reach = settings.max_ramp_beams
+    around = np.concatenate([
+        np.setdiff1d(part, run),
+        np.arange(max(0, part[0] - reach), part[0]),
+        np.arange(part[-1] + 1, min(intensity.size, part[-1] + 1 + reach)),
+    ])
     with np.errstate(invalid="ignore"):
-        rod_level, rest_level = np.nanmedian(intensity[on_run]), np.nanmedian(intensity[~on_run])
+        rod_level = np.nanmedian(intensity[run])
+        rest_level = np.nanmedian(intensity[around]) if around.size else np.nan
     if not (np.isfinite(rod_level) and np.isfinite(rest_level)) or rod_level < 2.0 * max(rest_level, 1.0):
         return everything
-    return ~(intensity < np.sqrt(rod_level * max(rest_level, 1.0)))
+    return ~(intensity[part] < np.sqrt(rod_level * max(rest_level, 1.0)))
 
 
 def _rays_hit(
