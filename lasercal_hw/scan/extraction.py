@@ -475,8 +475,9 @@ def _bright(
 ) -> NDArray[np.bool_]:
     """With intensities (SCIP ME) and a rod clearly brighter than what surrounds it (the rest
     of its segment and ``max_ramp_beams`` beyond each end: retro-reflective tape against a
-    wall; a mixed pixel returns at the background's level), the beams of ``part`` at least
-    as bright as the geometric mean of the two; else every beam."""
+    wall; a mixed pixel returns at the background's level), the beams of ``part`` brighter
+    than that level (1.5 times it, or the geometric mean of the two if lower); else every
+    beam."""
     everything = np.ones(part.size, dtype=bool)
     if scan.intensities is None or run.size == 0:
         return everything
@@ -492,7 +493,10 @@ def _bright(
         rest_level = np.nanmedian(intensity[around]) if around.size else np.nan
     if not (np.isfinite(rod_level) and np.isfinite(rest_level)) or rod_level < 2.0 * max(rest_level, 1.0):
         return everything
-    return ~(intensity[part] < np.sqrt(rod_level * max(rest_level, 1.0)))
+    # At the background's level, not merely darker than the rod's middle: the rod's own edge
+    # beams meet it at grazing incidence and return less than its front.
+    level = min(np.sqrt(rod_level * max(rest_level, 1.0)), 1.5 * max(rest_level, 1.0))
+    return ~(intensity[part] < level)
 
 
 def _rays_hit(
