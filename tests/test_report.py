@@ -94,3 +94,22 @@ def test_inconsistent_lengths_are_refused():
                           (0.003, 0.5, 10)])
 def test_residual_magnification_is_a_round_number(max_residual_m, extent_m, expected):
     assert _residual_scale(max_residual_m, extent_m) == expected
+
+
+def test_a_dry_runs_report_says_how_far_it_is_from_the_truth() -> None:
+    import matplotlib.pyplot as plt
+
+    from lasercal_hw.outputs.report import _draw_summary
+
+    def summary(data: ReportData) -> str:
+        figure, ax = plt.subplots()
+        try:
+            _draw_summary(ax, data)
+            return "\n".join(text.get_text() for text in ax.texts)
+        finally:
+            plt.close(figure)
+
+    live = _example()
+    assert "truth" not in summary(live)
+    dry = live.model_copy(update={"truth_error_mm_deg": (1.5, 0.083)})
+    assert "dry run, off the fake's truth: 1.50 mm, 0.083 deg" in summary(dry)

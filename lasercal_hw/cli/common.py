@@ -12,8 +12,10 @@ from rich.console import Console
 
 from lasercal_hw.errors import ConfigError
 
-console = Console(stderr=False, highlight=False)
-err_console = Console(stderr=True, highlight=False)
+# soft_wrap: a message is never broken at the console's width (80 columns when the output is a
+# file or a pipe), so a path or a URL stays whole and can be pasted.
+console = Console(stderr=False, highlight=False, soft_wrap=True)
+err_console = Console(stderr=True, highlight=False, soft_wrap=True)
 
 # Options that mean the same in every command that takes them (each command's own live there).
 RobotOption = Annotated[str | None, typer.Option("--robot", help="Robot controller host, e.g. 192.168.1.10.")]

@@ -10,6 +10,7 @@ once the command line names it.
 from __future__ import annotations
 
 import importlib
+import inspect
 from dataclasses import dataclass
 from typing import Any, ClassVar, cast
 
@@ -39,6 +40,27 @@ class LazyCommand:
         return cast(TyperCommand, typer.main.get_command(shell))
 
 
+def reflow_help(command: Any) -> None:
+    """Join each help paragraph of ``command`` and its sub-commands into one line, so the help
+    wraps to the terminal: typer's rich help keeps a docstring's single line breaks after its
+    first paragraph and wraps those lines again, into jagged ones. A line that starts with
+    ``- `` or with spaces (a list, an example) stays a line of its own."""
+    if command.help:
+        command.help = "\n\n".join(_joined(p) for p in inspect.cleandoc(command.help).split("\n\n"))
+    for sub in getattr(command, "commands", {}).values():
+        reflow_help(sub)
+
+
+def _joined(paragraph: str) -> str:
+    lines: list[str] = []
+    for line in paragraph.split("\n"):
+        if lines and not line.startswith(("- ", " ", "\b")) and not lines[-1].startswith("\b"):
+            lines[-1] += " " + line
+        else:
+            lines.append(line)
+    return "\n".join(lines)
+
+
 class _Placeholder(TyperCommand):
     """Stands for a lazy command in listings; never invoked."""
 
@@ -62,5 +84,6 @@ class LazyGroup(TyperGroup):
         name, command, rest = super().resolve_command(ctx, args)
         if name is not None and isinstance(command, _Placeholder):
             command = command.lazy.load(name)
+            reflow_help(command)
             self.commands[name] = command
         return name, command, rest

@@ -21,7 +21,8 @@ DaemonOption = Annotated[
 TokenFileOption = Annotated[
     Path | None,
     typer.Option(
-        "--token-file", help="Token file (default: $LASERCAL_TOKEN, else ~/.local/state/lasercal/token)."
+        "--token-file",
+        help="Token file (default: ~/.local/state/lasercal/token; $LASERCAL_TOKEN, the token itself, wins).",
     ),
 ]
 JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON document.")]

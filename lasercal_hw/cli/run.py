@@ -44,9 +44,14 @@ _LINE_COLOURS = {"centre": "green", "skip": "yellow", "warning": "yellow"}
 
 
 class ProgressView:
-    """Renders a run's events live (a bar plus one line per waypoint)."""
+    """Renders a run's events: one line per waypoint, stage, skip and warning, and on a
+    terminal a live bar below them, shown from the first progress step on (an error before it
+    prints alone) and stopped before anything goes to stderr (no line glued to the bar). A log
+    or a pipe gets the lines only."""
 
     def __init__(self, target: Console) -> None:
+        self._live = target.is_terminal
+        self._started = False
         self._progress = RichProgress(
             SpinnerColumn(),
             TextColumn("{task.description}"),
@@ -58,26 +63,36 @@ class ProgressView:
         self._task = self._progress.add_task("starting", total=None, status="")
 
     def __enter__(self) -> ProgressView:
-        self._progress.start()
         return self
 
     def __exit__(self, *exc_info: object) -> None:
-        self._progress.stop()
+        self._stop()
+
+    def _stop(self) -> None:
+        if self._started:
+            self._progress.stop()
+            self._started = False
 
     @contextlib.contextmanager
     def paused(self) -> Iterator[None]:
         """Stop the live display (e.g. for a prompt), then resume it."""
-        self._progress.stop()
+        was_started = self._started
+        self._stop()
         try:
             yield
         finally:
-            self._progress.start()
+            if was_started:
+                self._progress.start()
+                self._started = True
 
     def __call__(self, event: RunEvent) -> None:
         """Show one run event: progress moves the bar; centres, skips, retries, warnings and
         where the recording was kept are printed as lines."""
         data = event.data
         if event.kind == "progress":
+            if self._live and not self._started:
+                self._progress.start()
+                self._started = True
             status = []
             if data["scans_averaged"] is not None:
                 status.append(f"{data['scans_averaged']} scans")
@@ -97,6 +112,7 @@ class ProgressView:
         elif event.kind == "stage":
             self._progress.console.print(escape(event.message))
         elif event.kind == "stopped":  # where the recording is: with the error, on stderr
+            self._stop()
             err_console.print(escape(stopped_line(event.message, event.data)))
 
 

@@ -27,20 +27,20 @@ def solve_command(
         Path, typer.Argument(help="observations.csv, or the session.mcap of a run", show_default=False)
     ],
     axis_origin: str | None = typer.Option(
-        None, "--axis-origin", help="Rod axis origin in the TCP frame (m) [default: the file's, else 0,0,0]."
+        None, "--axis-origin", help="Rod axis origin in the TCP frame (m) (default: the file's, else 0,0,0)."
     ),
     axis_direction: str | None = typer.Option(
-        None, "--axis-direction", help="Rod axis direction, TCP frame [default: the file's, else 0,0,1]."
+        None, "--axis-direction", help="Rod axis direction, TCP frame (default: the file's, else 0,0,1)."
     ),
     robust: bool = typer.Option(True, "--robust/--no-robust", help="Robust loss and outlier rejection."),
     formulation: str | None = typer.Option(
-        None, "--formulation", help="ours | paper (the paper's own problem) [default: ours]."
+        None, "--formulation", help="ours | paper (the paper's own problem) (default: ours)."
     ),
     sigma_mm: float | None = typer.Option(
-        None, "--sigma-mm", help="Centre noise for rows without sigma_u, sigma_v [default: 5]."
+        None, "--sigma-mm", help="Centre noise for rows without sigma_u, sigma_v (default: 5)."
     ),
     robot_sigma_mm: float | None = typer.Option(
-        None, "--robot-sigma-mm", help="Robot TCP position noise per axis [default: the file's, else 1]."
+        None, "--robot-sigma-mm", help="Robot TCP position noise per axis (default: the file's, else 1)."
     ),
     output: Annotated[Path | None, typer.Option("--output", "-o", help="Also write result.json.")] = None,
     as_json: bool = typer.Option(False, "--json", help="Print the result.json document instead of a table."),

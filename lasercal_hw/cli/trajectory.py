@@ -140,8 +140,9 @@ ScannerPoseOption = Annotated[
     tuple[float, float, float, float, float, float] | None,
     typer.Option(
         "--scanner-pose",
+        metavar="X Y Z YAW PITCH ROLL",
         help="Rough scanner pose in the robot base frame: X Y Z (m) YAW PITCH ROLL (deg, ZYX); "
-        "default: the job's [scanner.nominal].",
+        "default: the job's scanner.nominal.",
     ),
 ]
 ConfigOption = Annotated[
@@ -162,6 +163,7 @@ UncertaintyOption = Annotated[
     tuple[float, float] | None,
     typer.Option(
         "--pose-uncertainty",
+        metavar="METRES DEGREES",
         help="How far off the rough pose may be: metres and degrees; default: the job's "
         "trajectory.pose_uncertainty (0.05 m, 5 deg unless set).",
     ),

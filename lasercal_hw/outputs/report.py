@@ -52,6 +52,9 @@ class ReportData(BaseModel):
     fov_min_rad: float = -0.75 * math.pi
     fov_max_rad: float = 0.75 * math.pi
     notes: list[str] = Field(default_factory=list)
+    truth_error_mm_deg: tuple[float, float] | None = Field(
+        None, description="a dry run: translation (mm) and rotation (deg) off the fake cell's ground truth"
+    )
 
     @model_validator(mode="before")
     @classmethod
@@ -241,6 +244,9 @@ def _draw_summary(ax: Axes, data: ReportData) -> None:
         f"outlier waypoints: {', '.join(outliers) if outliers else 'none'}",
         f"RMS residual (used): {data.rms_residual_mm():.3f} mm",
     ]
+    if data.truth_error_mm_deg is not None:
+        translation_mm, rotation_deg = data.truth_error_mm_deg
+        lines.append(f"dry run, off the fake's truth: {translation_mm:.2f} mm, {rotation_deg:.3f} deg")
     if data.notes:
         lines += ["", "notes:", *(f"- {note}" for note in data.notes)]
     ax.axis("off")

@@ -80,8 +80,10 @@ def result_document(
     return document
 
 
-def report_data(outcome: RunOutcome, job: JobConfig, title: str) -> ReportData:
-    """What the report PNG shows for this run."""
+def report_data(
+    outcome: RunOutcome, job: JobConfig, title: str, ground_truth: FloatArray | None = None
+) -> ReportData:
+    """What the report PNG shows for this run (a dry run's error against its truth too)."""
     result = outcome.result
     T = result.matrix()
     poses = np.array([o.tcp_pose for o in outcome.observations])
@@ -104,6 +106,7 @@ def report_data(outcome: RunOutcome, job: JobConfig, title: str) -> ReportData:
         background_angles_rad=background.angles_rad if background is not None else [],
         background_ranges_m=background.ranges_m if background is not None else [],
         notes=notes,
+        truth_error_mm_deg=None if ground_truth is None else tuple(transform_error(T, ground_truth).values()),
     )
 
 
@@ -149,5 +152,7 @@ def write_outputs(
         logger.warning("quality gate failed: %s and %s are not written (result.json has the transform "
                        "and its verdict)", URDF_FILE, TF_ARGS_FILE)
     if job.output.report:
-        files["report"] = render_report(report_data(outcome, job, title), out_dir / REPORT_FILE)
+        files["report"] = render_report(
+            report_data(outcome, job, title, ground_truth), out_dir / REPORT_FILE
+        )
     return files
