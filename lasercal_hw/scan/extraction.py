@@ -4,9 +4,11 @@ Steps (docs/extraction.md has the reasoning):
 
 1. Segment: with a background scan, beams significantly nearer than the background (per-
    beam noise of both scans); without one, runs of valid beams split at range jumps.
-   A candidate must stand in front of its neighbours and span the angle a rod of the
-   known radius covers at its range; the one nearest ``expected_uv_m`` (if given) or
-   with the best-matching size wins.
+   The rod's own beams are picked out of each run (steady mixed-pixel ramps beside it cut
+   off: ``_rod_core``). A candidate must stand in front of its neighbours and span the
+   angle a rod of the known radius covers at its range. Every candidate is fitted: the
+   fit nearest ``expected_uv_m`` wins if within the search radius (others are refused by
+   name); without an expected position two rod-like fits are a refusal naming both.
 2. Seed: mean of the arc points plus the paper's ``R*pi/4`` correction away from the
    scanner (exact for a far rod whose beams sample the half circle evenly across).
 3. Fit: Gauss-Newton on the orthogonal distance of each point to the rod's surface,
