@@ -16,7 +16,9 @@ Steps (docs/extraction.md has the reasoning):
    With ``axis_in_scanner`` the line is tilted and the cross-section is the ellipse
    (semi-minor r, semi-major r/|cos tilt|); without it the line is the scanner z axis
    and the cross-section a circle.  Each residual is weighted by the range noise
-   projected on the surface normal plus a small lateral (beam-angle) term.
+   projected on the surface normal plus a small lateral (beam-angle) term.  The
+   covariance adds what the dwell does not average away (residuals beyond the noise) and
+   how far the solver's range-error model is from this fit's response to a range error.
 4. Mixed pixels: unstable beams (their readings flipped between rod and background
    during the dwell: a low inlier count or a reading spread far above the scan's) are
    trimmed off the ends of every segment before it is judged; after the fit, edge beams
