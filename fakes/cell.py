@@ -8,8 +8,9 @@ ready, one line goes to standard output::
 
     fake cell ready: {"robot_host": ..., "scanner_url": ..., "T_base_laser": [[...]], ...}
 
-``lasercal run --dry-run`` reads it (``lasercal_hw.run.dry_run``) and compares its result with
-``T_base_laser``, the world's ground truth.
+A dry run starts the cell as a child process (``fakes.cell_process``, which runs
+``python -m fakes.cell``), reads that line and compares its result with ``T_base_laser``,
+the world's ground truth. ``lasercal fake cell`` serves the same cell in the foreground.
 
 Scene faults acted on here (a run first moves to its retract pose for the background,
 then to waypoint 0, 1, ...):
@@ -23,8 +24,10 @@ then to waypoint 0, 1, ...):
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -33,9 +36,11 @@ import numpy as np
 
 from fakes.scip_faults import ScipFaults
 from fakes.scip_server import DEFAULT_PORT, FakeScannerServer
+from fakes.serving import serve_until_signal
 from fakes.ur_controller.controller import ControllerConfig, FaultPlan
 from fakes.ur_controller.process import FakeRobot
 from fakes.world import World, WorldRangeSource
+from lasercal_hw.errors import LasercalError
 from lasercal_hw.models import FloatArray
 
 READY_PREFIX = "fake cell ready:"
@@ -122,3 +127,22 @@ class FakeCell:
         self.scanner.stop()
         self.robot.close()
 
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m fakes.cell --address A [--scene FILE] [--seed N] [--lifeline-stdin]``: the
+    child a ``FakeCellProcess`` starts (``lasercal fake cell`` is the same for people)."""
+    parser = argparse.ArgumentParser(prog="python -m fakes.cell", description=main.__doc__)
+    parser.add_argument("--address", required=True, help="loopback address to serve on")
+    parser.add_argument("--scene", type=Path, default=None, help="scene file (TOML)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the scanner's noise")
+    parser.add_argument("--lifeline-stdin", action="store_true", help="stop when standard input closes")
+    args = parser.parse_args(argv)
+    try:
+        cell = FakeCell(args.address, args.scene, args.seed)
+        serve_until_signal(cell, sys.stdin.buffer if args.lifeline_stdin else None)
+    except LasercalError as exc:  # a bad scene or a taken address: one line, for the parent to show
+        sys.exit(f"fake cell: {exc}")
+
+
+if __name__ == "__main__":
+    main()

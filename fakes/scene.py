@@ -7,11 +7,12 @@ format.  A bad file raises ``ConfigError`` naming the file, the field and the pr
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -152,6 +153,33 @@ class Scene(_Strict):
     noise: NoiseSettings = NoiseSettings()
     faults: FaultSettings = FaultSettings()
 
+    def to_toml(self) -> str:
+        """The scene as a scene file (every field; unset optional ones left out), which
+        ``parse_scene`` reads back to an equal scene."""
+        data = self.model_dump(exclude_none=True)
+        tables = {k: v for k, v in data.items() if isinstance(v, dict)}
+        arrays = {k: v for k, v in data.items() if isinstance(v, list) and v and isinstance(v[0], dict)}
+        lines = [f"{k} = {_toml_value(v)}" for k, v in data.items() if k not in tables and k not in arrays]
+        for name, table in tables.items():
+            lines += ["", f"[{name}]", *(f"{k} = {_toml_value(v)}" for k, v in table.items())]
+        for name, items in arrays.items():
+            for item in items:
+                lines += ["", f"[[{name}]]", *(f"{k} = {_toml_value(v)}" for k, v in item.items())]
+        return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _toml_value(value: Any) -> str:
+    """A TOML value: a boolean, a number, a string, or a list or inline table of them."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)  # full precision; inf and nan are TOML too
+    if isinstance(value, str):
+        return json.dumps(value)  # a JSON string is a valid TOML basic string
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{json.dumps(k)} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+
 
 def _format_errors(error: ValidationError) -> str:
     parts = []
@@ -167,6 +195,12 @@ def parse_scene(text: str, source: str = "<scene>") -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"scene file {source} is not valid TOML: {exc}; fix the syntax") from exc
+    return scene_from_mapping(data, source)
+
+
+def scene_from_mapping(data: dict[str, Any], source: str = "<scene>") -> Scene:
+    """Validate a scene given as tables (a TOML file read, or JSON); ``source`` names it in
+    error messages."""
     try:
         return Scene.model_validate(data)
     except ValidationError as exc:

@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import contextlib
+import copy
+import functools
 import json
 import os
 import re
@@ -19,7 +21,9 @@ from typing import Any
 import httpx
 
 from lasercal_hw.errors import DeviceError, InterruptedRunError
+from lasercal_hw.run.events import EventSink, Stage
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
+from tests.verify_helpers import calibration_document, fast_job
 
 # A short dry run: the quick preset (10 waypoints), 0.5 s dwell, fast joint moves,
 # and acquisition settings that ride out the scan gaps a loaded CI machine causes.
@@ -31,15 +35,21 @@ QUICK_JOB: dict[str, Any] = {
 QUICK_DRY_RUN = {"kind": "dry_run", "confirm_motion": True, "job": QUICK_JOB, "dwell_s": 0.5}
 
 
+@functools.cache
+def _solved_result() -> dict[str, Any]:
+    """A real solver result (a short job, noise-free centres), as the template of fake ones."""
+    return calibration_document(fast_job())
+
+
 def fake_result(translation_m: list[float], std_mm: float = 0.5, passed: bool = True) -> dict[str, Any]:
-    """A minimal result.json as the engine writes it."""
+    """A result.json as the engine writes it, of a scanner at ``translation_m`` unturned."""
     T = [
         [1.0, 0.0, 0.0, translation_m[0]],
         [0.0, 1.0, 0.0, translation_m[1]],
         [0.0, 0.0, 1.0, translation_m[2]],
         [0.0, 0.0, 0.0, 1.0],
     ]
-    return {
+    return copy.deepcopy(_solved_result()) | {
         "T_base_laser": T,
         "translation_m": translation_m,
         "euler_zyx_deg": [0.0, 0.0, 0.0],
@@ -67,9 +77,10 @@ class FakeEngine:
 
     def __call__(self, ctx: RunContext) -> RunResult:
         self.contexts.append(ctx)
-        ctx.on_event("stage", "connecting", {"stage": "connect"})
+        events = EventSink(ctx.on_event)
+        events.emit("stage", "connecting", stage=Stage.CONNECT)
         ctx.confirm(None)
-        ctx.on_event("progress", "background", {"stage": "background", "completed": 0})
+        events.emit("progress", "background", stage=Stage.BACKGROUND, completed=0)
         (ctx.out_dir / "session.mcap").write_bytes(b"recording")
         self.started.set()
         first = 2 if ctx.resume_from is not None else 0
@@ -78,20 +89,18 @@ class FakeEngine:
             if ctx.cancel.cancelled:
                 raise InterruptedRunError(f"{ctx.cancel.reason}: arm stopped, recording kept")
             time.sleep(self.step_s)
-            ctx.on_event(
+            events.emit(
                 "progress",
                 f"waypoint {k}",
-                {
-                    "stage": "centre",
-                    "waypoint": k,
-                    "completed": k + 1,
-                    "waypoint_count": self.waypoints,
-                    "time_left_s": 1.0,
-                },
+                stage=Stage.CENTRE,
+                waypoint=k,
+                completed=k + 1,
+                waypoint_count=self.waypoints,
+                time_left_s=1.0,
             )
         if self.fail:
             raise DeviceError("the scanner went away")
-        ctx.on_event("progress", "solving", {"stage": "solve", "completed": self.waypoints})
+        events.emit("progress", "solving", stage=Stage.SOLVE, completed=self.waypoints)
         result = fake_result(self.translation_m)
         (ctx.out_dir / "result.json").write_text(json.dumps(result))
         return RunResult(
@@ -102,9 +111,9 @@ class FakeEngine:
         )
 
 
-def fake_runners(engine: FakeEngine) -> Callable[[Any, Any], dict[str, Runner]]:
+def fake_runners(engine: FakeEngine) -> Callable[[Any], dict[str, Runner]]:
     """``Daemon(runners=...)`` giving every calibration kind to ``engine`` (verify stays out)."""
-    return lambda devices, active: {"calibrate": engine, "dry_run": engine}
+    return lambda active: {"calibrate": engine, "dry_run": engine}
 
 
 def read_sse(

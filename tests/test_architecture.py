@@ -143,21 +143,45 @@ def test_the_pure_codec_imports_only_the_ground() -> None:
 
 
 
+
+def _code_strings(path: Path) -> list[tuple[int, str]]:
+    """(line, text) of every string constant of a module that is not a docstring."""
+    tree = ast.parse(path.read_text(), str(path))
+    docstrings = {id(node.value) for node in ast.walk(tree) if isinstance(node, ast.Expr)}
+    return [
+        (node.lineno, node.value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings
+    ]
+
+
+def _modules_below(front_ends: set[str]) -> list[Path]:
+    return [
+        path
+        for package in PACKAGES
+        for path in sorted((ROOT / package).rglob("*.py"))
+        if folder(".".join(path.relative_to(ROOT).with_suffix("").parts)) not in front_ends
+    ]
+
+
 def test_the_library_names_actions_not_command_line_flags() -> None:
     """Below the front ends a message says "resume this run from its recording"; the CLI adds
     ``--resume`` and the daemon ``POST /v1/jobs/{id}/resume``."""
-    front_ends = {"lasercal_hw.cli", "lasercal_hw.service"}
-    flagged = []
-    for package in PACKAGES:
-        for path in (ROOT / package).rglob("*.py"):
-            if folder(".".join(path.relative_to(ROOT).with_suffix("").parts)) in front_ends:
-                continue
-            tree = ast.parse(path.read_text(), str(path))
-            docstrings = {id(node.value) for node in ast.walk(tree) if isinstance(node, ast.Expr)}
-            flagged += [
-                f"{path.relative_to(ROOT)}:{node.lineno}"
-                for node in ast.walk(tree)
-                if isinstance(node, ast.Constant) and isinstance(node.value, str) and "--resume" in node.value
-                and id(node) not in docstrings
-            ]
+    flagged = [
+        f"{path.relative_to(ROOT)}:{line}"
+        for path in _modules_below({"lasercal_hw.cli", "lasercal_hw.service"})
+        for line, text in _code_strings(path)
+        if "--resume" in text
+    ]
     assert flagged == []
+
+
+def test_nothing_below_the_cli_starts_the_cli() -> None:
+    """No module below the CLI names it in code (e.g. ``python -m lasercal_hw.cli.main`` for a child)."""
+    named = [
+        f"{path.relative_to(ROOT)}:{line}"
+        for path in _modules_below({"lasercal_hw.cli"})
+        for line, text in _code_strings(path)
+        if "lasercal_hw.cli" in text
+    ]
+    assert named == []

@@ -54,7 +54,7 @@ def test_a_log_gets_the_lines_and_no_bar(monkeypatch: pytest.MonkeyPatch) -> Non
     assert screen.splitlines() == [
         "connecting to the scanner and the robot",
         "waypoint 3: rod at (+0.1000, +1.2000) m from 120 scans",
-        "recording kept in out/session.mcap; continue with: lasercal run --resume out/session.mcap --dry-run",
+        "recording kept in out/session.mcap; continue with: lasercal run --resume out/session.mcap",
     ]
 
 

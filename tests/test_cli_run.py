@@ -68,7 +68,7 @@ def test_the_stopped_line_gives_the_command_that_resumes_the_recording() -> None
         "session": "out/session.mcap", "resumable": True, "interrupted": True, "dry_run": True,
     }
     assert stopped_line("", interrupted_dry_run) == (
-        "recording kept in out/session.mcap; continue with: lasercal run --resume out/session.mcap --dry-run"
+        "recording kept in out/session.mcap; continue with: lasercal run --resume out/session.mcap"
     )
     failed_live = interrupted_dry_run | {"interrupted": False, "dry_run": False}
     assert stopped_line("", failed_live).endswith(

@@ -7,6 +7,7 @@ import json
 import os
 import pty
 import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -16,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fakes.cell_process import FakeCellProcess, free_loopback_address, ports_free
 from lasercal_hw.config import load_job
-from lasercal_hw.errors import ExitCode
-from lasercal_hw.run.dry_run import FakeCellProcess, free_loopback_address, ports_free
+from lasercal_hw.errors import ExitCode, TransportError
 from lasercal_hw.run.engine import RunEvent, RunReport, RunRequest, calibrate
 from lasercal_hw.session.reader import SessionRecording, read_session
 from trajectories.presets import preset_waypoints
@@ -58,7 +59,8 @@ def process_gone(pid: int) -> bool:
 @dataclass(frozen=True)
 class InterruptedDryRun:
     """A ``lasercal run --dry-run --json`` stopped by SIGINT once waypoint 3 is done, then
-    continued with ``--resume``."""
+    continued with the command it printed (``lasercal run --resume PATH``: the recording
+    alone says it is a dry run's and which scene its fake cell held)."""
 
     out: Path
     returncode: int
@@ -107,8 +109,10 @@ def interrupted_dry_run(tmp_path_factory: pytest.TempPathFactory) -> Interrupted
             process.wait()
     recording = read_session(out / "session.mcap")
     result_written = (out / "result.json").exists()
+    printed = re.search(r"continue with: lasercal run (.+)$", "".join(lines) + rest, re.MULTILINE)
+    assert printed is not None, "".join(lines) + rest
     resumed = subprocess.run(
-        lasercal("--dry-run", "--json", "--resume", str(out / "session.mcap")),
+        lasercal(*shlex.split(printed.group(1)), "--json"),
         capture_output=True, text=True, timeout=200, stdin=subprocess.DEVNULL, cwd=folder,
     )
     return InterruptedDryRun(
@@ -139,11 +143,21 @@ def test_free_address_is_random_loopback_with_free_ports() -> None:
 def test_fake_cell_child_reports_truth_and_is_stopped() -> None:
     with FakeCellProcess() as cell:
         pid = cell.pid
+        assert cell.ready and cell.alive
         assert cell.scanner_url == f"scip+tcp://{cell.address}:10940"
         assert cell.robot_host == cell.address
         assert np.allclose(cell.ground_truth[:3, 3], [0.30, 0.50, 0.20])
         assert not ports_free(cell.address)
+        assert "lasercal_hw.cli" not in " ".join(cell.args)  # fakes/ starts its own cell, not the CLI
     assert process_gone(pid)
+    assert not cell.alive and not cell.ready
+
+
+def test_fake_cell_with_a_bad_scene_says_why_in_one_line(tmp_path: Path) -> None:
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[rod]\nradius_m = -1\n", encoding="utf-8")
+    with pytest.raises(TransportError, match=r"exited before ready: fake cell: scene file .* rod\.radius_m"):
+        FakeCellProcess(scene=scene).start()
 
 
 def test_dry_run_interrupted_by_sigint_then_resumed_recovers_the_truth(

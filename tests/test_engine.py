@@ -3,6 +3,7 @@ document, files and numbered events: tests/test_dry_run.py, which makes both run
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -39,3 +40,19 @@ def test_a_folder_holding_a_session_is_refused(tmp_path: Path) -> None:
     (tmp_path / "session.mcap").write_bytes(b"")
     with pytest.raises(ConfigError, match="already exists"):
         calibrate(RunRequest(job=_live_job(), out_dir=tmp_path, robot_host="127.0.0.9"))
+
+
+def test_a_resumed_run_continues_on_what_it_was_recorded_on(tmp_path: Path) -> None:
+    from lasercal_hw.run.engine import DRY_RUN_SCENE_FILE, META_DRY_RUN, META_SCENE, _as_recorded
+
+    recording = tmp_path / "session.mcap"
+    request = RunRequest(job=JobConfig(), out_dir=tmp_path, resume=recording)
+    scene = "[rod]\nradius_m = 0.005\n"
+    dry = _as_recorded(request, {META_DRY_RUN: True, META_SCENE: scene})
+    assert dry.dry_run and dry.scene == tmp_path / DRY_RUN_SCENE_FILE
+    assert dry.scene.read_text() == scene
+    assert _as_recorded(request, {META_DRY_RUN: False}) == request
+    with pytest.raises(ConfigError, match="recorded on hardware: a dry run cannot continue it"):
+        _as_recorded(replace(request, dry_run=True), {META_DRY_RUN: False})
+    with pytest.raises(ConfigError, match="dry run's recording: it continues against a new fake cell"):
+        _as_recorded(replace(request, robot_host="127.0.0.9"), {META_DRY_RUN: True})

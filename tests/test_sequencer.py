@@ -373,3 +373,18 @@ def test_cancel_from_another_thread_stops_the_arm_and_keeps_the_recording() -> N
     assert stops_at_cancel == [1]  # stopped by the cancel itself, before the run noticed it
     assert [e["index"] for _, kind, e in recorder.events if kind == "observation"] == [0, 1, 2]
     assert recorder.kinds()[-1] == "abort"
+
+
+def test_waypoints_go_by_their_names_in_messages_and_by_position_in_the_recording() -> None:
+    """Verify visits waypoints 10, 14, 18, 19 of a calibration's trajectory: its progress says so."""
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    progress: list[Progress] = []
+    recorder = MemoryRecorder()
+    names = [10, 14, 18, 19, 21, 23]
+    run_calibration(robot, scanner, recorder, job, semicircle_waypoints(6), on_progress=progress.append,
+                    clock=clock, waypoint_names=names)
+    moves = [p.message for p in progress if p.stage == "move"]
+    assert moves[0] == "moving to waypoint 10 (1 of 6)" and moves[-1] == "moving to waypoint 23 (6 of 6)"
+    assert any(p.message.startswith("waypoint 14: rod at") for p in progress if p.stage == "centre")
+    assert [fields["index"] for _, kind, fields in recorder.events if kind == "dwell_start"] == list(range(6))

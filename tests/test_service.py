@@ -21,6 +21,8 @@ from lasercal_hw.service.app import create_app
 from lasercal_hw.service.auth import ensure_token
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
+from lasercal_hw.service.errors import ServiceError
+from lasercal_hw.service.routes.problems import STATUS_OF
 from lasercal_hw.service.sd_notify import notify, watchdog_interval_s
 from lasercal_hw.service.store import SCHEMA_VERSION, HistoryStore
 from tests.daemon_helpers import FakeEngine, fake_runners, read_sse
@@ -49,6 +51,10 @@ def _finish(client: TestClient, job_id: str, timeout_s: float = 10.0) -> dict:
             return job
         time.sleep(0.02)
     raise AssertionError(f"job {job_id} did not finish")
+
+
+def test_every_kind_of_service_error_has_its_http_status() -> None:
+    assert set(ServiceError.__subclasses__()) == set(STATUS_OF)
 
 
 def test_token_is_needed_and_checked(client: TestClient) -> None:

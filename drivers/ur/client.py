@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from drivers.ur.calls import ur_call
+from drivers.ur.dashboard import DASHBOARD_PORT, after_colon
 from lasercal_hw.errors import (
     ConfigError,
     DeviceTimeoutError,
@@ -38,7 +39,6 @@ from lasercal_hw.models import FloatArray, RobotIdentity, RobotState
 
 logger = logging.getLogger(__name__)
 
-DASHBOARD_PORT = 29999
 RTDE_PORT = 30004
 POLL_S = 0.002
 PROTECTIVE_STOP_BIT = 1 << 2
@@ -131,10 +131,6 @@ def _read_exact(sock: socket.socket, count: int) -> bytes:
             raise TransportError("RTDE connection closed during the version handshake")
         data += chunk
     return bytes(data)
-
-
-def _after_colon(line: str) -> str:
-    return line.split(":", 1)[1].strip() if ":" in line else line.strip()
 
 
 @dataclass(frozen=True)
@@ -293,8 +289,8 @@ class URRobot:
         remote = (bool(ur_call("isInRemoteControl", dash.isInRemoteControl, false_is_error=False))
                   if self._e_series_5_6() else True)
         return RobotState(
-            robot_mode=_after_colon(ur_call("robotmode", dash.robotmode)),
-            safety_status=_after_colon(ur_call("safetystatus", dash.safetystatus)),
+            robot_mode=after_colon(ur_call("robotmode", dash.robotmode)),
+            safety_status=after_colon(ur_call("safetystatus", dash.safetystatus)),
             program_running=self._program_running(),
             remote_control=remote,
             protective_stop=bool(bits & PROTECTIVE_STOP_BIT),

@@ -5,6 +5,7 @@ with ``--dry-run``), and write the results. A thin adapter: options in, the engi
 from __future__ import annotations
 
 import contextlib
+import shlex
 import signal
 import sys
 from collections.abc import Callable, Iterator
@@ -118,14 +119,14 @@ class ProgressView:
 
 def stopped_line(message: str, data: dict[str, Any]) -> str:
     """The engine's ``stopped`` event in the CLI's words: where the recording is and the
-    command that resumes it (``--dry-run`` again for a dry run's recording); the event's own
-    message when nothing was recorded."""
+    command that resumes it (the recording alone says whether it was a dry run); the event's
+    own message when nothing was recorded."""
     session = data.get("session")
     if session is None:
         return message
     if not data.get("resumable"):
         return f"recording kept in {session}; start again"
-    command = f"lasercal run --resume {session}" + (" --dry-run" if data.get("dry_run") else "")
+    command = f"lasercal run --resume {shlex.quote(str(session))}"
     when = "" if data.get("interrupted") else "after fixing the cause, "
     return f"recording kept in {session}; {when}continue with: {command}"
 

@@ -47,7 +47,7 @@ def serve_command(
     overrides: dict[str, Any] = {"listen": listen, "data_dir": data_dir, "dry_run": dry_run or None}
     settings = load_daemon_config(config, overrides)
     live = FoxgloveLiveView(port=foxglove_port) if foxglove else None  # lives as long as the process
-    daemon = Daemon(settings, runners=lambda devices, active: build_runners(devices, active, live=live))
+    daemon = Daemon(settings, runners=lambda active: build_runners(active, live=live))
     host, port = listen_address(settings.listen)
 
     class Server(uvicorn.Server):

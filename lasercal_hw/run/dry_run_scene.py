@@ -8,23 +8,26 @@ from typing import Any
 
 import numpy as np
 
-from lasercal_hw.models import FloatArray, RodLine
-
-
-def _toml_floats(values: FloatArray) -> str:
-    """A TOML array of floats at full precision."""
-    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
+from lasercal_hw.models import RodLine
 
 
 def write_rod_scene(rod: RodLine, path: Path) -> Path:
-    """A scene file that changes only the default scene's rod to ``rod`` (kept with the
+    """A scene file: the default scene with its rod changed to ``rod`` (kept with the
     outputs, so the dry run can be repeated with ``--scene``)."""
-    path.write_text(
-        "# Written by `lasercal run --dry-run`: the default scene, holding the job's rod.\n"
-        f"[rod]\norigin_m = {_toml_floats(rod.origin_m)}\ndirection = {_toml_floats(rod.direction)}\n"
-        f"radius_m = {rod.radius_m!r}\nlength_m = {rod.length_m!r}\n",
-        encoding="utf-8",
+    from fakes.scene import load_scene  # the dry-run step only: nothing else here needs a fake
+
+    default = load_scene(None)
+    rod_settings = default.rod.model_copy(
+        update={
+            "origin_m": [float(v) for v in rod.origin_m],
+            "direction": [float(v) for v in rod.direction],
+            "radius_m": float(rod.radius_m),
+            "length_m": float(rod.length_m),
+        }
     )
+    scene = default.model_copy(update={"rod": rod_settings})
+    header = "# Written by `lasercal run --dry-run`: the default scene, holding the job's rod.\n"
+    path.write_text(header + scene.to_toml(), encoding="utf-8")
     return path
 
 

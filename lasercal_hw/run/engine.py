@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Generic, TypeVar
@@ -27,7 +27,7 @@ from lasercal_hw.models import FloatArray
 from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
-from lasercal_hw.run.events import EventSink, RunEvent
+from lasercal_hw.run.events import EventSink, RunEvent, Stage
 from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
 from lasercal_hw.run.preflight import PreflightReport
@@ -44,6 +44,10 @@ __all__ = [
 ]
 
 DRY_RUN_SCENE_FILE = "dry_run_scene.toml"
+#: Recording meta: whether the run was a dry run, and the fake cell's scene (TOML text), so a
+#: dry run's recording resumes against a new fake cell of the same world.
+META_DRY_RUN = "dry_run"
+META_SCENE = "dry_run_scene_toml"
 
 
 @dataclass(frozen=True)
@@ -60,6 +64,8 @@ class RunRequest:
     scene: Path | None = None
     resume: Path | None = None
     waypoints: FloatArray | None = None
+    #: The number each waypoint goes by in messages (default: its position in ``waypoints``).
+    waypoint_names: tuple[int, ...] | None = None
     title: str = "lasercal run"
 
 
@@ -192,7 +198,7 @@ def calibrate(
                 session.robot, session.scanner, session.recorder, session.job, session.waypoints, outcome,
                 on_progress=session.on_progress, cancel=cancel,
             )
-        sink.emit("stage", "writing the outputs", stage="outputs")
+        sink.emit("stage", "writing the outputs", stage=Stage.OUTPUTS)
         files = {"session": session.session_path} | write_outputs(
             session.out_dir, outcome, session.job, ground_truth=session.ground_truth, title=request.title
         )
@@ -243,7 +249,7 @@ def open_sequencer(
     procedures on the same machinery (``lasercal verify`` measures without solving):
     output folder, fake cell, devices, recording, and on failure where the recording is
     (and that the run can be resumed from it, when ``resumable``)."""
-    job, waypoints, out_dir, state, created = _prepare(request)
+    request, job, waypoints, out_dir, state, created = _prepare(request)
     session_path = request.resume or out_dir / SESSION_FILE
     try:
         with contextlib.ExitStack() as stack:
@@ -254,9 +260,12 @@ def open_sequencer(
             cancel.raise_if_cancelled()
             if job.robot.host is None:
                 raise ConfigError("no robot given: say where the robot is (robot.host in the job file)")
-            sink.emit("stage", "connecting to the scanner and the robot", stage="connect")
-            robot, scanner = _connect(job, stack)
-            recorder = _open_recorder(request, job, waypoints, robot, scanner, ground_truth, session_path)
+            sink.emit("stage", "connecting to the scanner and the robot", stage=Stage.CONNECT)
+            from drivers.access import DeviceAccess  # the connect step: nothing above needs a driver
+
+            robot, scanner = DeviceAccess().connect(job, stack)
+            recorder = _open_recorder(request, job, waypoints, robot, scanner, fake_cell, ground_truth,
+                                      session_path)
             stack.callback(recorder.close)
             on_progress = sink.progress_listener(job.rod.radius_m)
             sequencer = Sequencer(
@@ -271,6 +280,7 @@ def open_sequencer(
                 ),
                 resume=state,
                 cancel=cancel,
+                waypoint_names=request.waypoint_names,
             )
             yield SequencerSession(
                 job, waypoints, out_dir, session_path, sequencer, robot, scanner, recorder, ground_truth,
@@ -283,15 +293,19 @@ def open_sequencer(
         raise
 
 
-def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeState | None, bool]:
-    """The job, its waypoints, the output folder (made here), what a resumed run already
-    has, and whether this call created the folder."""
+def _prepare(
+    request: RunRequest,
+) -> tuple[RunRequest, JobConfig, FloatArray, Path, ResumeState | None, bool]:
+    """The request as the recording says for a resumed run (a dry run's recording goes on as
+    a dry run), the job, its waypoints, the output folder (made here), what a resumed run
+    already has, and whether this call created the folder."""
     devices = {"robot.host": request.robot_host, "scanner.url": request.scanner_url}
     if request.resume is not None:
         previous = read_session(request.resume)
+        request = _as_recorded(request, previous.meta)
         recorded, waypoints = recorded_job(previous)
         job = with_overrides(recorded, devices)  # the recording decides all but where the devices are
-        return job, waypoints, request.resume.parent, resume_state(previous), False
+        return request, job, waypoints, request.resume.parent, resume_state(previous), False
     job = with_overrides(request.job, devices)
     waypoints = (
         request.waypoints if request.waypoints is not None else job_waypoints(job, live=not request.dry_run)
@@ -307,7 +321,33 @@ def _prepare(request: RunRequest) -> tuple[JobConfig, FloatArray, Path, ResumeSt
             f"{out_dir / SESSION_FILE} already exists: choose another output folder, "
             "or resume that run from its recording"
         )
-    return job, np.asarray(waypoints, dtype=float).reshape(-1, 6), out_dir, None, created
+    return request, job, np.asarray(waypoints, dtype=float).reshape(-1, 6), out_dir, None, created
+
+
+def _as_recorded(request: RunRequest, meta: dict[str, Any]) -> RunRequest:
+    """A resumed run continues on what it was recorded on: a dry run's recording against a
+    new fake cell of the recorded scene (the recording alone is enough), a live recording
+    only against hardware."""
+    assert request.resume is not None
+    if not meta.get(META_DRY_RUN):
+        if request.dry_run:
+            raise ConfigError(
+                f"{request.resume} was recorded on hardware: a dry run cannot continue it; resume it "
+                "against the robot and scanner it was recorded with"
+            )
+        return request
+    if request.robot_host is not None or request.scanner_url is not None:
+        raise ConfigError(
+            f"{request.resume} is a dry run's recording: it continues against a new fake cell, not "
+            "against a robot or scanner"
+        )
+    scene = request.scene
+    scene_toml = meta.get(META_SCENE)
+    if scene is None and scene_toml is not None:
+        scene = request.resume.parent / DRY_RUN_SCENE_FILE
+        if not scene.is_file() or scene.read_text(encoding="utf-8") != scene_toml:
+            scene.write_text(scene_toml, encoding="utf-8")
+    return replace(request, dry_run=True, scene=scene)
 
 
 def _start_fake_cell(
@@ -320,10 +360,10 @@ def _start_fake_cell(
 ) -> tuple[JobConfig, FloatArray, dict[str, Any]]:
     """Start the dry run's fake cell and point the job at it; if the cell dies during the
     run, the run stops at once with a DeviceError that says so."""
-    from lasercal_hw.run.dry_run import FakeCellProcess
+    from fakes.cell_process import FakeCellProcess
     from lasercal_hw.run.dry_run_scene import rods_differ, write_rod_scene
 
-    sink.emit("stage", "starting a fake cell for the dry run", stage="fake_cell")
+    sink.emit("stage", "starting a fake cell for the dry run", stage=Stage.FAKE_CELL)
     scene = request.scene
     if scene is None:  # the fake cell holds the rod the job describes
         scene = write_rod_scene(job.rod.rod_line(), out_dir / DRY_RUN_SCENE_FILE)
@@ -335,34 +375,14 @@ def _start_fake_cell(
     sink.emit(
         "stage",
         f"fake cell on {cell.address} (pid {cell.pid}): scanner {cell.scanner_url}",
-        stage="fake_cell",
+        stage=Stage.FAKE_CELL,
         address=cell.address,
         pid=cell.pid,
     )
     difference = rods_differ(cell.info.get("rod"), job.rod.rod_line())
     if difference is not None:
         sink.emit("warning", difference)
-    return job, cell.ground_truth, {"address": cell.address, "pid": cell.pid}
-
-
-def _connect(job: JobConfig, stack: contextlib.ExitStack) -> tuple[Robot, Scanner]:
-    """The scanner first: a typo in its URL must not touch the robot, whose control
-    interface stops the program running on it as soon as it opens."""
-    from drivers.hokuyo.client import HokuyoScanner
-    from drivers.ur.client import MotionLimits, URRobot
-
-    assert job.robot.host is not None
-    scanner = HokuyoScanner.open(job.scanner.url, timeout_s=job.scanner.timeout_s)
-    stack.callback(scanner.close)
-    limits = MotionLimits(
-        max_speed_m_s=job.motion.speed_m_s,
-        max_accel_m_s2=job.motion.accel_m_s2,
-        max_joint_speed_rad_s=job.motion.joint_speed_rad_s,
-        max_joint_accel_rad_s2=job.motion.joint_accel_rad_s2,
-    )
-    robot = URRobot.connect(job.robot.host, limits=limits)
-    stack.callback(robot.close)
-    return robot, scanner
+    return job, cell.ground_truth, {"address": cell.address, "pid": cell.pid, "scene": str(scene)}
 
 
 def _open_recorder(
@@ -371,6 +391,7 @@ def _open_recorder(
     waypoints: FloatArray,
     robot: Robot,
     scanner: Scanner,
+    fake_cell: dict[str, Any] | None,
     ground_truth: FloatArray | None,
     session_path: Path,
 ) -> SessionRecorder:
@@ -379,13 +400,15 @@ def _open_recorder(
         META_JOB: job.model_dump(mode="json"),
         META_WAYPOINTS: np.asarray(waypoints).tolist(),
         "software_version": __version__,
-        "dry_run": request.dry_run,
+        META_DRY_RUN: request.dry_run,
         "started_utc": datetime.now(UTC).isoformat(),
         "robot": asdict(robot.identity()) | {"host": job.robot.host},
         "scanner": asdict(scanner.identity()) | {"url": job.scanner.url},
     }
     if ground_truth is not None:
         meta["ground_truth_T_base_laser"] = np.asarray(ground_truth).tolist()
+    if fake_cell is not None:
+        meta[META_SCENE] = Path(fake_cell["scene"]).read_text(encoding="utf-8")
     if request.resume is not None:
         return SessionRecorder.resume(request.resume, meta)
     return SessionRecorder(session_path, meta)

@@ -3,7 +3,7 @@
 
 Kinds and their ``data``:
 
-- ``stage``: ``stage`` (fake_cell, connect, outputs) and what goes with it;
+- ``stage``: ``stage`` (fake_cell, connect, outputs; verify's select) and what goes with it;
 - ``progress``: every sequencer step: ``stage``, ``waypoint``, ``waypoint_count``,
   ``completed``, ``scans_averaged``, ``time_left_s``;
 - ``centre``: ``waypoint``, ``centre_uv_m``, ``covariance_uv_m2``, ``scans``;
@@ -12,6 +12,9 @@ Kinds and their ``data``:
   ``angle_min_rad``, ``angle_increment_rad``, ``ranges_m`` (null where no return),
   ``rod_beams``, ``circle`` (``centre_uv_m``, ``radius_m``) or null;
 - ``warning``, ``stopped`` (the run ended on an error: where its recording is), ``result``.
+
+Every ``stage`` is a ``Stage``, which says which ``Phase`` of the run it belongs to (what a
+job reports as its state).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -36,15 +40,56 @@ logger = logging.getLogger(__name__)
 EventCallback = Callable[["RunEvent"], None]
 
 
+class Phase(StrEnum):
+    """The part of a run a stage belongs to (a daemon job's state while it runs)."""
+
+    PREFLIGHT = "preflight"
+    RUNNING = "running"
+    SOLVING = "solving"
+
+
+class Stage(StrEnum):
+    """Every stage a run (or a verify) goes through, with its ``phase``."""
+
+    phase: Phase
+
+    def __new__(cls, value: str, phase: Phase) -> Stage:
+        stage = str.__new__(cls, value)
+        stage._value_ = value
+        stage.phase = phase
+        return stage
+
+    SELECT = "select", Phase.PREFLIGHT  # verify chooses its waypoints
+    FAKE_CELL = "fake_cell", Phase.PREFLIGHT
+    CONNECT = "connect", Phase.PREFLIGHT
+    PREFLIGHT = "preflight", Phase.PREFLIGHT
+    BACKGROUND = "background", Phase.RUNNING
+    MOVE = "move", Phase.RUNNING
+    DWELL = "dwell", Phase.RUNNING
+    CENTRE = "centre", Phase.RUNNING
+    SKIP = "skip", Phase.RUNNING
+    RETRY = "retry", Phase.RUNNING
+    SOLVE = "solve", Phase.SOLVING
+    REFINE = "refine", Phase.SOLVING
+    DONE = "done", Phase.SOLVING
+    OUTPUTS = "outputs", Phase.SOLVING
+
+
 @dataclass(frozen=True)
 class RunEvent:
-    """One thing that happened in a run; ``seq`` counts from 1 within the run."""
+    """One thing that happened in a run; ``seq`` counts from 1 within the run. ``stage`` is
+    set for ``stage`` and ``progress`` events (its value is also ``data["stage"]``)."""
 
     seq: int
     kind: str
     message: str
     data: dict[str, Any] = field(default_factory=dict)
     time_utc: str = ""
+    stage: Stage | None = None
+
+    def fields(self) -> dict[str, Any]:
+        """``data`` with the ``message``: the event as an event stream sends it."""
+        return self.data | {"message": self.message}
 
     def as_dict(self) -> dict[str, Any]:
         """The event as a JSON object."""
@@ -53,7 +98,9 @@ class RunEvent:
 
 
 def _plain(value: Any) -> Any:
-    """Numpy values and non-finite floats made JSON-ready (NaN and inf become null)."""
+    """Numpy values, enums and non-finite floats made JSON-ready (NaN and inf become null)."""
+    if isinstance(value, StrEnum):
+        return value.value
     if isinstance(value, np.ndarray):
         return _plain(value.tolist())
     if isinstance(value, np.generic):
@@ -94,11 +141,14 @@ class EventSink:
         self._lock = threading.Lock()
 
     def emit(self, kind: str, message: str, **data: Any) -> None:
-        """Send one event."""
+        """Send one event (a ``stage`` in ``data`` must be a ``Stage`` or its value)."""
         if self._callback is None:
             return
+        stage = Stage(data["stage"]) if "stage" in data else None
         with self._lock:
-            event = RunEvent(next(self._seq), kind, message, _plain(data), datetime.now(UTC).isoformat())
+            event = RunEvent(
+                next(self._seq), kind, message, _plain(data), datetime.now(UTC).isoformat(), stage
+            )
         try:
             self._callback(event)
         except Exception:

@@ -1,20 +1,22 @@
 """The files a run leaves in its output folder (besides ``session.mcap``, which the
 recorder writes while the run goes): ``observations.csv``, ``result.json``, the report PNG
-and the ROS exports."""
+and the ROS exports; and ``read_result_file``, the one reader of ``result.json``."""
 
 from __future__ import annotations
 
 import json
 import logging
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base
 from lasercal_hw.calibration.observations import write_observations_csv
-from lasercal_hw.config import JobConfig
+from lasercal_hw.calibration.result import CalibrationResult
+from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import rotation_angle_rad
 from lasercal_hw.models import FloatArray
@@ -78,6 +80,68 @@ def result_document(
             "first_pass_error": transform_error(outcome.first_pass.matrix(), ground_truth),
         }
     return document
+
+
+@dataclass(frozen=True)
+class ResultFile:
+    """A ``result.json`` read back: the calibration, the run's verdict and what the run
+    recorded beside it (None where the file has none, as in one ``lasercal solve`` wrote)."""
+
+    path: Path
+    result: CalibrationResult
+    verdict: dict[str, Any] | None
+    robot: dict[str, Any] | None
+    scanner: dict[str, Any] | None
+    job: JobConfig | None
+    motion_and_dwell_s: float | None
+
+    @property
+    def passed(self) -> bool:
+        """True when the run's quality gates passed (False without a verdict)."""
+        return bool((self.verdict or {}).get("passed", False))
+
+
+def _table(document: dict[str, Any], key: str) -> dict[str, Any] | None:
+    value = document.get(key)
+    return value if isinstance(value, dict) else None
+
+
+def read_result_file(path: Path) -> ResultFile:
+    """Read a ``result.json`` (as ``result_document`` writes it); a missing or malformed
+    file raises ``ConfigError`` naming it."""
+    try:
+        document = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(
+            f"calibration file {path} does not exist; pass the result.json of a calibration"
+        ) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"cannot read calibration file {path}: {exc}") from None
+    if not isinstance(document, dict):
+        raise ConfigError(f"{path} is not a calibration result (expected a JSON object)")
+    try:
+        result = CalibrationResult.model_validate(document)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise ConfigError(
+            f"{path} is not a lasercal calibration result ({where}: {first['msg']}); pass the result.json "
+            "that `lasercal run` or `lasercal solve` wrote"
+        ) from None
+    run = _table(document, "run") or {}
+    job_table = _table(run, "job")
+    job = job_from_mapping(job_table, f"{path} (run.job)") if job_table is not None else None
+    timings = _table(run, "timings") or {}
+    busy_s = (timings.get("motion_s") or 0.0) + (timings.get("dwell_s") or 0.0)
+    return ResultFile(
+        path=Path(path),
+        result=result,
+        verdict=_table(document, "verdict"),
+        robot=_table(run, "robot"),
+        scanner=_table(run, "scanner"),
+        job=job,
+        motion_and_dwell_s=float(busy_s) if busy_s > 0 else None,
+    )
 
 
 def report_data(

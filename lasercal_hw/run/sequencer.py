@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 import numpy as np
@@ -85,11 +85,15 @@ class Sequencer:
         resume: ResumeState | None = None,
         cancel: CancelToken | None = None,
         clock: Callable[[], float] = time.time,
+        waypoint_names: Sequence[int] | None = None,
     ) -> None:
         """``before_motion`` is called once preflight passed and before the first motion
         (the CLI asks the operator there; raising from it aborts with nothing moved).
         ``cancel`` stops the run from another thread as Ctrl-C does: the arm is told to
-        stop at once, the run raises InterruptedRunError at its next checkpoint."""
+        stop at once, the run raises InterruptedRunError at its next checkpoint.
+        ``waypoint_names``: the number each waypoint goes by in messages (verify visits a few
+        waypoints of a calibration's trajectory and names them by their index there); the
+        recording always counts positions."""
         self._robot = robot
         self._scanner = scanner
         self._recorder = recorder
@@ -101,6 +105,7 @@ class Sequencer:
         self._resume = resume or ResumeState()
         self._cancel = cancel or CancelToken()
         self._clock = clock
+        self._waypoint_names = None if waypoint_names is None else list(waypoint_names)
         self._background: AveragedScan | None = self._resume.background
         self._measurements: list[WaypointMeasurement] = list(self._resume.measurements)
         self._skipped: list[SkippedWaypoint] = list(self._resume.skipped)
@@ -246,22 +251,24 @@ class Sequencer:
                 last = retry
                 logger.warning("waypoint %d attempt %d: %s", index, attempt, retry.reason)
                 self._event("waypoint_retry", index=index, attempt=attempt, reason=retry.reason)
-                self._progress("retry", f"waypoint {index}: {retry.reason}; repeating", waypoint=index)
+                message = f"waypoint {self._name(index)}: {retry.reason}; repeating"
+                self._progress("retry", message, waypoint=index)
         assert last is not None
         if last.scanner_fault:
             raise DeviceError(
-                f"waypoint {index}: the scanner failed {attempts} times ({last.reason}); "
+                f"waypoint {self._name(index)}: the scanner failed {attempts} times ({last.reason}); "
                 "check its cable and power, then resume this run from its recording"
             )
         self._skip(index, f"{last.reason} ({attempts} attempts)")
 
     def _attempt_waypoint(self, index: int, attempt: int) -> None:
         count = len(self._waypoints)
-        self._progress("move", f"moving to waypoint {index} ({index + 1} of {count})", waypoint=index)
+        name = self._name(index)
+        self._progress("move", f"moving to waypoint {name} ({index + 1} of {count})", waypoint=index)
         self._move(self._waypoints[index], self._joint_targets[index])
         settled_s = self._settle()
         tcp_start = self._read_tcp(settled_s)
-        self._progress("dwell", f"dwelling {self._job.dwell_s:g} s at waypoint {index}", waypoint=index)
+        self._progress("dwell", f"dwelling {self._job.dwell_s:g} s at waypoint {name}", waypoint=index)
         capture = self._dwell(index, attempt, settled_s, tcp_start)
         tcp_end = self._read_tcp(self._clock())
         drift_mm = 1000.0 * float(np.linalg.norm(tcp_end[:3] - tcp_start[:3]))
@@ -304,7 +311,7 @@ class Sequencer:
         )
         self._progress(
             "centre",
-            f"waypoint {index}: rod at ({u:+.4f}, {v:+.4f}) m from {len(capture.scans)} scans",
+            f"waypoint {name}: rod at ({u:+.4f}, {v:+.4f}) m from {len(capture.scans)} scans",
             waypoint=index,
             scans_averaged=len(capture.scans),
             centre_uv_m=(u, v),
@@ -413,8 +420,8 @@ class Sequencer:
     def _skip(self, index: int, reason: str, averaged: AveragedScan | None = None) -> None:
         self._skipped.append(SkippedWaypoint(index, reason))
         self._event("waypoint_skipped", index=index, reason=reason)
-        self._progress("skip", f"waypoint {index} skipped: {reason}", waypoint=index, reason=reason,
-                       averaged=averaged)
+        message = f"waypoint {self._name(index)} skipped: {reason}"
+        self._progress("skip", message, waypoint=index, reason=reason, averaged=averaged)
 
     def _on_scan(self, scan: LaserScan) -> None:
         """Record every scan; a cancel takes effect between two scans of a dwell."""
@@ -438,7 +445,11 @@ class Sequencer:
             logger.warning("could not stop the scanner stream: %s", exc)
 
     def _where(self) -> str:
-        return f" at waypoint {self._current}" if self._current is not None else ""
+        return f" at waypoint {self._name(self._current)}" if self._current is not None else ""
+
+    def _name(self, index: int) -> int:
+        """The number a waypoint goes by in messages (``waypoint_names``; else its position)."""
+        return self._waypoint_names[index] if self._waypoint_names is not None else index
 
     def _event(self, kind: str, **fields: Any) -> None:
         try:

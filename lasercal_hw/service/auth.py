@@ -9,7 +9,7 @@ import secrets
 from pathlib import Path
 
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.service.problems import ApiError
+from lasercal_hw.service.errors import ForbiddenError, UnauthenticatedError
 
 TOKEN_ENV = "LASERCAL_TOKEN"
 
@@ -42,16 +42,14 @@ def _existing_token(path: Path) -> str:
 
 
 def check_bearer(authorization: str | None, token: str) -> None:
-    """ApiError 401 without a bearer token, 403 with a wrong one."""
+    """UnauthenticatedError without a bearer token, ForbiddenError with a wrong one."""
     if not authorization:
-        raise ApiError(
-            401,
-            "unauthorized",
+        raise UnauthenticatedError(
             "this request needs 'Authorization: Bearer <token>' (the token is "
             "in the daemon's token file, see docs/daemon.md)",
         )
     scheme, _, presented = authorization.partition(" ")
     if scheme.lower() != "bearer" or not presented.strip():
-        raise ApiError(401, "unauthorized", "the Authorization header must be 'Bearer <token>'")
+        raise UnauthenticatedError("the Authorization header must be 'Bearer <token>'")
     if not hmac.compare_digest(presented.strip().encode(), token.encode()):
-        raise ApiError(403, "forbidden", "wrong token; read it from the daemon's token file")
+        raise ForbiddenError("wrong token; read it from the daemon's token file")

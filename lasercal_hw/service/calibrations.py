@@ -1,9 +1,9 @@
 """The calibration history: file a finished calibration, summarise it, activate it
-(rollback is activating an older one), export it and compare two."""
+(rollback is activating an older one), export it and compare two; and the verifies
+filed against them."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -11,11 +11,11 @@ import numpy as np
 
 from lasercal_hw.geometry import matrix_to_rotvec
 from lasercal_hw.outputs.exports import static_transform_publisher_args, urdf_joint
+from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
+from lasercal_hw.service.errors import ConflictError, NotFoundError, folder_file, not_found
 from lasercal_hw.service.events import EventBus
-from lasercal_hw.service.problems import ApiError, folder_file, not_found
 from lasercal_hw.service.store import HistoryStore, new_id, utc_now
 
-RESULT_FILE = "result.json"
 SIGNIFICANCE_SIGMA = 3.0
 """A difference is significant when some component exceeds this many combined standard deviations."""
 _SUMMARY_FIELDS = (
@@ -39,22 +39,19 @@ class CalibrationHistory:
 
     def record(self, job_id: str | None, directory: Path, dry_run: bool) -> str:
         """File the calibration whose ``result.json`` is in ``directory``; returns its id."""
-        document = json.loads((directory / RESULT_FILE).read_text(encoding="utf-8"))
+        read = read_result_file(directory / RESULT_FILE)
         calibration_id = new_id("cal")
-        passed = bool(document.get("verdict", {}).get("passed", False))
+        result = read.result.model_dump(mode="json")
         summary = {
             "id": calibration_id,
             "created_utc": utc_now(),
             "job_id": job_id,
             "dry_run": dry_run,
-            "passed": passed,
-        } | {key: document.get(key) for key in _SUMMARY_FIELDS}
-        summary["verdict"] = document.get("verdict")
-        summary["devices"] = {
-            "robot": document.get("run", {}).get("robot"),
-            "scanner": document.get("run", {}).get("scanner"),
-        }
-        self._store.add_calibration(calibration_id, job_id, dry_run, passed, summary, directory)
+            "passed": read.passed,
+        } | {key: result[key] for key in _SUMMARY_FIELDS}
+        summary["verdict"] = read.verdict
+        summary["devices"] = {"robot": read.robot, "scanner": read.scanner}
+        self._store.add_calibration(calibration_id, job_id, dry_run, read.passed, summary, directory)
         return calibration_id
 
     def _stored(self, calibration_id: str) -> tuple[dict[str, Any], Path]:
@@ -77,7 +74,7 @@ class CalibrationHistory:
         return summary | {"active": summary["id"] == active_id, "files": files}
 
     def summary(self, calibration_id: str) -> dict[str, Any]:
-        """One calibration summary (404 when unknown)."""
+        """One calibration summary (NotFoundError when unknown)."""
         summary, directory = self._stored(calibration_id)
         return self._present(summary, directory, self._store.active_calibration_id())
 
@@ -91,11 +88,15 @@ class CalibrationHistory:
         active_id = self._store.active_calibration_id()
         return None if active_id is None else self.summary(active_id)
 
-    def active(self) -> dict[str, Any] | None:
-        """The active calibration with its exports, or None."""
+    def active(self) -> dict[str, Any]:
+        """The active calibration with its exports (NotFoundError when none is active)."""
         summary = self.active_summary()
         if summary is None:
-            return None
+            raise NotFoundError(
+                "no calibration is active yet; run a calibrate job "
+                "with activate_on_pass or activate one with POST /v1/calibrations/{id}/activate",
+                code="no_active_calibration",
+            )
         T = np.asarray(summary["T_base_laser"], dtype=float)
         return summary | {
             "exports": {
@@ -105,7 +106,7 @@ class CalibrationHistory:
         }
 
     def file(self, calibration_id: str, name: str) -> Path:
-        """A file of a calibration (404 when there is no such file)."""
+        """A file of a calibration (NotFoundError when there is no such file)."""
         _, directory = self._stored(calibration_id)
         return folder_file(
             directory,
@@ -119,16 +120,29 @@ class CalibrationHistory:
         its quality gates needs ``force``."""
         summary, _ = self._stored(calibration_id)
         if not summary["passed"] and not force:
-            raise ApiError(
-                409,
-                "failed_quality_gates",
+            raise ConflictError(
                 f"calibration {calibration_id} failed its quality "
                 'gates; send "force": true to activate it anyway',
                 {"calibration_id": calibration_id},
+                code="failed_quality_gates",
             )
         self._store.activate(calibration_id, reason)
         self._bus.publish("activation", {"calibration_id": calibration_id, "reason": reason})
         return self.summary(calibration_id)
+
+    def activations(self) -> list[dict[str, Any]]:
+        """The activation log, newest first."""
+        return self._store.activations()
+
+    def record_verify(self, job_id: str, summary: dict[str, Any]) -> str:
+        """File a verify of a calibration; returns its id."""
+        verify_id = new_id("verify")
+        self._store.add_verify(verify_id, job_id, summary | {"id": verify_id})
+        return verify_id
+
+    def verifies(self) -> list[dict[str, Any]]:
+        """Every verify, newest first."""
+        return self._store.verifies()
 
     def diff(self, a: str, b: str) -> dict[str, Any]:
         """The change from ``a`` to ``b`` in mm and degrees, and whether it is significant."""

@@ -1,5 +1,6 @@
-"""The daemon's parts put together: data folder, token, history, event bus, job manager,
-device monitor and, with ``dry_run``, the fake cell it serves instead of hardware."""
+"""The daemon's parts put together: data folder, token, history, event bus, the door to
+its devices, job manager, device monitor and, with ``dry_run``, the fake cell it serves
+instead of hardware."""
 
 from __future__ import annotations
 
@@ -13,14 +14,15 @@ from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.auth import ensure_token
 from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.config import DaemonConfig
-from lasercal_hw.service.dashboard import ProgramKeeper
 from lasercal_hw.service.events import EventBus
 from lasercal_hw.service.jobs import JobManager, Runner
 from lasercal_hw.service.monitor import DeviceMonitor
 from lasercal_hw.service.store import DB_FILE, HistoryStore, utc_now
 
 if TYPE_CHECKING:
-    from lasercal_hw.service.runners import ActiveCalibration, Devices
+    from drivers.access import DeviceAccess
+    from fakes.cell_process import FakeCellProcess
+    from lasercal_hw.service.runners import ActiveCalibration
 
 logger = logging.getLogger(__name__)
 
@@ -33,7 +35,7 @@ class Daemon:
     def __init__(
         self,
         config: DaemonConfig,
-        runners: Callable[[Devices, ActiveCalibration], dict[str, Runner]] | None = None,
+        runners: Callable[[ActiveCalibration], dict[str, Runner]] | None = None,
     ) -> None:
         if not config.loopback_only and config.token_file is None:
             raise ConfigError(
@@ -52,9 +54,10 @@ class Daemon:
         self.store = HistoryStore(self.data_dir / DB_FILE)
         self.bus = EventBus(self.store)
         self.history = CalibrationHistory(self.store, self.bus)
-        self.robot_host = config.robot_host
-        self.scanner_url = config.scanner_url
-        self.fake_cell: Any = None
+        from drivers.access import DeviceAccess  # the daemon's one door to its devices
+
+        self.devices: DeviceAccess = DeviceAccess(config.robot_host, config.scanner_url)
+        self.fake_cell: FakeCellProcess | None = None
         self.started_utc = utc_now()
         if runners is None:
             from lasercal_hw.service.runners import build_runners
@@ -64,9 +67,10 @@ class Daemon:
             self.store,
             self.bus,
             self.data_dir,
-            runners(self.devices, self.active_calibration),
+            runners(self.active_calibration),
             self.history,
-            robot=ProgramKeeper(),
+            self.devices,
+            default_job=config.default_job,
             dry_run_daemon=config.dry_run,
             on_state=self._on_state,
         )
@@ -79,10 +83,6 @@ class Daemon:
         found = self.store.calibration(calibration_id) if calibration_id is not None else None
         return (calibration_id, found[1]) if calibration_id is not None and found is not None else None
 
-    def devices(self) -> dict[str, str | None]:
-        """The job overrides naming the daemon's robot and scanner."""
-        return {"robot.host": self.robot_host, "scanner.url": self.scanner_url}
-
     def _on_state(self, job_id: str, state: str) -> None:
         for listener in self.state_listeners:
             listener(job_id, state)
@@ -90,15 +90,13 @@ class Daemon:
     def start(self) -> None:
         """Start the fake cell (dry run), mark jobs a crash left running as interrupted, poll devices."""
         if self.config.dry_run:
-            from lasercal_hw.run.dry_run import FakeCellProcess
+            from fakes.cell_process import FakeCellProcess
 
             self.fake_cell = FakeCellProcess().start()
-            self.robot_host, self.scanner_url = self.fake_cell.robot_host, self.fake_cell.scanner_url
+            self.devices.robot_host = self.fake_cell.robot_host
+            self.devices.scanner_url = self.fake_cell.scanner_url
         interrupted = self.jobs.recover()
-        self.monitor = DeviceMonitor(
-            self.robot_host, self.scanner_url, self.config.status_poll_s, self.jobs.running_id,
-            self.jobs.device_lock,
-        )
+        self.monitor = DeviceMonitor(self.devices, self.config.status_poll_s)
         self.monitor.start()
         self.bus.publish(
             "daemon",
@@ -115,7 +113,7 @@ class Daemon:
         if self.monitor is not None:
             self.monitor.stop()
         if self.fake_cell is not None:
-            self.fake_cell.close()
+            self.fake_cell.stop()
         self.store.close()
 
     def status(self) -> dict[str, Any]:
@@ -131,5 +129,5 @@ class Daemon:
             },
             **devices,
             "active_calibration": self.history.active_summary(),
-            "job": self.jobs.current(),
+            "job": job.as_json() if (job := self.jobs.current()) is not None else None,
         }

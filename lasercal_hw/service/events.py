@@ -16,9 +16,9 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from lasercal_hw.service.job_record import FINISHED_STATES
 from lasercal_hw.service.store import HistoryStore, utc_now
 
-TERMINAL_STATES = ("succeeded", "failed", "cancelled", "interrupted")
 QUEUE_LIMIT = 1000
 KEEPALIVE_S = 15.0
 
@@ -39,7 +39,7 @@ class StoredEvent:
     @property
     def ends_job(self) -> bool:
         """True for a state event announcing a terminal state."""
-        return self.kind == "state" and json.loads(self.data_json).get("state") in TERMINAL_STATES
+        return self.kind == "state" and json.loads(self.data_json).get("state") in FINISHED_STATES
 
 
 class _Subscriber:

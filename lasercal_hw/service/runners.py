@@ -1,6 +1,6 @@
 """The runners a job's kind dispatches to (``JobManager(runners=...)``): the shared engine
 for ``calibrate`` and ``dry_run``, ``lasercal_hw.verify`` for ``verify`` (against the active
-calibration)."""
+calibration). The job's devices reach the library once, on its request."""
 
 from __future__ import annotations
 
@@ -15,35 +15,28 @@ from lasercal_hw.service.store import utc_now
 if TYPE_CHECKING:
     from lasercal_hw.live.foxglove import FoxgloveLiveView
 
-Devices = Callable[[], dict[str, str | None]]
 #: ``active()`` -> (id, folder) of the active calibration, or None.
 ActiveCalibration = Callable[[], tuple[str, Path] | None]
 
 
-def run_engine(
-    ctx: RunContext, *, dry_run: bool, devices: dict[str, str | None], live: FoxgloveLiveView | None = None
-) -> RunResult:
+def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None = None) -> RunResult:
     """One calibration through ``lasercal_hw.run.engine.calibrate`` (blocking), shown in the
     Foxglove ``live`` view if there is one."""
-    from lasercal_hw.run.engine import RunEvent, RunRequest, calibrate
+    from lasercal_hw.run.engine import RunRequest, calibrate
 
     request = RunRequest(
         job=ctx.job,
         out_dir=ctx.out_dir,
-        robot_host=devices.get("robot.host"),
-        scanner_url=devices.get("scanner.url"),
+        robot_host=ctx.devices.robot_host,
+        scanner_url=ctx.devices.scanner_url,
         dry_run=dry_run,
         scene=ctx.scene_file if dry_run else None,
         resume=ctx.resume_from,
         title=f"lasercal {'dry run' if dry_run else 'calibration'} (job {ctx.job_id})",
     )
-
-    def on_event(event: RunEvent) -> None:
-        ctx.on_event(event.kind, event.message, event.data)
-
     report = calibrate(
         request,
-        on_event=live.watch(request, on_event) if live else on_event,
+        on_event=live.watch(request, ctx.on_event) if live else ctx.on_event,
         cancel=ctx.cancel,
         confirm=ctx.confirm,
     )
@@ -56,25 +49,22 @@ def run_engine(
     )
 
 
-def run_verify(ctx: RunContext, *, devices: dict[str, str | None], active: ActiveCalibration) -> RunResult:
+def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     """Check the active calibration (``lasercal_hw.verify``) with the job recorded with it;
     the result is filed in the verify history with the calibration it checked."""
-    from lasercal_hw.run.engine import RunEvent
+    from lasercal_hw.run.outputs import RESULT_FILE
     from lasercal_hw.verify.procedure import VerifyRequest, verify
 
     found = active()
     if found is None:
         raise ConfigError("there is no active calibration to verify: run a calibration and activate it first")
     calibration_id, folder = found
-
-    def on_event(event: RunEvent) -> None:
-        ctx.on_event(event.kind, event.message, event.data)
-
     report = verify(
-        VerifyRequest(out_dir=ctx.out_dir, robot_host=devices.get("robot.host"),
-                      scanner_url=devices.get("scanner.url")),
-        folder / "result.json",
-        on_event=on_event,
+        VerifyRequest(
+            out_dir=ctx.out_dir, robot_host=ctx.devices.robot_host, scanner_url=ctx.devices.scanner_url
+        ),
+        folder / RESULT_FILE,
+        on_event=ctx.on_event,
         cancel=ctx.cancel,
         confirm=ctx.confirm,
     )
@@ -97,15 +87,11 @@ def run_verify(ctx: RunContext, *, devices: dict[str, str | None], active: Activ
     return RunResult(document=document, passed=verdict["passed"], verdict=verdict, verify=summary)
 
 
-def build_runners(
-    devices: Devices, active: ActiveCalibration, live: FoxgloveLiveView | None = None
-) -> dict[str, Runner]:
-    """The runners by kind; ``devices()`` gives the daemon's current robot host and scanner
-    URL (``{"robot.host": ..., "scanner.url": ...}``), asked again on every start and resume
-    (a restarted dry-run daemon's fake cell has a new address); ``active()`` the active
-    calibration; ``live``: the Foxglove view."""
+def build_runners(active: ActiveCalibration, live: FoxgloveLiveView | None = None) -> dict[str, Runner]:
+    """The runners by kind; ``active()`` gives the active calibration, ``live`` is the
+    Foxglove view."""
     return {
-        "calibrate": lambda ctx: run_engine(ctx, dry_run=False, devices=devices(), live=live),
-        "dry_run": lambda ctx: run_engine(ctx, dry_run=True, devices={}, live=live),
-        "verify": lambda ctx: run_verify(ctx, devices=devices(), active=active),
+        "calibrate": lambda ctx: run_engine(ctx, dry_run=False, live=live),
+        "dry_run": lambda ctx: run_engine(ctx, dry_run=True, live=live),
+        "verify": lambda ctx: run_verify(ctx, active=active),
     }

@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any
 
 from lasercal_hw.errors import ConfigError
+from lasercal_hw.service.job_record import UNFINISHED_STATES
 
 SCHEMA_VERSION = 1
 DB_FILE = "lasercal.sqlite3"
-RUNNING_STATES = ("queued", "preflight", "running", "solving")
 _JSON_COLUMNS = ("request", "progress", "verdict", "error", "document")
 
 _SCHEMA_V1 = """
@@ -141,10 +141,10 @@ class HistoryStore:
 
     def mark_unfinished_interrupted(self) -> list[str]:
         """After a crash: every job left in a running state becomes ``interrupted``."""
-        placeholders = ", ".join("?" * len(RUNNING_STATES))
+        placeholders = ", ".join("?" * len(UNFINISHED_STATES))
         ids = [
             row["id"]
-            for row in self._query(f"SELECT id FROM jobs WHERE state IN ({placeholders})", RUNNING_STATES)
+            for row in self._query(f"SELECT id FROM jobs WHERE state IN ({placeholders})", UNFINISHED_STATES)
         ]
         error = json.dumps(
             {

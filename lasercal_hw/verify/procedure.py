@@ -23,7 +23,7 @@ from lasercal_hw.geometry import matrix_to_euler_zyx
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.engine import MotionPlan, ProcedureReport, RunRequest, open_sequencer
-from lasercal_hw.run.events import EventSink, RunEvent
+from lasercal_hw.run.events import EventSink, RunEvent, Stage
 from lasercal_hw.run.records import Measured, Timings, WaypointMeasurement
 from lasercal_hw.run.two_pass import refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
@@ -178,7 +178,7 @@ def verify(
     sink.emit(
         "stage",
         f"verifying {active.path} at waypoints {selection.indices} of {len(waypoints)}",
-        stage="select",
+        stage=Stage.SELECT,
         waypoints=selection.indices,
         expected_std_shift_mm=selection.expected_std_shift_mm,
         expected_std_turn_deg=selection.expected_std_turn_deg,
@@ -192,6 +192,7 @@ def verify(
         dry_run=request.dry_run,
         scene=request.scene,
         waypoints=waypoints[selection.indices],
+        waypoint_names=tuple(selection.indices),
         title="lasercal verify",
     )
     started_s = time.monotonic()
@@ -227,7 +228,7 @@ def verify(
         outcome = VerifyOutcome(
             active, job, selection, found["identity"], None, verdict, [], [], [], Timings()
         )
-    sink.emit("stage", "writing the outputs", stage="outputs")
+    sink.emit("stage", "writing the outputs", stage=Stage.OUTPUTS)
     files = {"session": session.session_path} | write_verify_outputs(
         session.out_dir, outcome, ground_truth=session.ground_truth
     )

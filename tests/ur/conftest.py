@@ -11,8 +11,8 @@ import pytest
 import rtde_control
 import rtde_receive
 
-from fakes.ur_controller.process import FakeRobotProcess
 from lasercal_hw.errors import TransportError
+from tests.ur.robot_process import FakeRobotProcess
 
 # Addresses 127.0.0.<first>..: spread by process id so parallel pytest runs rarely meet,
 # and skip addresses whose ports are taken (the fake exits with "cannot listen").

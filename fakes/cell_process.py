@@ -1,6 +1,7 @@
-"""A fake cell as a child process, for ``lasercal run --dry-run``.
+"""A fake cell as a child process: what a dry run (``lasercal run --dry-run``, the daemon's
+``dry_run`` jobs, ``lasercal serve --dry-run``) asks for when it needs a cell.
 
-The child is ``lasercal fake cell --address 127.x.y.z [--scene FILE]``: one process serving
+The child is ``python -m fakes.cell --address 127.x.y.z [--scene FILE]``: one process serving
 a fake UR controller (ports 29999, 30004, 30003) and a fake UTM-30LX-EW (port 10940) that
 share one simulated world. It announces readiness with one line on standard output::
 
@@ -15,7 +16,7 @@ The child never outlives this process and never takes a signal meant for it: it 
 its own session (a terminal's Ctrl-C goes to the foreground process group, and the run
 must still talk to the fake robot to stop the arm), and it watches its standard input, a
 pipe this process holds (``--lifeline-stdin``): when this process dies, even by SIGKILL,
-the pipe closes and the cell stops. ``close`` stops the child on every exit path (closes
+the pipe closes and the cell stops. ``stop`` ends the child on every exit path (closes
 the lifeline, then terminate, then kill). A cell that dies on its own is reported at once
 (``death``, a log error and the ``on_death`` callback) so a run can say why its devices
 went silent.
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import random
 import selectors
 import socket
@@ -40,12 +42,17 @@ from typing import Any
 
 import numpy as np
 
+from fakes.cell import READY_PREFIX
 from lasercal_hw.errors import DeviceTimeoutError, InterruptedRunError, TransportError
 from lasercal_hw.models import FloatArray
 
 logger = logging.getLogger(__name__)
 
 CELL_PORTS = (29999, 30004, 30003, 10940)
+#: One BLAS thread in the cell unless the environment says otherwise, as ``lasercal`` sets for
+#: itself and its children (``lasercal_hw.cli.threads``): a cell started from a script or the
+#: daemon's library code runs as one the CLI started did.
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")
 _ADDRESS_TRIES = 20
 
 
@@ -72,8 +79,6 @@ def free_loopback_address(rng: random.Random | None = None) -> str:
 
 def parse_ready_line(line: str) -> dict[str, Any]:
     """The JSON object of a fake cell's ready line (see the module docstring)."""
-    from fakes.cell import READY_PREFIX
-
     document = json.loads(line[len(READY_PREFIX):])
     missing = {"robot_host", "scanner_url", "T_base_laser"} - set(document)
     if missing:
@@ -82,37 +87,45 @@ def parse_ready_line(line: str) -> dict[str, Any]:
 
 
 class FakeCellProcess:
-    """``lasercal fake cell`` as a child process (context manager)."""
+    """The fake cell as a child process: ``start`` (returns once it is ready), ``ready``,
+    its addresses and ground truth, ``alive``, ``stop``; also a context manager."""
 
     def __init__(
         self,
         *,
         scene: Path | None = None,
         address: str | None = None,
-        extra_args: tuple[str, ...] = (),
         startup_timeout_s: float = 60.0,
         on_death: Callable[[str], None] | None = None,
     ) -> None:
         self.address = address or free_loopback_address()
-        self.args = [sys.executable, "-m", "lasercal_hw.cli.main", "fake", "cell", "--lifeline-stdin",
-                     "--address", self.address]
+        self.args = [sys.executable, "-m", "fakes.cell", "--lifeline-stdin", "--address", self.address]
         if scene is not None:
             self.args += ["--scene", str(scene)]
-        self.args += list(extra_args)
         self.startup_timeout_s = startup_timeout_s
         self.process: subprocess.Popen[str] | None = None
         self.info: dict[str, Any] = {}
         self.death: str | None = None
-        """Why the cell stopped by itself (None while it runs, or when ``close`` stopped it)."""
+        """Why the cell stopped by itself (None while it runs, or when ``stop`` ended it)."""
         self._on_death = on_death
         self._closing = threading.Event()
-        self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - lives until close()
+        self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - lives until stop()
 
     @property
     def pid(self) -> int:
         """Process id of the running child."""
         assert self.process is not None, "start() first"
         return self.process.pid
+
+    @property
+    def ready(self) -> bool:
+        """True once the cell announced itself and while it runs."""
+        return bool(self.info) and self.alive
+
+    @property
+    def alive(self) -> bool:
+        """True while the child process runs."""
+        return self.process is not None and self.process.poll() is None
 
     @property
     def robot_host(self) -> str:
@@ -132,22 +145,21 @@ class FakeCellProcess:
     def start(self) -> FakeCellProcess:
         """Launch the child and wait for its ready line."""
         logger.info("starting fake cell: %s", " ".join(self.args))
+        environment = {name: "1" for name in BLAS_THREAD_VARIABLES} | dict(os.environ)
         self.process = subprocess.Popen(
             self.args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self._stderr, text=True,
-            start_new_session=True,
+            start_new_session=True, env=environment,
         )
         try:
             return self._await_ready()
         except KeyboardInterrupt:
-            self.close()
+            self.stop()
             raise InterruptedRunError(
                 "interrupted while the fake cell was starting; nothing was connected or moved"
             ) from None
 
     def _await_ready(self) -> FakeCellProcess:
         """Wait for the child's ready line (its document goes to ``info``)."""
-        from fakes.cell import READY_PREFIX
-
         assert self.process is not None and self.process.stdout is not None
         deadline = time.monotonic() + self.startup_timeout_s
         with selectors.DefaultSelector() as selector:
@@ -164,15 +176,15 @@ class FakeCellProcess:
                     return self
                 if not line:
                     error = self._stderr_tail()
-                    self.close()
+                    self.stop()
                     raise TransportError(f"the fake cell on {self.address} exited before ready: {error}")
-        self.close()
+        self.stop()
         raise DeviceTimeoutError(
             f"the fake cell on {self.address} printed no ready line within {self.startup_timeout_s:g} s"
         )
 
     def _watch(self, process: subprocess.Popen[str]) -> None:
-        """Wait for the child; if it exits before ``close`` asked it to, say so."""
+        """Wait for the child; if it exits before ``stop`` asked it to, say so."""
         code = process.wait()
         if self._closing.is_set():
             return
@@ -189,7 +201,7 @@ class FakeCellProcess:
         self._stderr.seek(0)
         return self._stderr.read().strip()[-800:]
 
-    def close(self) -> None:
+    def stop(self) -> None:
         """Stop the child (close its lifeline and terminate it, then kill) and reap it; safe
         to call twice."""
         self._closing.set()
@@ -213,10 +225,10 @@ class FakeCellProcess:
         try:
             return self.start()
         except BaseException:
-            self.close()
+            self.stop()
             raise
 
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        self.close()
+        self.stop()

@@ -1,16 +1,18 @@
-"""The body of ``POST /v1/jobs`` and how it becomes a resolved job."""
+"""A request to start or resume a job (the body of ``POST /v1/jobs`` and of
+``POST /v1/jobs/{id}/resume``) and how it becomes the job to run."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from lasercal_hw.config import JobConfig, job_from_mapping, load_job
+from lasercal_hw.config import JobConfig, job_from_mapping, load_job, with_overrides
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.run.waypoints import job_waypoints
-from lasercal_hw.service.problems import ApiError
+from lasercal_hw.service.errors import ConfirmationRequiredError, InvalidRequestError
 
 MOTION_KINDS = ("calibrate", "verify", "dry_run")
 
@@ -42,12 +44,22 @@ class ResumeBody(BaseModel):
     restore_robot: bool = True
 
 
+@dataclass(frozen=True)
+class DeviceAddresses:
+    """Where a job's robot and scanner are (None: the job's own)."""
+
+    robot_host: str | None = None
+    scanner_url: str | None = None
+
+    def applied_to(self, job: JobConfig) -> JobConfig:
+        """``job`` pointed at these devices."""
+        return with_overrides(job, {"robot.host": self.robot_host, "scanner.url": self.scanner_url})
+
+
 def require_confirmation(confirm_motion: bool) -> None:
-    """400 unless the request says the arm may move."""
+    """ConfirmationRequiredError unless the request says the arm may move."""
     if not confirm_motion:
-        raise ApiError(
-            400,
-            "confirmation_required",
+        raise ConfirmationRequiredError(
             'this job moves the arm: send "confirm_motion": true once the cell is clear',
             {"field": "confirm_motion"},
         )
@@ -63,21 +75,31 @@ def _merged(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
     return merged
 
 
-def resolve_job(body: JobBody, default_job: Path | None, devices: dict[str, str | None]) -> JobConfig:
-    """The job to run: the request's job over the default job, the dwell override, the
-    daemon's devices (``{"robot.host": ..., "scanner.url": ...}``, None: keep the job's).
-    An invalid job or an unknown preset is a 422 naming the field."""
+def resolve_job(body: JobBody, default_job: Path | None) -> JobConfig:
+    """The job to run: the request's job over the default job, with the dwell override.
+    An invalid job or an unknown preset is InvalidRequestError naming the field."""
     try:
         base = load_job(default_job).model_dump(mode="json", exclude_none=True)
         data = _merged(base, body.job or {})
         if body.dwell_s is not None:
             data["dwell_s"] = body.dwell_s
-        for dotted, value in devices.items():
-            if value is not None:
-                table, field = dotted.split(".")
-                data.setdefault(table, {})[field] = value
         job = job_from_mapping(data, "job")
         job_waypoints(job)
     except ConfigError as exc:
-        raise ApiError(422, "invalid_request", str(exc).replace("\n ", ""), {"field": "job"}) from None
+        raise InvalidRequestError(str(exc).replace("\n ", ""), "job") from None
     return job
+
+
+def scene_file_text(body: JobBody) -> str | None:
+    """The dry run's scene file for the request's ``scene`` (None without one), validated
+    by ``fakes.scene``: a bad scene, or a scene for another kind, is InvalidRequestError."""
+    if body.scene is None:
+        return None
+    if body.kind != "dry_run":
+        raise InvalidRequestError("scene applies to dry_run jobs only", "scene")
+    from fakes.scene import scene_from_mapping
+
+    try:
+        return scene_from_mapping(body.scene, "scene").to_toml()
+    except ConfigError as exc:
+        raise InvalidRequestError(str(exc).replace("\n", " "), "scene") from None

@@ -1,0 +1,150 @@
+"""One door to the devices: the driver for a scanner URL or a robot address chosen from a
+registry by scheme (as pyserial chooses a transport by URL), the connections a run opens,
+the one-client scanner claim and the status probes a daemon shows.
+
+A UTM-30LX-EW serves one client at a time: while an owner (a daemon job) holds the devices,
+``probe_scanner`` leaves the scanner alone, and a probe in progress ends before a claim
+returns. Robot probes and program keeping use the dashboard server only
+(``drivers.ur.dashboard``), which leaves the owner's program alone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+from urllib.parse import urlsplit
+
+from drivers.ur import dashboard
+from lasercal_hw.config import JobConfig
+from lasercal_hw.errors import ConfigError, LasercalError
+
+ScannerOpener = Callable[..., Any]
+"""``opener(url, *, timeout_s, **options)`` -> a connected scanner (``run.devices.Scanner``)."""
+RobotConnector = Callable[..., Any]
+"""``connector(host, *, limits)`` -> a connected robot (``run.devices.Robot``)."""
+ROBOT_SCHEME = "ur"
+"""The robot driver for an address without a scheme (``HOST`` is ``ur://HOST``)."""
+
+
+def _hokuyo(url: str, **options: Any) -> Any:
+    from drivers.hokuyo.client import HokuyoScanner
+
+    return HokuyoScanner.open(url, **options)
+
+
+def _universal_robots(host: str, **options: Any) -> Any:
+    from drivers.ur.client import URRobot
+
+    return URRobot.connect(host, **options)
+
+
+SCANNER_DRIVERS: dict[str, ScannerOpener] = {"scip+tcp": _hokuyo, "scip+serial": _hokuyo}
+ROBOT_DRIVERS: dict[str, RobotConnector] = {ROBOT_SCHEME: _universal_robots}
+
+
+def _driver(registry: dict[str, Any], scheme: str, what: str, address: str) -> Any:
+    driver = registry.get(scheme)
+    if driver is None:
+        known = ", ".join(f"{s}://" for s in sorted(registry))
+        raise ConfigError(f"no driver for the {what} address {address!r}; use one of {known}")
+    return driver
+
+
+@dataclass(frozen=True)
+class ScannerProbe:
+    """What a scanner probe found: its owner (then nothing was asked), its identity, or an error."""
+
+    in_use_by: str | None = None
+    identity: dict[str, Any] | None = None
+    error: str | None = None
+
+
+class DeviceAccess:
+    """Where the robot and the scanner are, who holds them, how to reach them."""
+
+    def __init__(
+        self,
+        robot_host: str | None = None,
+        scanner_url: str | None = None,
+        *,
+        scanner_drivers: dict[str, ScannerOpener] | None = None,
+        robot_drivers: dict[str, RobotConnector] | None = None,
+    ) -> None:
+        self.robot_host = robot_host
+        self.scanner_url = scanner_url
+        self._scanner_drivers = SCANNER_DRIVERS if scanner_drivers is None else scanner_drivers
+        self._robot_drivers = ROBOT_DRIVERS if robot_drivers is None else robot_drivers
+        self._lock = threading.Lock()
+        self._owner: str | None = None
+
+    # -- connections ---------------------------------------------------------------------------
+
+    def open_scanner(self, url: str, **options: Any) -> Any:
+        """The scanner at ``url``, through the driver its scheme names."""
+        return _driver(self._scanner_drivers, urlsplit(url.strip()).scheme, "scanner", url)(url, **options)
+
+    def connect_robot(self, address: str, **options: Any) -> Any:
+        """The robot at ``address`` (``HOST`` or ``scheme://HOST``), through its driver."""
+        scheme, _, host = address.rpartition("://")
+        return _driver(self._robot_drivers, scheme or ROBOT_SCHEME, "robot", address)(host, **options)
+
+    def connect(self, job: JobConfig, stack: contextlib.ExitStack) -> tuple[Any, Any]:
+        """The job's robot and scanner, closed by ``stack``. The scanner first: a typo in its
+        URL must not touch the robot, whose control interface stops the program running on
+        it as soon as it opens."""
+        from drivers.ur.client import MotionLimits
+
+        assert job.robot.host is not None, "the run checks for a robot before it connects"
+        scanner = self.open_scanner(job.scanner.url, timeout_s=job.scanner.timeout_s)
+        stack.callback(scanner.close)
+        limits = MotionLimits(
+            max_speed_m_s=job.motion.speed_m_s,
+            max_accel_m_s2=job.motion.accel_m_s2,
+            max_joint_speed_rad_s=job.motion.joint_speed_rad_s,
+            max_joint_accel_rad_s2=job.motion.joint_accel_rad_s2,
+        )
+        robot = self.connect_robot(job.robot.host, limits=limits)
+        stack.callback(robot.close)
+        return robot, scanner
+
+    # -- the claim -----------------------------------------------------------------------------
+
+    def claim(self, owner: str) -> None:
+        """``owner`` holds the devices from now (a scanner probe in progress ends first)."""
+        with self._lock:
+            self._owner = owner
+
+    def release(self, owner: str) -> None:
+        """``owner`` no longer holds the devices."""
+        with self._lock:
+            if self._owner == owner:
+                self._owner = None
+
+    # -- status and the robot's program --------------------------------------------------------
+
+    def probe_robot(self) -> dict[str, Any]:
+        """The robot's status from its dashboard server (``drivers.ur.dashboard.robot_status``)."""
+        if not self.robot_host:
+            return dashboard.robot_unknown(None, "no robot configured")
+        return dashboard.robot_status(self.robot_host)
+
+    def probe_scanner(self, timeout_s: float = 2.0) -> ScannerProbe:
+        """The scanner's identity, opened briefly, unless an owner holds it."""
+        if not self.scanner_url:
+            return ScannerProbe(error="no scanner configured")
+        with self._lock:
+            if self._owner is not None:
+                return ScannerProbe(in_use_by=self._owner)
+            try:
+                options = {"timeout_s": timeout_s, "sync_clock": False, "reconnect": False}
+                with self.open_scanner(self.scanner_url, **options) as scanner:
+                    return ScannerProbe(identity=asdict(scanner.identity()))
+            except LasercalError as exc:
+                return ScannerProbe(error=str(exc))
+
+    def program_snapshot(self, host: str) -> Callable[[], str] | None:
+        """Note the robot's program; the step that restores it (``drivers.ur.dashboard``)."""
+        return dashboard.program_snapshot(host)

@@ -1,0 +1,61 @@
+"""``/v1/calibration`` and ``/v1/calibrations``: the active calibration, the history, its
+files, activation (and rollback) and the difference between two."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+from fastapi.responses import FileResponse
+from pydantic import BaseModel, ConfigDict
+
+from lasercal_hw.service.routes.deps import Authorized, DaemonDep
+
+router = APIRouter()
+
+
+class ActivateBody(BaseModel):
+    """Optional body of an activation."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    reason: str = "activated by request"
+    force: bool = False
+
+
+@router.get("/v1/calibration")
+def active_calibration(daemon: DaemonDep) -> dict[str, Any]:
+    """The active calibration with its exports."""
+    return daemon.history.active()
+
+
+@router.get("/v1/calibrations")
+def calibrations(daemon: DaemonDep) -> dict[str, Any]:
+    """Every calibration, newest first."""
+    return {"calibrations": daemon.history.all(), "activations": daemon.history.activations()}
+
+
+@router.get("/v1/calibrations/{calibration_id}")
+def calibration(calibration_id: str, daemon: DaemonDep) -> dict[str, Any]:
+    """One calibration."""
+    return daemon.history.summary(calibration_id)
+
+
+@router.get("/v1/calibrations/{calibration_id}/files/{name}")
+def calibration_file(calibration_id: str, name: str, daemon: DaemonDep) -> FileResponse:
+    """A file of a calibration (result.json, report.png, session.mcap, ...)."""
+    return FileResponse(daemon.history.file(calibration_id, name))
+
+
+@router.post("/v1/calibrations/{calibration_id}/activate", dependencies=[Authorized])
+def activate(calibration_id: str, daemon: DaemonDep, body: ActivateBody | None = None) -> dict[str, Any]:
+    """Make a calibration active (also a rollback); recorded in the activation log."""
+    body = body or ActivateBody()
+    return daemon.history.activate(calibration_id, body.reason, force=body.force)
+
+
+@router.get("/v1/calibrations/{a}/diff/{b}")
+def diff(a: str, b: str, daemon: DaemonDep) -> dict[str, Any]:
+    """The change from calibration a to b (mm, degrees) and whether it is significant."""
+    return daemon.history.diff(a, b)
+
