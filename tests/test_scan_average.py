@@ -83,3 +83,24 @@ def test_scans_of_different_layout_are_refused(truth: np.ndarray) -> None:
     other = dataclasses.replace(raw[1], geometry=dataclasses.replace(UTM_GEOMETRY, cluster=2))
     with pytest.raises(CalibrationError, match="different beam layout"):
         average_scans([raw[0], other])
+
+
+def test_intensities_and_valid_counts_are_averaged_over_the_kept_readings() -> None:
+    _replace = dataclasses.replace
+    rng = np.random.default_rng(3)
+    ranges = np.full(UTM_GEOMETRY.angles_rad().size, 2.0)
+    dwell = scans(ranges, 0.005, 40, rng)
+    intensity = np.full(ranges.size, 1000, dtype=np.int64)
+    dwell = [_replace(s, intensities=intensity + 100 * (k % 2)) for k, s in enumerate(dwell)]
+    spiked = dwell[0].ranges_m.copy()
+    spiked[7] = 5.0  # an outlier reading: its intensity is left out with it
+    bright = np.where(np.arange(ranges.size) == 7, 9999, 1000)
+    dwell[0] = _replace(dwell[0], ranges_m=spiked, intensities=bright)
+    lost = dwell[1].ranges_m.copy()
+    lost[9] = np.nan
+    dwell[1] = _replace(dwell[1], ranges_m=lost)
+    result = average_scans(dwell)
+    assert result.intensities is not None
+    assert result.intensities[7] == pytest.approx((19 * 1000 + 20 * 1100) / 39)
+    assert result.valid_count[9] == 39 and result.valid_count[7] == 40 and result.count[7] == 39
+    assert average_scans([_replace(s, intensities=None) for s in dwell]).intensities is None

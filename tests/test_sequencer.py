@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lasercal_hw.calibration.consensus import CONSENSUS_WAYPOINTS
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import (
     ConfigError,
@@ -89,7 +90,12 @@ def test_run_completes_records_and_recovers_the_transform() -> None:
     assert {"preflight", "background", "move", "dwell", "centre", "solve", "refine", "done"} <= stages
     centre_events = [p for p in progress if p.stage == "centre"]
     assert all(p.scans_averaged and p.scans_averaged >= 9 for p in centre_events)
-    assert all(p.expected_uv_m is None for p in centre_events)  # no [scanner.nominal] to predict from
+    # No [scanner.nominal]: nothing to predict from until the first waypoints agree on a pose.
+    consensus = CONSENSUS_WAYPOINTS
+    assert all(p.expected_uv_m is None for p in centre_events[:consensus])
+    assert all(p.expected_uv_m is not None for p in centre_events[consensus:])
+    misses_m = [np.hypot(*np.subtract(p.centre_uv_m, p.expected_uv_m)) for p in centre_events[consensus:]]
+    assert max(misses_m) < 0.005
     assert progress[-1].time_left_s == pytest.approx(0.0)
 
 
@@ -105,6 +111,20 @@ def test_centre_progress_says_where_the_nominal_mounting_expected_the_rod() -> N
     # The live page draws these before any solve: the rod's axis crossing, seen within its radius.
     misses_m = [np.hypot(*np.subtract(p.centre_uv_m, p.expected_uv_m)) for p in centres]
     assert max(misses_m) < job.rod.radius_m
+
+
+def test_a_job_that_wants_intensities_streams_records_and_averages_them() -> None:
+    job = fast_job(scanner={"intensities": True})
+    clock, robot, scanner = make_cell(job)
+    recorder = MemoryRecorder()
+    outcome = run_calibration(robot, scanner, recorder, job, semicircle_waypoints(6), clock=clock)
+    assert scanner.with_intensities
+    assert recorder.scans and all(s.intensities is not None for s in recorder.scans)
+    assert all(m.averaged.intensities is not None for m in outcome.measurements)
+    clock, robot, plain = make_cell(fast_job())
+    plain_recorder = MemoryRecorder()
+    run_calibration(robot, plain, plain_recorder, fast_job(), semicircle_waypoints(6), clock=clock)
+    assert not plain.with_intensities and all(s.intensities is None for s in plain_recorder.scans)
 
 
 def _settle_time(robot: SimRobot, move_number: int) -> float:

@@ -48,6 +48,19 @@ def test_consensus_start_leaves_out_exactly_the_gross_outlier() -> None:
     assert np.flatnonzero(~agreeing).tolist() == [OUTLIER]
 
 
+def test_consensus_over_many_rows_scores_a_sample_and_still_finds_every_gross_outlier() -> None:
+    obs = observations(3, points=2_500, laser_noise_m=0.002)
+    spoilt = np.arange(0, 2_500, 10)  # 10 % of the rows, 0.5 m off, most outside the scored sample
+    for row in spoilt:
+        pose = obs[row].tcp_pose.copy()
+        pose[1] += 0.5
+        obs[row] = dataclasses.replace(obs[row], tcp_pose=pose)
+    origins, directions = rod_lines_in_base(np.array([o.tcp_pose for o in obs]), RodLine())
+    centres = np.array([o.centre_uv_m for o in obs])
+    agreeing = consensus_inliers(origins, directions, centres, np.full(len(obs), 500.0))
+    assert np.flatnonzero(~agreeing).tolist() == spoilt.tolist()
+
+
 @pytest.mark.parametrize(("column", "value", "named"), [
     (0, 1e20, r"TCP position 1e\+20 m"), (2, 1e200, r"TCP position 1e\+200 m"),
     (3, 180.0, "TCP rotation vector of 18. rad is more than a full turn"),

@@ -10,10 +10,12 @@ from lasercal_hw.calibration.model import (
     extended_residuals_and_jacobian,
     moved_rod,
     plane_crossing,
+    range_error_m,
     rod_lines_in_base,
 )
 from lasercal_hw.calibration.simulate import Protocol, protocol_tcp_poses
 from lasercal_hw.calibration.solver import SolverOptions, solve
+from lasercal_hw.errors import CalibrationError
 from lasercal_hw.geometry import make_transform, matrix_to_pose, pose_to_matrix, rotvec_to_matrix
 from lasercal_hw.models import Observation, RodLine
 from tests.test_solver_helpers import TRUTH, translation_error_mm
@@ -42,6 +44,7 @@ def _observations(
     rod: RodLine,
     *,
     range_offset_m: float = 0.0,
+    range_curve_m: tuple[float, ...] = (),
     noise_m: float = 0.0005,
     seed: int = 3,
     spin: bool = True,
@@ -53,7 +56,9 @@ def _observations(
         poses = _without_spin(poses)
     origins, directions = rod_lines_in_base(poses, rod)
     crossing, _, _ = plane_crossing(TRUTH[:3, :3], TRUTH[:3, 3], origins, directions)
-    seen = crossing * (1.0 + range_offset_m / np.linalg.norm(crossing, axis=1))[:, None]
+    distance = np.linalg.norm(crossing, axis=1)
+    error = range_offset_m + (range_error_m(np.array(range_curve_m), distance)[0] if range_curve_m else 0.0)
+    seen = crossing * (1.0 + error / distance)[:, None]
     seen = seen + rng.normal(0.0, noise_m, seen.shape)
     return [Observation(i, poses[i], seen[i], np.eye(2) * max(noise_m, 1e-4) ** 2) for i in range(len(poses))]
 
@@ -141,6 +146,38 @@ def test_auto_estimates_a_range_offset_the_waypoints_pin_down_and_otherwise_says
     left_out = solve(obs, NOMINAL, options=strict)
     assert left_out.range_offset is None
     assert any("range offset not estimated (auto)" in note for note in left_out.observability.notes)
+
+
+def test_a_range_error_curve_is_estimated_with_as_many_terms_as_the_data_show() -> None:
+    # +8 mm at 1 m, -12 mm/m and a bend of +20 mm/m² (the issue's +12 mm near, -13 mm at 0.75 m).
+    curve = (0.008, -0.012, 0.020)
+    obs = _observations(NOMINAL, range_curve_m=curve, noise_m=0.0003, radius_m=0.9)
+    auto = OPTIONS.model_copy(update={"estimate_range_offset": "auto", "default_sigma_uv_m": 0.0003})
+    result = solve(obs, NOMINAL, options=auto)
+    offset = result.range_offset
+    assert offset is not None and offset.curvature_mm_per_m2 is not None and offset.scale_mm_per_m is not None
+    for value, std, truth in (
+        (offset.offset_mm, offset.std_mm, 8.0),
+        (offset.scale_mm_per_m, offset.scale_std_mm_per_m, -12.0),
+        (offset.curvature_mm_per_m2, offset.curvature_std_mm_per_m2, 20.0),
+    ):
+        assert abs(value - truth) < 3.0 * std
+    for point in offset.curve:
+        true_mm = range_error_m(np.array(curve), np.array([point.distance_m]))[0][0] * 1e3
+        assert abs(point.error_mm - true_mm) < 3.0 * point.std_mm + 0.1
+    assert offset.worst_mm == pytest.approx(max(abs(p.error_mm) for p in offset.curve), abs=1.0)
+    assert "scanner range error (measured - true)" in result.estimate_lines()[-1]
+    # With the offset alone the curve's rest looks like outliers (the gate fails), and without
+    # the outlier test the pose takes the error.
+    offset_only = auto.model_copy(update={"max_range_terms": 1})
+    with pytest.raises(CalibrationError, match="fail the outlier test"):
+        solve(obs, NOMINAL, options=offset_only)
+    plain = solve(obs, NOMINAL, robust=False, options=offset_only)
+    assert translation_error_mm(result.matrix()) < 0.5 * translation_error_mm(plain.matrix())
+    # A constant offset alone: the scale and the bend are not significant and are left out.
+    constant = solve(_observations(NOMINAL, range_offset_m=0.02, radius_m=0.9), NOMINAL, options=auto)
+    assert constant.range_offset is not None and constant.range_offset.scale_mm_per_m is None
+    assert any("range scale" in note and "left out" in note for note in constant.observability.notes)
 
 
 def test_auto_leaves_an_unobservable_axis_out_and_says_which_motion_is_missing() -> None:
