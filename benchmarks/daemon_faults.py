@@ -142,25 +142,6 @@ def _answer(client: httpx.Client, url: str, case: Hostile, names: dict[str, str]
         return int(status_line.split()[1]), rest.partition("\r\n\r\n")[2]
 
 
-def _answer(client: httpx.Client, url: str, case: Hostile, names: dict[str, str]) -> tuple[int, str]:
-    """Status and body of one case; one httpx will not send (a bad Content-Length) goes
-    over a raw socket."""
-    try:
-        answer = send(client, case, names)
-        return answer.status_code, answer.text
-    except httpx.LocalProtocolError:
-        host, port = url.removeprefix("http://").split(":")
-        head = [f"{case.method} {case.path} HTTP/1.1", f"Host: {host}:{port}", "Connection: close"]
-        head += [f"{key}: {value}" for key, value in case.headers.items()]
-        with socket.create_connection((host, int(port)), timeout=30.0) as connection:
-            connection.sendall(("\r\n".join(head) + "\r\n\r\n").encode("latin-1") + (case.content or b""))
-            reply = b""
-            while chunk := connection.recv(65536):
-                reply += chunk
-        status_line, _, rest = reply.decode("latin-1").partition("\r\n")
-        return int(status_line.split()[1]), rest.partition("\r\n\r\n")[2]
-
-
 def kill9(root: Path, row: Row, state: str) -> None:
     data_dir = root / "data"
     daemon = DaemonProcess(data_dir).start()

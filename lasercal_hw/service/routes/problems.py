@@ -38,6 +38,16 @@ STATUS_OF: dict[type[ServiceError], int] = {
     StorageFullError: 507,
 }
 _HTTP_CODES = {404: "not_found", 405: "method_not_allowed"}
+_DESCRIPTIONS = {
+    409: "the job or calibration is in the wrong state (job_running, not_running, not_resumable, ...)",
+    413: "the request body is larger than the daemon takes (payload_too_large)",
+    507: "the data folder is full (storage_full); free space and try again, no restart needed",
+}
+
+
+def documented(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """The OpenAPI entries of the problem answers a route may give besides 422."""
+    return {status: {"description": _DESCRIPTIONS[status]} for status in statuses}
 
 
 def problem(status: int, code: str, message: str, detail: dict[str, Any] | None = None) -> JSONResponse:

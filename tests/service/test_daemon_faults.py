@@ -148,25 +148,16 @@ def test_a_lost_or_damaged_history_stops_the_start(history_dir: Path, tmp_path: 
     assert says in str(raised.value) and "\n" not in str(raised.value)
 
 
+def serve(data_dir: Path, *options: str) -> subprocess.CompletedProcess[str]:
+    """``lasercal serve --data-dir DATA_DIR OPTIONS`` run to its end (a refused start, a rebuild)."""
+    command = [sys.executable, "-m", "lasercal_hw.cli.main", "serve", "--data-dir", str(data_dir), *options]
+    return subprocess.run(command, capture_output=True, text=True, timeout=60, check=False)
+
+
 def test_the_cli_refuses_a_damaged_history_in_one_line(history_dir: Path, tmp_path: Path) -> None:
     data_dir = _copy(history_dir, tmp_path)
     truncate(data_dir / DB_FILE)
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "lasercal_hw.cli.main",
-            "serve",
-            "--listen",
-            "127.0.0.1:0",
-            "--data-dir",
-            str(data_dir),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = serve(data_dir, "--listen", "127.0.0.1:0")
     assert done.returncode != 0 and "Traceback" not in done.stderr
     assert "--rebuild-history" in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
 
@@ -174,21 +165,7 @@ def test_the_cli_refuses_a_damaged_history_in_one_line(history_dir: Path, tmp_pa
 def test_rebuild_history_from_the_job_folders(history_dir: Path, tmp_path: Path) -> None:
     data_dir = _copy(history_dir, tmp_path)
     truncate(data_dir / DB_FILE)
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "lasercal_hw.cli.main",
-            "serve",
-            "--rebuild-history",
-            "--data-dir",
-            str(data_dir),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    done = serve(data_dir, "--rebuild-history")
     assert done.returncode == 0, done.stderr
     assert "2 succeeded" in done.stdout and "2 calibrations" in done.stdout
     daemon = Daemon(load_daemon_config(None, {"data_dir": data_dir}))
