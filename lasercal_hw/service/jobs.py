@@ -206,6 +206,11 @@ class JobManager:
                 "no robot configured: set robot_host in the daemon configuration or robot.host in the job",
                 "job.robot.host",
             )
+        if body.kind == "verify" and self._store.active_calibration_id() is None:
+            raise ConflictError(
+                "there is no active calibration to verify: run a calibration and activate it first",
+                code="no_active_calibration",
+            )
         scene_text = scene_file_text(body)
         job_id = new_id("job")
         out_dir = self._jobs_dir / job_id

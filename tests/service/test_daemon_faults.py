@@ -103,6 +103,17 @@ def test_a_waypoint_file_in_the_data_folder_is_read(served: tuple[TestClient, di
     assert answer.status_code == 422 and "not_a_number" in answer.json()["message"]
 
 
+def test_a_verify_without_an_active_calibration_is_refused_at_request_time(tmp_path: Path) -> None:
+    engine = FakeEngine()
+    config = load_daemon_config(None, {"data_dir": tmp_path / "data", "robot_host": "127.0.0.1"})
+    daemon = Daemon(config, runners=lambda active: {"verify": engine})
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
+        client.headers["Authorization"] = f"Bearer {daemon.token}"
+        answer = client.post("/v1/jobs", json={"kind": "verify", "confirm_motion": True})
+        assert (answer.status_code, answer.json()["code"]) == (409, "no_active_calibration")
+        assert not engine.contexts and not list((tmp_path / "data" / "jobs").iterdir())
+
+
 def test_a_configured_host_name_is_served(tmp_path: Path) -> None:
     config = load_daemon_config(None, {"data_dir": tmp_path / "data", "allowed_hosts": ["cell-7.local"]})
     with TestClient(create_app(Daemon(config)), base_url="http://cell-7.local:8766") as client:
