@@ -76,7 +76,7 @@ def _rebuilt_job(folder: Path, history: CalibrationHistory, report: RebuildRepor
     if result.exists():
         try:
             read = read_result_file(result)
-            fields["calibration_id"] = history.record(folder.name, folder, dry_run)
+            fields["calibration_id"] = history.record(folder.name, folder, dry_run, _mtime_utc(result))
             fields["verdict"] = read.verdict
             state = JobState.SUCCEEDED
             report.calibrations += 1

@@ -182,6 +182,9 @@ def test_rebuild_history_from_the_job_folders(history_dir: Path, tmp_path: Path)
     daemon = Daemon(load_daemon_config(None, {"data_dir": data_dir}))
     try:
         assert len(daemon.store.jobs()) == 3 and len(daemon.store.calibrations()) == 2
+        newest_first = [summary["job_id"] for summary in daemon.store.calibrations()]
+        made = sorted(data_dir.glob("jobs/*/result.json"), key=lambda result: result.stat().st_mtime_ns)
+        assert newest_first == [result.parent.name for result in reversed(made)]  # the order they were made
         assert daemon.store.active_calibration_id() is None  # the activation log lived only in the database
     finally:
         daemon.store.close()
