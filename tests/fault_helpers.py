@@ -5,6 +5,7 @@ which fails its writes with EFBIG), and a damaged SQLite file."""
 from __future__ import annotations
 
 import contextlib
+import os
 import sqlite3
 import subprocess
 from collections.abc import Callable, Iterator
@@ -36,8 +37,12 @@ class SmallDisk:
 
 @contextlib.contextmanager
 def small_disk(where: Path) -> Iterator[SmallDisk]:
-    """A small real file system at ``where`` (unmounted at the end), or the rlimit fallback."""
+    """A small real file system at ``where`` (unmounted at the end), or the rlimit fallback
+    (also chosen by ``LASERCAL_FAULT_DISK=rlimit``, to try it where mounting works)."""
     where.mkdir(parents=True, exist_ok=True)
+    if os.environ.get("LASERCAL_FAULT_DISK") == "rlimit":
+        yield SmallDisk(where, "rlimit", file_size_limit_bytes=SMALL_DISK_BYTES - FILLER_BYTES)
+        return
     mounted = subprocess.run(
         ["mount", "-t", "tmpfs", "-o", f"size={SMALL_DISK_BYTES}", "tmpfs", str(where)],
         capture_output=True,

@@ -69,7 +69,11 @@ class Daemon:
             raise ConfigError(
                 f"cannot create the data folder {self.data_dir}: {exc.strerror or exc}"
             ) from None
-        self.token = ensure_token(config.token_path)
+        try:
+            self.token = ensure_token(config.token_path)
+        except OSError as exc:  # a full disk or a read-only folder on first start
+            why = exc.strerror or exc
+            raise ConfigError(f"cannot write the token file {config.token_path}: {why}") from None
         require_history(self.data_dir)
         self.store = HistoryStore(self.data_dir / DB_FILE)
         self.bus = EventBus(self.store)
