@@ -590,8 +590,11 @@ function renderDrift(rows) {
 const EVENT_KINDS = ["stage", "progress", "centre", "skip", "scan", "fault", "result", "state",
                      "confirmed", "warning", "stopped", "daemon"];
 
+/** The daemon's events from now on, and the latest job's from its start (a reload mid-run). */
 function connectEvents() {
-  const source = new EventSource("/v1/events");
+  const latest = state.status && state.status.job;
+  const since = latest && latest.created_utc ? `?since=${encodeURIComponent(latest.created_utc)}` : "";
+  const source = new EventSource(`/v1/events${since}`);
   const streamState = $("stream-state");
   source.onopen = () => { streamState.textContent = "stream: live"; streamState.className = "badge ok"; };
   source.onerror = () => { streamState.textContent = "stream: reconnecting"; streamState.className = "badge warn"; };
@@ -621,25 +624,26 @@ function onEvent(kind, message) {
 function applyEvent(kind, data) {
   const live = state.live;
   const job = state.job;
+  const log = (text) => logLine(text, data.time_utc);
   switch (kind) {
     case "progress":
       live.progress = { waypoint: data.waypoint, completed: data.completed, waypoint_count: data.waypoint_count,
                         time_left_s: data.time_left_s, message: data.message || progressMessage(data) };
-      logLine(`progress ${data.stage} ${data.completed}/${data.waypoint_count}`);
+      log(`progress ${data.stage} ${data.completed}/${data.waypoint_count}`);
       markDirty("job", "log");
       break;
     case "stage":
-      logLine(`stage ${data.stage}${data.message ? ": " + data.message : ""}`);
+      log(`stage ${data.stage}${data.message ? ": " + data.message : ""}`);
       markDirty("log");
       break;
     case "confirmed":
     case "warning":
     case "daemon":
-      logLine(`${kind}: ${data.message || ""}`);
+      log(`${kind}: ${data.message || ""}`);
       markDirty("log");
       break;
     case "stopped":
-      logLine(`stopped: ${data.error || ""}${data.session ? " (recording kept: " + data.session + ")" : ""}`);
+      log(`stopped: ${data.error || ""}${data.session ? " (recording kept: " + data.session + ")" : ""}`);
       markDirty("log");
       break;
     case "scan":
@@ -650,22 +654,22 @@ function applyEvent(kind, data) {
     case "centre":
       live.centres.set(data.waypoint, data.centre_uv_m);
       if (data.predicted_uv_m || data.expected_uv_m) live.predicted.set(data.waypoint, data.predicted_uv_m || data.expected_uv_m);
-      logLine(`centre ${data.waypoint}: (${fmt(data.centre_uv_m[0], 4)}, ${fmt(data.centre_uv_m[1], 4)}) m`);
+      log(`centre ${data.waypoint}: (${fmt(data.centre_uv_m[0], 4)}, ${fmt(data.centre_uv_m[1], 4)}) m`);
       markDirty("scan", "log");
       break;
     case "skip":
       live.skipped.push({ waypoint: data.waypoint, reason: data.reason });
-      logLine(`skip ${data.waypoint}: ${data.reason}`);
+      log(`skip ${data.waypoint}: ${data.reason}`);
       markDirty("job", "log");
       break;
     case "fault":
-      logLine(`fault ${data.device}: ${data.message}`);
+      log(`fault ${data.device}: ${data.message}`);
       showError(`${data.device}: ${data.message}`);
       markDirty("log");
       break;
     case "result":
       live.result = data;
-      logLine(`result: ${data.passed ? "passed" : "failed"}`);
+      log(`result: ${data.passed ? "passed" : "failed"}`);
       markDirty("job", "log");
       break;
     case "state":
@@ -673,7 +677,7 @@ function applyEvent(kind, data) {
         job.state = data.state;
         if (data.error) job.error = data.error;
       }
-      logLine(`state ${data.state}`);
+      log(`state ${data.state}`);
       markDirty("job", "log");
       if (!ACTIVE_STATES.has(data.state)) finishJob(data.job_id);
       break;
@@ -687,9 +691,10 @@ function progressMessage(data) {
   return `${data.stage}${where}`;
 }
 
-function logLine(text) {
+/** A line of the event log, stamped with the time the event happened (UTC). */
+function logLine(text, timeUtc) {
   const log = state.live.log;
-  log.push(`${new Date().toISOString().slice(11, 19)} ${text}`);
+  log.push(`${(timeUtc || new Date().toISOString()).slice(11, 19)} ${text}`);
   if (log.length > EVENT_LOG_LINES) log.splice(0, log.length - EVENT_LOG_LINES);
 }
 
