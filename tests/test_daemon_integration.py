@@ -112,6 +112,8 @@ def test_dry_run_to_the_end_with_every_event_and_file(daemon: DaemonProcess) -> 
         assert (everything[-1][1], everything[-1][2]["state"]) == ("state", "succeeded")
         states = [data["state"] for _, kind, data in everything if kind == "state"]
         assert {"queued", "preflight", "running", "solving", "succeeded"} <= set(states)
+        log = daemon.log.read_text()  # the daemon's stderr: what journalctl shows
+        assert f"INFO job {job_id} queued" in log and f"INFO job {job_id} succeeded" in log
 
         finished = client.get(f"/v1/jobs/{job_id}").json()
         # The verdict is the calibration's business (a loaded machine can fail a gate), not the daemon's.

@@ -19,6 +19,14 @@ DataDirOption = Annotated[
     Path | None, typer.Option("--data-dir", help="History, job folders and token (~/.local/state/lasercal).")
 ]
 
+LogFormatOption = Annotated[
+    str | None,
+    typer.Option(
+        "--log-format",
+        help="The daemon's log on stderr: text (a line a person reads) or json (one object a line).",
+    ),
+]
+
 READY_PREFIX = "lasercal daemon listening on "
 
 
@@ -29,6 +37,7 @@ def serve_command(
     dry_run: DryRunOption = False,
     foxglove: FoxgloveOption = False,
     foxglove_port: FoxglovePortOption = 8765,
+    log_format: LogFormatOption = None,
 ) -> None:
     """Run the calibration daemon until SIGTERM or Ctrl-C (a running job's arm is stopped first).
 
@@ -38,14 +47,21 @@ def serve_command(
     import uvicorn
 
     from lasercal_hw.live.foxglove import FoxgloveLiveView
+    from lasercal_hw.service import daemon_log
     from lasercal_hw.service.app import create_app
     from lasercal_hw.service.config import listen_address, load_daemon_config
     from lasercal_hw.service.daemon import Daemon
     from lasercal_hw.service.runners import build_runners
     from lasercal_hw.service.sd_notify import notify
 
-    overrides: dict[str, Any] = {"listen": listen, "data_dir": data_dir, "dry_run": dry_run or None}
+    overrides: dict[str, Any] = {
+        "listen": listen,
+        "data_dir": data_dir,
+        "dry_run": dry_run or None,
+        "log_format": log_format,
+    }
     settings = load_daemon_config(config, overrides)
+    daemon_log.configure(settings.log_format)
     live = FoxgloveLiveView(port=foxglove_port) if foxglove else None  # lives as long as the process
     daemon = Daemon(settings, runners=lambda active: build_runners(active, live=live))
     host, port = listen_address(settings.listen)

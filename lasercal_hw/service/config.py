@@ -6,7 +6,7 @@ from __future__ import annotations
 import ipaddress
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -36,6 +36,9 @@ class DaemonConfig(BaseModel):
     token_file: Path | None = Field(None, description="default: <data_dir>/token")
     status_poll_s: float = Field(2.0, gt=0.0, le=60.0)
     dry_run: bool = False
+    log_format: Literal["text", "json"] = Field(
+        "text", description="the daemon's log on stderr: text lines for a person, or JSON lines"
+    )
 
     @field_validator("listen")
     @classmethod

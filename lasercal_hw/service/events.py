@@ -20,6 +20,7 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from lasercal_hw.service.daemon_log import log_event
 from lasercal_hw.service.job_record import FINISHED_STATES
 from lasercal_hw.service.store import HistoryStore, utc_now
 
@@ -88,6 +89,7 @@ class EventBus:
             if loop is not None and not loop.is_closed():
                 with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
                     loop.call_soon_threadsafe(self._deliver, event)
+        log_event(kind, payload, job_id)
         return event_id
 
     def _deliver(self, event: StoredEvent) -> None:
