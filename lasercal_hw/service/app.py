@@ -15,7 +15,7 @@ from fastapi.staticfiles import StaticFiles
 
 from lasercal_hw import __version__
 from lasercal_hw.service.daemon import Daemon
-from lasercal_hw.service.routes import calibrations, events, jobs, status, verifies
+from lasercal_hw.service.routes import calibrations, docs, events, jobs, status, verifies
 from lasercal_hw.service.routes.problems import install_problem_handlers
 from lasercal_hw.service.sd_notify import notify, watchdog_interval_s
 
@@ -51,13 +51,14 @@ def create_app(daemon: Daemon) -> FastAPI:
         version=__version__,
         lifespan=lifespan,
         openapi_url="/v1/openapi.json",
-        docs_url="/v1/docs",
+        docs_url=None,  # routes/docs.py: Swagger UI from local assets, not a CDN
         redoc_url=None,
     )
     app.state.daemon = daemon
     install_problem_handlers(app)
-    for resource in (status, jobs, events, calibrations, verifies):
+    for resource in (status, jobs, events, calibrations, verifies, docs):
         app.include_router(resource.router)
+    docs.mount_assets(app)
     static = Path(str(resources.files("lasercal_hw.service"))) / "static"
     if static.is_dir():
         app.mount("/", StaticFiles(directory=static, html=True), name="page")
