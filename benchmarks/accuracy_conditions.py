@@ -25,7 +25,12 @@ absolute-accuracy error field. Cases:
   uses designed waypoints);
 * ``offset-off``, ``offset-default``: the default job on a scanner reading 20 mm long, with
   ``scanner.estimate_range_offset = false`` and with the job's default (``auto``, which
-  estimates it on these waypoints); the ``default-*`` cases run with that default too.
+  estimates it on these waypoints); the ``default-*`` cases run with that default too;
+* ``curve-off``, ``curve-offset``, ``curve-default``: a scanner whose range error changes
+  with distance (``CURVE``: +8 mm at the scanner, -5.5 mm per metre, a 3 mm ripple over
+  2.5 m: within +-8 mm over the cell, the data sheet allows 30), solved without any range
+  error, with an offset alone (``scanner.range_error_terms = 1``, the solver before issue
+  18) and with the job's default curve.
 
 Printed per case: waypoints found, the translation (mm) and rotation (deg) error against
 the truth (median, 95th percentile, max), the share of error components within 2.5
@@ -45,7 +50,7 @@ import numpy as np
 from benchmarks.dry_run_accuracy import Trial, simulate, world_with
 from fakes.scene import Scene, load_scene
 from lasercal_hw.calibration.model import extended_fisher_information, moved_rod
-from lasercal_hw.calibration.result import RodAxisEstimate
+from lasercal_hw.calibration.result import RangeOffset, RodAxisEstimate
 from lasercal_hw.calibration.solver import axis_deviation
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import LasercalError
@@ -60,6 +65,8 @@ DRILL_JOB = Path(__file__).resolve().parent.parent / "examples" / "drill.toml"
 BIT_OFFSET_M = 0.002
 BIT_TILT_DEG = 1.0
 RANGE_OFFSET_M = 0.020
+#: The world's range bias of the curve cases: offset (m), per metre, ripple (m) and its period (m).
+CURVE = {"bias_offset_m": 0.008, "bias_per_m": -0.0055, "bias_ripple_m": 0.003, "bias_ripple_period_m": 2.5}
 ROBOT_ERROR_SEED_BASE = 1000
 
 
@@ -72,6 +79,8 @@ class Case:
     true_rod: RodLine
     dwell_s: float
     range_offset_m: float = 0.0
+    #: The world's range bias over distance (``[noise]`` bias settings), instead of the offset.
+    bias: dict[str, float] | None = None
     #: Waypoints from ``lasercal trajectory design`` for the scene instead of the job's.
     designed: bool = False
 
@@ -94,6 +103,7 @@ def cases() -> list[Case]:
     drill_preset = drill.model_copy(update={"trajectory": preset})
     bit = real_bit(drill.rod.rod_line())
     offset_off = with_overrides(default, {"scanner.estimate_range_offset": False})
+    offset_only = with_overrides(default, {"scanner.range_error_terms": 1})
     return [
         Case("default-3s", default, default.rod.rod_line(), 3.0),
         Case("default-1s", default, default.rod.rod_line(), 1.0),
@@ -105,6 +115,9 @@ def cases() -> list[Case]:
         Case("drill-preset-estimated", drill_preset, bit, drill.dwell_s),
         Case("offset-off", offset_off, default.rod.rod_line(), 3.0, RANGE_OFFSET_M),
         Case("offset-default", default, default.rod.rod_line(), 3.0, RANGE_OFFSET_M),
+        Case("curve-off", offset_off, default.rod.rod_line(), 3.0, bias=CURVE),
+        Case("curve-offset", offset_only, default.rod.rod_line(), 3.0, bias=CURVE),
+        Case("curve-default", default, default.rod.rod_line(), 3.0, bias=CURVE),
     ]
 
 
@@ -134,9 +147,8 @@ def run_case(case: Case, seeds: int) -> None:
     failures = 0
     started = time.perf_counter()
     for seed in range(seeds):
-        world = world_with(
-            scene, case.true_rod, ROBOT_ERROR_SEED_BASE + seed, bias_offset_m=case.range_offset_m
-        )
+        bias = case.bias or {"bias_offset_m": case.range_offset_m}
+        world = world_with(scene, case.true_rod, ROBOT_ERROR_SEED_BASE + seed, **bias)
         try:
             trials.append(simulate(case.job, waypoints, world, scans, np.random.default_rng(seed)))
         except LasercalError as exc:
@@ -177,7 +189,9 @@ def run_case(case: Case, seeds: int) -> None:
     if axes:
         print_axis_errors(axes, axis_truth(case))
     offsets = [t.result.range_offset for t in trials if t.result.range_offset is not None]
-    if offsets:
+    if offsets and case.bias:
+        print_curve_errors(offsets, case.bias)
+    elif offsets:
         z = np.array([(o.offset_mm - case.range_offset_m * 1e3) / o.std_mm for o in offsets])
         values = np.array([o.offset_mm for o in offsets])
         print(
@@ -185,6 +199,29 @@ def run_case(case: Case, seeds: int) -> None:
             f"{np.median(values):.2f} mm (std reported {np.median([o.std_mm for o in offsets]):.2f} mm), "
             f"within 2.5 std {np.mean(np.abs(z) < 2.5):.1%}"
         )
+
+
+def print_curve_errors(offsets: list[RangeOffset], bias: dict[str, float]) -> None:
+    """The estimated range error curves against the world's bias, at the curves' own
+    distances: the error in mm and in reported std, and how many terms were estimated."""
+    misses, z = [], []
+    for o in offsets:
+        for point in o.curve:
+            d = point.distance_m
+            truth_mm = 1e3 * (
+                bias["bias_offset_m"] + bias["bias_per_m"] * d
+                + bias["bias_ripple_m"] * np.sin(2.0 * np.pi * d / bias["bias_ripple_period_m"])
+            )
+            misses.append(point.error_mm - truth_mm)
+            z.append((point.error_mm - truth_mm) / point.std_mm)
+    terms = [1 + (o.scale_mm_per_m is not None) + (o.curvature_mm_per_m2 is not None) for o in offsets]
+    counts = {int(k): int(v) for k, v in zip(*np.unique(terms, return_counts=True), strict=True)}
+    worst_mm = np.median([o.worst_mm for o in offsets])
+    print(
+        f"  range curve: terms estimated {counts}, error against the world's bias RMS "
+        f"{np.sqrt(np.mean(np.square(misses))):.2f} mm, within 2.5 std {np.mean(np.abs(z) < 2.5):.1%}; "
+        f"worst_mm median {worst_mm:.1f}"
+    )
 
 
 def print_axis_errors(axes: list[RodAxisEstimate], truth: np.ndarray) -> None:

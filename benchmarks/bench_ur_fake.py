@@ -25,7 +25,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from fakes.ur_controller.process import RTDE_PORT
-from tests.ur.robot_process import FakeRobotProcess
+from tests.drivers.ur.robot_process import FakeRobotProcess
 
 RECEIVE_RECIPE_5_11 = [
     "timestamp", "target_q", "target_qd", "target_qdd", "target_current", "target_moment", "actual_q",

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from fakes.scene import load_scene, with_model_override
 from fakes.scip_faults import ScipFaults
 from fakes.scip_server import DEFAULT_PORT, FakeScannerServer
 from fakes.serving import serve_until_signal
@@ -52,7 +53,7 @@ class FakeCell:
     """A fake robot and a fake scanner on ``address`` looking at one world."""
 
     def __init__(self, address: str, scene: Path | None = None, seed: int = 0) -> None:
-        self.world = World.from_scene(scene)
+        self.world = World(with_model_override(load_scene(scene)))
         faults = self.world.scene.faults
         stop_at = faults.protective_stop_at_waypoint
         config = ControllerConfig(

@@ -1,7 +1,8 @@
 """Exact, vectorised ray intersections for the fake world (pure geometry, no state).
 
-Rays start at one common ``origin_m`` and run along unit vectors ``dirs`` (N, 3); each
-function returns the distance ``t`` (N,) to the first hit in front of the origin, or
+Rays start at ``origin_m`` (one common point (3,), or one point per ray (N, 3): a beam's
+footprint is a bundle of parallel-offset rays) and run along unit vectors ``dirs`` (N, 3);
+each function returns the distance ``t`` (N,) to the first hit in front of the origin, or
 ``inf`` where the ray misses.  All shapes are given in the frame of the rays.
 """
 
@@ -29,14 +30,14 @@ def ray_cylinder(
     ``[s_min_m, s_max_m]``; infinite limits give an infinite cylinder without caps.
     """
     a = np.asarray(axis_dir, dtype=float)
-    m = np.asarray(origin_m, dtype=float) - np.asarray(axis_point_m, dtype=float)
+    m = np.broadcast_to(np.asarray(origin_m, dtype=float) - np.asarray(axis_point_m, dtype=float), dirs.shape)
     d_axial = dirs @ a
-    m_axial = float(m @ a)
+    m_axial = m @ a
     d_perp = dirs - d_axial[:, None] * a
-    m_perp = m - m_axial * a
+    m_perp = m - m_axial[:, None] * a
     qa = np.einsum("ij,ij->i", d_perp, d_perp)
-    qb = 2.0 * (d_perp @ m_perp)
-    qc = float(m_perp @ m_perp) - radius_m**2
+    qb = 2.0 * np.einsum("ij,ij->i", d_perp, m_perp)
+    qc = np.einsum("ij,ij->i", m_perp, m_perp) - radius_m**2
     disc = qb * qb - 4.0 * qa * qc
     hits = (disc >= 0.0) & (qa > _EPS)
     safe_qa = np.where(hits, qa, 1.0)
@@ -66,7 +67,7 @@ def ray_plane(
     """Distance to an infinite plane through ``point_m`` with normal ``normal``."""
     n = np.asarray(normal, dtype=float)
     denom = dirs @ n
-    num = float((np.asarray(point_m, dtype=float) - np.asarray(origin_m, dtype=float)) @ n)
+    num = (np.asarray(point_m, dtype=float) - np.asarray(origin_m, dtype=float)) @ n
     safe = np.where(np.abs(denom) > _EPS, denom, 1.0)
     t = num / safe
     return np.where((np.abs(denom) > _EPS) & (t > 0.0), t, np.inf)

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -22,6 +23,11 @@ Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Vector2 = Annotated[list[float], Field(min_length=2, max_length=2)]
 Probability = Annotated[float, Field(ge=0.0, le=1.0)]
 Reflectivity = Annotated[float, Field(gt=0.0, le=1.0)]
+Material = Literal["matte", "painted", "bare_metal", "steel_drill", "retro_tape", "dark"]
+"""Surface materials of the physical scanner model (``fakes/scanner_model/materials.py``)."""
+ModelName = Literal["physical", "ideal"]
+"""``physical``: the UTM-30LX-EW model of ``fakes/scanner_model``; ``ideal``: exact ray
+casting with the ``[noise]`` settings (gaussian noise, flipping mixed pixels)."""
 
 
 class _Strict(BaseModel):
@@ -64,6 +70,17 @@ class RodSettings(_Strict):
     radius_m: float = Field(0.02, gt=0.0)
     length_m: float = Field(0.3, gt=0.0)
     reflectivity: Reflectivity = 0.8
+    material: Material = "painted"
+    shape: Literal["cylinder", "twist_drill"] = "cylinder"
+    """``twist_drill``: the section has two flutes and a web (physical model only)."""
+    web_fraction: float = Field(0.16, gt=0.0, lt=0.5)
+    """Twist drill: web thickness over the diameter."""
+    helix_lead_m: float = Field(0.0, ge=0.0)
+    """Twist drill: axial length of one flute turn (0 = 6 diameters, a 30 deg helix)."""
+    chuck_radius_m: float = Field(0.0, ge=0.0)
+    """A chuck (collet nut) coaxial with the rod above it, ``s`` in [-chuck_length_m, 0]; 0 = none."""
+    chuck_length_m: float = Field(0.05, gt=0.0)
+    chuck_material: Material = "bare_metal"
 
     _direction_non_zero = field_validator("direction")(_non_zero)
 
@@ -75,6 +92,12 @@ class ColumnSettings(_Strict):
     radius_m: float = Field(0.075, gt=0.0)
     height_m: float = Field(0.25, gt=0.0)
     reflectivity: Reflectivity = 0.5
+    material: Material = "painted"
+
+
+def _check_height(kind: str, name: str, z_min_m: float, z_max_m: float) -> None:
+    if z_max_m <= z_min_m:
+        raise ValueError(f"{kind} {name!r}: z_max_m must be above z_min_m")
 
 
 class WallSettings(_Strict):
@@ -86,13 +109,31 @@ class WallSettings(_Strict):
     z_min_m: float = 0.0
     z_max_m: float = 2.5
     reflectivity: Reflectivity = 0.7
+    material: Material = "matte"
 
     @model_validator(mode="after")
     def _proper_rectangle(self) -> WallSettings:
         if self.start_m == self.end_m:
             raise ValueError(f"wall {self.name!r}: start_m and end_m are the same point")
-        if self.z_max_m <= self.z_min_m:
-            raise ValueError(f"wall {self.name!r}: z_max_m must be above z_min_m")
+        _check_height("wall", self.name, self.z_min_m, self.z_max_m)
+        return self
+
+
+class PostSettings(_Strict):
+    """A vertical cylinder standing in the cell (a pole, a fixture leg): clutter the size of
+    a rod, at ``centre_m`` (base frame), from ``z_min_m`` to ``z_max_m``."""
+
+    name: str = "post"
+    centre_m: Vector2
+    radius_m: float = Field(0.02, gt=0.0)
+    z_min_m: float = 0.0
+    z_max_m: float = 2.0
+    reflectivity: Reflectivity = 0.6
+    material: Material = "painted"
+
+    @model_validator(mode="after")
+    def _proper_height(self) -> PostSettings:
+        _check_height("post", self.name, self.z_min_m, self.z_max_m)
         return self
 
 
@@ -102,6 +143,7 @@ class FloorSettings(_Strict):
     enabled: bool = True
     z_m: float = 0.0
     reflectivity: Reflectivity = 0.4
+    material: Material = "painted"
 
 
 class NoiseSettings(_Strict):
@@ -121,6 +163,39 @@ class NoiseSettings(_Strict):
     robot_position_error_m: float = Field(0.00058, ge=0.0)  # per axis: 1.0 mm RMS in 3D
     robot_rotation_error_deg: float = Field(0.02, ge=0.0)
     robot_error_seed: int = 0
+
+
+class PhysicsSettings(_Strict):
+    """Parameters of the physical UTM-30LX-EW model; docs/scanner-model.md gives each one's source."""
+
+    spot_width_at_scanner_m: float = Field(0.020, ge=0.0)
+    divergence_rad: float = Field(0.011, ge=0.0)
+    halo_fraction: float = Field(0.015, ge=0.0, lt=1.0)
+    halo_scale: float = Field(2.5, ge=1.0)
+    sub_rays: int = Field(21, ge=1, le=63)
+    pulse_fwhm_m: float = Field(1.0, gt=0.0)
+    echo_choice: Literal["strongest", "first"] = "strongest"
+    intensity_at_1m: float = Field(3600.0, gt=0.0)
+    overlap_range_m: float = Field(0.45, ge=0.0)
+    detection_threshold: float = Field(100.0, ge=0.0)
+    intensity_max: float = Field(40000.0, gt=0.0)
+    speckle_sigma: float = Field(0.10, ge=0.0)
+    intensity_noise: float = Field(0.03, ge=0.0)
+    noise_floor_m: float = Field(0.0020, ge=0.0)
+    noise_at_reference_m: float = Field(0.0028, ge=0.0)
+    reference_intensity: float = Field(4000.0, gt=0.0)
+    walk_m_per_efold: float = Field(0.0025, ge=0.0)
+    walk_limit_m: float = Field(0.010, ge=0.0)
+    near_bias_m: float = 0.020
+    near_bias_at_m: float = Field(0.10, gt=0.0)
+    near_bias_decay_m: float = Field(0.09, gt=0.0)
+    unit_bias_m: float = Field(0.010, ge=0.0)
+    unit_seed: int = 0
+    bias_limit_m: float = Field(0.030, ge=0.0)
+    warmup_drift_m: float = 0.010
+    warmup_time_constant_s: float = Field(900.0, gt=0.0)
+    warm_at_start: bool = False
+    duplicate_step_probability: Probability = 0.28
 
 
 class FaultSettings(_Strict):
@@ -149,7 +224,12 @@ class Scene(_Strict):
     rod: RodSettings = RodSettings()
     column: ColumnSettings = ColumnSettings()
     walls: list[WallSettings] = Field(default_factory=_default_walls)
+    posts: list[PostSettings] = Field(default_factory=list)
     floor: FloorSettings = FloorSettings()
+    model: ModelName = "physical"
+    """Which scanner model casts the scans: switch the fake cell's default here and in
+    ``fakes/scenes/default.toml``."""
+    physics: PhysicsSettings = PhysicsSettings()
     noise: NoiseSettings = NoiseSettings()
     faults: FaultSettings = FaultSettings()
 
@@ -179,6 +259,22 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, dict):
         return "{" + ", ".join(f"{json.dumps(k)} = {_toml_value(v)}" for k, v in value.items()) + "}"
     return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+
+
+MODEL_ENV = "LASERCAL_FAKE_SCANNER_MODEL"
+"""Environment variable that overrides the fake cell's scanner model (``ideal`` or
+``physical``), whatever the scene says; the test suite sets it to ``ideal`` until the
+extraction holds on the physical model (docs/scanner-model.md)."""
+
+
+def with_model_override(scene: Scene) -> Scene:
+    """``scene`` with its ``model`` replaced by ``$LASERCAL_FAKE_SCANNER_MODEL`` when set."""
+    wanted = os.environ.get(MODEL_ENV, "").strip()
+    if not wanted:
+        return scene
+    if wanted not in ("ideal", "physical"):
+        raise ConfigError(f"{MODEL_ENV}={wanted!r} is not a scanner model; use ideal or physical or unset it")
+    return scene.model_copy(update={"model": wanted})
 
 
 def _format_errors(error: ValidationError) -> str:

@@ -2,9 +2,12 @@
 
 The scanner sits at a ground-truth pose in the robot base frame; each of its beams is a
 ray in the scan plane, intersected exactly in 3D with the rod (a finite cylinder held at
-the TCP), the robot's base column, the walls and the floor.  Noise models (range noise
-and bias, mixed pixels, dropouts) and the robot's absolute-accuracy error are settings
-of the scene (``fakes/scene.py``); docs/extraction.md documents them with sources.
+the TCP), the robot's base column, the walls and the floor.  The scene's ``model`` picks
+what the scanner makes of that: ``physical`` (the default: a real UTM-30LX-EW's
+footprint, echo, intensity, noise, bias and warm-up drift, ``fakes/scanner_model``,
+docs/scanner-model.md) or ``ideal`` (exact rays plus the ``[noise]`` settings: gaussian
+noise, bias, flipping mixed pixels, dropouts; docs/extraction.md).  The robot's
+absolute-accuracy error applies to both.
 
 The static part of the scene is cast once when the world is built; a scan only casts
 the rod, so a 1081-beam scan costs a fraction of a millisecond.
@@ -14,14 +17,15 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from fakes.raycast import beams_near_sphere, ray_cylinder, ray_plane, ray_rectangle
+from fakes.raycast import beams_near_sphere
+from fakes.scanner_model.physical import MovingShape, PhysicalScanner
 from fakes.scene import NoiseSettings, Scene, load_scene
+from fakes.shapes import Shape
 from lasercal_hw.geometry import (
     euler_zyx_to_matrix,
     invert_transform,
@@ -44,45 +48,6 @@ _SUB_RAYS = 5
 _INTENSITY_SCALE = 10000.0
 _INTENSITY_HALF_RANGE_M = 3.0
 _INTENSITY_NOISE = 0.02
-
-
-@dataclass(frozen=True)
-class _Shape:
-    """A surface in the scanner frame with the data to intersect it and shade it."""
-
-    kind: str  # "cylinder", "rectangle" or "plane"
-    params: tuple[FloatArray, ...]
-    scalars: tuple[float, ...]
-    reflectivity: float
-
-    def intersect(self, dirs: FloatArray) -> FloatArray:
-        origin = np.zeros(3)
-        if self.kind == "cylinder":
-            point, axis = self.params
-            radius, s_min, s_max = self.scalars
-            return ray_cylinder(origin, dirs, point, axis, radius, s_min, s_max)
-        if self.kind == "rectangle":
-            return ray_rectangle(origin, dirs, *self.params)
-        return ray_plane(origin, dirs, *self.params)
-
-    def cos_incidence(self, dirs: FloatArray, t: FloatArray) -> FloatArray:
-        """|cos| of the angle between each beam and the surface normal at its hit."""
-        if self.kind == "cylinder":
-            point, axis = self.params
-            _, s_min, s_max = self.scalars
-            rel = t[:, None] * dirs - point
-            axial = rel @ axis
-            radial = rel - axial[:, None] * axis
-            on_cap = (np.abs(axial - s_min) < 1e-9) | (np.abs(axial - s_max) < 1e-9)
-            normal = np.where(
-                on_cap[:, None], axis, radial / np.fmax(np.linalg.norm(radial, axis=1), 1e-15)[:, None]
-            )
-        elif self.kind == "rectangle":
-            _, u, v = self.params
-            normal = np.broadcast_to(np.cross(u, v) / np.linalg.norm(np.cross(u, v)), dirs.shape)
-        else:
-            normal = np.broadcast_to(self.params[1] / np.linalg.norm(self.params[1]), dirs.shape)
-        return np.abs(np.einsum("ij,ij->i", dirs, normal))
 
 
 class RobotErrorField:
@@ -152,10 +117,15 @@ class World:
         half = np.radians(scene.noise.beam_footprint_deg) / 2.0
         offsets = np.linspace(-half, half, _SUB_RAYS)
         self._sub_dirs = _beam_dirs(self.angles_rad[:, None] + offsets[None, :])
-        self._static = [self._to_scanner(shape) for shape in _static_shapes(scene)]
-        self._static_t, self._static_cos, self._static_refl = self._cast(self._static, self._dirs)
-        sub_flat = self._sub_dirs.reshape(-1, 3)
-        self._static_sub_t = self._cast(self._static, sub_flat)[0].reshape(-1, _SUB_RAYS)
+        R, t = self._T_laser_base[:3, :3], self._T_laser_base[:3, 3]
+        self._static = [shape.moved(R, t) for shape in _static_shapes(scene)]
+        self.physical: PhysicalScanner | None = None
+        if scene.model == "physical":
+            self.physical = PhysicalScanner(scene.physics, self.angles_rad, self._static)
+        else:
+            self._static_t, self._static_cos, self._static_refl = self._cast(self._static, self._dirs)
+            sub_flat = self._sub_dirs.reshape(-1, 3)
+            self._static_sub_t = self._cast(self._static, sub_flat)[0].reshape(-1, _SUB_RAYS)
         n = scene.noise
         self.robot_error = RobotErrorField(
             n.robot_position_error_m, np.radians(n.robot_rotation_error_deg), n.robot_error_seed
@@ -176,34 +146,18 @@ class World:
         """The rod's axis in the TCP frame, its radius and length."""
         return self._rod
 
-    def _to_scanner(self, shape: _Shape) -> _Shape:
-        """Express a base-frame shape in the scanner frame (points moved, vectors rotated)."""
-        R, t = self._T_laser_base[:3, :3], self._T_laser_base[:3, 3]
-        if shape.kind == "cylinder":
-            point, axis = shape.params
-            params = (R @ point + t, R @ axis)
-        elif shape.kind == "rectangle":
-            corner, u, v = shape.params
-            params = (R @ corner + t, R @ u, R @ v)
-        else:
-            point, normal = shape.params
-            params = (R @ point + t, R @ normal)
-        return _Shape(shape.kind, params, shape.scalars, shape.reflectivity)
-
     @staticmethod
-    def _cast(shapes: list[_Shape], dirs: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def _cast(shapes: list[Shape], dirs: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Nearest hit over shapes: distance, |cos incidence| and reflectivity per ray."""
         best_t = np.full(dirs.shape[0], np.inf)
         best_cos = np.zeros(dirs.shape[0])
         best_refl = np.zeros(dirs.shape[0])
         for shape in shapes:
-            t = shape.intersect(dirs)
+            t, cos = shape.hit(dirs)
             nearer = t < best_t
             if not nearer.any():
                 continue
             best_t = np.where(nearer, t, best_t)
-            cos = np.zeros(dirs.shape[0])
-            cos[nearer] = shape.cos_incidence(dirs[nearer], t[nearer])
             best_cos = np.where(nearer, cos, best_cos)
             best_refl = np.where(nearer, shape.reflectivity, best_refl)
         return best_t, best_cos, best_refl
@@ -214,16 +168,47 @@ class World:
         point = T_laser_tcp[:3, :3] @ self._rod.origin_m + T_laser_tcp[:3, 3]
         return point, T_laser_tcp[:3, :3] @ self._rod.unit_direction()
 
-    def _rod_shape(self, T_base_tcp_true: FloatArray) -> _Shape:
+    def _rod_shape(self, T_base_tcp_true: FloatArray) -> Shape:
         point, axis = self.rod_shape_in_scanner(T_base_tcp_true)
         scalars = (self._rod.radius_m, 0.0, self._rod.length_m)
-        return _Shape("cylinder", (point, axis), scalars, self.scene.rod.reflectivity)
+        return Shape("cylinder", (point, axis), scalars, self.scene.rod.reflectivity, self.scene.rod.material)
+
+    def _moving_shapes(self, T_base_tcp_true: FloatArray) -> list[MovingShape]:
+        """The rod (a cylinder or a fluted twist drill) and its chuck, each with a
+        bounding sphere, in the scanner frame (physical model)."""
+        rod = self.scene.rod
+        point, axis = self.rod_shape_in_scanner(T_base_tcp_true)
+        bit = self._rod_shape(T_base_tcp_true)
+        if rod.shape == "twist_drill":
+            T_laser_tcp = self._T_laser_base @ np.asarray(T_base_tcp_true, dtype=float)
+            ref = T_laser_tcp[:3, 0] - (T_laser_tcp[:3, 0] @ axis) * axis
+            if np.linalg.norm(ref) < 1e-9:  # rod along the TCP x axis: use TCP y
+                ref = T_laser_tcp[:3, 1] - (T_laser_tcp[:3, 1] @ axis) * axis
+            lead = rod.helix_lead_m or np.pi * 2.0 * rod.radius_m / np.tan(np.radians(30.0))
+            scalars = (rod.radius_m, 0.0, rod.length_m, rod.web_fraction, lead)
+            params = (point, axis, ref / np.linalg.norm(ref))
+            bit = Shape("drill", params, scalars, rod.reflectivity, rod.material)
+        moving: list[MovingShape] = [(bit, *_in_plane_bound(point, axis, rod.radius_m, 0.0, rod.length_m))]
+        if rod.chuck_radius_m > 0.0:
+            limits = (rod.chuck_radius_m, -rod.chuck_length_m, 0.0)
+            chuck = Shape("cylinder", (point, axis), limits, rod.reflectivity, rod.chuck_material)
+            bound = _in_plane_bound(point, axis, rod.chuck_radius_m, -rod.chuck_length_m, 0.0)
+            moving.append((chuck, *bound))
+        return moving
 
     def _trace(
-        self, T_base_tcp: FloatArray, rng: np.random.Generator | None, apply_robot_error: bool
+        self,
+        T_base_tcp: FloatArray,
+        rng: np.random.Generator | None,
+        apply_robot_error: bool,
+        elapsed_s: float | None = None,
     ) -> tuple[FloatArray, FloatArray]:
-        """Ranges (inf: no return, NaN: dropout) and intensities in arbitrary units."""
+        """Ranges (inf: no return, NaN: dropout) and intensities (ideal: arbitrary units;
+        physical: the device's)."""
         T_true = self.robot_error.true_pose(T_base_tcp) if apply_robot_error else np.asarray(T_base_tcp)
+        if self.physical is not None:
+            ranges, intensity = self.physical.scan(self._moving_shapes(T_true), rng, elapsed_s)
+            return np.where(ranges > self.geometry.max_range_m, np.inf, ranges), intensity
         rod = self._rod_shape(T_true)
         ranges, cos, refl = self._static_t.copy(), self._static_cos.copy(), self._static_refl.copy()
         beams = self._rod_beams(rod)
@@ -246,7 +231,7 @@ class World:
         intensity = np.where(np.isfinite(ranges), np.fmax(intensity, 0.0), 0.0)
         return ranges, intensity
 
-    def _rod_beams(self, rod: _Shape) -> NDArray[np.int64]:
+    def _rod_beams(self, rod: Shape) -> NDArray[np.int64]:
         """Indices of the beams that can touch the rod (its bounding sphere), before exact casting."""
         point, axis = rod.params
         half_length = 0.5 * self._rod.length_m
@@ -256,7 +241,7 @@ class World:
     def _mixed_pixels(
         self,
         ranges: FloatArray,
-        rod: _Shape,
+        rod: Shape,
         rod_beams: NDArray[np.int64],
         noise: NoiseSettings,
         rng: np.random.Generator,
@@ -303,15 +288,18 @@ class World:
         rng: np.random.Generator | None = None,
         *,
         apply_robot_error: bool = True,
+        elapsed_s: float | None = None,
     ) -> FloatArray:
         """One scan's ranges in metres for the TCP pose the controller reports.
 
         ``inf`` where no object lies within DMAX, ``NaN`` for a dropout.  With
-        ``rng=None`` the scan is noise-free (no noise, bias, mixed pixels or dropouts);
-        the robot's absolute-accuracy error is a property of the world and applies
-        unless ``apply_robot_error`` is False.
+        ``rng=None`` the scan is noise-free (ideal model: no noise, bias, mixed pixels or
+        dropouts; physical model: no random part, but the footprint's mixed pixels and the
+        bias stay); the robot's absolute-accuracy error is a property of the world and
+        applies unless ``apply_robot_error`` is False.  ``elapsed_s``: time since the
+        scanner's power-on, for the physical model's warm-up drift (None: warm).
         """
-        return self._trace(T_base_tcp, rng, apply_robot_error)[0]
+        return self._trace(T_base_tcp, rng, apply_robot_error, elapsed_s)[0]
 
     def scan_mm(
         self,
@@ -319,9 +307,10 @@ class World:
         rng: np.random.Generator | None = None,
         *,
         apply_robot_error: bool = True,
+        elapsed_s: float | None = None,
     ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """One scan as the scanner sends it: ranges in mm with error codes, and intensities."""
-        ranges, intensity = self._trace(T_base_tcp, rng, apply_robot_error)
+        ranges, intensity = self._trace(T_base_tcp, rng, apply_robot_error, elapsed_s)
         return to_wire_mm(ranges, self.geometry), np.round(intensity).astype(np.int64)
 
 
@@ -340,13 +329,22 @@ class WorldRangeSource:
 
     ``tcp_pose_at(time_s)`` returns the TCP pose (4x4, or a UR pose vector) the fake robot
     reports at that time.  The noise of each scan is seeded by ``seed`` and the scan's
-    start time, so the same time always gives the same scan.
+    start time, so the same time always gives the same scan.  ``power_on_s`` is when the
+    scanner was switched on, on the same clock (None: at the first scan), for the physical
+    model's warm-up drift.
     """
 
-    def __init__(self, world: World, tcp_pose_at: Callable[[float], FloatArray], seed: int = 0) -> None:
+    def __init__(
+        self,
+        world: World,
+        tcp_pose_at: Callable[[float], FloatArray],
+        seed: int = 0,
+        power_on_s: float | None = None,
+    ) -> None:
         self._world = world
         self._tcp_pose_at = tcp_pose_at
         self._seed = seed
+        self._power_on_s = power_on_s
 
     def ranges_mm(self, time_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """Distances (mm, error codes below DMIN) and intensities of every step of the scan
@@ -355,7 +353,29 @@ class WorldRangeSource:
         if pose.shape == (6,):
             pose = pose_to_matrix(pose)
         rng = np.random.default_rng([self._seed, round(time_s * 1e6)])
-        return self._world.scan_mm(pose, rng)
+        if self._power_on_s is None:
+            self._power_on_s = time_s
+        return self._world.scan_mm(pose, rng, elapsed_s=time_s - self._power_on_s)
+
+
+def _in_plane_bound(
+    point: FloatArray, axis: FloatArray, radius_m: float, s_min: float, s_max: float
+) -> tuple[FloatArray, float]:
+    """A sphere holding every point of a solid cylinder (axis ``point + s axis``, ``s`` in
+    [s_min, s_max]) that lies in the scan plane z = 0: such a point is within ``radius_m``
+    of an axis point with |z| <= radius_m, so only that part of the axis counts (radius 0
+    when the cylinder does not reach the plane)."""
+    if abs(axis[2]) > 1e-12:
+        ends = sorted(((-radius_m - point[2]) / axis[2], (radius_m - point[2]) / axis[2]))
+        low, high = max(s_min, ends[0]), min(s_max, ends[1])
+    elif abs(point[2]) <= radius_m:
+        low, high = s_min, s_max
+    else:
+        low, high = 1.0, 0.0
+    if low > high:
+        return np.array([0.0, 0.0, 1e9]), 0.0
+    half = 0.5 * (high - low)
+    return point + 0.5 * (low + high) * axis, float(np.hypot(half, radius_m))
 
 
 def _beam_dirs(angles_rad: FloatArray) -> FloatArray:
@@ -374,20 +394,24 @@ def _bias_m(ranges: FloatArray, noise: NoiseSettings) -> FloatArray:
     return bias
 
 
-def _static_shapes(scene: Scene) -> list[_Shape]:
-    """Walls, floor and base column in the base frame."""
+def _static_shapes(scene: Scene) -> list[Shape]:
+    """Walls, floor, posts and base column in the base frame."""
     shapes = []
     for wall in scene.walls:
         start = np.array([*wall.start_m, wall.z_min_m])
         along = np.array([wall.end_m[0] - wall.start_m[0], wall.end_m[1] - wall.start_m[1], 0.0])
         up = np.array([0.0, 0.0, wall.z_max_m - wall.z_min_m])
-        shapes.append(_Shape("rectangle", (start, along, up), (), wall.reflectivity))
+        shapes.append(Shape("rectangle", (start, along, up), (), wall.reflectivity, wall.material))
     if scene.floor.enabled:
         plane = (np.array([0.0, 0.0, scene.floor.z_m]), np.array([0.0, 0.0, 1.0]))
-        shapes.append(_Shape("plane", plane, (), scene.floor.reflectivity))
+        shapes.append(Shape("plane", plane, (), scene.floor.reflectivity, scene.floor.material))
+    for post in scene.posts:
+        axis = (np.array([*post.centre_m, 0.0]), np.array([0.0, 0.0, 1.0]))
+        limits = (post.radius_m, post.z_min_m, post.z_max_m)
+        shapes.append(Shape("cylinder", axis, limits, post.reflectivity, post.material))
     if scene.column.enabled:
         column = scene.column
         axis = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
         limits = (column.radius_m, 0.0, column.height_m)
-        shapes.append(_Shape("cylinder", axis, limits, column.reflectivity))
+        shapes.append(Shape("cylinder", axis, limits, column.reflectivity, column.material))
     return shapes

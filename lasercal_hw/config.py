@@ -70,11 +70,25 @@ class ScannerConfig(_Strict):
     url: str = DEFAULT_SCANNER_URL
     timeout_s: float = Field(2.0, gt=0.0, le=60.0)
     nominal: NominalPose | None = None
+    intensities: bool = Field(
+        False,
+        description="stream intensities with the ranges (SCIP ME instead of MD): the recording keeps them "
+        "and the rod extraction tells a bright rod (retro-reflective tape) from the background-level mixed "
+        "pixels beside it; twice the bytes per scan",
+    )
     estimate_range_offset: bool | Literal["auto"] = Field(
         "auto",
         description="estimate the scanner's range offset (measured minus true range) with the transform; "
         "auto: when the waypoints pin it down (a UTM-30LX may read tens of millimetres long, and an "
         "offset left out moves the result by as much)",
+    )
+    range_error_terms: int = Field(
+        3,
+        ge=1,
+        le=3,
+        description="most terms of the range error curve estimated: 1 an offset, 2 also a scale over "
+        "distance, 3 also a smooth (quadratic) term; each only where the waypoints pin it down and the data "
+        "show it",
     )
 
     @field_validator("url")

@@ -174,6 +174,7 @@ class SimScanner:
     geometry_used: ScanGeometry = UTM_GEOMETRY
     reads: int = 0
     streaming: bool = False
+    with_intensities: bool = False
     closed: bool = False
     _next_k: int = 0
     _dropped: int = 0
@@ -191,6 +192,7 @@ class SimScanner:
 
     def start_streaming(self, *, intensities: bool = False) -> None:
         self.streaming = True
+        self.with_intensities = intensities
         self._next_k = int(np.ceil(self.clock() / self.geometry_used.scan_period_s))
 
     def ranges_at(self, t_s: float) -> FloatArray:
@@ -228,7 +230,7 @@ class SimScanner:
             geometry=self.geometry_used,
             ranges_m=raw / 1000.0,
             raw_ranges_mm=raw,
-            intensities=None,
+            intensities=np.where(ranges < 2.5, 6000, 1500) if self.with_intensities else None,
             device_time_s=acquired_s,
             host_time_s=acquired_s + self.latency_s,
         )

@@ -6,7 +6,10 @@ The objective is the worse of the largest translation std and the largest rotati
 (``rod.estimate_axis``), the four axis parameters join the information and the std are those
 of the pose with the axis unknown; the tool then also turns widely about the rod
 (``AXIS_TOOL_TURN_SPREAD_DEG``), the motion that tells the axis offset from the scanner's
-position. The Fisher information of a set of waypoints is the sum of theirs, so the search
+position. When the job estimates the scanner's range error (``scanner.estimate_range_offset``),
+the terms of its curve over distance (offset, scale, smooth term) join too: the design then
+spreads the crossings over distances and bearings that tell the curve from the pose.
+The Fisher information of a set of waypoints is the sum of theirs, so the search
 works on per-candidate k x k blocks: a greedy pass adds the candidate that lowers the
 objective most, exchange passes swap a chosen waypoint for a better one until none helps.
 Chosen crossings keep ``MIN_SEPARATION_M`` apart (the robot's error is smooth, so neighbours would not add
@@ -49,8 +52,8 @@ from trajectories.waypoint import Waypoint
 
 class InformationModel(Protocol):
     """Fisher information (k, k) of (translation, rotation about base axes[, rod axis offset (2),
-    tilt (2)]) of the rod held at ``tcp_transforms`` (n, 4, 4) for a scanner at (rotation,
-    translation_m)."""
+    tilt (2)][, range error curve terms]) of the rod held at ``tcp_transforms`` (n, 4, 4) for a
+    scanner at (rotation, translation_m)."""
 
     def __call__(
         self,
@@ -62,6 +65,7 @@ class InformationModel(Protocol):
         robot_sigma_m: float,
         *,
         with_axis: bool,
+        with_offset: int = 0,
     ) -> FloatArray: ...
 
 
@@ -81,8 +85,11 @@ EXCHANGE_PASSES = 3
 SCAN_PERIOD_S = 0.025
 #: Rounds of "drop the waypoint that breaks the walk and choose again".
 _WALK_ROUNDS = 12
-#: Pose parameters (the rest of an information matrix are the rod axis's).
+#: Pose parameters (the rest of an information matrix are the rod axis's and the range curve's).
 POSE_PARAMETERS = 6
+#: Range error curve terms a job that estimates the range error is designed for: offset and
+#: scale (the solver adds the smooth term only where the waypoints pin it down anyway).
+DESIGN_RANGE_TERMS = 2
 _AXES = [f"translation along base {a}" for a in "xyz"] + [f"rotation about base {a}" for a in "xyz"]
 
 
@@ -134,11 +141,14 @@ class DesignRequest:
     start_q_rad: FloatArray | None = None
     #: Design for a run that estimates the rod's axis with the pose (``rod.estimate_axis``).
     estimate_axis: bool = False
+    #: ... and this many terms of the scanner's range error curve (0 to 3).
+    range_terms: int = 0
 
     @property
     def parameters(self) -> int:
-        """Size of the information: the pose's six, and the axis's four when estimated."""
-        return POSE_PARAMETERS + 4 * self.estimate_axis
+        """Size of the information: the pose's six, the axis's four and the range curve's terms
+        when estimated."""
+        return POSE_PARAMETERS + 4 * self.estimate_axis + self.range_terms
 
 
 @dataclass(frozen=True)
@@ -182,6 +192,7 @@ def request_for_job(
     targets = Targets(job.quality.max_std_translation_mm, job.quality.max_std_rotation_deg)
     return DesignRequest(
         estimate_axis=job.rod.estimate_axis is not False,
+        range_terms=0 if job.scanner.estimate_range_offset is False else DESIGN_RANGE_TERMS,
         T_base_laser=np.asarray(T_base_laser, dtype=float),
         rules=rules,
         targets=targets,
@@ -199,7 +210,7 @@ def _regulariser(size: int) -> FloatArray:
 
 def std_of(information: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Std of translation (mm) and rotation (deg) from a Fisher information (inf if singular);
-    any parameters after the pose's six (the rod axis) count as unknown."""
+    any parameters after the pose's six (the rod axis, the range curve) count as unknown."""
     try:
         covariance = np.linalg.inv(information)
     except np.linalg.LinAlgError:
@@ -240,6 +251,7 @@ def information_blocks(
             covariance,
             request.noise.robot_sigma_m,
             with_axis=request.estimate_axis,
+            with_offset=request.range_terms,
         )
     return blocks
 

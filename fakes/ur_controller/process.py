@@ -4,7 +4,7 @@ next to it).
 
 ur_rtde's constructors hold the GIL while they wait for the controller, so a fake must
 never run as threads inside the process of an ur_rtde client: such a client starts it as a
-child process (the fake cell, or ``lasercal fake robot``; tests/ur/robot_process.py).
+child process (the fake cell, or ``lasercal fake robot``; tests/drivers/ur/robot_process.py).
 """
 
 from __future__ import annotations

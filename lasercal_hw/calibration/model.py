@@ -160,8 +160,35 @@ def euler_zyx_axes(yaw_rad: float, pitch_rad: float) -> FloatArray:
 # direction ``d`` (``axis_basis``): ``o' = o + a1 e1 + a2 e2``, ``d' = unit(d + b1 e1 + b2 e2)``.
 # Moving the line's base-frame origin by ``do`` moves the crossing by ``-J_t do`` (``J_t`` the
 # Jacobian in the scanner translation), turning its direction by ``dd`` moves it by
-# ``-s J_t dd`` (``s`` the crossing's line parameter). A range offset ``k`` (measured minus
-# true range) moves a centre seen at ``p`` to ``p + k p/|p|``.
+# ``-s J_t dd`` (``s`` the crossing's line parameter). A range error ``e(|p|)`` (measured minus
+# true range) moves a centre seen at ``p`` to ``p + e(|p|) p/|p|``. The error is a curve over
+# distance (``range_error_m``): an offset, a scale and a smooth (quadratic) term about
+# ``RANGE_CURVE_REFERENCE_M``; a range offset alone is the curve with one term.
+
+RANGE_CURVE_REFERENCE_M = 1.0
+"""Distance about which the range error's terms are taken: the offset is the error there."""
+RANGE_CURVE_TERMS = ("offset", "scale", "curvature")
+"""The range error curve's terms in order: ``c0 + c1 (d - ref) + c2 (d - ref)^2``."""
+
+
+def range_error_basis(distance_m: FloatArray, terms: int) -> FloatArray:
+    """The curve's basis functions (N, terms) at the distances."""
+    shifted = np.asarray(distance_m, dtype=float) - RANGE_CURVE_REFERENCE_M
+    return np.stack([shifted**k for k in range(terms)], axis=-1)
+
+
+def range_error_m(curve: FloatArray, distance_m: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The range error (measured minus true, m) of a curve's coefficients at the distances,
+    and its slope over distance."""
+    coefficients = np.atleast_1d(np.asarray(curve, dtype=float))
+    shifted = np.asarray(distance_m, dtype=float) - RANGE_CURVE_REFERENCE_M
+    error = np.zeros_like(shifted)
+    slope = np.zeros_like(shifted)
+    for k, c in enumerate(coefficients):
+        error = error + c * shifted**k
+        if k:
+            slope = slope + k * c * shifted ** (k - 1)
+    return error, slope
 
 
 def axis_basis(direction: FloatArray) -> FloatArray:
@@ -193,13 +220,16 @@ def extended_residuals_and_jacobian(
     tcp_transforms: FloatArray,
     rod: RodLine,
     centres_uv_m: FloatArray,
-    range_offset_m: float,
+    range_offset_m: float | FloatArray,
     *,
     with_axis: bool,
-    with_offset: bool,
+    with_offset: bool | int,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Predicted minus measured centre (N, 2), the Jacobian (N, 2, 6 [+4] [+1]) in
-    (dt, e[, a1, a2, b1, b2][, k]) at ``axis_step = 0``, and the slopes (N, 2)."""
+    """Predicted minus measured centre (N, 2), the Jacobian (N, 2, 6 [+4] [+k]) in
+    (dt, e[, a1, a2, b1, b2][, c0 .. c(k-1)]) at ``axis_step = 0``, and the slopes (N, 2).
+
+    ``range_offset_m``: the range error curve's coefficients (a number: an offset alone);
+    ``with_offset``: how many of its terms are estimated (True: the offset)."""
     rotations = tcp_transforms[:, :3, :3]
     origins = rotations @ np.asarray(rod.origin_m, dtype=float) + tcp_transforms[:, :3, 3]
     directions = rotations @ rod.unit_direction()
@@ -213,17 +243,23 @@ def extended_residuals_and_jacobian(
         blocks += [along_origin, line_s[:, None, None] * along_origin]
     full = np.concatenate(blocks, axis=2)
     crossing = residual + centres_uv_m
-    if range_offset_m != 0.0 or with_offset:
+    curve = np.atleast_1d(np.asarray(range_offset_m, dtype=float))
+    terms = int(with_offset)
+    if curve.any() or terms:
         distance = np.linalg.norm(crossing, axis=1)
         unit = crossing / distance[:, None]
+        error, error_slope = range_error_m(curve, distance)
+        radial = unit[:, :, None] * unit[:, None, :]
         stretch = (
             np.eye(2)
-            + range_offset_m * (np.eye(2) - unit[:, :, None] * unit[:, None, :]) / distance[:, None, None]
+            + error[:, None, None] * (np.eye(2) - radial) / distance[:, None, None]
+            + error_slope[:, None, None] * radial
         )
         full = stretch @ full
-        residual = residual + range_offset_m * unit
-        if with_offset:
-            full = np.concatenate([full, unit[:, :, None]], axis=2)
+        residual = residual + error[:, None] * unit
+        if terms:
+            basis = range_error_basis(distance, terms)
+            full = np.concatenate([full, unit[:, :, None] * basis[:, None, :]], axis=2)
     return residual, full, slope
 
 
@@ -234,12 +270,12 @@ def extended_fisher_information(
     rod: RodLine,
     covariance_uv_m2: FloatArray,
     robot_sigma_m: float,
-    range_offset_m: float = 0.0,
+    range_offset_m: float | FloatArray = 0.0,
     *,
     with_axis: bool,
-    with_offset: bool = False,
+    with_offset: bool | int = False,
 ) -> FloatArray:
-    """Fisher information (6 [+4] [+1] square) of (dt, e[, a1, a2, b1, b2][, k]) for the rod
+    """Fisher information (6 [+4] [+k] square) of (dt, e[, a1, a2, b1, b2][, c0 ..]) for the rod
     held at ``tcp_transforms`` (N, 4, 4) and the noise model of ``fisher_information``."""
     zeros = np.zeros((len(tcp_transforms), 2))
     _, jac, slope = extended_residuals_and_jacobian(

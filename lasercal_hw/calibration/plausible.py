@@ -24,15 +24,40 @@ MAX_CENTRE_DISTANCE_M = 100.0
 
 
 def check_physical(observations: Sequence[Observation]) -> None:
-    """``ConfigError`` naming the first row (by its index) holding an impossible value."""
-    for o in observations:
-        pose = np.asarray(o.tcp_pose, dtype=float)
-        centre = np.asarray(o.centre_uv_m, dtype=float)
-        if pose.shape != (6,) or centre.shape != (2,) or not np.isfinite([*pose, *centre]).all():
-            continue  # the solver's own checks name shapes and NaN
-        problem = _problem(pose, centre)
+    """``ConfigError`` naming the first row (by its index) holding an impossible value.
+
+    The rows are screened as one array (10,000 rows in a few ms); a row that fails the
+    screen is examined on its own for the message."""
+    table = _table(observations)
+    with np.errstate(over="ignore", invalid="ignore"):
+        suspect = np.isfinite(table).all(axis=1) & (
+            (np.abs(table[:, :3]).max(axis=1) > MAX_TCP_DISTANCE_M / np.sqrt(3.0))
+            | (np.abs(table[:, 3:6]).max(axis=1) > MAX_ROTATION_VECTOR_RAD / np.sqrt(3.0))
+            | (np.abs(table[:, 6:]).max(axis=1) > MAX_CENTRE_DISTANCE_M)
+        )
+    for row in np.flatnonzero(suspect):
+        problem = _problem(table[row, :6], table[row, 6:])
         if problem is not None:
-            raise ConfigError(f"observation index {o.index}: {problem}; fix or remove that row")
+            index = observations[row].index
+            raise ConfigError(f"observation index {index}: {problem}; fix or remove that row")
+
+
+def _table(observations: Sequence[Observation]) -> np.ndarray:
+    """Rows (N, 8) of TCP pose and centre; NaN rows where a shape is wrong (the solver's own
+    checks name shapes and NaN)."""
+    try:
+        poses = np.array([o.tcp_pose for o in observations], dtype=float)
+        centres = np.array([o.centre_uv_m for o in observations], dtype=float)
+        if poses.shape == (len(observations), 6) and centres.shape == (len(observations), 2):
+            return np.hstack([poses, centres])
+    except ValueError:  # ragged: some row has the wrong shape
+        pass
+    table = np.full((len(observations), 8), np.nan)
+    for row, o in enumerate(observations):
+        pose, centre = np.asarray(o.tcp_pose, dtype=float), np.asarray(o.centre_uv_m, dtype=float)
+        if pose.shape == (6,) and centre.shape == (2,):
+            table[row] = np.concatenate([pose, centre])
+    return table
 
 
 def _length(vector: np.ndarray) -> float:

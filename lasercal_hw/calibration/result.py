@@ -86,11 +86,34 @@ class RodAxisEstimate(BaseModel):
     note: str = ""
 
 
-class RangeOffset(BaseModel):
-    """The scanner's range offset (measured minus true range), estimated with the transform."""
+class RangeErrorPoint(BaseModel):
+    """The range error curve at one distance."""
 
-    offset_mm: float
+    distance_m: float
+    error_mm: float
     std_mm: float
+
+
+class RangeOffset(BaseModel):
+    """The scanner's range error (measured minus true range) over distance, estimated with the
+    transform: ``offset + scale (d - reference) + curvature (d - reference)^2``, with as many
+    terms as the waypoints pin down (the others None)."""
+
+    offset_mm: float = Field(description="the error at reference_m (with one term: at every distance)")
+    std_mm: float
+    reference_m: float = 1.0
+    scale_mm_per_m: float | None = None
+    scale_std_mm_per_m: float | None = None
+    curvature_mm_per_m2: float | None = None
+    curvature_std_mm_per_m2: float | None = None
+    curve: list[RangeErrorPoint] = Field(
+        default_factory=list, description="the curve over the distances the crossings span"
+    )
+    worst_mm: float | None = Field(
+        None,
+        description="health figure: the largest |error| over those distances (UTM-30LX-EW data sheet: 30 mm; "
+        "one that grows between calibrations marks a unit to replace)",
+    )
 
 
 class CalibrationResult(BaseModel):
@@ -151,15 +174,28 @@ class CalibrationResult(BaseModel):
         if axis is not None and axis.note:
             lines.append(axis.note)
         if self.range_offset is not None:
-            offset = self.range_offset
-            lines.append(
-                f"scanner range offset (measured - true): {offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm"
-            )
+            lines.append(_range_line(self.range_offset))
         return lines
 
     def to_json_dict(self) -> dict[str, Any]:
         """The ``result.json`` document (plain JSON types, matrices row-major)."""
         return self.model_dump(mode="json")
+
+
+def _range_line(offset: RangeOffset) -> str:
+    """The range error curve in one line."""
+    if offset.scale_mm_per_m is None:
+        return f"scanner range offset (measured - true): {offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm"
+    terms = [f"{offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm at {offset.reference_m:g} m",
+             f"scale {offset.scale_mm_per_m:+.2f} ± {offset.scale_std_mm_per_m:.2f} mm/m"]
+    if offset.curvature_mm_per_m2 is not None:
+        curvature, curvature_std = offset.curvature_mm_per_m2, offset.curvature_std_mm_per_m2
+        terms.append(f"curvature {curvature:+.2f} ± {curvature_std:.2f} mm/m²")
+    span = f"{offset.curve[0].distance_m:.2f}-{offset.curve[-1].distance_m:.2f} m" if offset.curve else ""
+    return (
+        f"scanner range error (measured - true): {', '.join(terms)}; largest {offset.worst_mm:.1f} mm over "
+        f"{span} (data sheet: 30 mm)"
+    )
 
 
 def _vec(values: list[float]) -> str:

@@ -18,7 +18,7 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from lasercal_hw import __version__
 from lasercal_hw.calibration.initial import linear_initial_pose
 from lasercal_hw.calibration.model import (
+    RANGE_CURVE_REFERENCE_M,
     axis_basis,
     effective_covariance,
     euler_zyx_axes,
@@ -38,6 +39,8 @@ from lasercal_hw.calibration.model import (
     left_jacobian_so3,
     moved_rod,
     plane_crossing,
+    range_error_basis,
+    range_error_m,
     rod_lines_in_base,
     whiten,
     whiten_residual,
@@ -50,6 +53,7 @@ from lasercal_hw.calibration.result import (
     Observability,
     Outlier,
     Provenance,
+    RangeErrorPoint,
     RangeOffset,
     RodAxisEstimate,
     WaypointResidual,
@@ -97,10 +101,18 @@ class SolverOptions(BaseModel):
         description="estimate the rod line in the TCP frame (2 offsets, 2 tilts); auto: when observable",
     )
     estimate_range_offset: bool | Literal["auto"] = Field(
-        False, description="estimate the scanner's range offset; auto: when the waypoints pin it down"
+        False,
+        description="estimate the scanner's range error curve over distance (an offset, then a scale and a "
+        "smooth term where the waypoints pin them down); auto: the offset too only when observable",
+    )
+    max_range_terms: int = Field(
+        3, ge=1, le=3, description="most terms of the range error curve: 1 offset, 2 + scale, 3 + smooth term"
     )
     auto_range_offset_max_std_m: float = Field(
-        0.002, gt=0, description="auto: estimate the range offset when its Cramér-Rao std is below this"
+        0.002,
+        gt=0,
+        description="estimate a term of the range error curve when the Cramér-Rao std of what it adds to the "
+        "error (at the farthest crossing from the curve's reference distance) is below this",
     )
     auto_range_offset_min_sigmas: float = Field(
         3.3, gt=0, description="auto: ... and keep it only when it is this many std from zero"
@@ -129,7 +141,7 @@ class SolverOptions(BaseModel):
 @dataclass
 class _Data:
     """The observations as arrays, rod lines in the base frame (for the current rod line
-    ``rod`` and range offset ``range_offset_m``: ``with_line`` moves them)."""
+    ``rod`` and range error curve ``range_curve_m``: ``with_line`` moves them)."""
 
     index: np.ndarray
     origins: FloatArray
@@ -139,18 +151,19 @@ class _Data:
     tcp_transforms: FloatArray
     rod: RodLine
     nominal_rod: RodLine
-    range_offset_m: float = 0.0
+    range_curve_m: FloatArray = field(default_factory=lambda: np.zeros(0))
 
-    def with_line(self, rod: RodLine, range_offset_m: float) -> _Data:
-        """The same observations for another rod line and range offset."""
+    def with_line(self, rod: RodLine, range_curve_m: FloatArray) -> _Data:
+        """The same observations for another rod line and range error curve."""
         origins, directions = _lines(self.tcp_transforms, rod)
-        return replace(self, origins=origins, directions=directions, rod=rod, range_offset_m=range_offset_m)
+        return replace(self, origins=origins, directions=directions, rod=rod, range_curve_m=range_curve_m)
 
     def predicted(self, rotation: FloatArray, translation: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Where the centres should be seen (N, 2), with the range offset, and the slopes."""
+        """Where the centres should be seen (N, 2), with the range error, and the slopes."""
         crossing, slope, _ = plane_crossing(rotation, translation, self.origins, self.directions)
-        if self.range_offset_m:
-            crossing = crossing * (1.0 + self.range_offset_m / np.linalg.norm(crossing, axis=1))[:, None]
+        if self.range_curve_m.any():
+            distance = np.linalg.norm(crossing, axis=1)
+            crossing = crossing * (1.0 + range_error_m(self.range_curve_m, distance)[0] / distance)[:, None]
         return crossing, slope
 
 
@@ -159,13 +172,18 @@ class _Extras:
     """Which parameters besides the six of the pose are estimated."""
 
     axis: bool = False
-    offset: bool = False
+    range_terms: int = 0
     axis_note: str = ""
     offset_note: str = ""
 
     @property
+    def offset(self) -> bool:
+        """Whether the range error curve (at least its offset) is estimated."""
+        return self.range_terms > 0
+
+    @property
     def count(self) -> int:
-        return 4 * self.axis + self.offset
+        return 4 * self.axis + self.range_terms
 
 
 def _lines(tcp_transforms: FloatArray, rod: RodLine) -> tuple[FloatArray, FloatArray]:
@@ -213,13 +231,15 @@ def solve(
         rotation, translation, data, used, evaluations = _fit(
             rotation, translation, data, usable, start, robust, opts, extras
         )
-        if extras.offset and opts.estimate_range_offset == "auto":
-            kept, extras = _significant_offset(rotation, translation, data, used, opts, extras)
-            if not kept:
-                rotation, translation, data, used, more = _fit(
-                    rotation, translation, data.with_line(data.rod, 0.0), usable, used, robust, opts, extras
-                )
-                evaluations += more
+        while extras.offset:
+            kept, extras = _significant_terms(rotation, translation, data, used, opts, extras)
+            if kept:
+                break
+            curve = data.range_curve_m[: extras.range_terms]
+            rotation, translation, data, used, more = _fit(
+                rotation, translation, data.with_line(data.rod, curve), usable, used, robust, opts, extras
+            )
+            evaluations += more
         outliers += _rejected(rotation, translation, data, usable & ~used, opts)
         converged, message = True, "converged"
     try:
@@ -395,9 +415,13 @@ def _refine(
     white = whitening(effective_covariance(covariance, slope[mask], opts.robot_sigma_m))
     cache: dict[bytes, tuple[FloatArray, FloatArray]] = {}
 
-    def line(x: FloatArray) -> tuple[RodLine, float]:
+    def line(x: FloatArray) -> tuple[RodLine, FloatArray]:
         rod = moved_rod(data.rod, x[6:10]) if extras.axis else data.rod
-        return rod, data.range_offset_m + (float(x[-1]) if extras.offset else 0.0)
+        curve = np.zeros(max(extras.range_terms, data.range_curve_m.size))
+        curve[: data.range_curve_m.size] = data.range_curve_m
+        if extras.range_terms:
+            curve[: extras.range_terms] += x[x.size - extras.range_terms :]
+        return rod, curve
 
     prior_weight = _axis_prior_weight(opts)
 
@@ -416,7 +440,7 @@ def _refine(
                 centres,
                 offset,
                 with_axis=extras.axis,
-                with_offset=extras.offset,
+                with_offset=extras.range_terms,
             )
             jac[:, :, 3:6] = (jac[:, :, 3:6].reshape(-1, 3) @ left_jacobian_so3(x[3:6])).reshape(-1, 2, 3)
             residual_white, jac_white = whiten(white, residual, jac)
@@ -628,8 +652,8 @@ def _result(
         used.tolist(),
         strict=True,
     )
-    residuals = [  # values computed here: skip validation (10k waypoints would cost ~50 ms)
-        WaypointResidual.model_construct(index=i, du_mm=du, dv_mm=dv, norm_mm=nm, whitened_norm=wn, used=u)
+    residuals = [  # validated construction: in pydantic 2 it is faster than model_construct
+        WaypointResidual(index=i, du_mm=du, dv_mm=dv, norm_mm=nm, whitened_norm=wn, used=u)
         for i, du, dv, nm, wn, u in columns
     ]
     transform = make_transform(rotation, translation)
@@ -669,7 +693,9 @@ def _result(
             crb_full * max(1.0, reduced),
             _mean_crossing_along_m(rotation, translation, data, used),
         ),
-        range_offset=_range_offset(data, extras, crb_full * max(1.0, reduced), opts),
+        range_offset=_range_offset(
+            data, extras, crb_full * max(1.0, reduced), opts, np.linalg.norm(crossing[used], axis=1)
+        ),
     )
 
 
@@ -689,9 +715,9 @@ def _extended_fisher(
         data.rod,
         data.covariance[used],
         opts.robot_sigma_m,
-        data.range_offset_m,
+        data.range_curve_m,
         with_axis=extras.axis,
-        with_offset=extras.offset,
+        with_offset=extras.range_terms,
     )
 
 
@@ -708,10 +734,10 @@ def _extras(
         raise ConfigError("the paper formulation cannot estimate the rod axis or the range offset; use ours")
     if opts.formulation == "paper":
         return _Extras()
-    offset, offset_note = _range_offset_wanted(rotation, translation, data, usable, opts)
+    terms, offset_note = _range_terms_wanted(rotation, translation, data, usable, opts)
     if not wanted_axis:
-        return _Extras(offset=offset, offset_note=offset_note)
-    extras = _Extras(axis=True, offset=offset, offset_note=offset_note)
+        return _Extras(range_terms=terms, offset_note=offset_note)
+    extras = _Extras(axis=True, range_terms=terms, offset_note=offset_note)
     fisher = _extended_fisher(rotation, translation, data, usable, opts, extras)
     along_m = _mean_crossing_along_m(rotation, translation, data, usable)
     offset_std_m, tilt_std_deg = _axis_crb_std(fisher, along_m)
@@ -735,7 +761,7 @@ def _extras(
     return replace(extras, axis_note=note)
 
 
-def _significant_offset(
+def _significant_terms(
     rotation: FloatArray,
     translation: FloatArray,
     data: _Data,
@@ -743,40 +769,61 @@ def _significant_offset(
     opts: SolverOptions,
     extras: _Extras,
 ) -> tuple[bool, _Extras]:
-    """``auto``: keep an estimated range offset only when the data show one (at least
+    """Keep the range error curve's highest term only when the data show it (at least
     ``auto_range_offset_min_sigmas`` std from zero); estimating a parameter that is not there
-    costs the pose precision. Returns whether it is kept, and the extras to go on with."""
-    std_m = float(_crb_std(_extended_fisher(rotation, translation, data, used, opts, extras))[-1])
-    offset_m = data.range_offset_m
-    if abs(offset_m) >= opts.auto_range_offset_min_sigmas * std_m:
+    costs the pose precision. The offset itself is kept when asked for (not ``auto``).
+    Returns whether the curve stays as it is, and the extras to go on with (one term fewer)."""
+    terms = extras.range_terms
+    if terms == 1 and opts.estimate_range_offset is True:
         return True, extras
-    note = (
-        f"scanner range offset {offset_m * 1e3:+.2f} ± {std_m * 1e3:.2f} mm is not significant (auto): "
-        "left out"
-    )
-    return False, replace(extras, offset=False, offset_note=note)
+    std = float(_crb_std(_extended_fisher(rotation, translation, data, used, opts, extras))[-1])
+    value = float(data.range_curve_m[terms - 1])
+    if abs(value) >= opts.auto_range_offset_min_sigmas * std:
+        return True, extras
+    name, unit, scale = _TERM_UNITS[terms - 1]
+    note = f"scanner range {name} {value * scale:+.3g} ± {std * scale:.2g} {unit} is not significant (auto): "
+    note += "left out"
+    notes = "; ".join(n for n in (extras.offset_note, note) if n)
+    return False, replace(extras, range_terms=terms - 1, offset_note=notes)
 
 
-def _range_offset_wanted(
+#: Name, unit and scale from SI of each range-curve term in messages.
+_TERM_UNITS = (("offset", "mm", 1e3), ("scale", "mm/m", 1e3), ("curvature", "mm/m²", 1e3))
+
+
+def _range_terms_wanted(
     rotation: FloatArray, translation: FloatArray, data: _Data, usable: np.ndarray, opts: SolverOptions
-) -> tuple[bool, str]:
-    """Whether to estimate the range offset, and the note when ``auto`` leaves it out;
-    refuses (``DegenerateDataError``) a requested one the waypoints cannot determine."""
+) -> tuple[int, str]:
+    """How many terms of the range error curve to estimate, and the note when one is left
+    out: a term is taken when the Cramér-Rao std of what it adds to the error at the
+    crossings farthest from the reference distance is within ``auto_range_offset_max_std_m``
+    (the offset must be, when asked for: ``DegenerateDataError`` otherwise)."""
     if opts.estimate_range_offset is False:
-        return False, ""
-    offset_only = _Extras(offset=True)
-    fisher = _extended_fisher(rotation, translation, data, usable, opts, offset_only)
-    if opts.estimate_range_offset is True:
-        _require_observable(fisher, opts, offset_only)
-        return True, ""
-    std_m = float(_crb_std(fisher)[-1])
-    if std_m <= opts.auto_range_offset_max_std_m:
-        return True, ""
-    return False, (
-        f"scanner range offset not estimated (auto): its Cramér-Rao std would be {std_m * 1e3:.2g} mm "
-        f"(limit {opts.auto_range_offset_max_std_m * 1e3:g} mm); vary the crossings' distance from the "
-        "scanner (0.3 m or more apart) to see it"
-    )
+        return 0, ""
+    crossing, _ = data.predicted(rotation, translation)
+    distances_m = np.linalg.norm(crossing[usable], axis=1)
+    reach_m = max(float(np.max(np.abs(distances_m - RANGE_CURVE_REFERENCE_M))), 1e-3)
+    terms = 0
+    for wanted in range(1, opts.max_range_terms + 1):
+        trial = _Extras(range_terms=wanted)
+        fisher = _extended_fisher(rotation, translation, data, usable, opts, trial)
+        if wanted == 1 and opts.estimate_range_offset is True:
+            _require_observable(fisher, opts, trial)
+        effect_std_m = float(_crb_std(fisher)[-1]) * reach_m ** (wanted - 1)
+        if not effect_std_m <= opts.auto_range_offset_max_std_m:
+            if wanted == 1 and opts.estimate_range_offset is True:
+                terms = 1
+                continue
+            name = _TERM_UNITS[wanted - 1][0]
+            limit_mm = opts.auto_range_offset_max_std_m * 1e3
+            return terms, (
+                f"scanner range {name} not estimated (auto): the Cramér-Rao std of what it adds to the range "
+                f"error would be {effect_std_m * 1e3:.2g} mm (limit {limit_mm:g} mm); "
+                "spread the crossings' distances from the scanner more widely (0.3 m or more apart, near and "
+                "far) to see it"
+            )
+        terms = wanted
+    return terms, ""
 
 
 def _axis_crb_std(fisher: FloatArray, crossing_along_m: float) -> tuple[FloatArray, FloatArray]:
@@ -902,13 +949,35 @@ def _axis_estimate(
 
 
 def _range_offset(
-    data: _Data, extras: _Extras, covariance: FloatArray, opts: SolverOptions
+    data: _Data, extras: _Extras, covariance: FloatArray, opts: SolverOptions, distances_m: FloatArray
 ) -> RangeOffset | None:
+    """The estimated range error curve (the applied offset added back), its std, and its
+    values over the distances the crossings span (the scanner's health figure)."""
     if not extras.offset:
         return None
+    terms = extras.range_terms
+    curve = data.range_curve_m[:terms].copy()
+    curve[0] += opts.range_offset_applied_m
+    block = covariance[-terms:, -terms:]
+    std = np.sqrt(np.clip(np.diag(block), 0.0, None))
+    grid = np.linspace(float(distances_m.min()), float(distances_m.max()), 5)
+    basis = range_error_basis(grid, terms)
+    values = range_error_m(curve, grid)[0]
+    value_std = np.sqrt(np.clip(np.einsum("nk,kl,nl->n", basis, block, basis), 0.0, None))
+    dense = np.linspace(grid[0], grid[-1], 50)
     return RangeOffset(
-        offset_mm=(data.range_offset_m + opts.range_offset_applied_m) * 1e3,
-        std_mm=float(np.sqrt(covariance[-1, -1])) * 1e3,
+        offset_mm=float(curve[0]) * 1e3,
+        std_mm=float(std[0]) * 1e3,
+        reference_m=RANGE_CURVE_REFERENCE_M,
+        scale_mm_per_m=float(curve[1]) * 1e3 if terms > 1 else None,
+        scale_std_mm_per_m=float(std[1]) * 1e3 if terms > 1 else None,
+        curvature_mm_per_m2=float(curve[2]) * 1e3 if terms > 2 else None,
+        curvature_std_mm_per_m2=float(std[2]) * 1e3 if terms > 2 else None,
+        curve=[
+            RangeErrorPoint(distance_m=float(d), error_mm=float(e) * 1e3, std_mm=float(s) * 1e3)
+            for d, e, s in zip(grid, values, value_std, strict=True)
+        ],
+        worst_mm=float(np.max(np.abs(range_error_m(curve, dense)[0]))) * 1e3,
     )
 
 

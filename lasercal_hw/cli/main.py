@@ -1,7 +1,7 @@
 """Entry point of the ``lasercal`` command: registers the sub-commands (each imported only
 when it runs), limits BLAS threads, and maps errors to exit codes with a one-line message
 (``--debug`` shows the traceback). Keep this module's imports light: no numpy, scipy or
-matplotlib (tests/test_cli_startup.py)."""
+matplotlib (tests/cli/test_cli_startup.py)."""
 
 from __future__ import annotations
 

@@ -153,17 +153,26 @@ def interrupt_once() -> Iterator[None]:
             signal.signal(each, handler)
 
 
+_NO_CONFIRMATION = (
+    "refusing to move the robot without confirmation: standard input is not a terminal, so "
+    "nobody can answer the prompt; check the cell and pass --yes to run unattended"
+)
+
+
 def require_confirmation_possible(yes: bool, dry_run: bool) -> None:
+    """Refuse before connecting when nobody could confirm the motion (``dry_run``: nothing to
+    confirm, or not known yet: a resumed recording says whether it was a dry run)."""
     if yes or dry_run or sys.stdin.isatty():
         return
-    raise ConfigError(
-        "refusing to move the robot without confirmation: standard input is not a terminal, so "
-        "nobody can answer the prompt; check the cell and pass --yes to run unattended"
-    )
+    raise ConfigError(_NO_CONFIRMATION)
 
 
 def confirm_before_motion(view: ProgressView, ui: Console) -> Callable[[MotionPlan], None]:
     def ask(plan: MotionPlan) -> None:
+        if plan.dry_run:  # a fake cell's arm: nothing to confirm
+            return
+        if not sys.stdin.isatty():
+            raise ConfigError(_NO_CONFIRMATION)
         with view.paused():
             ui.print(f"Preflight passed. {plan.summary()} Keep clear of the arm.")
             try:
@@ -234,7 +243,7 @@ def run_command(
     """
     if scene is not None and not dry_run:
         raise ConfigError("--scene only applies to --dry-run")
-    require_confirmation_possible(yes, dry_run)
+    require_confirmation_possible(yes, dry_run or resume is not None)
     ui = err_console if as_json else console
     if resume is not None and (config is not None or dwell is not None or out is not None):
         raise ConfigError("--resume continues the recorded job: leave out --config, --dwell and --out")

@@ -6,7 +6,7 @@ start-up and hand-over than they save. On a 2-core machine a 20,000-row ``laserc
 
 The limit is set through the environment because OpenBLAS (and MKL, and OpenMP runtimes)
 read these variables once, when numpy or scipy first loads them; ``lasercal_hw.cli.main``
-imports neither (tests/test_cli_startup.py), and ``main()`` calls this first. threadpoolctl
+imports neither (tests/cli/test_cli_startup.py), and ``main()`` calls this first. threadpoolctl
 would limit only the libraries loaded when it is called: scipy's own OpenBLAS is loaded later,
 when a command imports scipy. Child processes (the dry run's fake cell) inherit the limit.
 """

@@ -154,6 +154,8 @@ class MotionPlan:
     preflight: PreflightReport
     job: JobConfig
     waypoint_count: int
+    #: A fake cell's arm (a resumed dry run's recording decides it, not the command line).
+    dry_run: bool = False
 
     def summary(self) -> str:
         """One paragraph for the operator."""
@@ -276,7 +278,7 @@ def open_sequencer(
                 waypoints,
                 on_progress=on_progress,
                 before_motion=None if confirm is None else lambda report: confirm(
-                    MotionPlan(report, job, len(waypoints))
+                    MotionPlan(report, job, len(waypoints), dry_run=request.dry_run)
                 ),
                 resume=state,
                 cancel=cancel,

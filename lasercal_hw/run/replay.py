@@ -19,8 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from lasercal_hw.config import JobConfig, with_overrides
+from lasercal_hw.calibration.consensus import CONSENSUS_WAYPOINTS, provisional_pose
+from lasercal_hw.config import JobConfig, NominalPose, with_overrides
 from lasercal_hw.errors import CalibrationError, ConfigError
+from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.resume import (
     check_observation_events,
@@ -136,7 +138,7 @@ def _reextract(
     message per waypoint where that fails (the waypoint dropped, or its recorded centre kept);
     how many of those failed because their scans are not all in the recording."""
     rod = job.rod.rod_line()
-    nominal = job.scanner.nominal
+    expectation = _Expected(job.scanner.nominal, rod)
     latest = {int(event["index"]): event for event in events}
     measurements, messages, unscanned = [], [], 0
     for index in sorted(latest):
@@ -148,7 +150,7 @@ def _reextract(
         if isinstance(averaged, str):
             problem, unscanned = averaged, unscanned + 1
         else:
-            expected = None if nominal is None else predict_rod(nominal.matrix(), tcp_pose, rod).expected_uv_m
+            expected = expectation.at(tcp_pose, measurements)
             try:
                 centre = find_rod_centre(
                     averaged, radius_m=rod.radius_m, background=background, expected_uv_m=expected
@@ -168,6 +170,23 @@ def _reextract(
         else:
             messages.append(f"waypoint {index}: {problem}; dropped")
     return measurements, messages, unscanned
+
+
+class _Expected:
+    """Where the live run expected the rod: from the nominal mounting, else from the consensus
+    of the first waypoints measured (``calibration.consensus``), as the sequencer does."""
+
+    def __init__(self, nominal: NominalPose | None, rod: RodLine) -> None:
+        self._pose = None if nominal is None else nominal.matrix()
+        self._from_consensus = nominal is None
+        self._rod = rod
+
+    def at(self, tcp_pose: FloatArray, measured: list[WaypointMeasurement]) -> FloatArray | None:
+        if self._from_consensus and self._pose is None and len(measured) >= CONSENSUS_WAYPOINTS:
+            first = [m.observation() for m in measured[:CONSENSUS_WAYPOINTS]]
+            self._pose = provisional_pose(first, self._rod)
+            self._from_consensus = False  # one try, as the live run's first waypoints do not change
+        return None if self._pose is None else predict_rod(self._pose, tcp_pose, self._rod).expected_uv_m
 
 
 def _disagreement(found: np.ndarray, recorded: np.ndarray, covariance: np.ndarray) -> str | None:

@@ -17,6 +17,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from lasercal_hw.calibration.consensus import CONSENSUS_WAYPOINTS, provisional_pose
 from lasercal_hw.config import JobConfig
 from lasercal_hw.errors import (
     DeviceError,
@@ -112,6 +113,7 @@ class Sequencer:
         self._joint_targets: dict[int, FloatArray] = {}
         self._current: int | None = None
         self._moves = 0
+        self._consensus: tuple[tuple[int, ...], FloatArray | None] | None = None
 
     # -- public -------------------------------------------------------------------------
 
@@ -189,7 +191,7 @@ class Sequencer:
         )
         if self._before_motion is not None:
             self._before_motion(report)
-        self._scanner.start_streaming()
+        self._scanner.start_streaming(intensities=self._job.scanner.intensities)
         if self._background is None:
             self._capture_background(retract, retract_q)
         for index in range(count):
@@ -401,11 +403,19 @@ class Sequencer:
         return pose
 
     def _nominal_expected_uv(self, tcp_pose: FloatArray) -> FloatArray | None:
-        """Where the nominal mounting (if configured) says the rod crosses the plane."""
+        """Where the nominal mounting (if configured), else the run's consensus over its first
+        waypoints (once there are enough), says the rod crosses the plane."""
         nominal = self._job.scanner.nominal
-        if nominal is None:
+        if nominal is not None:
+            return predict_rod(nominal.matrix(), tcp_pose, self._rod).expected_uv_m
+        first = self._measurements[:CONSENSUS_WAYPOINTS]
+        if len(first) < CONSENSUS_WAYPOINTS:
             return None
-        return predict_rod(nominal.matrix(), tcp_pose, self._rod).expected_uv_m
+        key = tuple(m.index for m in first)
+        if self._consensus is None or self._consensus[0] != key:
+            self._consensus = (key, provisional_pose([m.observation() for m in first], self._rod))
+        pose = self._consensus[1]
+        return None if pose is None else predict_rod(pose, tcp_pose, self._rod).expected_uv_m
 
     def _skip(self, index: int, reason: str, averaged: AveragedScan | None = None) -> None:
         self._skipped.append(SkippedWaypoint(index, reason))

@@ -95,6 +95,7 @@ def solve_two_pass(
         axis_prior_std_m=job.rod.axis_std_mm / 1000.0,
         axis_prior_std_deg=job.rod.axis_std_deg,
         estimate_range_offset=job.scanner.estimate_range_offset,
+        max_range_terms=job.scanner.range_error_terms,
     )
     first = solve([m.observation() for m in measurements], rod, options=options)
     if on_second_pass is not None:

@@ -4,7 +4,8 @@ For every beam: the median and the MAD (scaled to a gaussian sigma) of its valid
 readings, rejection of readings further than ``reject_sigmas`` MAD-sigmas from the
 median (this removes dropouts' neighbours, mixed-pixel flips and spikes), then the mean
 of the inliers.  A beam is NaN when fewer than ``min_valid_fraction`` of the scans gave
-it an inlier reading.  Everything is vectorised over beams and scans.
+it an inlier reading.  When the scans carry intensities (SCIP ME), each beam's intensity
+is the mean over the same inlier readings.  Everything is vectorised over beams and scans.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ class AveragedScan:
     ``std_m`` is the standard deviation of the mean (what a fit should weight with),
     ``reading_std_m`` that of a single reading; both are NaN where fewer than two
     readings were kept.  ``ranges_m`` is NaN where the beam was valid in too few scans.
+    ``valid_count`` is how many scans gave the beam any reading (``count`` of them agreed);
+    ``intensities`` the mean intensity of the kept readings, None when the scanner sent none.
     """
 
     ranges_m: FloatArray
@@ -41,6 +44,8 @@ class AveragedScan:
     count: NDArray[np.int64]
     angles_rad: FloatArray
     scan_count: int
+    valid_count: NDArray[np.int64] | None = None
+    intensities: FloatArray | None = None
 
     @property
     def valid(self) -> NDArray[np.bool_]:
@@ -104,6 +109,7 @@ def average_scans(
     threshold = reject_sigmas * np.fmax(mad_sigma, mad_floor_m)
     inlier = np.abs(ranges - median) <= threshold  # NaN compares False
     count = inlier.sum(axis=0)
+    valid_count = np.isfinite(ranges).sum(axis=0)
     kept = np.where(inlier, ranges, 0.0)
     safe_count = np.maximum(count, 1)
     mean = kept.sum(axis=0) / safe_count
@@ -123,4 +129,20 @@ def average_scans(
         count=count.astype(np.int64),
         angles_rad=geometry.angles_rad(),
         scan_count=scan_count,
+        valid_count=valid_count.astype(np.int64),
+        intensities=_mean_intensities(scans, inlier, safe_count, usable),
     )
+
+
+def _mean_intensities(
+    scans: Sequence[LaserScan], inlier: NDArray[np.bool_], count: NDArray[np.int64], usable: NDArray[np.bool_]
+) -> FloatArray | None:
+    """Mean intensity of each beam's inlier readings (NaN where the beam is unusable); None
+    unless every scan carries intensities."""
+    if any(s.intensities is None for s in scans):
+        return None
+    values = np.stack([np.asarray(s.intensities, dtype=float) for s in scans])
+    if values.shape != inlier.shape:
+        return None
+    mean = np.where(inlier, values, 0.0).sum(axis=0) / count
+    return np.where(usable, mean, np.nan)

@@ -4,9 +4,11 @@ Steps (docs/extraction.md has the reasoning):
 
 1. Segment: with a background scan, beams significantly nearer than the background (per-
    beam noise of both scans); without one, runs of valid beams split at range jumps.
-   A candidate must stand in front of its neighbours and span the angle a rod of the
-   known radius covers at its range; the one nearest ``expected_uv_m`` (if given) or
-   with the best-matching size wins.
+   The rod's own beams are picked out of each run (steady mixed-pixel ramps beside it cut
+   off: ``_rod_core``). A candidate must stand in front of its neighbours and span the
+   angle a rod of the known radius covers at its range. Every candidate is fitted: the
+   fit nearest ``expected_uv_m`` wins if within the search radius (others are refused by
+   name); without an expected position two rod-like fits are a refusal naming both.
 2. Seed: mean of the arc points plus the paper's ``R*pi/4`` correction away from the
    scanner (exact for a far rod whose beams sample the half circle evenly across).
 3. Fit: Gauss-Newton on the orthogonal distance of each point to the rod's surface,
@@ -14,7 +16,9 @@ Steps (docs/extraction.md has the reasoning):
    With ``axis_in_scanner`` the line is tilted and the cross-section is the ellipse
    (semi-minor r, semi-major r/|cos tilt|); without it the line is the scanner z axis
    and the cross-section a circle.  Each residual is weighted by the range noise
-   projected on the surface normal plus a small lateral (beam-angle) term.
+   projected on the surface normal plus a small lateral (beam-angle) term.  The
+   covariance adds what the dwell does not average away (residuals beyond the noise) and
+   how far the solver's range-error model is from this fit's response to a range error.
 4. Mixed pixels: unstable beams (their readings flipped between rod and background
    during the dwell: a low inlier count or a reading spread far above the scan's) are
    trimmed off the ends of every segment before it is judged; after the fit, edge beams
@@ -89,6 +93,24 @@ class ExtractionSettings:
     min_stable_fraction: float = 0.8
     #: ... or when its reading spread exceeds this many times the scan's median reading spread.
     max_spread_ratio: float = 4.0
+    #: Steady mixed pixels: a real scanner's spot is wider than its beam step, so at a depth
+    #: edge up to this many beams per side ramp from the rod's range out to the background
+    #: (issue 18: 4-16 beams in 25-100 mm steps, as steady as the rod). A segment may be this
+    #: much wider than the rod; the rod's own beams are picked out of it (``_rod_core``).
+    max_ramp_beams: int = 16
+    #: How far a beam may lie off the rod's surface and still be taken as the rod's, beyond
+    #: ``edge_residual_sigmas`` of its noise: the rod's shape and the scanner's range bias
+    #: (a fraction of the radius, at least ``min_shape_tolerance_m``).
+    shape_tolerance_fraction: float = 0.1
+    min_shape_tolerance_m: float = 0.002
+    #: The scanner's range error the size checks allow for (UTM-30LX-EW data sheet: +-30 mm
+    #: accuracy): a near rod seen 12 mm too far looks narrower than its range says.
+    range_bias_allowance_m: float = 0.03
+    #: A range error the solver's curve moves each centre by along its bearing; a near or thick
+    #: rod's centre moves by a little less (its beams fan out over the arc). What is left, for
+    #: a range error this large (issue 18's real data: +12 mm at 0.15 m, -13 mm at 0.75 m),
+    #: joins the covariance.
+    typical_range_error_m: float = 0.012
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -199,17 +221,65 @@ def find_rod_centre(
     sigma = _range_sigma(scan, settings)
     expected = None if expected_uv_m is None else np.asarray(expected_uv_m, dtype=float)
     candidates, notes = _candidate_segments(scan, sigma, section, background, settings)
-    if expected is not None:
-        candidates = _near_expected(scan, candidates, expected, section, settings)
-    if not candidates:
-        raise RodNotFoundError(_diagnose(scan, section, background, expected, settings, notes))
-    reasons: list[str] = []
-    for beams in candidates:
+    found, reasons = [], []
+    for beams, ramp_beams in candidates:
         try:
-            return _fit_segment(scan, sigma, beams, section, settings)
+            found.append(_fit_segment(scan, sigma, beams, section, settings, ramp_beams=ramp_beams))
         except RodNotFoundError as exc:
             reasons.append(str(exc))
-    raise RodNotFoundError("; ".join(dict.fromkeys(reasons)))
+    found = _distinct(found, section)
+    if expected is not None:
+        return _nearest_to_expected(scan, found, expected, section, background, settings, notes)
+    if len(found) == 1:
+        return found[0]
+    if len(found) > 1:
+        places = ", ".join(_place(f.centre_uv_m) for f in found)
+        raise RodNotFoundError(
+            f"{len(found)} rod-like objects in view ({places}) and no expected position to tell the rod: "
+            "give the scanner's nominal mounting, or record a background scan without the rod"
+        )
+    if reasons:
+        raise RodNotFoundError("; ".join(dict.fromkeys(reasons)))
+    raise RodNotFoundError(_diagnose(scan, section, background, expected, settings, notes))
+
+
+def _place(centre_uv_m: FloatArray) -> str:
+    """A centre as an operator reads it: position, range and bearing."""
+    u, v = (float(c) for c in centre_uv_m)
+    return f"({u:+.3f}, {v:+.3f}) m, {np.hypot(u, v):.2f} m at {np.degrees(np.arctan2(v, u)):+.0f} deg"
+
+
+def _distinct(found: list[RodCentre], section: _Section) -> list[RodCentre]:
+    """The fits with one per object: fits of parts of one rod (a segment split by a lost
+    beam) have centres within a radius of each other; the one with most beams is kept."""
+    kept: list[RodCentre] = []
+    for fit in sorted(found, key=lambda f: -f.quality.beams_used):
+        if all(np.linalg.norm(fit.centre_uv_m - k.centre_uv_m) > section.radius_m for k in kept):
+            kept.append(fit)
+    return kept
+
+
+def _nearest_to_expected(
+    scan: AveragedScan,
+    found: list[RodCentre],
+    expected: FloatArray,
+    section: _Section,
+    background: AveragedScan | None,
+    settings: ExtractionSettings,
+    notes: list[str],
+) -> RodCentre:
+    """The fit nearest the expected centre if within the search radius; otherwise
+    ``RodNotFoundError`` naming every rod-like object refused for being elsewhere."""
+    distances = [float(np.linalg.norm(f.centre_uv_m - expected)) for f in found]
+    if found and min(distances) <= settings.search_radius_m:
+        return found[int(np.argmin(distances))]
+    reason = _diagnose(scan, section, background, expected, settings, notes)
+    refused = [
+        f"a rod-like object at {_place(f.centre_uv_m)} was refused: {d:.2f} m from where the rod should be "
+        f"(limit {settings.search_radius_m:g} m)"
+        for f, d in zip(found, distances, strict=True)
+    ]
+    raise RodNotFoundError("; ".join([reason, *refused]))
 
 
 def _unit_axis(axis: FloatArray | None) -> FloatArray:
@@ -248,9 +318,10 @@ def _candidate_segments(
     section: _Section,
     background: AveragedScan | None,
     settings: ExtractionSettings,
-) -> tuple[list[NDArray[np.int64]], list[str]]:
-    """Beam index runs that could be the rod, best first (size match), and why rod-sized
-    runs were refused (cut by the field of view, partly hidden)."""
+) -> tuple[list[tuple[NDArray[np.int64], int]], list[str]]:
+    """Beam index runs that could be the rod, best first (size match), each with how many
+    mixed-pixel beams of a ramp were cut off it, and why rod-sized runs were refused (cut by
+    the field of view, partly hidden)."""
     ranges = scan.ranges_m
     valid = np.isfinite(ranges)
     if background is None:
@@ -274,24 +345,178 @@ def _candidate_segments(
         segments.extend(_trim_unstable(part, unstable) for part in np.split(run, cuts))
     scored, notes = [], []
     last_beam = ranges.size - 1
-    for beams in segments:
-        if beams.size == 0:
+    for part in segments:
+        if part.size == 0:
             continue
-        if beams[0] == 0 or beams[-1] == last_beam:
-            if _size_mismatch(scan, beams, section, settings, partial=True) is not None:
-                problem = "is cut by the edge of the field of view; move the rod inward"
+        cores = [
+            core
+            for core in _rod_cores(scan, sigma, part, section, settings)
+            if core.size >= settings.min_beams and _size_mismatch(scan, core, section, settings) is not None
+        ]
+        # Without a rod-sized core the segment is judged whole, so that its fit says why.
+        for beams in cores or [part]:
+            if beams[0] == 0 or beams[-1] == last_beam:
+                if _size_mismatch(scan, beams, section, settings, partial=True) is not None:
+                    problem = "is cut by the edge of the field of view; move the rod inward"
+                    _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
+                continue
+            fit = _size_mismatch(scan, beams, section, settings)
+            if fit is None:
+                continue
+            if background is None and not _in_front(scan, beams, sigma):
+                problem = "is partly hidden behind a nearer object; clear the line of sight"
                 _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
-            continue
-        fit = _size_mismatch(scan, beams, section, settings)
-        if fit is None:
-            continue
-        if background is None and not _in_front(scan, beams, sigma):
-            problem = "is partly hidden behind a nearer object; clear the line of sight"
-            _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
-            continue
-        scored.append((fit, beams))
+                continue
+            ramps = min(part.size - beams.size, 2 * settings.max_ramp_beams)
+            scored.append((fit, beams, ramps))
     scored.sort(key=lambda item: item[0])
-    return [beams for _, beams in scored], notes
+    return [(beams, ramp) for _, beams, ramp in scored], notes
+
+
+def _rod_cores(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    part: NDArray[np.int64],
+    section: _Section,
+    settings: ExtractionSettings,
+) -> list[NDArray[np.int64]]:
+    """The runs of beams in a segment that lie on a rod, without the steady mixed-pixel ramps
+    that may join it to its background (``_rod_core`` from each of the segment's fronts)."""
+    if part.size < settings.min_beams:
+        return []
+    return [core for front in _fronts(scan, part, section, settings) if (core := _rod_core(
+        scan, sigma, part, front, section, settings
+    )).size]
+
+
+def _fronts(
+    scan: AveragedScan, part: NDArray[np.int64], section: _Section, settings: ExtractionSettings
+) -> list[int]:
+    """Positions in ``part`` where a rod's front may be: its nearest beam when the segment is
+    no wider than a rod with ramps; else every beam nearest within a rod's width that stands
+    at least half a radius in front of the segment a rod-and-ramps' width to either side
+    (a rod whose ramps run into a background without a range jump, e.g. a wall close behind)."""
+    step = _beam_step_rad(scan)
+    ranges = scan.ranges_m[part]
+    nearest = int(np.argmin(ranges))
+    ramps_rad = 2 * (settings.max_ramp_beams + 1) * step
+    width = abs(float(scan.angles_rad[part[-1]] - scan.angles_rad[part[0]]))
+    if width <= _widest_rad(float(ranges[nearest]), section, settings) + ramps_rad:
+        return [nearest]
+    half_beams = np.ceil(0.5 * _widest_rad_array(ranges, section, settings) / max(step, 1e-9)).astype(int) + 1
+    reach = half_beams + settings.max_ramp_beams
+    positions = np.arange(part.size)
+    left = ranges[np.clip(positions - reach, 0, part.size - 1)]
+    right = ranges[np.clip(positions + reach, 0, part.size - 1)]
+    depth_m = max(0.5 * section.radius_m, settings.min_jump_m)  # a wall's nearest point rises less
+    standing = np.flatnonzero((left - ranges >= depth_m) & (right - ranges >= depth_m))
+    fronts = []
+    for position in standing:
+        half = half_beams[position]
+        nearest_around = ranges[max(0, position - half) : position + half + 1].min()
+        if ranges[position] <= nearest_around and not (fronts and position - fronts[-1] <= half):
+            fronts.append(int(position))
+    return fronts
+
+
+def _widest_rad(range_m: float, section: _Section, settings: ExtractionSettings) -> float:
+    """Widest angle a rod whose nearest point is at ``range_m`` may cover (range error allowed)."""
+    return float(_widest_rad_array(np.array([range_m]), section, settings)[0])
+
+
+def _widest_rad_array(range_m: FloatArray, section: _Section, settings: ExtractionSettings) -> FloatArray:
+    """``_widest_rad`` for each of several nearest ranges."""
+    nearest_centre_m = range_m + section.radius_m - settings.range_bias_allowance_m
+    centre_m = np.fmax(nearest_centre_m, section.widest_semi_axis_m)
+    return 2.0 * np.arcsin(np.fmin(1.0, section.widest_semi_axis_m / centre_m))
+
+
+def _rod_core(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    part: NDArray[np.int64],
+    front: int,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> NDArray[np.int64]:
+    """The rod's own beams around position ``front`` of a segment that may carry steady
+    mixed-pixel ramps on its sides.
+
+    A ramp beam steps from the rod's edge out towards the background and does not lie on the
+    rod: its ray passes beside the rod, or its range is well behind the surface. A circle of
+    the rod's radius is placed behind the front beam (the rod's front faces the scanner),
+    and the run of beams whose rays hit it and whose points lie on its surface (noise, shape
+    and range bias allowed) is fitted; repeated until the run is stable. With intensities,
+    beams at the background's level beside a bright rod are no rod beams either."""
+    step = _beam_step_rad(scan)
+    centre_range = float(scan.ranges_m[part[front]]) + section.radius_m
+    bearing = float(scan.angles_rad[part[front]])
+    centre = centre_range * np.array([np.cos(bearing), np.sin(bearing)])
+    points = scan.points_m()[part]
+    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
+    run = part[:0]
+    for _ in range(4):
+        residuals, _ = _residuals(points, centre, section, section.radius_m)
+        on_surface = np.abs(residuals) <= settings.edge_residual_sigmas * sigma[part] + tolerance
+        hits = on_surface & _rays_hit(points, centre, section, step, sigma[part])
+        hits &= _bright(scan, part, run, settings)
+        runs = [r for r in _runs(hits) if r.size]
+        if not runs:
+            return part[:0]
+        best = max(runs, key=lambda r: (r.size, -abs(int(r[0]) + int(r[-1]) - 2 * front)))
+        if np.array_equal(part[best], run) or best.size < settings.min_beams:
+            return part[best]
+        run = part[best]
+        solved = _gauss_newton(points[best], sigma[part][best], centre, section, settings, free_radius=False)
+        if solved is None:
+            return run
+        centre = solved[0]
+    return run
+
+
+def _bright(
+    scan: AveragedScan, part: NDArray[np.int64], run: NDArray[np.int64], settings: ExtractionSettings
+) -> NDArray[np.bool_]:
+    """With intensities (SCIP ME) and a rod clearly brighter than what surrounds it (the rest
+    of its segment and ``max_ramp_beams`` beyond each end: retro-reflective tape against a
+    wall; a mixed pixel returns at the background's level), the beams of ``part`` brighter
+    than that level (1.5 times it, or the geometric mean of the two if lower); else every
+    beam."""
+    everything = np.ones(part.size, dtype=bool)
+    if scan.intensities is None or run.size == 0:
+        return everything
+    intensity = scan.intensities
+    reach = settings.max_ramp_beams
+    around = np.concatenate([
+        np.setdiff1d(part, run),
+        np.arange(max(0, part[0] - reach), part[0]),
+        np.arange(part[-1] + 1, min(intensity.size, part[-1] + 1 + reach)),
+    ])
+    with np.errstate(invalid="ignore"):
+        rod_level = np.nanmedian(intensity[run])
+        rest_level = np.nanmedian(intensity[around]) if around.size else np.nan
+    if not (np.isfinite(rod_level) and np.isfinite(rest_level)) or rod_level < 2.0 * max(rest_level, 1.0):
+        return everything
+    # At the background's level, not merely darker than the rod's middle: the rod's own edge
+    # beams meet it at grazing incidence and return less than its front.
+    level = min(np.sqrt(rod_level * max(rest_level, 1.0)), 1.5 * max(rest_level, 1.0))
+    return ~(intensity[part] < level)
+
+
+def _rays_hit(
+    points: FloatArray, centre: FloatArray, section: _Section, step_rad: float, sigma: FloatArray
+) -> NDArray[np.bool_]:
+    """Which beams' rays (through the points, from the scanner) pass through the rod's
+    cross-section centred at ``centre`` (squeezed frame, where the ellipse is a circle of the
+    radius; rays stay rays), with a beam's spot and three noise sigmas of grace (a thin rod's
+    centre is uncertain by a fair part of its radius; the surface test then sorts the beams)."""
+    squeezed = section.to_circle(points)
+    c = section.to_circle(centre[None, :])[0]
+    directions = squeezed / np.linalg.norm(squeezed, axis=1)[:, None]
+    miss = np.abs(directions[:, 0] * c[1] - directions[:, 1] * c[0])
+    grace = step_rad * float(np.linalg.norm(c)) + 3.0 * float(np.median(sigma))
+    radius = section.radius_m / section.unknown_tilt_cos
+    return (miss <= radius + grace) & (directions @ c > 0.0)
 
 
 def _unstable_beams(scan: AveragedScan, settings: ExtractionSettings) -> NDArray[np.bool_]:
@@ -304,7 +529,10 @@ def _unstable_beams(scan: AveragedScan, settings: ExtractionSettings) -> NDArray
     """
     if scan.scan_count < 2:
         return np.zeros(scan.ranges_m.size, dtype=bool)
-    few = scan.count < settings.min_stable_fraction * scan.scan_count
+    # Readings the beam did not give at all (a weak echo at a far edge) are no flipping: only
+    # the valid readings that disagree with the rest count against it.
+    valid = scan.scan_count if scan.valid_count is None else scan.valid_count
+    few = scan.count < settings.min_stable_fraction * valid
     spread = scan.reading_std_m
     finite = np.isfinite(spread) & np.isfinite(scan.ranges_m)
     if not finite.any():
@@ -362,11 +590,13 @@ def _size_mismatch(
     centre_range = float(np.min(scan.ranges_m[beams])) + section.radius_m
     if centre_range <= section.widest_semi_axis_m:
         return None
-    width_min = 2.0 * np.arcsin(section.radius_m / centre_range)
-    width_max = 2.0 * np.arcsin(min(1.0, section.widest_semi_axis_m / centre_range))
-    width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]]))
+    width_min = 2.0 * np.arcsin(min(1.0, section.radius_m / (centre_range + settings.range_bias_allowance_m)))
+    width_max = _widest_rad(float(np.min(scan.ranges_m[beams])), section, settings)
+    # Each beam stands for one step of angle: n beams cover n steps (a far rod's 3 beams
+    # cover 3 steps, not the 2 between their centres).
+    width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]])) + step
     low = 0.0 if partial else settings.min_visible_fraction * width_min - 2.0 * step
-    high = width_max + 2.0 * step
+    high = width_max + 3.0 * step
     if not low <= width <= high:
         return None
     return abs(width - 0.5 * (width_min + width_max)) / max(step, 1e-9)
@@ -381,25 +611,6 @@ def _in_front(scan: AveragedScan, beams: NDArray[np.int64], sigma: FloatArray) -
             if np.isfinite(value) and value < nearest - 3.0 * sigma[neighbour]:
                 return False
     return True
-
-
-def _near_expected(
-    scan: AveragedScan,
-    candidates: list[NDArray[np.int64]],
-    expected: FloatArray,
-    section: _Section,
-    settings: ExtractionSettings,
-) -> list[NDArray[np.int64]]:
-    """Candidates whose seed lies within the search radius of the expected centre, nearest first."""
-    points = scan.points_m()
-    kept = []
-    for beams in candidates:
-        seed = seed_centre_pi4(points[beams], section.radius_m, section.axis)
-        distance = float(np.linalg.norm(seed - expected))
-        if distance <= settings.search_radius_m:
-            kept.append((distance, beams))
-    kept.sort(key=lambda item: item[0])
-    return [beams for _, beams in kept]
 
 
 def _diagnose(
@@ -552,13 +763,40 @@ def _fit_centre(
         raise RodNotFoundError(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
-    residuals, _ = _residuals(points, centre, section, section.radius_m)
+    residuals, normals = _residuals(points, centre, section, section.radius_m)
     dof = max(points.shape[0] - 2, 1)
     variance_factor = max(1.0, float(whitened @ whitened) / dof)
-    covariance = np.linalg.inv(normal) * variance_factor + np.eye(2) * _unknown_tilt_variance_m2(
-        section, settings
+    residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
+    covariance = np.linalg.inv(normal) * variance_factor + np.eye(2) * (
+        _unknown_tilt_variance_m2(section, settings) + _systematic_variance_m2(residuals, residual_sigma)
     )
+    mismatch = _range_error_mismatch(points, centre, normals, residual_sigma, normal)
+    covariance += np.outer(mismatch, mismatch) * settings.typical_range_error_m**2
     return _Fit(centre, covariance, residuals, whitened)
+
+
+def _range_error_mismatch(
+    points: FloatArray,
+    centre: FloatArray,
+    normals: FloatArray,
+    residual_sigma: FloatArray,
+    normal: FloatArray,
+) -> FloatArray:
+    """How the fitted centre moves for a range error of 1 (every point pushed 1 along its
+    beam) minus how the solver's model moves it (1 along its bearing): zero for a far rod
+    whose beams are parallel, a few per cent for a thick rod near the scanner."""
+    beams = points / np.linalg.norm(points, axis=1)[:, None]
+    push = np.einsum("ij,ij->i", beams, normals[:, :2]) / residual_sigma
+    moved = np.linalg.solve(normal, (normals[:, :2] / residual_sigma[:, None]).T @ push)
+    return moved - centre / np.linalg.norm(centre)
+
+
+def _systematic_variance_m2(residuals: FloatArray, residual_sigma: FloatArray) -> float:
+    """Variance per axis of what the dwell does not average away: the part of the fit's
+    mean squared residual the noise does not explain (the rod's shape, edge effects, a range
+    error that changes across the arc). Such residuals are shared by neighbouring beams, so
+    they move the centre by about their own size, not by their size over sqrt(beams)."""
+    return max(0.0, float(np.mean(residuals**2) - np.mean(residual_sigma**2)))
 
 
 def _unknown_tilt_variance_m2(section: _Section, settings: ExtractionSettings) -> float:
@@ -608,7 +846,10 @@ def _fit_segment(
     beams: NDArray[np.int64],
     section: _Section,
     settings: ExtractionSettings,
+    *,
+    ramp_beams: int = 0,
 ) -> RodCentre:
+    """Fit one candidate; ``ramp_beams`` mixed pixels were already cut off its sides."""
     if beams.size < settings.min_beams:
         range_m = float(np.min(scan.ranges_m[beams]))
         raise RodNotFoundError(
@@ -631,7 +872,7 @@ def _fit_segment(
         free = _gauss_newton(used, sigma[keep], fit.centre_uv_m, section, settings, free_radius=True)
         if free is not None and 0.0 < free[0][2] < 4.0 * section.radius_m:
             estimated_radius = float(free[0][2])
-    dropped = int(beams.size - keep.size)
+    dropped = int(beams.size - keep.size) + ramp_beams
     logger.debug(
         "rod centre (%.4f, %.4f) m from %d beams, rms %.2f mm, span %.0f deg, %d edge beams dropped",
         fit.centre_uv_m[0],

@@ -1,0 +1,58 @@
+"""The engine from Python: what it refuses before connecting. (Its dry run against the CLI's,
+document, files and numbered events: tests/run/test_dry_run.py, which makes both runs.)"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from lasercal_hw.config import JobConfig, load_job, with_overrides
+from lasercal_hw.errors import ConfigError, InterruptedRunError
+from lasercal_hw.run.engine import CancelToken, RunRequest, calibrate
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
+
+
+def _live_job() -> JobConfig:
+    """A job for a live run: it says where the scanner roughly is."""
+    return with_overrides(load_job(None), {"scanner.nominal": {"translation_m": [0.3, 0.5, 0.2]}})
+
+
+def test_a_live_run_without_any_scanner_pose_points_to_trajectory_design(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    with pytest.raises(ConfigError, match=r"no scanner pose.*lasercal trajectory design --scanner-pose"):
+        calibrate(RunRequest(job=load_job(None), out_dir=out, robot_host="127.0.0.9"))
+    assert not out.exists()
+
+
+def test_a_cancelled_run_before_connecting_leaves_no_empty_folder(tmp_path: Path) -> None:
+    cancel = CancelToken()
+    cancel.cancel("test")
+    out = tmp_path / "out"
+    with pytest.raises(InterruptedRunError, match="test"):
+        calibrate(RunRequest(job=_live_job(), out_dir=out, robot_host="127.0.0.9"), cancel=cancel)
+    assert not out.exists()
+
+
+def test_a_folder_holding_a_session_is_refused(tmp_path: Path) -> None:
+    (tmp_path / "session.mcap").write_bytes(b"")
+    with pytest.raises(ConfigError, match="already exists"):
+        calibrate(RunRequest(job=_live_job(), out_dir=tmp_path, robot_host="127.0.0.9"))
+
+
+def test_a_resumed_run_continues_on_what_it_was_recorded_on(tmp_path: Path) -> None:
+    from lasercal_hw.run.engine import DRY_RUN_SCENE_FILE, META_DRY_RUN, META_SCENE, _as_recorded
+
+    recording = tmp_path / "session.mcap"
+    request = RunRequest(job=JobConfig(), out_dir=tmp_path, resume=recording)
+    scene = "[rod]\nradius_m = 0.005\n"
+    dry = _as_recorded(request, {META_DRY_RUN: True, META_SCENE: scene})
+    assert dry.dry_run and dry.scene == tmp_path / DRY_RUN_SCENE_FILE
+    assert dry.scene.read_text() == scene
+    assert _as_recorded(request, {META_DRY_RUN: False}) == request
+    with pytest.raises(ConfigError, match="recorded on hardware: a dry run cannot continue it"):
+        _as_recorded(replace(request, dry_run=True), {META_DRY_RUN: False})
+    with pytest.raises(ConfigError, match="dry run's recording: it continues against a new fake cell"):
+        _as_recorded(replace(request, robot_host="127.0.0.9"), {META_DRY_RUN: True})
