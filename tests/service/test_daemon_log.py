@@ -20,7 +20,7 @@ from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.monitor import DeviceMonitor
 from tests.daemon_helpers import FakeEngine, fake_runners
-from tests.test_service import JOB, _finish
+from tests.service.test_service import JOB, _finish
 
 
 @pytest.fixture(params=["text", "json"])

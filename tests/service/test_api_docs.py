@@ -7,7 +7,7 @@ import re
 
 from fastapi.testclient import TestClient
 
-from tests.test_service import client, engine  # noqa: F401  (the in-process daemon fixtures)
+from tests.service.test_service import client, engine  # noqa: F401  (the daemon fixtures)
 
 
 def test_swagger_ui_loads_only_assets_the_daemon_serves(client: TestClient) -> None:  # noqa: F811

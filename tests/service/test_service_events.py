@@ -18,7 +18,7 @@ from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.store import HistoryStore, utc_now
 from tests.daemon_helpers import FakeEngine, fake_runners, read_sse
-from tests.test_service import JOB, _finish
+from tests.service.test_service import JOB, _finish
 
 
 @pytest.fixture
