@@ -491,7 +491,7 @@ function historyRows() {
     rows.push({ kind: "verify" + against, item: v, time: v.created_utc,
                 change: { t: v.shift_translation_mm, r: v.shift_rotation_deg, st: v.shift_std_translation_mm,
                           sr: v.shift_std_rotation_deg },
-                result: badge(v.verdict, { ok: "ok", degraded: "warn" }[v.verdict] || "bad"), std: "", reason: v.reason });
+                result: badge(v.verdict, { ok: "ok", degraded: "warn", inconclusive: "warn" }[v.verdict] || "bad"), std: "", reason: v.reason });
   });
   rows.sort((a, b) => Date.parse(b.time) - Date.parse(a.time));
   return rows;
