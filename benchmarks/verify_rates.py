@@ -20,9 +20,9 @@ Printed: per seed the chi-square values; the false-alarm rate (unmoved scanner f
 with a 95 % Clopper-Pearson interval) against the stated rate; the detection rates (the
 test flags the moved scanner); the smallest move the test detects 90 % of the time along
 its weakest direction (its power; above the tolerance the verdict is ``inconclusive``); the
-coverage of the estimated move (|error| / std per component) and the verdict counts; and the time of the verify (motion + settle margin +
-dwell: ``verify.timing.visit_time_s``, joint trapezoid profiles at the job's caps between
-UR5 inverse kinematics solutions) against the calibration's, estimated the same way.
+coverage of the estimated move (|error| / std per component) and the verdict counts; and
+the time of the verify (motion + settle margin + dwell: ``verify.timing.visit_time_s``,
+joint trapezoid profiles at the job's caps between UR5 inverse kinematics solutions) against the calibration's, estimated the same way.
 """
 
 from __future__ import annotations
