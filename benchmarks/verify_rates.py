@@ -22,7 +22,8 @@ test flags the moved scanner); the smallest move the test detects 90 % of the ti
 its weakest direction (its power; above the tolerance the verdict is ``inconclusive``); the
 coverage of the estimated move (|error| / std per component) and the verdict counts; and
 the time of the verify (motion + settle margin + dwell: ``verify.timing.visit_time_s``,
-joint trapezoid profiles at the job's caps between UR5 inverse kinematics solutions) against the calibration's, estimated the same way.
+joint trapezoid profiles at the job's caps between UR5 inverse kinematics solutions) against
+the calibration's, estimated the same way.
 """
 
 from __future__ import annotations
