@@ -15,7 +15,7 @@ from fastapi.staticfiles import StaticFiles
 
 from lasercal_hw import __version__
 from lasercal_hw.service.daemon import Daemon
-from lasercal_hw.service.routes import calibrations, docs, events, jobs, status, verifies
+from lasercal_hw.service.routes import calibrations, docs, events, jobs, status, trajectories, verifies
 from lasercal_hw.service.routes.problems import install_problem_handlers
 from lasercal_hw.service.sd_notify import notify, watchdog_interval_s
 
@@ -56,7 +56,7 @@ def create_app(daemon: Daemon) -> FastAPI:
     )
     app.state.daemon = daemon
     install_problem_handlers(app)
-    for resource in (status, jobs, events, calibrations, verifies, docs):
+    for resource in (status, jobs, events, calibrations, verifies, trajectories, docs):
         app.include_router(resource.router)
     docs.mount_assets(app)
     static = Path(str(resources.files("lasercal_hw.service"))) / "static"

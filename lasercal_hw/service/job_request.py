@@ -80,7 +80,10 @@ def resolve_job(body: JobBody, default_job: Path | None) -> JobConfig:
     An invalid job or an unknown preset is InvalidRequestError naming the field."""
     try:
         base = load_job(default_job).model_dump(mode="json", exclude_none=True)
-        data = _merged(base, body.job or {})
+        request = body.job or {}
+        if {"preset", "waypoints_file"} & set(request.get("trajectory") or {}):
+            base.pop("trajectory", None)  # a request naming its trajectory replaces the default's
+        data = _merged(base, request)
         if body.dwell_s is not None:
             data["dwell_s"] = body.dwell_s
         job = job_from_mapping(data, "job")
