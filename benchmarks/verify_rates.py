@@ -18,10 +18,12 @@ rod axes and the drift test (``verify.procedure.refit_and_test``), and the verdi
 
 Printed: per seed the chi-square values; the false-alarm rate (unmoved scanner flagged,
 with a 95 % Clopper-Pearson interval) against the stated rate; the detection rates (the
-test flags the moved scanner); the coverage of the estimated move (|error| / std per
-component) and the verdict counts; and the time of the verify (motion + settle margin +
-dwell: ``verify.timing.visit_time_s``, joint trapezoid profiles at the job's caps between
-UR5 inverse kinematics solutions) against the calibration's, estimated the same way.
+test flags the moved scanner); the smallest move the test detects 90 % of the time along
+its weakest direction (its power; above the tolerance the verdict is ``inconclusive``); the
+coverage of the estimated move (|error| / std per component) and the verdict counts; and
+the time of the verify (motion + settle margin + dwell: ``verify.timing.visit_time_s``,
+joint trapezoid profiles at the job's caps between UR5 inverse kinematics solutions) against
+the calibration's, estimated the same way.
 """
 
 from __future__ import annotations
@@ -160,6 +162,16 @@ def main() -> None:
         print(
             f"  {label}: {flagged}/{len(tests)} = {flagged / len(tests):.1%} (95 % CI {low:.1%}-{high:.1%})"
             f"; verdicts {verdicts[name]}"
+        )
+    measured = [t for t in outcomes["unmoved"] if t is not None]
+    if measured:
+        shift = np.array([max(t.detectable_shift_mm) for t in measured])
+        turn = np.array([max(t.detectable_turn_deg) for t in measured])
+        print(
+            f"  smallest move detected {measured[0].detection_probability:.0%} of the time, weakest "
+            f"direction: shift median {np.median(shift):.2f} mm (max {shift.max():.2f}), turn median "
+            f"{np.median(turn):.3f} deg (max {turn.max():.3f}); tolerance {settings.tolerance_mm:g} mm "
+            f"{settings.tolerance_deg:g} deg"
         )
     print("  estimated move against the true move:")
     for name, truth_list in truths.items():

@@ -10,6 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
+from lasercal_hw.cli import remote_text
 from lasercal_hw.errors import ConfigError, ExitCode
 
 remote_app = typer.Typer(help="Talk to a running 'lasercal serve' daemon.", no_args_is_help=True)
@@ -25,7 +26,9 @@ TokenFileOption = Annotated[
         help="Token file (default: ~/.local/state/lasercal/token; $LASERCAL_TOKEN, the token itself, wins).",
     ),
 ]
-JsonOption = Annotated[bool, typer.Option("--json", help="Print one JSON document.")]
+JsonOption = Annotated[
+    bool, typer.Option("--json", help="Print one JSON document (for scripts) instead of the text for people.")
+]
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Job file (TOML) to send.")]
 WaitOption = Annotated[
     bool, typer.Option("--wait", help="Follow the job to its end; exit code as 'lasercal run'.")
@@ -52,13 +55,12 @@ def _client(daemon: str, token_file: Path | None) -> Any:
     return DaemonClient(daemon, read_token(token_file))
 
 
-def _print(document: Any, as_json: bool) -> None:
+def _print(document: Any, as_json: bool, lines: list[str]) -> None:
+    """The JSON document with ``--json``, else the lines a person reads."""
     if as_json:
         sys.stdout.write(json.dumps(document, indent=2) + "\n")
     else:
-        from lasercal_hw.cli.common import console
-
-        console.print_json(data=document)
+        sys.stdout.write("".join(f"{line}\n" for line in lines))
 
 
 def _job_file(path: Path | None) -> dict[str, Any] | None:
@@ -68,14 +70,12 @@ def _job_file(path: Path | None) -> dict[str, Any] | None:
 
 
 def _show_event(kind: str, data: dict[str, Any]) -> None:
-    message = data.get("message")
-    if kind in ("stage", "progress", "centre", "skip", "fault", "state", "result", "calibration") and message:
-        typer.echo(f"[{kind}] {message}", err=True)
-    elif kind == "state":
-        typer.echo(f"[state] {data.get('state')}", err=True)
+    line = remote_text.event_line(kind, data)
+    if line is not None:
+        typer.echo(line, err=True)
 
 
-def _finish(job: dict[str, Any], as_json: bool) -> None:
+def _finish(client: Any, job: dict[str, Any], as_json: bool) -> None:
     """Print a finished job and exit with the code 'lasercal run' would give."""
     document = job.get("document") or {}
     summary = document | {
@@ -85,7 +85,9 @@ def _finish(job: dict[str, Any], as_json: bool) -> None:
         "verify_id": job.get("verify_id"),
         "error": job.get("error"),
     }
-    _print(summary, as_json)
+    calibration_id = job.get("calibration_id")
+    calibration = client.calibration(calibration_id) if calibration_id and not as_json else None
+    _print(summary, as_json, remote_text.finished_job_lines(job, calibration))
     if job["state"] == "succeeded":
         passed = bool((job.get("verdict") or {}).get("passed", True))
         raise typer.Exit(int(ExitCode.OK if passed else ExitCode.QUALITY_GATE_FAILED))
@@ -114,9 +116,9 @@ def _print_or_follow(client: Any, job: dict[str, Any], wait: bool, as_json: bool
     """Print the job as the daemon took it, or with ``--wait`` follow its events and exit
     with the code 'lasercal run' would give."""
     if not wait:
-        _print(job, as_json)
+        _print(job, as_json, [remote_text.job_line(job), "see how it goes with: lasercal remote jobs"])
         return
-    _finish(client.wait(job["id"], on_event=_show_event), as_json)
+    _finish(client, client.wait(job["id"], on_event=_show_event), as_json)
 
 
 def _start(
@@ -189,7 +191,8 @@ def verify_command(
 @remote_app.command("status")
 def status_command(daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = False) -> None:
     """Daemon, devices, active calibration and current job."""
-    _print(_client(daemon, None).status(), as_json)
+    status = _client(daemon, None).status()
+    _print(status, as_json, remote_text.status_lines(status))
 
 
 @remote_app.command("jobs")
@@ -197,7 +200,7 @@ def jobs_command(daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = Fa
     """Jobs, newest first."""
     jobs = _client(daemon, None).jobs()
     if as_json:
-        _print({"jobs": jobs}, True)
+        _print({"jobs": jobs}, True, [])
         return
     for job in jobs:
         typer.echo(
@@ -211,7 +214,7 @@ def history_command(daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption =
     """Calibrations, newest first (* marks the active one)."""
     calibrations = _client(daemon, None).calibrations()
     if as_json:
-        _print({"calibrations": calibrations}, True)
+        _print({"calibrations": calibrations}, True, [])
         return
     for c in calibrations:
         t = ", ".join(f"{1000 * v:.1f}" for v in c["translation_m"])
@@ -233,7 +236,9 @@ def activate_command(
     as_json: JsonOption = False,
 ) -> None:
     """Make a calibration the active one (also how to roll back)."""
-    _print(_client(daemon, token_file).activate(calibration_id, reason, force), as_json)
+    summary = _client(daemon, token_file).activate(calibration_id, reason, force)
+    lines = [f"active now: {calibration_id} ({reason})", *remote_text.calibration_lines(summary)]
+    _print(summary, as_json, lines)
 
 
 @remote_app.command("cancel")
@@ -244,7 +249,9 @@ def cancel_command(
     as_json: JsonOption = False,
 ) -> None:
     """Stop a running job (the arm stops, the recording is kept)."""
-    _print(_client(daemon, token_file).cancel(job_id), as_json)
+    job = _client(daemon, token_file).cancel(job_id)
+    lines = [f"cancel asked: {remote_text.job_line(job)}", "the arm stops; the recording is kept"]
+    _print(job, as_json, lines)
 
 
 @remote_app.command("resume")
@@ -264,4 +271,5 @@ def resume_command(
 @remote_app.command("diff")
 def diff_command(a: str, b: str, daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = False) -> None:
     """The change between two calibrations (mm, degrees) and whether it is significant."""
-    _print(_client(daemon, None).diff(a, b), as_json)
+    diff = _client(daemon, None).diff(a, b)
+    _print(diff, as_json, remote_text.diff_lines(diff, a, b))

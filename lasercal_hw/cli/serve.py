@@ -27,6 +27,13 @@ RebuildOption = Annotated[
         help="Rebuild the history database from the job folders (result.json, recordings), then exit.",
     ),
 ]
+LogFormatOption = Annotated[
+    str | None,
+    typer.Option(
+        "--log-format",
+        help="The daemon's log on stderr: text (a line a person reads) or json (one object a line).",
+    ),
+]
 
 READY_PREFIX = "lasercal daemon listening on "
 STREAM_GRACE_S = 4.0
@@ -47,6 +54,9 @@ def serve_command(
     foxglove: FoxgloveOption = False,
     foxglove_port: FoxglovePortOption = 8765,
     rebuild_history: RebuildOption = False,
+    ),
+]
+    log_format: LogFormatOption = None,
 ) -> None:
     """Run the calibration daemon until SIGTERM or Ctrl-C (a running job's arm is stopped first).
 
@@ -56,14 +66,21 @@ def serve_command(
     import uvicorn
 
     from lasercal_hw.live.foxglove import FoxgloveLiveView
+    from lasercal_hw.service import daemon_log
     from lasercal_hw.service.app import create_app
     from lasercal_hw.service.config import listen_address, load_daemon_config
     from lasercal_hw.service.daemon import Daemon
     from lasercal_hw.service.runners import build_runners
     from lasercal_hw.service.sd_notify import notify
 
-    overrides: dict[str, Any] = {"listen": listen, "data_dir": data_dir, "dry_run": dry_run or None}
+    overrides: dict[str, Any] = {
+        "listen": listen,
+        "data_dir": data_dir,
+        "dry_run": dry_run or None,
+        "log_format": log_format,
+    }
     settings = load_daemon_config(config, overrides)
+    daemon_log.configure(settings.log_format)
     if rebuild_history:
         from lasercal_hw.service.rebuild import rebuild_history as rebuild
         from lasercal_hw.service.store import DB_FILE

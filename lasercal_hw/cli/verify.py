@@ -37,7 +37,16 @@ OutOption = Annotated[
     Path | None, typer.Option("--out", help="Output folder (./lasercal-out/verify-<time>).")
 ]
 
-_VERDICT_COLOURS = {"ok": "bold green", "degraded": "bold yellow", "recalibrate": "bold red"}
+_VERDICT_COLOURS = {
+    "ok": "bold green",
+    "inconclusive": "bold yellow",
+    "degraded": "bold yellow",
+    "recalibrate": "bold red",
+}
+
+
+def _triple(values: list[float], digits: int) -> str:
+    return "(" + ", ".join(f"{v:.{digits}f}" for v in values) + ")"
 
 
 def _print_summary(report: VerifyReport) -> None:
@@ -67,6 +76,12 @@ def _print_summary(report: VerifyReport) -> None:
             f"{c['shift_norm_mm']:.2f} +- {c['std_shift_norm_mm']:.2f} mm, {c['turn_norm_deg']:.3f} +- "
             f"{c['std_turn_norm_deg']:.3f} deg"
         )
+        seen = test["detectable"]
+        console.print(
+            f"smallest move it detects ({seen['detection_probability']:.0%} of the time): shift "
+            f"{_triple(seen['shift_mm'], 2)} mm along base x, y, z; turn {_triple(seen['turn_deg'], 3)} deg "
+            f"about them (tolerance {document['tolerance']['mm']:g} mm, {document['tolerance']['deg']:g} deg)"
+        )
     timings = document["timings"]
     fraction = timings["fraction_of_calibration"]
     share = f", {100 * fraction:.0f} % of the calibration's" if fraction is not None else ""
@@ -94,7 +109,7 @@ def verify_command(
     """Check a calibration: visit a few of its waypoints, compare the rod centres with
     what it predicts, and check the scanner, robot and rod are the ones it was made with.
 
-    Exit codes: 0 ok, 1 degraded or recalibrate (the verdict and its reason are printed;
+    Exit codes: 0 ok, 1 inconclusive, degraded or recalibrate (the verdict and its reason are printed;
     with --json in the "verdict" field), 2 bad input, 3 device error (including a
     protective stop), 4 nothing to verify with (e.g. no waypoint crosses the calibrated
     plane), 130 interrupted (the arm is stopped).

@@ -128,6 +128,7 @@ def scan_picture(averaged: AveragedScan, centre: RodCentre | None, radius_m: flo
         "ranges_m": np.round(np.asarray(averaged.ranges_m, dtype=float), 4),
         "rod_beams": centre.beam_indices if centre is not None else [],
         "circle": circle,
+        "rod_radius_m": radius_m,
     }
 
 

@@ -16,7 +16,7 @@ from fastapi.staticfiles import StaticFiles
 from lasercal_hw import __version__
 from lasercal_hw.service.config import listen_address
 from lasercal_hw.service.daemon import Daemon
-from lasercal_hw.service.routes import calibrations, events, jobs, status, verifies
+from lasercal_hw.service.routes import calibrations, docs, events, jobs, status, trajectories, verifies
 from lasercal_hw.service.routes.guard import RequestGuard
 from lasercal_hw.service.routes.problems import install_problem_handlers
 from lasercal_hw.service.sd_notify import notify, watchdog_interval_s
@@ -53,15 +53,16 @@ def create_app(daemon: Daemon) -> FastAPI:
         version=__version__,
         lifespan=lifespan,
         openapi_url="/v1/openapi.json",
-        docs_url="/v1/docs",
+        docs_url=None,  # routes/docs.py: Swagger UI from local assets, not a CDN
         redoc_url=None,
     )
     app.state.daemon = daemon
     install_problem_handlers(app)
     listen_host, _port = listen_address(daemon.config.listen)
     app.add_middleware(RequestGuard, listen_host=listen_host, names=daemon.config.allowed_hosts)
-    for resource in (status, jobs, events, calibrations, verifies):
+    for resource in (status, jobs, events, calibrations, verifies, trajectories, docs):
         app.include_router(resource.router)
+    docs.mount_assets(app)
     static = Path(str(resources.files("lasercal_hw.service"))) / "static"
     if static.is_dir():
         app.mount("/", StaticFiles(directory=static, html=True), name="page")

@@ -122,6 +122,10 @@ class DaemonClient:
         """Every calibration, newest first."""
         return self.call("GET", "/v1/calibrations")["calibrations"]
 
+    def calibration(self, calibration_id: str) -> dict[str, Any]:
+        """One calibration's summary."""
+        return self.call("GET", f"/v1/calibrations/{calibration_id}")
+
     def activate(self, calibration_id: str, reason: str, force: bool = False) -> dict[str, Any]:
         """Make a calibration active (rollback included)."""
         return self.call(

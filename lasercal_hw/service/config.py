@@ -6,7 +6,7 @@ from __future__ import annotations
 import ipaddress
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -38,6 +38,9 @@ class DaemonConfig(BaseModel):
     dry_run: bool = False
     allowed_hosts: tuple[str, ...] = Field(
         (), description="host names the daemon answers to besides its listen address and localhost"
+    )
+    log_format: Literal["text", "json"] = Field(
+        "text", description="the daemon's log on stderr: text lines for a person, or JSON lines"
     )
 
     @field_validator("listen")

@@ -1,6 +1,10 @@
-"""The event bus: every event gets an increasing id, is stored (so a client that reconnects
-with ``Last-Event-ID`` continues where it left off, even across a daemon restart) and is
-pushed to the live subscribers of the event loop.
+"""The event bus: every event carries the time it happened (``time_utc``), gets an increasing
+id, is stored (so a client that reconnects with ``Last-Event-ID`` continues where it left off,
+even across a daemon restart) and is pushed to the live subscribers of the event loop.
+
+Two kinds of event are bounded: a ``scan`` (a whole averaged scan, kilobytes) is live only,
+never stored and sent without an id, and the stored history keeps the newest
+``HISTORY_EVENTS`` events.
 
 ``publish`` may be called from any thread (the job's worker thread publishes the engine's
 events); subscribers live on the event loop.
@@ -16,25 +20,32 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from lasercal_hw.service.daemon_log import log_event
 from lasercal_hw.service.job_record import FINISHED_STATES
 from lasercal_hw.service.store import HistoryStore, utc_now
 
 QUEUE_LIMIT = 1000
 KEEPALIVE_S = 15.0
+LIVE_ONLY_KINDS = frozenset({"scan"})
+HISTORY_EVENTS = 20_000
+PRUNE_EVERY = 500
 
 
 @dataclass(frozen=True)
 class StoredEvent:
-    """One event as it goes out: id, kind, job (None: a daemon event) and its data as JSON."""
+    """One event as it goes out: id (None: a live-only event), kind, job (None: a daemon
+    event) and its data as JSON."""
 
-    id: int
+    id: int | None
     kind: str
     job_id: str | None
     data_json: str
 
     def sse(self) -> bytes:
-        """The Server-Sent Events message."""
-        return f"id: {self.id}\nevent: {self.kind}\ndata: {self.data_json}\n\n".encode()
+        """The Server-Sent Events message (no ``id:`` line for a live-only event, so a
+        browser's ``Last-Event-ID`` stays on the last stored one)."""
+        head = "" if self.id is None else f"id: {self.id}\n"
+        return f"{head}event: {self.kind}\ndata: {self.data_json}\n\n".encode()
 
     @property
     def ends_job(self) -> bool:
@@ -53,6 +64,7 @@ class EventBus:
 
     def __init__(self, store: HistoryStore) -> None:
         self._store = store
+        store.prune_events(HISTORY_EVENTS)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._subscribers: set[_Subscriber] = set()
         self._publish_lock = threading.Lock()
@@ -61,16 +73,23 @@ class EventBus:
         """Deliver live events on ``loop`` (called once the server runs)."""
         self._loop = loop
 
-    def publish(self, kind: str, data: dict[str, Any], job_id: str | None = None) -> int:
-        """Store an event and push it to the live subscribers; returns its id."""
-        payload = data | ({"job_id": job_id} if job_id is not None else {})
+    def publish(self, kind: str, data: dict[str, Any], job_id: str | None = None) -> int | None:
+        """Store an event (not a live-only one) and push it to the live subscribers; returns
+        its id (None for a live-only event)."""
+        time_utc = utc_now()
+        payload = data | ({"job_id": job_id} if job_id is not None else {}) | {"time_utc": time_utc}
         with self._publish_lock:  # ids reach the subscribers in order
-            event_id = self._store.add_event(job_id, kind, payload, utc_now())
+            event_id = None
+            if kind not in LIVE_ONLY_KINDS:
+                event_id = self._store.add_event(job_id, kind, payload, time_utc)
+                if event_id % PRUNE_EVERY == 0:
+                    self._store.prune_events(HISTORY_EVENTS)
             event = StoredEvent(event_id, kind, job_id, json.dumps(payload, allow_nan=False))
             loop = self._loop
             if loop is not None and not loop.is_closed():
                 with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
                     loop.call_soon_threadsafe(self._deliver, event)
+        log_event(kind, payload, job_id)
         return event_id
 
     def _deliver(self, event: StoredEvent) -> None:
@@ -94,6 +113,19 @@ class EventBus:
         for subscriber in list(self._subscribers):
             subscriber.queue.put_nowait(None)
         self._subscribers.clear()
+
+    @property
+    def subscribers(self) -> int:
+        """How many live streams are open."""
+        return len(self._subscribers)
+
+    def latest_id(self) -> int:
+        """The id of the newest stored event (0: none): where a stream "from now" starts."""
+        return self._store.latest_event_id()
+
+    def id_before(self, time_utc: str) -> int:
+        """The id after which the events at or after ``time_utc`` (ISO 8601, UTC) begin."""
+        return self._store.event_id_before(time_utc)
 
     def _stored_after(self, after_id: int, job_id: str | None) -> Iterator[StoredEvent]:
         while True:
@@ -134,10 +166,11 @@ class EventBus:
                     continue
                 if event is None:
                     return
-                if event.id <= last_id:
-                    continue
+                if event.id is not None:
+                    if event.id <= last_id:
+                        continue
+                    last_id = event.id
                 yield event.sse()
-                last_id = event.id
                 if job_id is not None and event.ends_job:
                     return
         finally:

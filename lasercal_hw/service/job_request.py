@@ -109,7 +109,10 @@ def resolve_job(body: JobBody, default_job: Path | None, data_dir: Path) -> JobC
     folders = (data_dir,) + ((default_job.parent,) if default_job is not None else ())
     try:
         base = load_job(default_job).model_dump(mode="json", exclude_none=True)
-        data = _merged(base, body.job or {})
+        request = body.job or {}
+        if {"preset", "waypoints_file"} & set(request.get("trajectory") or {}):
+            base.pop("trajectory", None)  # a request naming its trajectory replaces the default's
+        data = _merged(base, request)
         if body.dwell_s is not None:
             data["dwell_s"] = body.dwell_s
         job = job_from_mapping(data, "job")

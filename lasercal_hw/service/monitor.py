@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
+
+from lasercal_hw.service.daemon_log import device_summary, log_device
 
 if TYPE_CHECKING:
     from drivers.access import DeviceAccess
@@ -39,6 +41,7 @@ class DeviceMonitor:
             "identity": None,
             "error": None if devices.scanner_url else "no scanner configured",
         }
+        self._logged: dict[str, tuple[Any, ...]] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="device-monitor", daemon=True)
 
@@ -63,6 +66,7 @@ class DeviceMonitor:
                 status = self._devices.probe_robot()
                 with self._lock:
                     self._robot_status = status
+                self._log_if_changed("robot", status)
             if self._devices.scanner_url and polls % SCANNER_EVERY_POLLS == 0:
                 self._poll_scanner(self._devices.scanner_url)
             polls += 1
@@ -81,3 +85,12 @@ class DeviceMonitor:
                     "identity": probe.identity,
                     "error": probe.error,
                 }
+        if probe.in_use_by is None:
+            self._log_if_changed("scanner", self._scanner_status)
+
+    def _log_if_changed(self, device: Literal["robot", "scanner"], status: dict[str, Any]) -> None:
+        """One log line when a device connects, is lost or changes mode or safety."""
+        summary = device_summary(status)
+        if self._logged.get(device) != summary:
+            self._logged[device] = summary
+            log_device(device, status)

@@ -245,6 +245,23 @@ class HistoryStore:
             )
         return [(int(r["id"]), str(r["kind"]), str(r["data"])) for r in rows]
 
+    def latest_event_id(self) -> int:
+        """The newest stored event's id (0: none)."""
+        rows = self._query("SELECT COALESCE(MAX(id), 0) AS id FROM events", ())
+        return int(rows[0]["id"])
+
+    def event_id_before(self, time_utc: str) -> int:
+        """The id of the newest event stored before ``time_utc`` (ISO 8601 as ``utc_now``)."""
+        rows = self._query("SELECT COALESCE(MAX(id), 0) AS id FROM events WHERE time_utc < ?", (time_utc,))
+        return int(rows[0]["id"])
+
+    def prune_events(self, keep: int) -> None:
+        """Keep only the newest ``keep`` events, and no scans (older daemons stored them)."""
+        self._execute(
+            "DELETE FROM events WHERE kind = 'scan' OR id <= (SELECT COALESCE(MAX(id), 0) FROM events) - ?",
+            (keep,),
+        )
+
     # -- calibrations ----------------------------------------------------------------------------
 
     def add_calibration(

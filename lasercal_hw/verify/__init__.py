@@ -1,7 +1,7 @@
 """``lasercal verify``: is the active calibration still right? (docs/verify.md)
 
 ``verify(VerifyRequest(...), "result.json", on_event=..., cancel=...) -> VerifyReport``
-with ``.verdict`` (ok | degraded | recalibrate, and the reason) and ``.document()``.
+with ``.verdict`` (ok | inconclusive | degraded | recalibrate, and the reason) and ``.document()``.
 """
 
 from __future__ import annotations

@@ -26,6 +26,14 @@ broad prior on how far a bump moves a scanner), from ``d = J x + noise(S)``; its
 covariance is ``(J^T S^-1 J + B^-1)^-1``.  What the correction leaves unexplained is
 tested again (chi-square, 2N - 6 degrees of freedom): a change that is not a rigid move
 of the scanner (another rod, a bent tool, a robot error) shows there.
+
+The test's power: a move ``delta`` along one parameter direction ``k`` (a shift along a base
+axis, a turn about one) moves the residual by ``delta J_k`` (``J``: the crossings' Jacobian at
+every waypoint), which makes ``d^T S^-1 d`` non-central chi-square with non-centrality
+``delta^2 J_k^T S^-1 J_k``. The smallest move the test flags with probability
+``detection_probability`` at its false-alarm rate is ``sqrt(lambda* / J_k^T S^-1 J_k)``,
+``lambda*`` the non-centrality at which that probability is reached. Where this is above
+the tolerance, a test that flags nothing cannot say the scanner is within it.
 """
 
 from __future__ import annotations
@@ -35,7 +43,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import block_diag, cho_factor, cho_solve
-from scipy.stats import chi2
+from scipy.optimize import brentq
+from scipy.stats import chi2, ncx2
 
 from lasercal_hw.calibration.model import (
     left_jacobian_so3,
@@ -59,6 +68,7 @@ class DriftModel:
     robot_sigma_m: float
     repeatability_m: float = 0.0001
     false_alarm_rate: float = 0.01
+    detection_probability: float = 0.9
     prior_shift_m: float = 0.02
     prior_turn_rad: float = float(np.radians(2.0))
 
@@ -86,6 +96,9 @@ class DriftTest:
     post_fit_chi_square: float
     post_fit_dof: int
     post_fit_threshold: float
+    detectable_shift_mm: FloatArray
+    detectable_turn_deg: FloatArray
+    detection_probability: float
 
     @property
     def changed(self) -> bool:
@@ -148,6 +161,26 @@ def _norm_and_std(vector: FloatArray, covariance: FloatArray, unit: float) -> tu
     else:
         std = float(np.sqrt(np.max(np.linalg.eigvalsh(covariance))))
     return length * unit, std * unit
+
+
+def detectable_moves(
+    jac: FloatArray, noise: tuple[FloatArray, bool], threshold: float, dof: int, probability: float
+) -> FloatArray:
+    """The smallest move along each parameter (6,: m, rad) that the test with this
+    ``threshold`` flags with ``probability``, from the crossings' Jacobian (N, 2, 6) and the
+    factored residual covariance (module docstring)."""
+    j = np.asarray(jac, dtype=float).reshape(-1, 6)
+    information = np.einsum("ik,ik->k", j, cho_solve(noise, j))
+
+    def shortfall(noncentrality: float) -> float:
+        return float(ncx2.sf(threshold, dof, noncentrality)) - probability
+
+    upper = 1.0
+    while shortfall(upper) < 0.0:
+        upper *= 2.0
+    noncentrality = brentq(shortfall, 1e-9, upper, xtol=1e-6)
+    with np.errstate(divide="ignore"):
+        return np.sqrt(noncentrality / information)
 
 
 def predictions(
@@ -221,6 +254,8 @@ def run_drift_test(
     )
     post_dof = dof - _RIGID_PARAMETERS
     alpha = model.false_alarm_rate
+    threshold = float(chi2.ppf(1.0 - alpha, dof))
+    detectable = detectable_moves(jac, factor, threshold, dof, model.detection_probability)
     return DriftTest(
         indices=list(indices),
         tcp_poses=poses,
@@ -229,7 +264,7 @@ def run_drift_test(
         whitened_norm=np.sqrt(per_waypoint),
         chi_square=chi_square,
         dof=dof,
-        threshold=float(chi2.ppf(1.0 - alpha, dof)),
+        threshold=threshold,
         p_value=float(chi2.sf(chi_square, dof)),
         false_alarm_rate=alpha,
         correction=correction,
@@ -237,6 +272,9 @@ def run_drift_test(
         post_fit_chi_square=post_fit,
         post_fit_dof=post_dof,
         post_fit_threshold=float(chi2.ppf(1.0 - alpha, post_dof)) if post_dof > 0 else float("inf"),
+        detectable_shift_mm=detectable[:3] * 1e3,
+        detectable_turn_deg=np.degrees(detectable[3:]),
+        detection_probability=model.detection_probability,
     )
 
 

@@ -68,6 +68,13 @@ def _test_document(test: DriftTest, visited: list[bool]) -> dict[str, Any]:
         "post_fit_chi_square": test.post_fit_chi_square,
         "post_fit_dof": test.post_fit_dof,
         "rigid": test.rigid,
+        "detectable": {
+            "shift_mm": _floats(test.detectable_shift_mm),
+            "turn_deg": _floats(test.detectable_turn_deg),
+            "detection_probability": test.detection_probability,
+            "meaning": "the smallest shift along / turn about each base axis the test flags with "
+            "this probability at its false-alarm rate",
+        },
         "correction": {
             "shift_mm": _floats(test.shift_mm),
             "std_shift_mm": _floats(test.std_shift_mm),

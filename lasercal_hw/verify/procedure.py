@@ -8,6 +8,7 @@ The CLI (``lasercal verify``) and the daemon call this; it never prints and neve
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -34,7 +35,7 @@ from lasercal_hw.verify.identity import IdentityCheck, check_identity
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
 from lasercal_hw.verify.selection import Selection, select_waypoints
 from lasercal_hw.verify.timing import visit_time_s
-from lasercal_hw.verify.verdict import Verdict, decide
+from lasercal_hw.verify.verdict import Verdict, decide, with_time_note
 
 MIN_MEASURED = 2
 
@@ -59,7 +60,7 @@ class VerifyReport(ProcedureReport[VerifyOutcome]):
 
     @property
     def verdict(self) -> Verdict:
-        """ok, degraded or recalibrate, with the reason."""
+        """ok, inconclusive, degraded or recalibrate, with the reason."""
         return self.outcome.verdict
 
     def document(self) -> dict[str, Any]:
@@ -286,7 +287,7 @@ def _evaluate(
             f"where the calibration predicts it ({reasons})"
         )
     verdict = decide(identity, test, job.verify.tolerance_mm, job.verify.tolerance_deg, missing)
-    return VerifyOutcome(
+    outcome = VerifyOutcome(
         calibration=active,
         job=job,
         selection=selection,
@@ -300,3 +301,5 @@ def _evaluate(
         kept_first_fit=[(selection.indices[i], reason) for i, reason in kept],
         timings=measured.timings,
     )
+    noted = with_time_note(verdict, outcome.time_fraction(), job.verify.max_time_fraction)
+    return dataclasses.replace(outcome, verdict=noted)

@@ -8,16 +8,46 @@ from typing import Literal
 from lasercal_hw.verify.drift import DriftTest
 from lasercal_hw.verify.identity import IdentityCheck
 
-Status = Literal["ok", "degraded", "recalibrate"]
+Status = Literal["ok", "inconclusive", "degraded", "recalibrate"]
+STATUSES: tuple[Status, ...] = ("ok", "inconclusive", "degraded", "recalibrate")
 
 
 @dataclass(frozen=True)
 class Verdict:
-    """``ok``: consistent with the calibration; ``degraded``: changed, but the estimated
-    move is inside the job's tolerance; ``recalibrate``: anything else."""
+    """``ok``: consistent with the calibration, and the test could have seen a move of the
+    job's tolerance; ``inconclusive``: nothing seen, but the test cannot see a move of the
+    tolerance (the reason says what to do); ``degraded``: changed, but the estimated move is
+    inside the tolerance; ``recalibrate``: anything else."""
 
     status: Status
     reason: str
+
+
+def _blind_spot(test: DriftTest, tolerance_mm: float, tolerance_deg: float) -> str | None:
+    """What the test cannot see of the tolerance (None: it sees a move of the tolerance in
+    every direction)."""
+    shift_mm = float(max(test.detectable_shift_mm))
+    turn_deg = float(max(test.detectable_turn_deg))
+    if shift_mm <= tolerance_mm and turn_deg <= tolerance_deg:
+        return None
+    return (
+        f"it detects ({test.detection_probability:.0%} of the time) only a shift of {shift_mm:.2f} mm "
+        f"or a turn of {turn_deg:.3f} deg along its weakest direction, more than the tolerance "
+        f"{tolerance_mm:g} mm, {tolerance_deg:g} deg: measure more waypoints (verify.waypoints or "
+        "--waypoints, up to 20) or dwell longer (the job's dwell_s) and verify again"
+    )
+
+
+def with_time_note(verdict: Verdict, fraction: float | None, promised: float) -> Verdict:
+    """The verdict with a note when the verify took a larger share of the calibration's
+    motion and dwell than ``verify.max_time_fraction`` promised."""
+    if fraction is None or fraction <= promised:
+        return verdict
+    note = (
+        f"; it took {fraction:.1%} of the calibration's motion and dwell time, over the "
+        f"{promised:.0%} promised (verify.max_time_fraction)"
+    )
+    return Verdict(verdict.status, verdict.reason + note)
 
 
 def decide(
@@ -44,6 +74,10 @@ def decide(
         f"scanner moved {shift_mm:.2f} +- {shift_std:.2f} mm and turned {turn_deg:.3f} +- {turn_std:.3f} deg"
     )
     if not test.changed:
+        blind = _blind_spot(test, tolerance_mm, tolerance_deg)
+        if blind is not None:
+            agree = f"measurements agree with the calibration ({statistic}), but {blind}"
+            return Verdict("inconclusive", agree)
         return Verdict("ok", f"measurements agree with the calibration: {statistic}")
     if not test.rigid:
         return Verdict(

@@ -125,9 +125,62 @@ def test_dry_run_from_the_page(daemon: DaemonProcess, browser: Any, artifacts: P
     assert calibration_id in _answer_confirmation(browser, yes=True)
     _wait(browser, lambda d: calibration_id in _by_id(d, "active-calibration").text, "the calibration active")
     assert _get(daemon, "/v1/calibration")["id"] == calibration_id
+    assert "T_base_laser: t = (" in _by_id(browser, "job-pose").text, "the page shows the resulting pose"
+    assert "std (largest axis)" in _by_id(browser, "active-calibration").text
+    _check_plot_labels(browser)
     _screenshot(browser, artifacts, "finished")
 
     _check_event_to_paint(daemon, browser, job_id, artifacts)
+
+    # A verify of the active calibration from the page: its verdict in the history and the plot.
+    _by_id(browser, "start-verify").click()
+    _answer_confirmation(browser, yes=True)
+    _wait(browser, lambda d: _get(daemon, "/v1/jobs")["jobs"][0]["kind"] == "verify", "the verify job")
+    verify_id = _get(daemon, "/v1/jobs")["jobs"][0]["id"]
+    _wait(browser, lambda d: verify_id in _by_id(d, "job-title").text
+          and _by_id(d, "job-state").text in TERMINAL, "the verify's end", RUN_TIMEOUT_S)
+    verdict = _get(daemon, f"/v1/jobs/{verify_id}")["verdict"]["status"]
+    _wait(browser, lambda d: d.find_elements("css selector", '#history-body tr[data-kind^="verify"]'),
+          "the verify's history row")
+    assert verdict in _by_id(browser, "history-body").text
+    _check_plot_labels(browser)
+    _screenshot(browser, artifacts, "verify")
+
+
+def _check_plot_labels(browser: Any) -> None:
+    """Every colour of a mark in the drift plot has its legend entry, and no text of the plot
+    reaches past its drawing area (a clipped label)."""
+    found = browser.execute_script(
+        """
+        const svg = document.getElementById("drift");
+        const box = svg.viewBox.baseVal;
+        const fill = (c) => c.getAttribute("fill");
+        const legend = new Set([...svg.querySelectorAll(".legend circle")].map(fill));
+        const marks = [...svg.querySelectorAll(":scope > circle")].map(fill);
+        const clipped = [...svg.querySelectorAll("text")].filter((t) => {
+          const b = t.getBBox();
+          return b.x < box.x || b.y < box.y || b.x + b.width > box.x + box.width
+            || b.y + b.height > box.y + box.height;
+        }).map((t) => t.textContent);
+        return {marks, legend: [...legend], clipped};
+        """
+    )
+    assert found["marks"], "the drift plot has marks"
+    missing = sorted(set(found["marks"]) - set(found["legend"]))
+    assert not missing, f"plot colours without a legend entry: {missing} (legend {found['legend']})"
+    assert not found["clipped"], f"labels clipped by the plot's edge: {found['clipped']}"
+    clipped = _by_id(browser, "scan").get_attribute("data-clipped-labels")
+    assert clipped is None, f"a label of the scan picture did not fit its space: {clipped}"
+
+
+def test_api_docs_render_from_the_daemon_alone(daemon: DaemonProcess, browser: Any, artifacts: Path) -> None:
+    """/v1/docs: Swagger UI draws the API with every file from the daemon (no CDN)."""
+    browser.get(daemon.url + "/v1/docs")
+    _wait(browser, lambda d: d.find_elements("css selector", ".swagger-ui .opblock"), "Swagger's operations")
+    loaded = browser.execute_script("return performance.getEntriesByType('resource').map((e) => e.name)")
+    assert loaded and all(url.startswith(daemon.url) for url in loaded), loaded
+    assert "lasercal daemon" in browser.find_element("css selector", ".swagger-ui .info .title").text
+    _screenshot(browser, artifacts, "api-docs")
 
 
 def _check_event_to_paint(daemon: DaemonProcess, browser: Any, job_id: str, artifacts: Path) -> None:

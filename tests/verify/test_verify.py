@@ -17,11 +17,17 @@ from lasercal_hw.geometry import make_transform, rotvec_to_matrix
 from lasercal_hw.models import RobotIdentity, ScannerIdentity
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify.active import load_active_calibration, recorded_residuals
-from lasercal_hw.verify.drift import DriftModel, noise_blocks, predictions, run_drift_test
+from lasercal_hw.verify.drift import (
+    DriftModel,
+    noise_blocks,
+    predictions,
+    residual_covariance,
+    run_drift_test,
+)
 from lasercal_hw.verify.identity import check_identity
 from lasercal_hw.verify.procedure import drift_model
 from lasercal_hw.verify.selection import _log_det, select_waypoints, waypoint_information
-from lasercal_hw.verify.verdict import decide
+from lasercal_hw.verify.verdict import Verdict, decide, with_time_note
 from tests.cli_helpers import assert_one_line_error, run_cli
 from tests.verify_helpers import calibration_document, fast_job, write_calibration
 
@@ -182,3 +188,51 @@ def test_cli_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
     assert_one_line_error(missing, 2, "none.json does not exist")
     with pytest.raises(ConfigError, match="--scene only applies to --dry-run"):
         verify_command(tmp_path / "none.json", scene=Path("x.toml"), yes=True)
+
+
+def test_the_stated_power_is_the_power(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
+    """A shift along base x of the size the test says it detects 90 % of the time is flagged
+    about 90 % of the time (noise drawn from the test's own covariance)."""
+    model, poses, _ = setup
+    chosen = poses[:5]
+    cov = np.broadcast_to(np.eye(2) * SIGMA_UV_M**2, (5, 2, 2))
+    still = centres(model, chosen, np.zeros(6))
+    power = run_drift_test(model, list(range(5)), chosen, still, cov)
+    assert power.detection_probability == 0.9
+    assert np.all(power.detectable_shift_mm > 0) and np.all(power.detectable_turn_deg > 0)
+    _, jac, slope = predictions(model.T_base_laser, chosen, model.rod)
+    noise = residual_covariance(model, jac, slope, cov, np.zeros(5, dtype=bool))
+    move = np.array([power.detectable_shift_mm[0] / 1e3, 0, 0, 0, 0, 0])
+    rng = np.random.default_rng(7)
+    draws = rng.multivariate_normal(np.zeros(10), noise, size=400).reshape(-1, 5, 2)
+    moved_centres = centres(model, chosen, move)
+    flagged = [run_drift_test(model, list(range(5)), chosen, moved_centres + e, cov).changed for e in draws]
+    assert np.mean(flagged) == pytest.approx(0.9, abs=0.05)
+
+
+def test_a_verify_that_cannot_see_its_tolerance_is_inconclusive(
+    setup: tuple[DriftModel, np.ndarray, Path],
+) -> None:
+    model, poses, _ = setup
+    chosen = poses[:6]
+    sharp = np.broadcast_to(np.eye(2) * (0.0001) ** 2, (6, 2, 2))
+    tight = DriftModel(**{**model.__dict__, "covariance": np.eye(6) * 1e-12, "robot_sigma_m": 1e-5})
+    still = centres(tight, chosen, np.zeros(6))
+    sees = run_drift_test(tight, list(range(6)), chosen, still, sharp)
+    assert decide([], sees, tolerance_mm=2.0, tolerance_deg=0.2).status == "ok"
+    blurred = np.broadcast_to(np.eye(2) * 0.005**2, (6, 2, 2))  # 5 mm centres: a blind test
+    blind = run_drift_test(tight, list(range(6)), chosen, still, blurred)
+    verdict = decide([], blind, tolerance_mm=2.0, tolerance_deg=0.2)
+    assert verdict.status == "inconclusive" and not blind.changed
+    assert f"only a shift of {max(blind.detectable_shift_mm):.2f} mm" in verdict.reason
+    assert "more waypoints" in verdict.reason and "dwell longer" in verdict.reason
+
+
+def test_a_verify_over_its_time_share_says_so() -> None:
+    ok = Verdict("ok", "measurements agree")
+    assert with_time_note(ok, 0.25, 0.25) == ok and with_time_note(ok, None, 0.25) == ok
+    over = with_time_note(ok, 0.258, 0.25)
+    assert over.status == "ok" and over.reason.endswith(
+        "it took 25.8% of the calibration's motion and dwell time, over the 25% promised "
+        "(verify.max_time_fraction)"
+    )

@@ -15,6 +15,7 @@ const state = {
   status: null,
   job: null,              // the job shown in the run panel
   calibrations: [],
+  trajectories: [],       // GET /v1/trajectories: presets and designed waypoint files
   verifies: [],
   diffs: new Map(),       // "<id>:<active id>" -> diff document
   knownJobs: new Set(),   // jobs older than the latest one when the page opened
@@ -146,6 +147,19 @@ async function confirmAction(title, text, yesLabel) {
 
 const fmt = (x, digits = 2) => (x === null || x === undefined || Number.isNaN(x) ? "–" : Number(x).toFixed(digits));
 const norm = (v) => (v ? Math.hypot(...v) : null);
+/** The largest component of a std vector: what the CLI calls the std. */
+const largest = (v) => (v && v.length ? Math.max(...v.map(Math.abs)) : null);
+
+/** "t = (x, y, z) mm, euler zyx (yaw, pitch, roll) deg" of a 4x4 T_base_laser. */
+function poseText(T) {
+  if (!T) return "";
+  const deg = (r) => (r * 180) / Math.PI;
+  const yaw = deg(Math.atan2(T[1][0], T[0][0]));
+  const pitch = deg(Math.asin(Math.max(-1, Math.min(1, -T[2][0]))));
+  const roll = deg(Math.atan2(T[2][1], T[2][2]));
+  const t = [T[0][3], T[1][3], T[2][3]].map((v) => fmt(v * 1000, 1)).join(", ");
+  return `T_base_laser: t = (${t}) mm, euler zyx (${[yaw, pitch, roll].map((v) => fmt(v, 3)).join(", ")}) deg`;
+}
 
 /** Standard deviation of |d| from the per-axis std (first order; RMS of the axes at d = 0). */
 function normStd(d, std) {
@@ -216,8 +230,9 @@ function renderStatus() {
       badge(active.passed ? "passed" : "failed", active.passed ? "ok" : "bad"),
       active.dry_run ? badge("dry run", "warn") : "",
       el("div", { class: "small", text: `${utc(active.created_utc)} (${age(active.created_utc)})` }),
-      el("div", { class: "small", text: `std ${fmt(norm(active.std_translation_mm))} mm, ${
-        fmt(norm(active.std_rotation_deg), 3)} deg` }),
+      el("div", { class: "small", text: poseText(active.T_base_laser) }),
+      el("div", { class: "small", text: `std (largest axis) ${fmt(largest(active.std_translation_mm))} mm, ${
+        fmt(largest(active.std_rotation_deg), 3)} deg` }),
       el("div", { class: "small", text: lastVerify ? `last verify: ${lastVerify.verdict} (${age(lastVerify.created_utc)})`
         : "not verified since" }));
   }
@@ -289,8 +304,9 @@ function renderResult() {
   const parts = [];
   if (result) {
     parts.push(badge(result.passed ? "passed" : "failed the quality gates", result.passed ? "ok" : "bad"), " ",
-      `RMS residual ${fmt(result.rms_residual_mm)} mm · std ${fmt(norm(result.std_translation_mm))} mm, ${
-        fmt(norm(result.std_rotation_deg), 3)} deg`);
+      `RMS residual ${fmt(result.rms_residual_mm)} mm · std (largest axis) ${
+        fmt(largest(result.std_translation_mm))} mm, ${fmt(largest(result.std_rotation_deg), 3)} deg`,
+      el("div", { class: "mono pose", id: "job-pose", text: poseText(result.T_base_laser) }));
   }
   const calibration = job && job.calibration_id && state.calibrations.find((c) => c.id === job.calibration_id);
   if (calibration) parts.push(el("div", { class: "small files" }, "files: ", ...fileLinks(calibration.files)));
@@ -402,7 +418,8 @@ function drawGrid(ctx, W, H, px, scale, midU, midV, span) {
     ctx.beginPath(); ctx.moveTo(0, y); ctx.lineTo(W, y); ctx.stroke();
     ctx.fillText(gridLabel(v), 2, y - 2);
   }
-  ctx.fillText("u [m] →, v [m] ↑ (scan plane)", W - 170, H - 8);
+  const axes = "u [m] →, v [m] ↑ (scan plane)";
+  ctx.fillText(axes, W - ctx.measureText(axes).width - 8, H - 8);
 }
 
 function gridLabel(metres) { return (Math.abs(metres) < 1e-9 ? 0 : metres).toFixed(1); }
@@ -449,7 +466,21 @@ function drawInset(ctx, W, scan, rodPoints) {
   rodPoints.forEach(([u, v]) => { const [x, y] = px(u, v); ctx.fillRect(x - 2.5, y - 2.5, 5, 5); });
   ctx.restore();
   ctx.fillStyle = cssVar("--muted");
-  ctx.fillText(`rod close-up, r = ${(radius_m * 1000).toFixed(1)} mm`, x0 + 4, y0 + size - 6);
+  const rodMm = (scan.rod_radius_m || radius_m) * 1000;
+  const fitMm = radius_m * 1000;
+  labelWithin(ctx, "rod close-up", x0 + 4, y0 + 14, size - 8);
+  labelWithin(ctx, `rod r = ${rodMm.toFixed(1)} mm`, x0 + 4, y0 + size - 6, size - 8);
+  if (Math.abs(fitMm - rodMm) >= 0.05) {
+    labelWithin(ctx, `fit r = ${fitMm.toFixed(1)} mm`, x0 + 4, y0 + size - 20, size - 8);
+  }
+}
+
+/** Draw a canvas label that must fit in ``maxWidth`` px; one that does not is named in the
+ *  canvas's data-clipped-labels (the browser test fails on it) and squeezed to fit. */
+function labelWithin(ctx, text, x, y, maxWidth) {
+  const width = ctx.measureText(text).width;
+  if (width > maxWidth) ctx.canvas.dataset.clippedLabels = `${text} (${Math.round(width)} > ${maxWidth} px)`;
+  ctx.fillText(text, x, y, maxWidth);
 }
 
 // ---- history ------------------------------------------------------------------------------
@@ -484,14 +515,14 @@ function historyRows() {
                          sr: diff.combined_std_rotation_deg, significant: diff.significant };
     return { kind: c.dry_run ? "dry-run calibration" : "calibration", item: c, time: c.created_utc, change,
              result: badge(c.passed ? "passed" : "failed", c.passed ? "ok" : "bad"),
-             std: `${fmt(norm(c.std_translation_mm))} / ${fmt(norm(c.std_rotation_deg), 3)}` };
+             std: `${fmt(largest(c.std_translation_mm))} / ${fmt(largest(c.std_rotation_deg), 3)}` };
   });
   state.verifies.forEach((v) => {
     const against = v.calibration_id === (active && active.id) ? "" : ` (vs ${v.calibration_id})`;
     rows.push({ kind: "verify" + against, item: v, time: v.created_utc,
                 change: { t: v.shift_translation_mm, r: v.shift_rotation_deg, st: v.shift_std_translation_mm,
                           sr: v.shift_std_rotation_deg },
-                result: badge(v.verdict, { ok: "ok", degraded: "warn" }[v.verdict] || "bad"), std: "", reason: v.reason });
+                result: badge(v.verdict, { ok: "ok", degraded: "warn", inconclusive: "warn" }[v.verdict] || "bad"), std: "", reason: v.reason });
   });
   rows.sort((a, b) => Date.parse(b.time) - Date.parse(a.time));
   return rows;
@@ -572,7 +603,7 @@ function renderDrift(rows) {
     rows.forEach((r, i) => {
       const [v, s] = values[i];
       const cx = x(Date.parse(r.time));
-      const colour = r.kind.startsWith("verify") ? "#dd6b20" : "#2b6cb0";
+      const colour = PLOT_COLOURS[plotKind(r)];
       svg.append(node("line", { x1: cx, x2: cx, y1: y(Math.max(v - s, 0)), y2: y(v + s), stroke: colour, "stroke-width": 1.5 }));
       svg.append(node("line", { x1: cx - 4, x2: cx + 4, y1: y(v + s), y2: y(v + s), stroke: colour }));
       const mark = node("circle", { cx, cy: y(v), r: 4, fill: colour });
@@ -581,8 +612,25 @@ function renderDrift(rows) {
     });
   });
   svg.append(node("text", { x: left, y: 255 }, utc(new Date(t0).toISOString())));
-  svg.append(node("text", { x: right - 120, y: 255 }, utc(new Date(t1).toISOString())));
-  svg.append(node("text", { x: left + width / 2 - 90, y: 255 }, "● calibration   ● verify (orange)   bars ±1 std"));
+  svg.append(node("text", { x: right, y: 255, "text-anchor": "end" }, utc(new Date(t1).toISOString())));
+  const legend = node("g", { class: "legend" });
+  let at = left + width / 2 - 170;
+  Object.entries(PLOT_LABELS).forEach(([kind, label]) => {
+    legend.append(node("circle", { cx: at, cy: 251, r: 4, fill: PLOT_COLOURS[kind], "data-kind": kind }));
+    legend.append(node("text", { x: at + 8, y: 255, "data-kind": kind }, label));
+    at += 8 + 7 * label.length + 14;
+  });
+  legend.append(node("text", { x: at, y: 255 }, "bars ±1 std"));
+  svg.append(legend);
+}
+
+/** The marks of the drift plot: colour and legend label per kind of row, one table. */
+const PLOT_COLOURS = { calibration: "#2b6cb0", verify: "#dd6b20", inconclusive: "#9aa4b2" };
+const PLOT_LABELS = { calibration: "calibration", verify: "verify", inconclusive: "verify, inconclusive" };
+
+function plotKind(row) {
+  if (!row.kind.startsWith("verify")) return "calibration";
+  return row.item.verdict === "inconclusive" ? "inconclusive" : "verify";
 }
 
 // ---- live events --------------------------------------------------------------------------
@@ -590,8 +638,11 @@ function renderDrift(rows) {
 const EVENT_KINDS = ["stage", "progress", "centre", "skip", "scan", "fault", "result", "state",
                      "confirmed", "warning", "stopped", "daemon"];
 
+/** The daemon's events from now on, and the latest job's from its start (a reload mid-run). */
 function connectEvents() {
-  const source = new EventSource("/v1/events");
+  const latest = state.status && state.status.job;
+  const since = latest && latest.created_utc ? `?since=${encodeURIComponent(latest.created_utc)}` : "";
+  const source = new EventSource(`/v1/events${since}`);
   const streamState = $("stream-state");
   source.onopen = () => { streamState.textContent = "stream: live"; streamState.className = "badge ok"; };
   source.onerror = () => { streamState.textContent = "stream: reconnecting"; streamState.className = "badge warn"; };
@@ -621,25 +672,26 @@ function onEvent(kind, message) {
 function applyEvent(kind, data) {
   const live = state.live;
   const job = state.job;
+  const log = (text) => logLine(text, data.time_utc);
   switch (kind) {
     case "progress":
       live.progress = { waypoint: data.waypoint, completed: data.completed, waypoint_count: data.waypoint_count,
                         time_left_s: data.time_left_s, message: data.message || progressMessage(data) };
-      logLine(`progress ${data.stage} ${data.completed}/${data.waypoint_count}`);
+      log(`progress ${data.stage} ${data.completed}/${data.waypoint_count}`);
       markDirty("job", "log");
       break;
     case "stage":
-      logLine(`stage ${data.stage}${data.message ? ": " + data.message : ""}`);
+      log(`stage ${data.stage}${data.message ? ": " + data.message : ""}`);
       markDirty("log");
       break;
     case "confirmed":
     case "warning":
     case "daemon":
-      logLine(`${kind}: ${data.message || ""}`);
+      log(`${kind}: ${data.message || ""}`);
       markDirty("log");
       break;
     case "stopped":
-      logLine(`stopped: ${data.error || ""}${data.session ? " (recording kept: " + data.session + ")" : ""}`);
+      log(`stopped: ${data.error || ""}${data.session ? " (recording kept: " + data.session + ")" : ""}`);
       markDirty("log");
       break;
     case "scan":
@@ -650,22 +702,22 @@ function applyEvent(kind, data) {
     case "centre":
       live.centres.set(data.waypoint, data.centre_uv_m);
       if (data.predicted_uv_m || data.expected_uv_m) live.predicted.set(data.waypoint, data.predicted_uv_m || data.expected_uv_m);
-      logLine(`centre ${data.waypoint}: (${fmt(data.centre_uv_m[0], 4)}, ${fmt(data.centre_uv_m[1], 4)}) m`);
+      log(`centre ${data.waypoint}: (${fmt(data.centre_uv_m[0], 4)}, ${fmt(data.centre_uv_m[1], 4)}) m`);
       markDirty("scan", "log");
       break;
     case "skip":
       live.skipped.push({ waypoint: data.waypoint, reason: data.reason });
-      logLine(`skip ${data.waypoint}: ${data.reason}`);
+      log(`skip ${data.waypoint}: ${data.reason}`);
       markDirty("job", "log");
       break;
     case "fault":
-      logLine(`fault ${data.device}: ${data.message}`);
+      log(`fault ${data.device}: ${data.message}`);
       showError(`${data.device}: ${data.message}`);
       markDirty("log");
       break;
     case "result":
       live.result = data;
-      logLine(`result: ${data.passed ? "passed" : "failed"}`);
+      log(`result: ${data.passed ? "passed" : "failed"}`);
       markDirty("job", "log");
       break;
     case "state":
@@ -673,7 +725,7 @@ function applyEvent(kind, data) {
         job.state = data.state;
         if (data.error) job.error = data.error;
       }
-      logLine(`state ${data.state}`);
+      log(`state ${data.state}`);
       markDirty("job", "log");
       if (!ACTIVE_STATES.has(data.state)) finishJob(data.job_id);
       break;
@@ -687,9 +739,10 @@ function progressMessage(data) {
   return `${data.stage}${where}`;
 }
 
-function logLine(text) {
+/** A line of the event log, stamped with the time the event happened (UTC). */
+function logLine(text, timeUtc) {
   const log = state.live.log;
-  log.push(`${new Date().toISOString().slice(11, 19)} ${text}`);
+  log.push(`${(timeUtc || new Date().toISOString()).slice(11, 19)} ${text}`);
   if (log.length > EVENT_LOG_LINES) log.splice(0, log.length - EVENT_LOG_LINES);
 }
 
@@ -741,7 +794,8 @@ async function startJob(kind) {
   const ok = await confirmAction("Start motion?",
     `This starts ${what} on ${where}: the ${preset} trajectory, dwelling ${dwell} s at every waypoint.`, "Move the arm");
   if (!ok) return;
-  const body = { kind, confirm_motion: true, job: { trajectory: { preset } }, dwell_s: dwell,
+  const chosen = state.trajectories.find((t) => t.name === preset);
+  const body = { kind, confirm_motion: true, job: chosen ? chosen.job : { trajectory: { preset } }, dwell_s: dwell,
                  activate_on_pass: kind !== "verify" && $("activate-on-pass").checked };
   try {
     const job = await authorised("POST", "/v1/jobs", body);
@@ -792,12 +846,29 @@ async function rememberJobs() {
   }
 }
 
+/** The trajectory list: every preset and designed waypoint file the daemon knows. */
+async function loadTrajectories() {
+  try {
+    state.trajectories = (await api("GET", "/v1/trajectories")).trajectories || [];
+  } catch (err) {
+    showError(`cannot read the trajectories: ${err.message}`);
+    return;
+  }
+  const select = $("preset");
+  const current = select.value;
+  select.replaceChildren(...state.trajectories.map((t) => el("option", {
+    value: t.name, title: t.description,
+    text: `${t.name} (${t.waypoints} waypoints${t.kind === "waypoints_file" ? ", designed" : ""})` })));
+  if (state.trajectories.some((t) => t.name === current)) select.value = current;
+}
+
 function init() {
   $("start-dry-run").addEventListener("click", () => startJob("dry_run"));
   $("start-verify").addEventListener("click", () => startJob("verify"));
   $("cancel-job").addEventListener("click", cancelJob);
   $("forget-token").addEventListener("click", () => { sessionStorage.removeItem(TOKEN_KEY); showError(""); });
   refreshHistory();
+  loadTrajectories();
   refreshStatus().then(rememberJobs).then(connectEvents);
   setInterval(refreshStatus, STATUS_POLL_MS);
   markDirty("scan");

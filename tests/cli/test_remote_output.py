@@ -1,0 +1,108 @@
+"""``lasercal remote`` prints text for people and JSON only with ``--json``: against an
+in-process daemon (fake engine) served by uvicorn on a loopback port, as the real one is."""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+from collections.abc import Callable, Iterator
+
+import pytest
+import uvicorn
+
+from lasercal_hw.cli.main import main
+from lasercal_hw.cli.remote_text import event_line
+from lasercal_hw.service.app import create_app
+from lasercal_hw.service.config import load_daemon_config
+from lasercal_hw.service.daemon import Daemon
+from tests.daemon_helpers import FakeEngine, fake_runners
+
+
+@pytest.fixture(scope="module")
+def daemon_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
+    """``(url, token)`` of a daemon with a fake engine on 127.0.0.1 (a free port)."""
+    config = load_daemon_config(None, {"data_dir": tmp_path_factory.mktemp("remote") / "data"})
+    daemon = Daemon(config, runners=fake_runners(FakeEngine(waypoints=3)))
+    server = uvicorn.Server(uvicorn.Config(create_app(daemon), host="127.0.0.1", port=0, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    for _ in range(500):
+        if server.started:
+            break
+        threading.Event().wait(0.01)
+    port = server.servers[0].sockets[0].getsockname()[1]
+    try:
+        yield f"http://127.0.0.1:{port}", daemon.token
+    finally:
+        server.should_exit = True
+        thread.join(10.0)
+
+
+@pytest.fixture
+def remote(
+    daemon_url: tuple[str, str], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> Callable[..., tuple[int, str, str]]:
+    """``lasercal remote ARGS --daemon URL``: (exit code, stdout, stderr), output not a terminal."""
+    url, token = daemon_url
+    monkeypatch.setenv("LASERCAL_TOKEN", token)
+
+    def run(*args: str) -> tuple[int, str, str]:
+        capsys.readouterr()
+        monkeypatch.setattr(sys, "argv", ["lasercal", "remote", *args, "--daemon", url])
+        with pytest.raises(SystemExit) as exited:
+            main()
+        out, err = capsys.readouterr()
+        return int(exited.value.code or 0), out, err
+
+    return run
+
+
+def test_every_remote_command_prints_text_and_json_only_when_asked(remote) -> None:
+    code, out, err = remote("calibrate", "--dry-run", "--yes", "--wait", "--activate")
+    assert code == 0, err
+    assert not out.lstrip().startswith("{") and len(out.splitlines()) <= 8, out
+    assert "succeeded" in out and "translation (300.0, 500.0, 200.0) mm" in out
+    assert "std (largest component) 0.50 mm" in out
+    code, out, _ = remote("calibrate", "--dry-run", "--yes", "--wait", "--json")
+    document = json.loads(out)
+    assert code == 0 and document["state"] == "succeeded" and document["calibration_id"]
+    newer, older = (c["id"] for c in json.loads(remote("history", "--json")[1])["calibrations"][:2])
+
+    code, out, _ = remote("status")
+    assert code == 0 and not out.lstrip().startswith("{") and len(out.splitlines()) <= 12, out
+    assert f"active calibration {older}: passed" in out and "192.168.0.10" not in out
+    assert json.loads(remote("status", "--json")[1])["active_calibration"]["id"] == older
+
+    code, out, _ = remote("activate", newer, "--reason", "roll forward")
+    assert code == 0 and out.startswith(f"active now: {newer} (roll forward)\n"), out
+    assert json.loads(remote("activate", newer, "--json")[1])["active"] is True
+
+    code, out, _ = remote("diff", older, newer)
+    assert code == 0 and "significant: no" in out and "translation (0.00, 0.00, 0.00) mm" in out, out
+    assert json.loads(remote("diff", older, newer, "--json")[1])["significant"] is False
+
+    code, out, _ = remote("calibrate", "--dry-run", "--yes")
+    assert code == 0 and out.startswith("job job-") and "see how it goes with" in out, out
+    assert json.loads(remote("jobs", "--json")[1])["jobs"][0]["kind"] == "dry_run"
+
+
+def test_a_followed_job_shows_each_waypoint_once() -> None:
+    """The engine sends a waypoint's progress and its centre with the same message: one line."""
+    events = [
+        ("stage", {"message": "measuring the background"}),
+        ("progress", {"message": "waypoint 3 of 10: centre found", "stage": "centre", "waypoint": 3}),
+        ("scan", {"message": "averaged scan of waypoint 3", "waypoint": 3}),
+        ("centre", {"message": "waypoint 3 of 10: centre found", "waypoint": 3}),
+        ("progress", {"message": "waypoint 4 of 10: moving", "stage": "move", "waypoint": 4}),
+        ("progress", {"message": "waypoint 4 of 10: rod not seen", "stage": "skip", "waypoint": 4}),
+        ("skip", {"message": "waypoint 4 of 10: rod not seen", "waypoint": 4}),
+        ("state", {"state": "failed", "error": {"code": "device_error", "message": "scanner gone"}}),
+    ]
+    lines = [line for kind, data in events if (line := event_line(kind, data)) is not None]
+    assert lines == [
+        "[stage] measuring the background",
+        "[centre] waypoint 3 of 10: centre found",
+        "[skip] waypoint 4 of 10: rod not seen",
+        "[state] failed: scanner gone",
+    ]
