@@ -54,8 +54,6 @@ def serve_command(
     foxglove: FoxgloveOption = False,
     foxglove_port: FoxglovePortOption = 8765,
     rebuild_history: RebuildOption = False,
-    ),
-]
     log_format: LogFormatOption = None,
 ) -> None:
     """Run the calibration daemon until SIGTERM or Ctrl-C (a running job's arm is stopped first).
