@@ -97,6 +97,7 @@ class FakeCellProcess:
         address: str | None = None,
         startup_timeout_s: float = 60.0,
         on_death: Callable[[str], None] | None = None,
+        serving: str = "during the run",
     ) -> None:
         self.address = address or free_loopback_address()
         self.args = [sys.executable, "-m", "fakes.cell", "--lifeline-stdin", "--address", self.address]
@@ -108,6 +109,7 @@ class FakeCellProcess:
         self.death: str | None = None
         """Why the cell stopped by itself (None while it runs, or when ``stop`` ended it)."""
         self._on_death = on_death
+        self._serving = serving  # what the cell was doing, for the message when it dies
         self._closing = threading.Event()
         self._stderr = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - lives until stop()
 
@@ -190,7 +192,7 @@ class FakeCellProcess:
             return
         how = f"was killed by signal {-code}" if code < 0 else f"exited with code {code}"
         tail = self._stderr_tail().splitlines()[-1:] if not self._stderr.closed else []
-        self.death = (f"the fake cell (pid {process.pid}) {how} during the run"
+        self.death = (f"the fake cell (pid {process.pid}) {how} {self._serving}"
                       + (f": {tail[0]}" if tail else ""))
         logger.error("%s", self.death)
         if self._on_death is not None:

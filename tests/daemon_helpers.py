@@ -137,9 +137,12 @@ def read_sse(
 class DaemonProcess:
     """``lasercal serve --dry-run --listen 127.0.0.1:0`` in its own process group."""
 
-    def __init__(self, data_dir: Path, config: Path | None = None) -> None:
+    def __init__(
+        self, data_dir: Path, config: Path | None = None, file_size_limit_bytes: int | None = None
+    ) -> None:
         self.data_dir = data_dir
         self.config = config
+        self.file_size_limit_bytes = file_size_limit_bytes  # RLIMIT_FSIZE of the daemon (EFBIG beyond)
         self.log = data_dir.parent / f"{data_dir.name}-daemon.log"
         self.process: subprocess.Popen[str] | None = None
         self.url = ""
@@ -165,6 +168,7 @@ class DaemonProcess:
                 stdin=subprocess.DEVNULL,
                 text=True,
                 start_new_session=True,
+                preexec_fn=None if self.file_size_limit_bytes is None else self._limit_file_size,
             )
         assert self.process.stdout is not None
         deadline = time.monotonic() + timeout_s
@@ -177,6 +181,12 @@ class DaemonProcess:
             if not line and self.process.poll() is not None:
                 break
         raise AssertionError(f"daemon did not start: {self.log.read_text()[-2000:]}")
+
+    def _limit_file_size(self) -> None:
+        import resource
+
+        limit = int(self.file_size_limit_bytes or resource.RLIM_INFINITY)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
     @property
     def pid(self) -> int:

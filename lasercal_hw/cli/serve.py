@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import threading
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -19,6 +20,13 @@ DataDirOption = Annotated[
     Path | None, typer.Option("--data-dir", help="History, job folders and token (~/.local/state/lasercal).")
 ]
 
+RebuildOption = Annotated[
+    bool,
+    typer.Option(
+        "--rebuild-history",
+        help="Rebuild the history database from the job folders (result.json, recordings), then exit.",
+    ),
+]
 LogFormatOption = Annotated[
     str | None,
     typer.Option(
@@ -28,6 +36,14 @@ LogFormatOption = Annotated[
 ]
 
 READY_PREFIX = "lasercal daemon listening on "
+STREAM_GRACE_S = 4.0
+"""At SIGTERM, how long event streams stay open for the running job's final state (uvicorn
+waits 5 s for open connections)."""
+
+
+def url_host(host: str) -> str:
+    """``host`` as it stands in a URL: an IPv6 address in brackets."""
+    return f"[{host}]" if ":" in host else host
 
 
 def serve_command(
@@ -37,6 +53,7 @@ def serve_command(
     dry_run: DryRunOption = False,
     foxglove: FoxgloveOption = False,
     foxglove_port: FoxglovePortOption = 8765,
+    rebuild_history: RebuildOption = False,
     log_format: LogFormatOption = None,
 ) -> None:
     """Run the calibration daemon until SIGTERM or Ctrl-C (a running job's arm is stopped first).
@@ -62,6 +79,12 @@ def serve_command(
     }
     settings = load_daemon_config(config, overrides)
     daemon_log.configure(settings.log_format)
+    if rebuild_history:
+        from lasercal_hw.service.rebuild import rebuild_history as rebuild
+        from lasercal_hw.service.store import DB_FILE
+
+        print(rebuild(settings.data_dir).line(settings.data_dir / DB_FILE))
+        return
     live = FoxgloveLiveView(port=foxglove_port) if foxglove else None  # lives as long as the process
     daemon = Daemon(settings, runners=lambda active: build_runners(active, live=live))
     host, port = listen_address(settings.listen)
@@ -74,14 +97,20 @@ def serve_command(
             if not self.started:
                 return
             bound_port = self.servers[0].sockets[0].getsockname()[1]
-            print(f"{READY_PREFIX}http://{host}:{bound_port} (token in {settings.token_path})", flush=True)
+            url = f"http://{url_host(host)}:{bound_port}"
+            print(f"{READY_PREFIX}{url} (token in {settings.token_path})", flush=True)
             notify("READY=1")
 
         def handle_exit(self, sig: int, frame: Any) -> None:
             notify("STOPPING=1")
-            daemon.bus.close_streams_soon()
             daemon.jobs.shutdown(timeout_s=0.0)  # start stopping the arm now; lifespan waits for it
+            threading.Thread(target=end_streams_after_job, name="end-streams", daemon=True).start()
             super().handle_exit(sig, frame)
+
+    def end_streams_after_job() -> None:
+        """Streams end once the running job has stored and sent its final state."""
+        daemon.jobs.shutdown(timeout_s=STREAM_GRACE_S)
+        daemon.bus.close_streams_soon()
 
     server = Server(
         uvicorn.Config(

@@ -288,7 +288,7 @@ def open_sequencer(
                 job, waypoints, out_dir, session_path, sequencer, robot, scanner, recorder, ground_truth,
                 fake_cell, on_progress,
             )
-    except (LasercalError, KeyboardInterrupt) as exc:
+    except (LasercalError, KeyboardInterrupt, OSError) as exc:  # OSError: a full disk, say
         _after_failure(
             out_dir, session_path, created, sink, exc, resumable=resumable, dry_run=request.dry_run
         )

@@ -14,8 +14,10 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 
 from lasercal_hw import __version__
+from lasercal_hw.service.config import listen_address
 from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.routes import calibrations, docs, events, jobs, status, trajectories, verifies
+from lasercal_hw.service.routes.guard import RequestGuard
 from lasercal_hw.service.routes.problems import install_problem_handlers
 from lasercal_hw.service.sd_notify import notify, watchdog_interval_s
 
@@ -56,6 +58,8 @@ def create_app(daemon: Daemon) -> FastAPI:
     )
     app.state.daemon = daemon
     install_problem_handlers(app)
+    listen_host, _port = listen_address(daemon.config.listen)
+    app.add_middleware(RequestGuard, listen_host=listen_host, names=daemon.config.allowed_hosts)
     for resource in (status, jobs, events, calibrations, verifies, trajectories, docs):
         app.include_router(resource.router)
     docs.mount_assets(app)

@@ -37,14 +37,17 @@ class CalibrationHistory:
         self._store = store
         self._bus = bus
 
-    def record(self, job_id: str | None, directory: Path, dry_run: bool) -> str:
-        """File the calibration whose ``result.json`` is in ``directory``; returns its id."""
+    def record(
+        self, job_id: str | None, directory: Path, dry_run: bool, created_utc: str | None = None
+    ) -> str:
+        """File the calibration whose ``result.json`` is in ``directory`` (made at
+        ``created_utc``, default now); returns its id."""
         read = read_result_file(directory / RESULT_FILE)
         calibration_id = new_id("cal")
         result = read.result.model_dump(mode="json")
         summary = {
             "id": calibration_id,
-            "created_utc": utc_now(),
+            "created_utc": created_utc or utc_now(),
             "job_id": job_id,
             "dry_run": dry_run,
             "passed": read.passed,

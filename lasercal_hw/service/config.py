@@ -36,6 +36,9 @@ class DaemonConfig(BaseModel):
     token_file: Path | None = Field(None, description="default: <data_dir>/token")
     status_poll_s: float = Field(2.0, gt=0.0, le=60.0)
     dry_run: bool = False
+    allowed_hosts: tuple[str, ...] = Field(
+        (), description="host names the daemon answers to besides its listen address and localhost"
+    )
     log_format: Literal["text", "json"] = Field(
         "text", description="the daemon's log on stderr: text lines for a person, or JSON lines"
     )

@@ -4,20 +4,23 @@ instead of hardware."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lasercal_hw import __version__
-from lasercal_hw.errors import ConfigError
+from lasercal_hw.errors import ConfigError, LasercalError
 from lasercal_hw.service.auth import ensure_token
 from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.config import DaemonConfig
+from lasercal_hw.service.errors import ServiceError, StorageFullError
 from lasercal_hw.service.events import EventBus
 from lasercal_hw.service.jobs import JobManager, Runner
 from lasercal_hw.service.monitor import DeviceMonitor
-from lasercal_hw.service.store import DB_FILE, HistoryStore, utc_now
+from lasercal_hw.service.rebuild import job_folders
+from lasercal_hw.service.store import DB_FILE, REBUILD_HINT, HistoryStore, utc_now
 
 if TYPE_CHECKING:
     from drivers.access import DeviceAccess
@@ -27,6 +30,22 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 API_VERSION = 1
+
+
+def require_history(data_dir: Path) -> None:
+    """Refuse to start an empty history beside job folders: a missing or emptied database
+    would hide every job and calibration (ConfigError saying how to rebuild it)."""
+    database = data_dir / DB_FILE
+    if database.exists() and database.stat().st_size > 0:
+        return
+    folders = job_folders(data_dir)
+    if folders:
+        found = "is empty" if database.exists() else "is missing"
+        raise ConfigError(
+            f"the history database {database} {found} but {data_dir / 'jobs'} holds {len(folders)} job "
+            f"folders: rebuild the history from them with {REBUILD_HINT}, or move the jobs folder aside "
+            "to start a new history"
+        )
 
 
 class Daemon:
@@ -50,7 +69,12 @@ class Daemon:
             raise ConfigError(
                 f"cannot create the data folder {self.data_dir}: {exc.strerror or exc}"
             ) from None
-        self.token = ensure_token(config.token_path)
+        try:
+            self.token = ensure_token(config.token_path)
+        except OSError as exc:  # a full disk or a read-only folder on first start
+            why = exc.strerror or exc
+            raise ConfigError(f"cannot write the token file {config.token_path}: {why}") from None
+        require_history(self.data_dir)
         self.store = HistoryStore(self.data_dir / DB_FILE)
         self.bus = EventBus(self.store)
         self.history = CalibrationHistory(self.store, self.bus)
@@ -58,6 +82,7 @@ class Daemon:
 
         self.devices: DeviceAccess = DeviceAccess(config.robot_host, config.scanner_url)
         self.fake_cell: FakeCellProcess | None = None
+        self._stopping = False
         self.started_utc = utc_now()
         if runners is None:
             from lasercal_hw.service.runners import build_runners
@@ -74,6 +99,10 @@ class Daemon:
             dry_run_daemon=config.dry_run,
             on_state=self._on_state,
         )
+        try:
+            self.interrupted = self.jobs.recover()
+        except StorageFullError as exc:
+            raise ConfigError(f"cannot start: {exc.message}") from None
         self.monitor: DeviceMonitor | None = None
         self.state_listeners: list[Callable[[str, str], None]] = []
 
@@ -88,27 +117,54 @@ class Daemon:
             listener(job_id, state)
 
     def start(self) -> None:
-        """Start the fake cell (dry run), mark jobs a crash left running as interrupted, poll devices."""
+        """Start the fake cell (dry run) and the device polling; announce the start (the jobs a
+        crash left running were marked interrupted when the daemon was built)."""
         if self.config.dry_run:
-            from fakes.cell_process import FakeCellProcess
-
-            self.fake_cell = FakeCellProcess().start()
-            self.devices.robot_host = self.fake_cell.robot_host
-            self.devices.scanner_url = self.fake_cell.scanner_url
-        interrupted = self.jobs.recover()
+            self._start_fake_cell()
         self.monitor = DeviceMonitor(self.devices, self.config.status_poll_s)
         self.monitor.start()
-        self.bus.publish(
-            "daemon",
-            {
-                "message": f"lasercal {__version__} daemon started",
-                "dry_run": self.config.dry_run,
-                "interrupted_jobs": interrupted,
-            },
+        try:
+            self.bus.publish(
+                "daemon",
+                {
+                    "message": f"lasercal {__version__} daemon started",
+                    "dry_run": self.config.dry_run,
+                    "interrupted_jobs": self.interrupted,
+                },
+            )
+        except StorageFullError as exc:  # reads still work; new jobs are refused until space is back
+            logger.warning("%s", exc.message)
+
+    def _start_fake_cell(self) -> None:
+        """The dry-run daemon's fake cell, its devices the daemon's; started again if it dies."""
+        from fakes.cell_process import FakeCellProcess
+
+        self.fake_cell = FakeCellProcess(
+            on_death=self._fake_cell_died, serving="serving the dry-run daemon"
+        ).start()
+        self.devices.robot_host = self.fake_cell.robot_host
+        self.devices.scanner_url = self.fake_cell.scanner_url
+
+    def _fake_cell_died(self, why: str) -> None:
+        if self._stopping:
+            return
+        if self.fake_cell is not None:
+            self.fake_cell.stop()  # reaps the dead child, closes its files
+        try:
+            self._start_fake_cell()
+        except LasercalError as exc:
+            logger.error("the fake cell could not be started again: %s", exc)
+            return
+        message = (
+            f"{why}; started a new one (robot {self.devices.robot_host}, scanner {self.devices.scanner_url})"
         )
+        logger.warning("%s", message)
+        with contextlib.suppress(ServiceError):
+            self.bus.publish("daemon", {"message": message, "dry_run": True})
 
     def stop(self) -> None:
         """Stop a running job's arm (the job becomes ``interrupted``) and release everything."""
+        self._stopping = True
         self.jobs.shutdown()
         if self.monitor is not None:
             self.monitor.stop()

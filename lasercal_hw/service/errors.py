@@ -19,6 +19,9 @@ from lasercal_hw.errors import (
     ProtectiveStopError,
 )
 
+MAX_FILE_NAME = 255
+"""The longest file name a job's folder holds (the file systems' limit)."""
+
 
 class ServiceError(Exception):
     """An expected failure of a request: ``code``, ``message`` and ``detail``."""
@@ -78,6 +81,24 @@ class ForbiddenError(ServiceError):
     default_code = "forbidden"
 
 
+class StorageFullError(ServiceError):
+    """The data folder has no room for what the request would write."""
+
+    default_code = "storage_full"
+
+
+class HistoryUnavailableError(ServiceError):
+    """The history database cannot be read (damaged since the daemon started)."""
+
+    default_code = "history_unavailable"
+
+
+class PayloadTooLargeError(ServiceError):
+    """A request body larger than the daemon takes."""
+
+    default_code = "payload_too_large"
+
+
 def not_found(what: str, ident: str) -> NotFoundError:
     """An unknown id."""
     message = f"no {what} with id {ident!r}; list them with GET /v1/{what}s"
@@ -88,8 +109,12 @@ def folder_file(folder: Path, name: str, missing: str) -> Path:
     """The file ``name`` right inside ``folder``; a hidden name, one reaching into another
     folder or a missing file is NotFoundError with the message ``missing``."""
     path = folder / name
-    if "/" in name or name.startswith(".") or not path.is_file():
-        raise NotFoundError(missing, {"file": name})
+    try:
+        found = len(name) <= MAX_FILE_NAME and "/" not in name and not name.startswith(".") and path.is_file()
+    except OSError:  # a name the file system refuses (too long, bad bytes) names no file
+        found = False
+    if not found:
+        raise NotFoundError(missing, {"file": name[:MAX_FILE_NAME]})
     return path
 
 

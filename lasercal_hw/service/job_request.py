@@ -7,14 +7,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from lasercal_hw.config import JobConfig, job_from_mapping, load_job, with_overrides
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.service.errors import ConfirmationRequiredError, InvalidRequestError
+from trajectories.presets import get_preset
+from trajectories.semicircles import parse_semicircle_parameters
 
 MOTION_KINDS = ("calibrate", "verify", "dry_run")
+MAX_WAYPOINTS = 500
+"""The most waypoints a request may ask for (the paper's runs use tens)."""
 
 
 class JobBody(BaseModel):
@@ -23,12 +27,12 @@ class JobBody(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     kind: Literal["calibrate", "verify", "dry_run"]
-    confirm_motion: bool = Field(False, description="must be true: the arm moves")
+    confirm_motion: StrictBool = Field(False, description="must be JSON true: the arm moves")
     job: dict[str, Any] | None = Field(
         None, description="job file (TOML) as a JSON object, merged over the daemon's default job"
     )
-    activate_on_pass: bool = Field(False, description="make the result active when it passes the gates")
-    restore_robot: bool = Field(True, description="reload (and replay) the robot's program afterwards")
+    activate_on_pass: StrictBool = Field(False, description="make the result active when it passes the gates")
+    restore_robot: StrictBool = Field(True, description="reload (and replay) the robot's program afterwards")
     dwell_s: float | None = Field(None, gt=0.0, le=60.0, description="dwell per waypoint in s")
     scene: dict[str, Any] | None = Field(
         None, description="dry_run only: the fake cell's scene (TOML tables as JSON)"
@@ -40,8 +44,8 @@ class ResumeBody(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    confirm_motion: bool = False
-    restore_robot: bool = True
+    confirm_motion: StrictBool = False
+    restore_robot: StrictBool = True
 
 
 @dataclass(frozen=True)
@@ -75,9 +79,34 @@ def _merged(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
     return merged
 
 
-def resolve_job(body: JobBody, default_job: Path | None) -> JobConfig:
+def _estimated_waypoints(job: JobConfig) -> int:
+    """How many waypoints a preset's parameters ask for, counted before any is computed."""
+    if job.trajectory.preset is None or job.trajectory.adaptive:
+        return 0
+    preset = get_preset(job.trajectory.preset)
+    parameters = parse_semicircle_parameters(preset.parameters.model_dump() | job.trajectory.parameters)
+    per_arc = abs(parameters.end_deg - parameters.start_deg) / parameters.step_deg + 1
+    return int(len(parameters.radii_m) * per_arc)
+
+
+def _require_readable_here(waypoints_file: Path, folders: tuple[Path, ...]) -> None:
+    """A request's waypoint file must lie in one of ``folders``; nothing outside is opened,
+    so the answer says nothing of such a file (not even whether it exists)."""
+    resolved = waypoints_file.resolve()
+    if not any(resolved.is_relative_to(folder.resolve()) for folder in folders):
+        where = " or ".join(str(folder) for folder in folders)
+        raise InvalidRequestError(
+            f"job.trajectory.waypoints_file must be a file under {where}; copy the file there and name it",
+            "job.trajectory.waypoints_file",
+        )
+
+
+def resolve_job(body: JobBody, default_job: Path | None, data_dir: Path) -> JobConfig:
     """The job to run: the request's job over the default job, with the dwell override.
-    An invalid job or an unknown preset is InvalidRequestError naming the field."""
+    An invalid job, an unknown preset, a waypoint file outside the data folder and the
+    default job's folder, more than ``MAX_WAYPOINTS`` waypoints, or a live job without a
+    scanner pose is InvalidRequestError naming the field."""
+    folders = (data_dir,) + ((default_job.parent,) if default_job is not None else ())
     try:
         base = load_job(default_job).model_dump(mode="json", exclude_none=True)
         request = body.job or {}
@@ -87,9 +116,21 @@ def resolve_job(body: JobBody, default_job: Path | None) -> JobConfig:
         if body.dwell_s is not None:
             data["dwell_s"] = body.dwell_s
         job = job_from_mapping(data, "job")
-        job_waypoints(job)
+        if job.trajectory.waypoints_file is not None:
+            _require_readable_here(job.trajectory.waypoints_file, folders)
+        if _estimated_waypoints(job) > MAX_WAYPOINTS:
+            raise InvalidRequestError(
+                f"job.trajectory.parameters ask for {_estimated_waypoints(job)} waypoints; at most "
+                f"{MAX_WAYPOINTS} are taken (raise step_deg or use fewer arcs)",
+                "job.trajectory.parameters",
+            )
+        count = len(job_waypoints(job, live=body.kind == "calibrate"))
     except ConfigError as exc:
         raise InvalidRequestError(str(exc).replace("\n ", ""), "job") from None
+    if count > MAX_WAYPOINTS:
+        raise InvalidRequestError(
+            f"the job has {count} waypoints; at most {MAX_WAYPOINTS} are taken", "job.trajectory"
+        )
     return job
 
 

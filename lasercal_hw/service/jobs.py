@@ -9,7 +9,9 @@ the routers decide how HTTP says them.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import shutil
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -24,6 +26,7 @@ from lasercal_hw.service.errors import (
     ConflictError,
     InvalidRequestError,
     NotAvailableError,
+    StorageFullError,
     error_code,
     folder_file,
     not_found,
@@ -38,6 +41,7 @@ from lasercal_hw.service.job_request import (
     resolve_job,
     scene_file_text,
 )
+from lasercal_hw.service.storage import StorageGuard, storage_full_cause
 from lasercal_hw.service.store import HistoryStore, new_id, utc_now
 
 logger = logging.getLogger(__name__)
@@ -45,8 +49,10 @@ logger = logging.getLogger(__name__)
 SESSION_FILE = "session.mcap"
 SCENE_FILE = "request_scene.toml"
 RESUMABLE_STATES = (JobState.CANCELLED, JobState.INTERRUPTED)
-RESUMABLE_ERRORS = ("device_error", "protective_stop")
-"""A job a device stopped (the arm stopped, the recording kept) resumes as a cancelled one does."""
+RESUMABLE_ERRORS = ("device_error", "protective_stop", "storage_full")
+"""A job a device or a full disk stopped (the arm stopped, the recording kept) resumes as a
+cancelled one does."""
+STORAGE_FULL_REASON = "the data folder is full"
 
 
 @dataclass(frozen=True)
@@ -126,6 +132,7 @@ class JobManager:
         self._bus = bus
         self._jobs_dir = data_dir / "jobs"
         self._jobs_dir.mkdir(parents=True, exist_ok=True)
+        self._storage = StorageGuard(data_dir)
         self._runners = runners
         self._history = history
         self._devices = devices
@@ -192,12 +199,17 @@ class JobManager:
         """Check the request, create the job and start it (ConflictError while another runs)."""
         require_confirmation(body.confirm_motion)
         self._require_kind(body.kind)
-        job = resolve_job(body, self._default_job)
+        job = resolve_job(body, self._default_job, self._jobs_dir.parent)
         devices = self._addresses(body.kind)
         if body.kind != "dry_run" and devices.applied_to(job).robot.host is None:
             raise InvalidRequestError(
                 "no robot configured: set robot_host in the daemon configuration or robot.host in the job",
                 "job.robot.host",
+            )
+        if body.kind == "verify" and self._store.active_calibration_id() is None:
+            raise ConflictError(
+                "there is no active calibration to verify: run a calibration and activate it first",
+                code="no_active_calibration",
             )
         scene_text = scene_file_text(body)
         job_id = new_id("job")
@@ -218,12 +230,24 @@ class JobManager:
         )
         with self._lock:
             self._refuse_if_busy()
-            out_dir.mkdir(parents=True)
-            scene_file = None
-            if scene_text is not None:
-                scene_file = out_dir / SCENE_FILE
-                scene_file.write_text(scene_text, encoding="utf-8")
-            self._store.insert_job(record.as_json())
+            self._storage.ensure()
+            try:
+                out_dir.mkdir(parents=True)
+                scene_file = None
+                if scene_text is not None:
+                    scene_file = out_dir / SCENE_FILE
+                    scene_file.write_text(scene_text, encoding="utf-8")
+                self._store.insert_job(record.as_json())
+            except (OSError, StorageFullError) as exc:
+                shutil.rmtree(out_dir, ignore_errors=True)  # no empty job folder is left behind
+                cause = storage_full_cause(exc)
+                if cause is None:
+                    raise
+                raise StorageFullError(
+                    f"cannot create job {job_id}: the data folder is full ({cause}); free some space there, "
+                    "then try again",
+                    {"data_dir": str(self._jobs_dir.parent)},
+                ) from None
             self._bus.publish("state", {"state": JobState.QUEUED.value}, job_id)
             self._launch(record, job, devices, resume_from=None, scene_file=scene_file)
         return self.get(job_id)
@@ -253,6 +277,7 @@ class JobManager:
         scene_file = Path(record.out_dir) / SCENE_FILE
         with self._lock:
             self._refuse_if_busy()
+            self._storage.ensure()
             record.request = record.request | {"restore_robot": body.restore_robot}
             self._set_state(job_id, JobState.QUEUED, finished_utc=None, error=None, request=record.request)
             self._launch(
@@ -265,14 +290,19 @@ class JobManager:
         return self.get(job_id)
 
     def cancel(self, job_id: str, reason: str = "cancelled by request") -> Job:
-        """Stop a running job as Ctrl-C does (the arm stops, the recording is kept). A job
-        that is not running is returned unchanged."""
+        """Stop a running job as Ctrl-C does (the arm stops, the recording is kept); a job
+        that has ended is a ConflictError."""
         record = self.get(job_id)
         with self._lock:
             active = self._active if self._active and self._active.job_id == job_id else None
-        if active is not None:
-            active.cancel.cancel(reason)
-            self._bus.publish("cancel_requested", {"reason": reason}, job_id)
+        if active is None:
+            raise ConflictError(
+                f"job {job_id} is not running (it is {record.state.value}); there is nothing to cancel",
+                {"job_id": job_id, "state": record.state.value},
+                code="not_running",
+            )
+        active.cancel.cancel(reason)
+        self._bus.publish("cancel_requested", {"reason": reason}, job_id)
         return record
 
     def shutdown(self, timeout_s: float = 30.0) -> None:
@@ -346,8 +376,9 @@ class JobManager:
     ) -> None:
         job_id, kind = record.id, record.kind
         current = {"state": JobState.PREFLIGHT, "progress": record.progress if resume_from else JobProgress()}
+        storage_full: list[str] = []  # why the history could not store an event, if it could not
 
-        def on_event(event: RunEvent) -> None:
+        def store_event(event: RunEvent) -> None:
             self._bus.publish(event.kind, event.fields(), job_id)
             if event.stage is not None and JobState.of_phase(event.stage.phase) != current["state"]:
                 current["state"] = JobState.of_phase(event.stage.phase)
@@ -355,6 +386,17 @@ class JobManager:
             if event.kind == "progress":
                 current["progress"] = current["progress"].after(event)
                 self._store.update_job(job_id, progress=current["progress"].model_dump(mode="json"))
+
+        def on_event(event: RunEvent) -> None:
+            try:
+                store_event(event)
+            except StorageFullError as exc:  # the reserve keeps the end (the arm's stop) told
+                if not storage_full:
+                    storage_full.append(str(storage_full_cause(exc)))
+                    self._storage.release()
+                    cancel.cancel(STORAGE_FULL_REASON)  # the run stops as a cancel does: the arm first
+                with contextlib.suppress(StorageFullError):
+                    store_event(event)
 
         def confirm(_preflight: Any) -> None:
             if cancel.cancelled:
@@ -373,24 +415,49 @@ class JobManager:
                 job_id, kind, job, devices, out_dir, resume_from, scene_file, on_event, cancel, confirm
             )
             final, fields = JobState.SUCCEEDED, self._file_result(record, self._runners[kind](context))
-        except InterruptedRunError as exc:
-            stopped = cancel.reason == "daemon shutting down" or not cancel.cancelled
-            final = JobState.INTERRUPTED if stopped else JobState.CANCELLED
-            fields = {"error": JobError(code=final.value, message=str(exc)).model_dump()}
-        except LasercalError as exc:
-            final = JobState.FAILED
-            fields = {"error": JobError(code=error_code(exc), message=str(exc)).model_dump()}
         except Exception as exc:
-            logger.exception("job %s failed unexpectedly", job_id)
-            final = JobState.FAILED
-            message = f"{type(exc).__name__}: {exc}"
-            fields = {"error": JobError(code="internal_error", message=message).model_dump()}
+            final, fields = self._ending(job_id, exc, cancel, storage_full[0] if storage_full else None)
         if restore is not None:
             self._bus.publish("robot_restored", {"message": restore()}, job_id)
         with self._lock:
             self._active = None
             self._devices.release(job_id)
-        self._set_state(job_id, final, finished_utc=utc_now(), **fields)
+        self._store_end(job_id, final, fields)
+
+    def _ending(
+        self, job_id: str, exc: Exception, cancel: CancelToken, storage_note: str | None
+    ) -> tuple[JobState, dict[str, Any]]:
+        """How a run that raised ``exc`` ends: its final state and error."""
+        full = storage_note or storage_full_cause(exc)
+        if full is not None:
+            self._storage.release()  # room to store this end
+            message = (
+                f"the data folder is full ({full}): the arm was stopped and the recording keeps every "
+                "waypoint written; free some space, then resume this job"
+            )
+            final, code = JobState.FAILED, "storage_full"
+        elif isinstance(exc, InterruptedRunError):
+            stopped = cancel.reason == "daemon shutting down" or not cancel.cancelled
+            final = JobState.INTERRUPTED if stopped else JobState.CANCELLED
+            code, message = final.value, str(exc)
+        elif isinstance(exc, LasercalError):
+            final, code, message = JobState.FAILED, error_code(exc), str(exc)
+        else:
+            logger.exception("job %s failed unexpectedly", job_id)
+            final, code, message = JobState.FAILED, "internal_error", f"{type(exc).__name__}: {exc}"
+        return final, {"error": JobError(code=code, message=message).model_dump()}
+
+    def _store_end(self, job_id: str, final: JobState, fields: dict[str, Any]) -> None:
+        """Store and announce the job's end; a full disk gives the reserve back and tries once more."""
+        for attempt in range(2):
+            try:
+                self._set_state(job_id, final, finished_utc=utc_now(), **fields)
+                return
+            except StorageFullError as exc:
+                if attempt == 0:
+                    self._storage.release()
+                    continue
+                logger.error("job %s ended %s; the history could not store it: %s", job_id, final.value, exc)
 
     def _file_result(self, record: Job, result: RunResult) -> dict[str, Any]:
         """File a finished run's calibration or verify; the job fields to store with its end."""

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from lasercal_hw.errors import ConfigError
+from lasercal_hw.service.errors import HistoryUnavailableError, StorageFullError
 from lasercal_hw.service.job_record import UNFINISHED_STATES
 
 SCHEMA_VERSION = 1
@@ -49,6 +50,8 @@ CREATE TABLE verifies (
 );
 """
 _MIGRATIONS = {1: _SCHEMA_V1}
+TABLES = ("jobs", "events", "calibrations", "activations", "verifies")
+REBUILD_HINT = "lasercal serve --rebuild-history (docs/daemon.md, Crash safety)"
 
 
 def utc_now() -> str:
@@ -72,12 +75,48 @@ class HistoryStore:
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
+            self._check_integrity()
             self._migrate()
+            self._check_tables()
         except sqlite3.DatabaseError as exc:
+            if getattr(exc, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL:
+                raise ConfigError(
+                    f"cannot open the history database {path}: its folder is full; free some space there "
+                    "and start again"
+                ) from None
             raise ConfigError(
-                f"cannot open the history database {path}: {exc}; move it aside to start a new history"
+                f"cannot open the history database {path}: {exc}; rebuild it from the job folders with "
+                f"{REBUILD_HINT}"
             ) from None
         self._lock = threading.Lock()
+
+    def _check_integrity(self) -> None:
+        """``PRAGMA integrity_check``: a damaged page is found at start, not by a request later."""
+        problems = [str(row[0]) for row in self._db.execute("PRAGMA integrity_check(5)").fetchall()]
+        if problems != ["ok"]:
+            raise ConfigError(
+                f"the history database {self.path} is damaged ({'; '.join(problems)[:300]}): rebuild it "
+                f"from the job folders with {REBUILD_HINT}"
+            )
+
+    def _check_tables(self) -> None:
+        rows = self._db.execute("SELECT name FROM sqlite_master WHERE type = 'table'").fetchall()
+        missing = sorted(set(TABLES) - {str(row[0]) for row in rows})
+        if missing:
+            raise ConfigError(
+                f"the history database {self.path} lacks the table(s) {', '.join(missing)}: rebuild it "
+                f"from the job folders with {REBUILD_HINT}"
+            )
+
+    def _backup(self, version: int) -> Path:
+        """A copy of the database as it is, before migrating it from ``version``."""
+        backup_path = self.path.with_name(f"{self.path.name}.v{version}.bak")
+        target = sqlite3.connect(backup_path)
+        try:
+            self._db.backup(target)
+        finally:
+            target.close()
+        return backup_path
 
     def _migrate(self) -> None:
         version = int(self._db.execute("PRAGMA user_version").fetchone()[0])
@@ -86,6 +125,8 @@ class HistoryStore:
                 f"{self.path} has schema version {version}, newer than this lasercal "
                 f"({SCHEMA_VERSION}); upgrade lasercal"
             )
+        if 0 < version < SCHEMA_VERSION:
+            self._backup(version)
         for target in range(version + 1, SCHEMA_VERSION + 1):
             self._db.execute("BEGIN IMMEDIATE")
             try:
@@ -105,11 +146,31 @@ class HistoryStore:
 
     def _execute(self, sql: str, params: tuple[Any, ...] = ()) -> sqlite3.Cursor:
         with self._lock:
-            return self._db.execute(sql, params)
+            try:
+                return self._db.execute(sql, params)
+            except sqlite3.DatabaseError as exc:
+                raise self._problem(exc) from exc
 
     def _query(self, sql: str, params: tuple[Any, ...] = ()) -> list[sqlite3.Row]:
         with self._lock:
-            return self._db.execute(sql, params).fetchall()
+            try:
+                return self._db.execute(sql, params).fetchall()
+            except sqlite3.DatabaseError as exc:
+                raise self._problem(exc) from exc
+
+    def _problem(self, exc: sqlite3.DatabaseError) -> StorageFullError | HistoryUnavailableError:
+        """The service's error for a failed statement: the disk is full, or the file is damaged."""
+        if getattr(exc, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL:
+            return StorageFullError(
+                f"the history database {self.path} cannot grow: its folder is full ({exc}); free some "
+                "space there, then try again",
+                {"data_dir": str(self.path.parent), "cause": "the history database cannot grow"},
+            )
+        return HistoryUnavailableError(
+            f"the history database {self.path} cannot be read ({exc}): stop the daemon and rebuild it "
+            f"with {REBUILD_HINT}",
+            {"database": str(self.path)},
+        )
 
     # -- jobs ------------------------------------------------------------------------------------
 

@@ -38,7 +38,7 @@ def engine() -> FakeEngine:
 @pytest.fixture
 def client(tmp_path: Path, engine: FakeEngine) -> Iterator[TestClient]:
     daemon = Daemon(load_daemon_config(None, {"data_dir": tmp_path / "data"}), runners=fake_runners(engine))
-    with TestClient(create_app(daemon)) as test_client:
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as test_client:
         test_client.headers["Authorization"] = f"Bearer {daemon.token}"
         yield test_client
 

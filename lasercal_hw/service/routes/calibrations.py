@@ -7,11 +7,14 @@ from typing import Any
 
 from fastapi import APIRouter
 from fastapi.responses import FileResponse
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, field_validator
 
 from lasercal_hw.service.routes.deps import Authorized, DaemonDep
 
 router = APIRouter()
+
+MAX_REASON_CHARS = 500
+"""An activation's reason is one line for the log and the page."""
 
 
 class ActivateBody(BaseModel):
@@ -19,8 +22,17 @@ class ActivateBody(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    reason: str = "activated by request"
-    force: bool = False
+    reason: str = Field("activated by request", max_length=MAX_REASON_CHARS)
+    force: StrictBool = False
+
+    @field_validator("reason")
+    @classmethod
+    def _encodable(cls, reason: str) -> str:
+        try:
+            reason.encode("utf-8")
+        except UnicodeEncodeError:
+            raise ValueError("must be text (a lone surrogate such as \\ud800 is not)") from None
+        return reason
 
 
 @router.get("/v1/calibration")

@@ -20,7 +20,8 @@ router = APIRouter()
 
 SSE_HEADERS = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
 LastEventIdHeader = Annotated[str | None, Header()]
-AfterQuery = Annotated[int | None, Query(alias="last_event_id", ge=0)]
+MAX_EVENT_ID = 2**63 - 1  # SQLite's largest integer
+AfterQuery = Annotated[int | None, Query(alias="last_event_id", ge=0, le=MAX_EVENT_ID)]
 SinceQuery = Annotated[
     str | None,
     Query(description="ISO 8601 time (UTC unless it names its offset): the events from then on"),
@@ -31,9 +32,14 @@ def _after_id(last_event_id: str | None, query_id: int | None) -> int:
     if query_id is not None:
         return query_id
     try:
-        return int(last_event_id) if last_event_id else 0
+        after_id = int(last_event_id) if last_event_id else 0
     except ValueError:
-        raise InvalidRequestError("Last-Event-ID must be an event id (an integer)", "Last-Event-ID") from None
+        after_id = -1
+    if not 0 <= after_id <= MAX_EVENT_ID:
+        raise InvalidRequestError(
+            f"Last-Event-ID must be an event id (an integer from 0 to {MAX_EVENT_ID})", "Last-Event-ID"
+        )
+    return after_id
 
 
 def _since_id(id_before: Callable[[str], int], since: str) -> int:

@@ -9,11 +9,12 @@ from fastapi.responses import FileResponse
 
 from lasercal_hw.service.job_request import JobBody, ResumeBody
 from lasercal_hw.service.routes.deps import Authorized, DaemonDep
+from lasercal_hw.service.routes.problems import documented
 
 router = APIRouter()
 
 
-@router.post("/v1/jobs", status_code=202, dependencies=[Authorized])
+@router.post("/v1/jobs", status_code=202, dependencies=[Authorized], responses=documented(409, 413, 507))
 def start_job(body: JobBody, daemon: DaemonDep) -> dict[str, Any]:
     """Start a calibrate, verify or dry_run job (409 while one runs)."""
     return daemon.jobs.start(body).as_json()
@@ -37,13 +38,13 @@ def job_file(job_id: str, name: str, daemon: DaemonDep) -> FileResponse:
     return FileResponse(daemon.jobs.file(job_id, name))
 
 
-@router.post("/v1/jobs/{job_id}/cancel", dependencies=[Authorized])
+@router.post("/v1/jobs/{job_id}/cancel", dependencies=[Authorized], responses=documented(409))
 def cancel_job(job_id: str, daemon: DaemonDep) -> dict[str, Any]:
     """Stop the job's arm as Ctrl-C does; the recording is kept, the active calibration untouched."""
     return daemon.jobs.cancel(job_id).as_json()
 
 
-@router.post("/v1/jobs/{job_id}/resume", dependencies=[Authorized])
+@router.post("/v1/jobs/{job_id}/resume", dependencies=[Authorized], responses=documented(409, 507))
 def resume_job(job_id: str, body: ResumeBody, daemon: DaemonDep) -> dict[str, Any]:
     """Continue a cancelled or interrupted job from its recording."""
     return daemon.jobs.resume(job_id, body).as_json()

@@ -15,10 +15,13 @@ from lasercal_hw.service.errors import (
     ConfirmationRequiredError,
     ConflictError,
     ForbiddenError,
+    HistoryUnavailableError,
     InvalidRequestError,
     NotAvailableError,
     NotFoundError,
+    PayloadTooLargeError,
     ServiceError,
+    StorageFullError,
     UnauthenticatedError,
 )
 
@@ -28,10 +31,23 @@ STATUS_OF: dict[type[ServiceError], int] = {
     ForbiddenError: 403,
     NotFoundError: 404,
     ConflictError: 409,
+    PayloadTooLargeError: 413,
     InvalidRequestError: 422,
     NotAvailableError: 501,
+    HistoryUnavailableError: 503,
+    StorageFullError: 507,
 }
 _HTTP_CODES = {404: "not_found", 405: "method_not_allowed"}
+_DESCRIPTIONS = {
+    409: "the job or calibration is in the wrong state (job_running, not_running, not_resumable, ...)",
+    413: "the request body is larger than the daemon takes (payload_too_large)",
+    507: "the data folder is full (storage_full); free space and try again, no restart needed",
+}
+
+
+def documented(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """The OpenAPI entries of the problem answers a route may give besides 422."""
+    return {status: {"description": _DESCRIPTIONS[status]} for status in statuses}
 
 
 def problem(status: int, code: str, message: str, detail: dict[str, Any] | None = None) -> JSONResponse:

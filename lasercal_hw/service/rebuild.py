@@ -1,0 +1,128 @@
+"""The history rebuilt from the job folders (``lasercal serve --rebuild-history``).
+
+Each ``jobs/<id>/`` folder holds what its job left: ``result.json`` (a finished
+calibration: filed again, the job ``succeeded``) or a recording (``session.mcap``: the job
+``interrupted``, resumable from it), or neither (``failed``). What lived only in the
+database is lost: the request as sent, the events, the activation log (no calibration is
+active afterwards) and verifies. A database found in the way is kept beside it, renamed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from lasercal_hw.errors import LasercalError
+from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
+from lasercal_hw.run.resume import recorded_job
+from lasercal_hw.service.calibrations import CalibrationHistory
+from lasercal_hw.service.events import EventBus
+from lasercal_hw.service.job_record import Job, JobError, JobProgress, JobState
+from lasercal_hw.service.jobs import SESSION_FILE
+from lasercal_hw.service.store import DB_FILE, HistoryStore
+from lasercal_hw.session.reader import read_session
+
+DRY_RUN_FILES = ("dry_run_scene.toml", "request_scene.toml")
+
+
+@dataclass
+class RebuildReport:
+    """What the rebuild found: jobs by state, calibrations filed, the old database's new name."""
+
+    jobs: dict[str, int] = field(default_factory=dict)
+    calibrations: int = 0
+    old_database: Path | None = None
+
+    def line(self, database: Path) -> str:
+        """One line for the terminal."""
+        states = ", ".join(f"{count} {state}" for state, count in sorted(self.jobs.items())) or "no jobs"
+        kept = f"; the old database is kept as {self.old_database}" if self.old_database else ""
+        return (
+            f"rebuilt {database} from the job folders: {states}, {self.calibrations} calibrations{kept}; "
+            "no calibration is active: activate one with lasercal remote activate <id>"
+        )
+
+
+def job_folders(data_dir: Path) -> list[Path]:
+    """The job folders in ``data_dir/jobs``, oldest name first."""
+    jobs_dir = data_dir / "jobs"
+    return sorted(p for p in jobs_dir.iterdir() if p.is_dir()) if jobs_dir.is_dir() else []
+
+
+def _move_aside(database: Path) -> Path | None:
+    if not database.exists():
+        return None
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+    moved = database.with_name(f"{database.name}.before-rebuild-{stamp}")
+    for suffix in ("", "-wal", "-shm"):
+        part = database.with_name(database.name + suffix)
+        if part.exists():
+            part.rename(moved.with_name(moved.name + suffix))
+    return moved
+
+
+def _mtime_utc(path: Path) -> str:
+    return datetime.fromtimestamp(path.stat().st_mtime, UTC).isoformat(timespec="milliseconds")
+
+
+def _rebuilt_job(folder: Path, history: CalibrationHistory, report: RebuildReport) -> Job:
+    """The job row a folder tells of (filing its calibration, if it has one)."""
+    dry_run = any((folder / name).exists() for name in DRY_RUN_FILES)
+    request: dict[str, Any] = {"kind": "dry_run" if dry_run else "calibrate", "rebuilt_from": str(folder)}
+    fields: dict[str, Any] = {}
+    result, session = folder / RESULT_FILE, folder / SESSION_FILE
+    if result.exists():
+        try:
+            read = read_result_file(result)
+            fields["calibration_id"] = history.record(folder.name, folder, dry_run, _mtime_utc(result))
+            fields["verdict"] = read.verdict
+            state = JobState.SUCCEEDED
+            report.calibrations += 1
+        except LasercalError as exc:
+            state, fields["error"] = JobState.FAILED, JobError(code="rebuilt", message=str(exc))
+    elif session.exists():
+        try:
+            job, _waypoints = recorded_job(read_session(session, include_scans=False))
+            request["resolved_job"] = job.model_dump(mode="json")
+            state = JobState.INTERRUPTED
+            fields["error"] = JobError(
+                code="interrupted",
+                message="rebuilt from its recording; resume it with POST /v1/jobs/{id}/resume",
+            )
+        except LasercalError as exc:
+            state, fields["error"] = (
+                JobState.FAILED,
+                JobError(code="rebuilt", message=f"recording unreadable: {exc}"),
+            )
+    else:
+        state = JobState.FAILED
+        fields["error"] = JobError(code="rebuilt", message="the job left no recording and no result")
+    report.jobs[state.value] = report.jobs.get(state.value, 0) + 1
+    created = _mtime_utc(folder)
+    return Job(
+        id=folder.name,
+        kind=request["kind"],
+        state=state,
+        created_utc=created,
+        finished_utc=created,
+        request=request,
+        progress=JobProgress(message="rebuilt from the job folder"),
+        out_dir=str(folder),
+        **fields,
+    )
+
+
+def rebuild_history(data_dir: Path) -> RebuildReport:
+    """A new history database from ``data_dir``'s job folders (the old one kept, renamed)."""
+    database = data_dir / DB_FILE
+    report = RebuildReport(old_database=_move_aside(database))
+    store = HistoryStore(database)
+    try:
+        history = CalibrationHistory(store, EventBus(store))
+        for folder in job_folders(data_dir):
+            store.insert_job(_rebuilt_job(folder, history, report).as_json())
+    finally:
+        store.close()
+    return report
