@@ -49,7 +49,7 @@ def test_a_job_and_an_activation_are_one_line_each_with_their_ids(
     log_format, stream = logged
     config = load_daemon_config(None, {"data_dir": tmp_path / "data"})
     daemon = Daemon(config, runners=fake_runners(FakeEngine()))
-    with TestClient(create_app(daemon)) as client:
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         client.headers["Authorization"] = f"Bearer {daemon.token}"
         job_id = client.post("/v1/jobs", json=JOB).json()["id"]
         calibration_id = _finish(client, job_id)["calibration_id"]

@@ -25,7 +25,7 @@ from tests.service.test_service import JOB, _finish
 def daemon_client(tmp_path: Path) -> Iterator[tuple[Daemon, TestClient]]:
     config = load_daemon_config(None, {"data_dir": tmp_path / "data"})
     daemon = Daemon(config, runners=fake_runners(FakeEngine()))
-    with TestClient(create_app(daemon)) as client:
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         client.headers["Authorization"] = f"Bearer {daemon.token}"
         yield daemon, client
 

@@ -20,7 +20,7 @@ DRILL_JOB = Path(__file__).resolve().parents[2] / "examples" / "drill.toml"
 def test_the_daemon_lists_its_presets_and_designed_waypoints(tmp_path: Path) -> None:
     config = load_daemon_config(None, {"data_dir": tmp_path / "data", "default_job": DRILL_JOB})
     daemon = Daemon(config, runners=fake_runners(FakeEngine(waypoints=2)))
-    with TestClient(create_app(daemon)) as client:
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         client.headers["Authorization"] = f"Bearer {daemon.token}"
         known = client.get("/v1/trajectories").json()["trajectories"]
         designed, *presets = known
@@ -48,7 +48,7 @@ def _start_and_finish(client: TestClient, job: dict) -> None:
 def test_without_a_default_job_only_presets(tmp_path: Path) -> None:
     config = load_daemon_config(None, {"data_dir": tmp_path / "data"})
     daemon = Daemon(config, runners=fake_runners(FakeEngine()))
-    with TestClient(create_app(daemon)) as client:
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         client.headers["Authorization"] = f"Bearer {daemon.token}"
         known = client.get("/v1/trajectories").json()["trajectories"]
         assert [t["name"] for t in known] == preset_names()
