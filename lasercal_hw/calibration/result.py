@@ -115,6 +115,13 @@ class RangeOffset(BaseModel):
         "one that grows between calibrations marks a unit to replace)",
     )
 
+    def coefficients_m(self) -> list[float]:
+        """The curve's terms in metres (offset, scale, curvature; as many as were estimated),
+        for ``calibration.model.range_error_m``."""
+        terms = [self.offset_mm, self.scale_mm_per_m, self.curvature_mm_per_m2]
+        count = 1 + sum(1 for term in terms[1:] if term is not None)
+        return [float(term or 0.0) / 1000.0 for term in terms[:count]]
+
 
 class CalibrationResult(BaseModel):
     """Pose of the scanner in the robot base frame, with its uncertainty and diagnostics."""

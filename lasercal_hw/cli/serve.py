@@ -31,6 +31,7 @@ LogFormatOption = Annotated[
     str | None,
     typer.Option(
         "--log-format",
+        metavar="text|json",
         help="The daemon's log on stderr: text (a line a person reads) or json (one object a line).",
     ),
 ]

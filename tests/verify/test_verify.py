@@ -236,3 +236,20 @@ def test_a_verify_over_its_time_share_says_so() -> None:
         "it took 25.8% of the calibration's motion and dwell time, over the 25% promised "
         "(verify.max_time_fraction)"
     )
+
+
+def test_the_calibrations_range_error_is_taken_out_of_the_measured_centres() -> None:
+    """A scanner that reads 10 mm long at 1 m and 20 mm more per metre beyond (as the
+    calibration estimated) must not look moved to verify."""
+    from lasercal_hw.calibration.result import RangeOffset
+    from lasercal_hw.verify.procedure import range_curve_of, without_range_error
+
+    offset = RangeOffset(offset_mm=10.0, std_mm=1.0, scale_mm_per_m=20.0, scale_std_mm_per_m=1.0)
+    curve = range_curve_of(offset)
+    assert curve == pytest.approx([0.010, 0.020])
+    measured = np.array([[0.0, 1.52], [0.606, 0.808]])  # read at 1.52 m and 1.01 m
+    corrected = without_range_error(measured, curve)  # moved in by 10 + 20 * (d - 1 m) mm
+    np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), [1.52 - 0.0204, 1.01 - 0.0102], atol=1e-9)
+    np.testing.assert_allclose(corrected[1] / np.linalg.norm(corrected[1]), [0.6, 0.8])  # same bearing
+    assert range_curve_of(None) == []
+    np.testing.assert_array_equal(without_range_error(measured, []), measured)
