@@ -50,7 +50,7 @@ import httpx
 from lasercal_hw.service.store import DB_FILE
 from lasercal_hw.session.reader import read_session
 from tests.daemon_helpers import QUICK_DRY_RUN, DaemonProcess, read_sse
-from tests.fault_helpers import DAMAGES, FILLER_BYTES, child_pids, small_disk
+from tests.fault_helpers import DAMAGES, FILLER_BYTES, child_pids, follow_to_the_end, small_disk
 from tests.hostile_inputs import CASES, SECRET, Hostile, send
 
 FINISHED = ("succeeded", "failed", "cancelled", "interrupted")
@@ -203,15 +203,15 @@ def full_disk(root: Path, row: Row) -> None:
         try:
             with daemon.client() as client:
                 job_id = client.post("/v1/jobs", json=QUICK_DRY_RUN).json()["id"]
-                followed: list[tuple[int, str, dict[str, Any]]] = []
-                follower = _follow(daemon.url, job_id, followed)
-                job = _poll(client, job_id, lambda j: j["state"] in FINISHED, 300.0)
-                follower.join(30.0)
-                if job is None or follower.is_alive():
+                try:
+                    job, followed = follow_to_the_end(client, job_id)
+                except httpx.TimeoutException:
                     row.add("hang")
                     return
                 ok = job["error"] is not None and job["error"]["code"] == "storage_full"
                 ok = ok and bool(followed) and followed[-1][2].get("state") == "failed"
+                if not ok:
+                    print(f"  full disk: {job['state']} {job['error']}, last event {followed[-1:]}")
                 if disk.how == "tmpfs":
                     refused = client.post("/v1/jobs", json=QUICK_DRY_RUN)
                     if refused.status_code >= 500 and refused.status_code != 507:
@@ -219,6 +219,8 @@ def full_disk(root: Path, row: Row) -> None:
                         return
                     disk.filler.unlink()
                     again = client.post("/v1/jobs", json=QUICK_DRY_RUN)
+                    if refused.status_code != 507 or again.status_code != 202:
+                        print(f"  full disk: then {refused.status_code}, after freeing {again.status_code}")
                     ok = ok and refused.status_code == 507 and again.status_code == 202
                     if again.status_code == 202:
                         client.post(f"/v1/jobs/{again.json()['id']}/cancel")

@@ -11,6 +11,11 @@ import subprocess
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+import httpx
+
+from tests.daemon_helpers import read_sse
 
 SMALL_DISK_BYTES = 3 * 1024 * 1024
 FILLER_BYTES = 1_300_000
@@ -97,3 +102,20 @@ def child_pids(pid: int) -> list[int]:
     for task in Path(f"/proc/{pid}/task").iterdir():
         children += [int(child) for child in (task / "children").read_text().split()]
     return children
+
+
+def follow_to_the_end(
+    client: httpx.Client, job_id: str
+) -> tuple[dict[str, Any], list[tuple[int, str, dict[str, Any]]]]:
+    """Follow a job's events until its stream ends; a job the loaded machine's fakes stalled
+    (device_error) is resumed and followed on, up to 3 times, as an operator would."""
+    followed: list[tuple[int, str, dict[str, Any]]] = []
+    for _attempt in range(4):
+        after = {"Last-Event-ID": str(followed[-1][0])} if followed else {}
+        with client.stream("GET", f"/v1/jobs/{job_id}/events", headers=after, timeout=240.0) as stream:
+            followed.extend(read_sse(stream))
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if job["error"] is None or job["error"]["code"] != "device_error":
+            break
+        client.post(f"/v1/jobs/{job_id}/resume", json={"confirm_motion": True}).raise_for_status()
+    return job, followed

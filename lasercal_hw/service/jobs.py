@@ -302,7 +302,8 @@ class JobManager:
                 code="not_running",
             )
         active.cancel.cancel(reason)
-        self._bus.publish("cancel_requested", {"reason": reason}, job_id)
+        with contextlib.suppress(StorageFullError):  # on a full disk the cancel works, untold
+            self._bus.publish("cancel_requested", {"reason": reason}, job_id)
         return record
 
     def shutdown(self, timeout_s: float = 30.0) -> None:

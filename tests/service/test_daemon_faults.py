@@ -30,7 +30,7 @@ from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.store import DB_FILE, SCHEMA_VERSION, HistoryStore
 from lasercal_hw.session.reader import read_session
 from tests.daemon_helpers import QUICK_DRY_RUN, DaemonProcess, FakeEngine, fake_runners, read_sse, wait_for
-from tests.fault_helpers import DAMAGES, FILLER_BYTES, child_pids, small_disk, truncate
+from tests.fault_helpers import DAMAGES, FILLER_BYTES, child_pids, follow_to_the_end, small_disk, truncate
 from tests.hostile_inputs import CASES, DRY, SECRET, Hostile, send
 
 FINISHED = ("succeeded", "failed", "cancelled", "interrupted")
@@ -204,23 +204,6 @@ def test_a_migration_backs_the_database_up_first(tmp_path: Path, monkeypatch: py
 
 
 # -- a full disk, for real --------------------------------------------------------------------
-
-
-def follow_to_the_end(
-    client: httpx.Client, job_id: str
-) -> tuple[dict[str, Any], list[tuple[int, str, dict[str, Any]]]]:
-    """Follow a job's events until its stream ends; a job the loaded machine's fakes stalled
-    (device_error) is resumed and followed on, up to 3 times, as an operator would."""
-    followed: list[tuple[int, str, dict[str, Any]]] = []
-    for _attempt in range(4):
-        after = {"Last-Event-ID": str(followed[-1][0])} if followed else {}
-        with client.stream("GET", f"/v1/jobs/{job_id}/events", headers=after, timeout=240.0) as stream:
-            followed.extend(read_sse(stream))
-        job = client.get(f"/v1/jobs/{job_id}").json()
-        if job["error"] is None or job["error"]["code"] != "device_error":
-            break
-        client.post(f"/v1/jobs/{job_id}/resume", json={"confirm_motion": True}).raise_for_status()
-    return job, followed
 
 
 def test_a_full_disk_mid_job_fails_it_cleanly_and_recovers_without_a_restart(tmp_path: Path) -> None:
