@@ -11,6 +11,7 @@ import pytest
 import rtde_control
 import rtde_receive
 
+from fakes.ur_controller.process import FakeRobot
 from lasercal_hw.errors import TransportError
 from tests.drivers.ur.robot_process import FakeRobotProcess
 
@@ -88,3 +89,21 @@ def control_interface(address: str, *,
         if stop_script and control.isProgramRunning():
             control.stopScript()
         control.disconnect()
+
+
+@pytest.fixture
+def robot() -> Iterator[FakeRobot]:
+    """A ``FakeRobot`` in this process on a free 127.0.0.200+ address (raw-socket tests only:
+    ur_rtde must never talk to an in-process fake)."""
+    for octet in range(200, 250):
+        fake = FakeRobot(f"127.0.0.{octet}")
+        try:
+            fake.start()
+        except TransportError:
+            continue
+        try:
+            yield fake
+        finally:
+            fake.close()
+        return
+    raise RuntimeError("no free loopback address")
