@@ -22,6 +22,7 @@ from lasercal_hw.config import load_job
 from lasercal_hw.errors import ExitCode, TransportError
 from lasercal_hw.run.engine import RunEvent, RunReport, RunRequest, calibrate
 from lasercal_hw.session.reader import SessionRecording, read_session
+from tests.verify_helpers import fake_robot_calibration
 from trajectories.presets import preset_waypoints
 
 # A test's time limit includes the module's dry runs it sets up (one or both).
@@ -340,3 +341,14 @@ def test_operator_declining_or_terminating_at_the_prompt_moves_nothing(tmp_path:
     assert recording.events_of("dwell_start") == []
     assert recording.events_of("background") == []
     assert recording.events_of("abort")[0]["cause"] == "interrupted"
+
+
+def test_a_dry_run_records_the_fake_robots_own_calibration(scanner_drop_engine_run: EngineDryRun) -> None:
+    """result.json and session.mcap carry the kinematics calibration the fake controller's
+    primary interface reported (the run: the fixture above)."""
+    expected = fake_robot_calibration().as_dict()
+    result = json.loads((scanner_drop_engine_run.out / "result.json").read_text())
+    assert result["run"]["robot_calibration"] == expected
+    assert read_session(scanner_drop_engine_run.out / "session.mcap").meta["robot_calibration"] == expected
+    said = [e.message for e in scanner_drop_engine_run.events if e.kind == "stage"]
+    assert f"robot kinematics calibration: UR5e, checksum {expected['checksum']}" in said
