@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from lasercal_hw.errors import ConfigError
+from lasercal_hw.errors import ConfigError, TransportError
 from lasercal_hw.service import daemon_log
 from lasercal_hw.service.app import create_app
 from lasercal_hw.service.config import load_daemon_config
@@ -83,6 +83,9 @@ class _Devices:
         if len(self.answers) == 1:
             self.asked.set()
         return self.answers.pop(0) if len(self.answers) > 1 else self.answers[0]
+
+    def read_robot_calibration(self, host: str) -> Any:
+        raise TransportError(f"no primary interface at {host}")
 
 
 def test_a_device_change_is_one_line(logged: tuple[str, io.StringIO]) -> None:

@@ -13,7 +13,7 @@ import rtde_receive
 
 from fakes.ur_controller.process import FakeRobot
 from lasercal_hw.errors import TransportError
-from tests.drivers.ur.robot_process import FakeRobotProcess
+from tests.drivers.ur.robot_process import FakeRobotProcess, in_process_robot
 
 # Addresses 127.0.0.<first>..: spread by process id so parallel pytest runs rarely meet,
 # and skip addresses whose ports are taken (the fake exits with "cannot listen").
@@ -91,19 +91,9 @@ def control_interface(address: str, *,
         control.disconnect()
 
 
+
 @pytest.fixture
 def robot() -> Iterator[FakeRobot]:
-    """A ``FakeRobot`` in this process on a free 127.0.0.200+ address (raw-socket tests only:
-    ur_rtde must never talk to an in-process fake)."""
-    for octet in range(200, 250):
-        fake = FakeRobot(f"127.0.0.{octet}")
-        try:
-            fake.start()
-        except TransportError:
-            continue
-        try:
-            yield fake
-        finally:
-            fake.close()
-        return
-    raise RuntimeError("no free loopback address")
+    """A ``FakeRobot`` in this process (``in_process_robot``: raw-socket tests only)."""
+    with in_process_robot() as fake:
+        yield fake
