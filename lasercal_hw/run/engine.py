@@ -37,6 +37,7 @@ from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
+from lasercal_hw.ur_kinematics import offline_model
 
 __all__ = [
     "CancelToken", "MotionPlan", "ProcedureReport", "RunEvent", "RunReport", "RunRequest", "SequencerSession",
@@ -203,6 +204,7 @@ def calibrate(
             outcome = run_second_design(
                 session.robot, session.scanner, session.recorder, session.job, session.waypoints, outcome,
                 on_progress=session.on_progress, cancel=cancel,
+                model=offline_model(session.robot_calibration, named=session.job.robot.model),
             )
         sink.emit("stage", "writing the outputs", stage=Stage.OUTPUTS)
         files = {"session": session.session_path} | write_outputs(
