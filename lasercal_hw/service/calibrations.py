@@ -124,14 +124,7 @@ class CalibrationHistory:
         """Make a calibration the active one (recorded in the activation log). One that failed
         its quality gates needs ``force``."""
         summary, _ = self._stored(calibration_id)
-        if summary["bad"] is not None:
-            bad = summary["bad"]
-            raise ConflictError(
-                f"calibration {calibration_id} was marked bad by {bad['by']} at {bad['time_utc']} "
-                f"({bad['reason']}); a bad calibration is never active: activate another one",
-                {"calibration_id": calibration_id, "bad": bad},
-                code="calibration_marked_bad",
-            )
+        _refuse_if_bad(summary, "calibration_marked_bad", "a bad one is never active: activate another one")
         if not summary["passed"] and not force:
             raise ConflictError(
                 f"calibration {calibration_id} failed its quality "
@@ -147,14 +140,7 @@ class CalibrationHistory:
         """Record that ``by`` found the calibration bad and why (ConflictError when it already
         is: the first record stays). The active one is deactivated, and the event says so."""
         summary, _ = self._stored(calibration_id)
-        if summary["bad"] is not None:
-            bad = summary["bad"]
-            raise ConflictError(
-                f"calibration {calibration_id} was already marked bad by {bad['by']} at {bad['time_utc']} "
-                f"({bad['reason']})",
-                {"calibration_id": calibration_id, "bad": bad},
-                code="already_marked_bad",
-            )
+        _refuse_if_bad(summary, "already_marked_bad", "the first record stays")
         was_active = self._store.active_calibration_id() == calibration_id
         time_utc = self._store.mark_bad(calibration_id, by, reason)
         event = {"calibration_id": calibration_id, "by": by, "reason": reason, "time_utc": time_utc,
@@ -190,6 +176,18 @@ class CalibrationHistory:
         first, _ = self._stored(a)
         second, _ = self._stored(b)
         return transform_change(first, second)
+
+
+def _refuse_if_bad(summary: dict[str, Any], code: str, consequence: str) -> None:
+    """ConflictError ``code`` naming who marked the calibration bad, when and why."""
+    bad = summary["bad"]
+    if bad is not None:
+        raise ConflictError(
+            f"calibration {summary['id']} was marked bad by {bad['by']} at {bad['time_utc']} "
+            f"({bad['reason']}); {consequence}",
+            {"calibration_id": summary["id"], "bad": bad},
+            code=code,
+        )
 
 
 def transform_change(first: dict[str, Any], second: dict[str, Any]) -> dict[str, Any]:
