@@ -174,6 +174,10 @@ class Daemon:
             self.fake_cell.stop()
         self.store.close()
 
+    def scanners(self) -> list[tuple[str, str | None]]:
+        """The cell's scanners as the configuration lists them: ``(name, url)`` (today one)."""
+        return [(DEFAULT_SCANNER, self.devices.scanner_url)]
+
     def health(self) -> dict[str, Any]:
         """``GET /v1/health``: liveness, and per scanner its calibration's health (from the
         history and the monitor's last readings, no device I/O)."""
@@ -184,7 +188,7 @@ class Daemon:
         now = datetime.now(UTC)
         scanners = [
             scanner_health(name, url, active, last_verify, robot_reading, now)
-            for name, url in ((DEFAULT_SCANNER, self.devices.scanner_url),)
+            for name, url in self.scanners()
         ]
         return {
             "ok": True, "version": __version__, "api_version": API_VERSION, "time_utc": now.isoformat(),
