@@ -229,8 +229,10 @@ def test_scanner_drop_at_a_waypoint_repeats_that_waypoint(scanner_drop_engine_ru
     reconnects, the dwell is repeated and the run completes (the run: the fixture above)."""
     recording = read_session(scanner_drop_engine_run.out / "session.mcap")
     dwells = [event["index"] for event in recording.events_of("dwell_start")]
-    assert dwells.count(2) == 2, dwells
-    assert all(dwells.count(i) == 1 for i in set(dwells) - {2})
+    retries = [event["index"] for event in recording.events_of("waypoint_retry")]
+    assert dwells.count(2) == 2 and 2 in retries, (dwells, retries)
+    # A loaded machine may stall the stream elsewhere too: a dwell repeats only as a recorded retry.
+    assert all(dwells.count(i) == 1 + retries.count(i) for i in set(dwells)), (dwells, retries)
     assert scanner_drop_engine_run.report.document()["observations"] >= WAYPOINTS - 3
 
 
