@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import ndtr
 
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import FloatArray
@@ -66,6 +67,8 @@ class RodCentre:
     covariance_uv_m2: FloatArray
     quality: RodQuality
     beam_indices: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    #: Why this centre may be off by more than its covariance says (empty: no doubt).
+    warnings: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -111,6 +114,25 @@ class ExtractionSettings:
     #: a range error this large (issue 18's real data: +12 mm at 0.15 m, -13 mm at 0.75 m),
     #: joins the covariance.
     typical_range_error_m: float = 0.012
+    #: The beam's spot, ``width + divergence * range`` wide (1/e^2 of a gaussian): the UTM-30LX-EW
+    #: data sheet's "minimum detectable width 130 mm at 10 m" (docs/scanner-model.md). A beam whose
+    #: spot passes partly beside the rod also returns light from what lies behind it ...
+    spot_width_at_scanner_m: float = 0.020
+    spot_divergence_rad: float = 0.011
+    #: ... and when that surface is nearer behind the rod than about the laser pulse's length
+    #: (about 1 m: docs/scanner-model.md), the two merge into one echo whose range lies between
+    #: them, weighted by their returned power: a steady blend. Each beam's share of the
+    #: background (the spot's part beside the rod; with intensities, weighted by the background's
+    #: power against the beam's) times the depth behind bounds its blend; it weights the fit and
+    #: joins the covariance.
+    echo_merge_m: float = 0.85
+    #: A rod whose every beam is more background than rod is refused: none reads the rod itself.
+    max_blend_share: float = 0.5
+    #: A centre whose blend allowance (std) exceeds this carries a warning.
+    warn_blend_std_m: float = 0.005
+    #: Without a background scan, what lies behind a beam is the farthest reading this many
+    #: beams either side (the background beside the rod).
+    behind_window_beams: int = 40
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -221,10 +243,12 @@ def find_rod_centre(
     sigma = _range_sigma(scan, settings)
     expected = None if expected_uv_m is None else np.asarray(expected_uv_m, dtype=float)
     candidates, notes = _candidate_segments(scan, sigma, section, background, settings)
+    behind = _behind(scan, background, settings)
     found, reasons = [], []
     for beams, ramp_beams in candidates:
         try:
-            found.append(_fit_segment(scan, sigma, beams, section, settings, ramp_beams=ramp_beams))
+            fit = _fit_segment(scan, sigma, beams, section, settings, ramp_beams=ramp_beams, behind=behind)
+            found.append(fit)
         except RodNotFoundError as exc:
             reasons.append(str(exc))
     found = _distinct(found, section)
@@ -663,6 +687,7 @@ class _Fit:
     covariance_uv_m2: FloatArray
     residuals_m: FloatArray
     whitened: FloatArray
+    blend_shift_m: float = 0.0
 
 
 def _residuals(
@@ -748,8 +773,14 @@ def _gauss_newton(
 
 
 def _fit_centre(
-    points: FloatArray, sigma: FloatArray, section: _Section, settings: ExtractionSettings
+    points: FloatArray,
+    sigma: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+    blend_m: FloatArray | None = None,
 ) -> _Fit:
+    """Fit the centre to the points; ``blend_m``: each beam's blend allowance (m, along the
+    beam, one-sided: shared by neighbouring beams), which joins the covariance whole."""
     seed = seed_centre_pi4(points, section.radius_m, section.axis)
     solved = _gauss_newton(points, sigma, seed, section, settings, free_radius=False)
     limit = 2.0 * section.semi_major_m + 0.01
@@ -772,7 +803,24 @@ def _fit_centre(
     )
     mismatch = _range_error_mismatch(points, centre, normals, residual_sigma, normal)
     covariance += np.outer(mismatch, mismatch) * settings.typical_range_error_m**2
-    return _Fit(centre, covariance, residuals, whitened)
+    blend_shift = np.zeros(2)
+    if blend_m is not None:
+        blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
+        covariance += np.outer(blend_shift, blend_shift)
+    return _Fit(centre, covariance, residuals, whitened, float(np.linalg.norm(blend_shift)))
+
+
+def _centre_shift(
+    points: FloatArray,
+    normals: FloatArray,
+    residual_sigma: FloatArray,
+    normal: FloatArray,
+    push_m: FloatArray,
+) -> FloatArray:
+    """How the fitted centre moves when every point is pushed ``push_m`` along its beam."""
+    beams = points / np.linalg.norm(points, axis=1)[:, None]
+    push = np.einsum("ij,ij->i", beams, normals[:, :2]) * push_m / residual_sigma
+    return np.linalg.solve(normal, (normals[:, :2] / residual_sigma[:, None]).T @ push)
 
 
 def _range_error_mismatch(
@@ -785,9 +833,7 @@ def _range_error_mismatch(
     """How the fitted centre moves for a range error of 1 (every point pushed 1 along its
     beam) minus how the solver's model moves it (1 along its bearing): zero for a far rod
     whose beams are parallel, a few per cent for a thick rod near the scanner."""
-    beams = points / np.linalg.norm(points, axis=1)[:, None]
-    push = np.einsum("ij,ij->i", beams, normals[:, :2]) / residual_sigma
-    moved = np.linalg.solve(normal, (normals[:, :2] / residual_sigma[:, None]).T @ push)
+    moved = _centre_shift(points, normals, residual_sigma, normal, np.ones(points.shape[0]))
     return moved - centre / np.linalg.norm(centre)
 
 
@@ -808,11 +854,15 @@ def _unknown_tilt_variance_m2(section: _Section, settings: ExtractionSettings) -
 
 
 def _drop_mixed_edges(
-    points: FloatArray, sigma: FloatArray, section: _Section, settings: ExtractionSettings
+    points: FloatArray,
+    sigma: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+    blend_m: FloatArray | None = None,
 ) -> tuple[NDArray[np.int64], _Fit]:
     """Fit, then drop edge beams lying significantly behind the fitted surface; refit."""
     keep = np.arange(points.shape[0])
-    fit = _fit_centre(points, sigma, section, settings)
+    fit = _fit_centre(points, sigma, section, settings, blend_m)
     dropped = {"first": 0, "last": 0}
     while keep.size > settings.min_beams:
         candidates = []
@@ -826,7 +876,8 @@ def _drop_mixed_edges(
         _, side, pos = max(candidates)
         dropped[side] += 1
         keep = np.delete(keep, pos)
-        fit = _fit_centre(points[keep], sigma[keep], section, settings)
+        kept_blend = None if blend_m is None else blend_m[keep]
+        fit = _fit_centre(points[keep], sigma[keep], section, settings, kept_blend)
     return keep, fit
 
 
@@ -848,8 +899,10 @@ def _fit_segment(
     settings: ExtractionSettings,
     *,
     ramp_beams: int = 0,
+    behind: _Behind | None = None,
 ) -> RodCentre:
-    """Fit one candidate; ``ramp_beams`` mixed pixels were already cut off its sides."""
+    """Fit one candidate; ``ramp_beams`` mixed pixels were already cut off its sides;
+    ``behind``: what lies behind each beam, for the blend of rod and background."""
     if beams.size < settings.min_beams:
         range_m = float(np.min(scan.ranges_m[beams]))
         raise RodNotFoundError(
@@ -859,9 +912,23 @@ def _fit_segment(
     points = scan.points_m()[beams]
     sigma = sigma_all[beams]
     keep, fit = _drop_mixed_edges(points, sigma, section, settings)
+    bound_m = np.zeros(beams.size)
+    if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
+        for _ in range(2):
+            share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
+            # A blend shows as a beam lying behind the surface: no more than that, and its noise.
+            behind_m, _ = _residuals(points, fit.centre_uv_m, section, section.radius_m)
+            blend_m = np.fmin(bound_m, np.fmax(behind_m, 0.0) + 2.0 * sigma)
+            keep, fit = _drop_mixed_edges(points, np.hypot(sigma, blend_m), section, settings, blend_m)
+        if float(np.min(share[keep])) > settings.max_blend_share:
+            raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
     used = points[keep]
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
-    if rms > settings.max_rms_radius_fraction * section.radius_m + 3.0 * float(np.median(sigma[keep])):
+    # A blended beam lies behind the surface by up to its bound: that part is no misfit.
+    residuals = fit.residuals_m
+    misfit = np.where(residuals > 0.0, np.fmax(residuals - bound_m[keep], 0.0), np.abs(residuals))
+    misfit_rms = float(np.sqrt(np.mean(misfit**2)))
+    if misfit_rms > settings.max_rms_radius_fraction * section.radius_m + 3.0 * float(np.median(sigma[keep])):
         raise RodNotFoundError(
             f"segment of {keep.size} beams is not a rod of radius {section.radius_m * 1000:.1f} mm "
             f"(fit RMS {rms * 1000:.1f} mm)"
@@ -882,9 +949,17 @@ def _fit_segment(
         span,
         dropped,
     )
+    warnings = ()
+    if fit.blend_shift_m > settings.warn_blend_std_m:
+        warnings = (
+            f"the rod's beams blend it with the background behind it: centre uncertain by "
+            f"{fit.blend_shift_m * 1000:.0f} mm; a thicker or brighter rod, or a background farther "
+            "behind, helps",
+        )
     return RodCentre(
         centre_uv_m=fit.centre_uv_m,
         covariance_uv_m2=fit.covariance_uv_m2,
+        warnings=warnings,
         quality=RodQuality(
             beams_used=int(keep.size),
             fit_rms_m=rms,
@@ -893,4 +968,81 @@ def _fit_segment(
             mixed_pixels_dropped=dropped,
         ),
         beam_indices=beams[keep].astype(np.int64),
+    )
+
+
+@dataclass(frozen=True)
+class _Behind:
+    """What lies behind each beam: its range (m; inf or NaN: nothing) and intensity (None:
+    unknown)."""
+
+    ranges_m: FloatArray
+    intensities: FloatArray | None
+
+
+def _behind(scan: AveragedScan, background: AveragedScan | None, settings: ExtractionSettings) -> _Behind:
+    """The background scan's view, or without one the farthest reading within
+    ``behind_window_beams`` of each beam (the background beside the rod)."""
+    if background is not None:
+        intensities = background.intensities if scan.intensities is not None else None
+        return _Behind(background.ranges_m, intensities)
+    ranges = np.where(np.isfinite(scan.ranges_m), scan.ranges_m, -np.inf)
+    reach = settings.behind_window_beams
+    padded = np.concatenate([np.full(reach, -np.inf), ranges, np.full(reach, -np.inf)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1)
+    farthest = windows.max(axis=1)
+    return _Behind(np.where(np.isfinite(farthest), farthest, np.nan), None)
+
+
+def _spot_sigma_m(range_m: FloatArray, settings: ExtractionSettings) -> FloatArray:
+    """Gaussian sigma across the beam's spot at these ranges (a quarter of its 1/e^2 width)."""
+    return 0.25 * (settings.spot_width_at_scanner_m + settings.spot_divergence_rad * range_m)
+
+
+def _blend(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    centre: FloatArray,
+    section: _Section,
+    behind: _Behind,
+    settings: ExtractionSettings,
+) -> tuple[FloatArray, FloatArray]:
+    """Per beam, the background's share of the returned echo and the blend allowance (m).
+
+    The share is the part of the spot passing beside the rod (a gaussian spot across the
+    rod's silhouette); with intensities it is weighted by the background's power against
+    the beam's (the UTM's intensity grows like the square root of the power).  The
+    allowance is the share times the depth behind, where that depth merges into one echo."""
+    ranges = scan.ranges_m[beams]
+    angles = scan.angles_rad[beams]
+    offset = np.sin(angles) * centre[0] - np.cos(angles) * centre[1]
+    spot = np.fmax(_spot_sigma_m(ranges, settings), 1e-9)  # a thin ray: all or nothing
+    half = section.radius_m
+    share = 1.0 - (ndtr((half - offset) / spot) - ndtr((-half - offset) / spot))
+    if behind.intensities is not None and scan.intensities is not None:
+        own = np.fmax(scan.intensities[beams], 1.0)
+        ratio = np.where(np.isfinite(behind.intensities[beams]), behind.intensities[beams] / own, 1.0)
+        share = np.fmin(share * ratio**2, 1.0)
+    with np.errstate(invalid="ignore"):
+        depth = behind.ranges_m[beams] - ranges
+        merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
+    return share, np.where(merged, share * np.where(merged, depth, 0.0), 0.0)
+
+
+def _blend_refusal(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    section: _Section,
+    behind: _Behind,
+    settings: ExtractionSettings,
+) -> str:
+    """Why a rod whose every beam is mostly background is refused."""
+    range_m = float(np.min(scan.ranges_m[beams]))
+    depth_m = float(np.nanmedian(behind.ranges_m[beams])) - range_m
+    spot_mm = 4000.0 * float(_spot_sigma_m(np.array([range_m]), settings)[0])
+    return (
+        f"every beam on the rod at {range_m:.2f} m blends it with the surface {depth_m:.2f} m behind it "
+        f"(a {2000 * section.radius_m:.0f} mm rod against the beam's {spot_mm:.0f} mm spot): no reading is "
+        f"the rod's own; use a thicker or retro-reflective rod, or clear the background to more than "
+        f"{settings.echo_merge_m:g} m behind the rod"
     )

@@ -22,7 +22,7 @@ from tests.synthetic_scans import ANGLES, averaged, rod_ranges, scans
 # One beam averaged over a 3 s dwell (120 scans) of the UTM-30LX-EW's sigma of 10 mm.
 SIGMA_MEAN_M = 0.010 / np.sqrt(120)
 # The synthetic scans cast each beam as one exact ray: no spot straddles the silhouette.
-THIN_BEAMS = ExtractionSettings(beam_footprint_rad=0.0)
+THIN_BEAMS = ExtractionSettings(beam_footprint_rad=0.0, spot_width_at_scanner_m=0.0, spot_divergence_rad=0.0)
 Z_AXIS = np.array([0.0, 0.0, 1.0])
 
 
