@@ -130,6 +130,14 @@ class ExtractionSettings:
     max_blend_share: float = 0.5
     #: A centre whose blend allowance (std) exceeds this carries a warning.
     warn_blend_std_m: float = 0.005
+    #: What the scanner's range-error curve (one value per distance) leaves across one rod's
+    #: beams joins the covariance: range walk with intensity (bright echoes read short; with
+    #: intensities: this much per e-fold of intensity against the rod's front beam) and the
+    #: steep near-range error (this much at 0.1 m, decaying over ``near_bias_decay_m``; a
+    #: UTM-30LX on a flat target: +18 to +22 mm at 0.10-0.115 m; docs/scanner-model.md).
+    range_walk_m_per_efold: float = 0.0025
+    near_bias_m: float = 0.020
+    near_bias_decay_m: float = 0.09
     #: Without a background scan, what lies behind a beam is the farthest reading this many
     #: beams either side (the background beside the rod).
     behind_window_beams: int = 40
@@ -387,7 +395,7 @@ def _candidate_segments(
             fit = _size_mismatch(scan, beams, section, settings)
             if fit is None:
                 continue
-            if background is None and not _in_front(scan, beams, sigma):
+            if not _in_front(scan, beams, sigma):
                 problem = "is partly hidden behind a nearer object; clear the line of sight"
                 _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
                 continue
@@ -916,13 +924,16 @@ def _fit_segment(
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         for _ in range(2):
             share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
-            # A blend shows as a beam lying behind the surface: no more than that, and its noise.
+            # A blend shows as a beam lying behind the surface: the fit weights a beam by what its
+            # residual shows of it (a merged echo may still look like an arc); the covariance
+            # takes the whole bound.
             behind_m, _ = _residuals(points, fit.centre_uv_m, section, section.radius_m)
             blend_m = np.fmin(bound_m, np.fmax(behind_m, 0.0) + 2.0 * sigma)
-            keep, fit = _drop_mixed_edges(points, np.hypot(sigma, blend_m), section, settings, blend_m)
+            keep, fit = _drop_mixed_edges(points, np.hypot(sigma, blend_m), section, settings, bound_m)
         if float(np.min(share[keep])) > settings.max_blend_share:
             raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
     used = points[keep]
+    fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies behind the surface by up to its bound: that part is no misfit.
     residuals = fit.residuals_m
@@ -1046,3 +1057,41 @@ def _blend_refusal(
         f"the rod's own; use a thicker or retro-reflective rod, or clear the background to more than "
         f"{settings.echo_merge_m:g} m behind the rod"
     )
+
+
+def _arc_bias_m(scan: AveragedScan, beams: NDArray[np.int64], settings: ExtractionSettings) -> FloatArray:
+    """Per beam, how far its range error may differ from the front beam's: the range walk
+    between their intensities and the near-range error's change between their ranges."""
+    ranges = scan.ranges_m[beams]
+    front = int(np.argmin(ranges))
+    near = settings.near_bias_m * np.exp(-(np.fmax(ranges, 0.1) - 0.1) / settings.near_bias_decay_m)
+    bias = np.abs(near - near[front])
+    if scan.intensities is not None:
+        intensity = np.fmax(scan.intensities[beams], 1.0)
+        bias = bias + settings.range_walk_m_per_efold * np.abs(np.log(intensity / intensity[front]))
+    return bias
+
+
+def _with_arc_bias(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    points: FloatArray,
+    sigma: FloatArray,
+    blend_m: FloatArray,
+    fit: _Fit,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> _Fit:
+    """The fit with the arc's range-error variation (``_arc_bias_m``) in its covariance: the
+    centre's move were every beam's range off by it (shared by neighbours, so taken whole)."""
+    push_m = _arc_bias_m(scan, beams, settings)
+    if not np.any(push_m > 0.0):
+        return fit
+    _, normals = _residuals(points, fit.centre_uv_m, section, section.radius_m)
+    residual_sigma = _residual_sigma(points, np.hypot(sigma, blend_m), normals, section.radius_m, settings)
+    jac = -normals[:, :2] / residual_sigma[:, None]
+    try:
+        shift = _centre_shift(points, normals, residual_sigma, jac.T @ jac, push_m)
+    except np.linalg.LinAlgError:
+        return fit
+    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))

@@ -171,7 +171,7 @@ def test_end_to_end_from_quantised_scans() -> None:
     rng = np.random.default_rng(26)
     centre = np.array([1.2, 0.5])
     dwell = scans(rod_ranges(centre, 0.02, wall_behind_m=0.8), 0.010, 120, rng)
-    result = find_rod_centre(average_scans(dwell), radius_m=0.02, axis_in_scanner=Z_AXIS)
+    result = find_rod_centre(average_scans(dwell), radius_m=0.02, axis_in_scanner=Z_AXIS, settings=THIN_BEAMS)
     assert np.linalg.norm(result.centre_uv_m - centre) < 1e-3
     assert np.all(np.sqrt(np.linalg.eigvalsh(result.covariance_uv_m2)) < 1.5e-3)
 
