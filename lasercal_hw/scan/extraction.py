@@ -490,7 +490,8 @@ def _rod_core(
     for _ in range(4):
         residuals, _ = _residuals(points, centre, section, section.radius_m)
         on_surface = np.abs(residuals) <= settings.edge_residual_sigmas * sigma[part] + tolerance
-        hits = on_surface & _rays_hit(points, centre, section, step, sigma[part])
+        spot_sigma_m = float(_spot_sigma_m(np.array([float(np.linalg.norm(centre))]), settings)[0])
+        hits = on_surface & _rays_hit(points, centre, section, step, sigma[part], spot_sigma_m)
         hits &= _bright(scan, part, run, settings)
         runs = [r for r in _runs(hits) if r.size]
         if not runs:
@@ -536,7 +537,12 @@ def _bright(
 
 
 def _rays_hit(
-    points: FloatArray, centre: FloatArray, section: _Section, step_rad: float, sigma: FloatArray
+    points: FloatArray,
+    centre: FloatArray,
+    section: _Section,
+    step_rad: float,
+    sigma: FloatArray,
+    spot_sigma_m: float,
 ) -> NDArray[np.bool_]:
     """Which beams' rays (through the points, from the scanner) pass through the rod's
     cross-section centred at ``centre`` (squeezed frame, where the ellipse is a circle of the
@@ -546,7 +552,7 @@ def _rays_hit(
     c = section.to_circle(centre[None, :])[0]
     directions = squeezed / np.linalg.norm(squeezed, axis=1)[:, None]
     miss = np.abs(directions[:, 0] * c[1] - directions[:, 1] * c[0])
-    grace = step_rad * float(np.linalg.norm(c)) + 3.0 * float(np.median(sigma))
+    grace = step_rad * float(np.linalg.norm(c)) + 3.0 * float(np.median(sigma)) + 2.0 * spot_sigma_m
     radius = section.radius_m / section.unknown_tilt_cos
     return (miss <= radius + grace) & (directions @ c > 0.0)
 
@@ -628,7 +634,9 @@ def _size_mismatch(
     # cover 3 steps, not the 2 between their centres).
     width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]])) + step
     low = 0.0 if partial else settings.min_visible_fraction * width_min - 2.0 * step
-    high = width_max + 3.0 * step
+    nearest_m = float(np.min(scan.ranges_m[beams]))
+    spot_rad = 4.0 * float(_spot_sigma_m(np.array([nearest_m]), settings)[0]) / max(nearest_m, 1e-3)
+    high = width_max + spot_rad + 3.0 * step  # a near rod's echo wins while its spot touches it
     if not low <= width <= high:
         return None
     return abs(width - 0.5 * (width_min + width_max)) / max(step, 1e-9)
@@ -723,12 +731,14 @@ def _residual_sigma(
     beam = points / ranges[:, None]
     along = normals[:, 0] * beam[:, 0] + normals[:, 1] * beam[:, 1]
     across = -normals[:, 0] * beam[:, 1] + normals[:, 1] * beam[:, 0]
-    lateral = ranges * settings.beam_angle_sigma_rad
+    # A beam's echo comes from wherever its spot meets the rod: near the silhouette that is
+    # off the beam's centre line by up to half the spot (and a near rod's echo wins over a far
+    # background while any of the spot is on it).
+    lateral = np.hypot(ranges * settings.beam_angle_sigma_rad, _spot_sigma_m(ranges, settings))
     # The first and last beam's spots straddle the silhouette: the return comes from anywhere
     # across the covered part of the spot.
-    lateral[[0, -1]] = ranges[[0, -1]] * float(
-        np.hypot(settings.beam_angle_sigma_rad, settings.beam_footprint_rad / np.sqrt(12.0))
-    )
+    edge_rad = float(np.hypot(settings.beam_angle_sigma_rad, settings.beam_footprint_rad / np.sqrt(12.0)))
+    lateral[[0, -1]] = np.hypot(ranges[[0, -1]] * edge_rad, _spot_sigma_m(ranges[[0, -1]], settings))
     curvature = sigma**2 / (np.sqrt(2.0) * radius_m)
     return np.sqrt((sigma * along) ** 2 + (lateral * across) ** 2 + curvature**2)
 
@@ -924,20 +934,22 @@ def _fit_segment(
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         for _ in range(2):
             share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
-            # A blend shows as a beam lying behind the surface: the fit weights a beam by what its
+            # A blend shows as a beam lying off the surface (behind it along the beam: outside the
+            # circle in front, inside it near the silhouette): the fit weights a beam by what its
             # residual shows of it (a merged echo may still look like an arc); the covariance
             # takes the whole bound.
-            behind_m, _ = _residuals(points, fit.centre_uv_m, section, section.radius_m)
-            blend_m = np.fmin(bound_m, np.fmax(behind_m, 0.0) + 2.0 * sigma)
+            off_m, _ = _residuals(points, fit.centre_uv_m, section, section.radius_m)
+            blend_m = np.fmin(bound_m, np.abs(off_m) + 2.0 * sigma)
             keep, fit = _drop_mixed_edges(points, np.hypot(sigma, blend_m), section, settings, bound_m)
         if float(np.min(share[keep])) > settings.max_blend_share:
             raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
     used = points[keep]
     fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
-    # A blended beam lies behind the surface by up to its bound: that part is no misfit.
-    residuals = fit.residuals_m
-    misfit = np.where(residuals > 0.0, np.fmax(residuals - bound_m[keep], 0.0), np.abs(residuals))
+    # A blended beam lies off the surface by up to its bound, and the arc's range error by up
+    # to its own: that part is no misfit.
+    allowed_m = bound_m[keep] + _arc_bias_m(scan, beams[keep], settings)
+    misfit = np.fmax(np.abs(fit.residuals_m) - allowed_m, 0.0)
     misfit_rms = float(np.sqrt(np.mean(misfit**2)))
     if misfit_rms > settings.max_rms_radius_fraction * section.radius_m + 3.0 * float(np.median(sigma[keep])):
         raise RodNotFoundError(
