@@ -14,9 +14,9 @@ a rod narrower than the beam's spot in front of a near wall gives only blends of
 and a dark rod far away no echo at all; such positions are *skipped*, with the reason, and
 any centre returned there is still checked.  Each centre is judged after the scanner's
 range-error curve is removed, as a calibration removes it: the model's own curve for this
-rod (``range_bias_m`` at its front beam's true range and noise-free intensity), moved along
-the bearing as the solver's curve moves it; the solver's estimated curve (one to three
-terms) leaves some of it, which is not judged here.
+rod (``SimulatedDwell.front_range_error_m``: its front beam's true range and noise-free
+intensity through the model's bias), moved along the bearing as the solver's curve moves
+it; the solver's estimated curve (one to three terms) leaves some of it, not judged here.
 
 Per rod and material, and per range: the positions judged, how many were found, the
 fraction of error components within 2.5 reported std (90-99 % when the covariance is
@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fakes.scanner_model.dwell import SimulatedDwell, simulate_dwell
-from fakes.scanner_model.range_error import range_bias_m
 from lasercal_hw.errors import CalibrationError
 from lasercal_hw.scan.average import average_scans
 from lasercal_hw.scan.extraction import find_rod_centre
@@ -126,25 +125,21 @@ def beams_on_rod(range_m: float, radius_m: float) -> int:
     return int(2 * np.floor(np.arcsin(min(radius_m / range_m, 1.0)) / BEAM_STEP_RAD) + 1)
 
 
-def own_echo_beams(dwell: SimulatedDwell, model: str) -> tuple[int, float]:
-    """How many beams' noise-free readings are the rod's own echo, and the model's range
-    error at the rod's front beam (measured minus true, m)."""
+def own_echo_beams(dwell: SimulatedDwell) -> int:
+    """How many beams' noise-free readings are the rod's own echo (after the model's range
+    error at the rod)."""
     angles = dwell.world.angles_rad
     directions = np.column_stack([np.cos(angles), np.sin(angles)])
     along = directions @ dwell.centre_uv_m
     miss = np.abs(directions[:, 0] * dwell.centre_uv_m[1] - directions[:, 1] * dwell.centre_uv_m[0])
     hits = (miss < dwell.radius_m) & (along > 0.0)
     surface_m = along - np.sqrt(np.fmax(dwell.radius_m**2 - miss**2, 0.0))
-    raw_mm, intensity = dwell.world.scan_mm(dwell.T_base_tcp)
+    raw_mm, _ = dwell.world.scan_mm(dwell.T_base_tcp)
     reading_m = np.where(raw_mm > 20, raw_mm / 1000.0, np.inf)
-    front = int(np.argmin(np.where(hits, miss, np.inf)))
-    bias_m = 0.0
-    if model == "physical" and hits.any():
-        physics = dwell.world.scene.physics
-        bias_m = float(range_bias_m(surface_m[[front]], intensity[[front]].astype(float), physics)[0])
+    bias_m = dwell.front_range_error_m()
     tolerance = max(0.5 * dwell.radius_m, MIN_OWN_TOLERANCE_M)
     own = hits & (np.abs(reading_m - surface_m - bias_m) <= tolerance)
-    return int(own.sum()), bias_m
+    return int(own.sum())
 
 
 def measure(
@@ -172,7 +167,7 @@ def measure(
         model=model,  # type: ignore[arg-type]
         spindle_deg=float(np.degrees(bearing_rad) * 7.0),
     )
-    own, bias_m = own_echo_beams(dwell, model)
+    own, bias_m = own_echo_beams(dwell), dwell.front_range_error_m()
     try:
         result = find_rod_centre(
             average_scans(dwell.scans),
