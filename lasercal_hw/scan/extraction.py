@@ -120,14 +120,17 @@ class ExtractionSettings:
     spot_width_at_scanner_m: float = 0.020
     spot_divergence_rad: float = 0.011
     #: ... and when that surface is nearer behind the rod than about the laser pulse's length
-    #: (about 1 m: docs/scanner-model.md), the two merge into one echo whose range lies between
-    #: them, weighted by their returned power: a steady blend. Each beam's share of the
-    #: background (the spot's part beside the rod; with intensities, weighted by the background's
-    #: power against the beam's) times the depth behind bounds its blend; it weights the fit and
-    #: joins the covariance.
+    #: (about 1 m: docs/scanner-model.md), the two merge into one echo whose peak lies between
+    #: them: a steady blend. A beam's blend is bounded by its share of the background (the
+    #: spot's part beside the rod; with intensities, weighted by the background's power
+    #: against the beam's) times the depth behind.
     echo_merge_m: float = 0.85
-    #: A rod whose every beam is more background than rod is refused: none reads the rod itself.
+    #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
     max_blend_share: float = 0.5
+    #: ... and one whose least blended beam still has this share of background may be a merged
+    #: echo that looks like an arc: its covariance takes every beam's whole bound (otherwise
+    #: what the residuals show of it) and the centre carries a warning when that is large.
+    doubtful_blend_share: float = 0.05
     #: A centre whose blend allowance (std) exceeds this carries a warning.
     warn_blend_std_m: float = 0.005
     #: What the scanner's range-error curve (one value per distance) leaves across one rod's
@@ -734,7 +737,7 @@ def _residual_sigma(
     # A beam's echo comes from wherever its spot meets the rod: near the silhouette that is
     # off the beam's centre line by up to half the spot (and a near rod's echo wins over a far
     # background while any of the spot is on it).
-    lateral = np.hypot(ranges * settings.beam_angle_sigma_rad, _spot_sigma_m(ranges, settings))
+    lateral = ranges * settings.beam_angle_sigma_rad
     # The first and last beam's spots straddle the silhouette: the return comes from anywhere
     # across the covered part of the spot.
     edge_rad = float(np.hypot(settings.beam_angle_sigma_rad, settings.beam_footprint_rad / np.sqrt(12.0)))
@@ -932,15 +935,12 @@ def _fit_segment(
     keep, fit = _drop_mixed_edges(points, sigma, section, settings)
     bound_m = np.zeros(beams.size)
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
-        for _ in range(2):
-            share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
-            # A blend shows as a beam lying off the surface (behind it along the beam: outside the
-            # circle in front, inside it near the silhouette): the fit weights a beam by what its
-            # residual shows of it (a merged echo may still look like an arc); the covariance
-            # takes the whole bound.
-            off_m, _ = _residuals(points, fit.centre_uv_m, section, section.radius_m)
-            blend_m = np.fmin(bound_m, np.abs(off_m) + 2.0 * sigma)
-            keep, fit = _drop_mixed_edges(points, np.hypot(sigma, blend_m), section, settings, bound_m)
+        share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
+        # Where no beam reads the rod cleanly the echo may be merged and still look like an arc:
+        # the covariance takes every beam's whole bound. Where some do, the blended edge beams
+        # show as residuals (the misfit test below allows them their bound).
+        if float(np.min(share)) > settings.doubtful_blend_share:
+            keep, fit = _drop_mixed_edges(points, sigma, section, settings, bound_m)
         if float(np.min(share[keep])) > settings.max_blend_share:
             raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
     used = points[keep]
