@@ -20,7 +20,7 @@ from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.errors import HistoryUnavailableError, StorageFullError
 from lasercal_hw.service.job_record import UNFINISHED_STATES
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 DB_FILE = "lasercal.sqlite3"
 _JSON_COLUMNS = ("request", "progress", "verdict", "error", "document")
 
@@ -49,7 +49,15 @@ CREATE TABLE verifies (
     document TEXT NOT NULL
 );
 """
-_MIGRATIONS = {1: _SCHEMA_V1}
+# Version 2 (issue 22): the robot's kinematics checksum a calibration was made with, and
+# who marked a calibration bad, when and why (a bad one is never active).
+_SCHEMA_V2 = """
+ALTER TABLE calibrations ADD COLUMN robot_calibration_checksum TEXT;
+ALTER TABLE calibrations ADD COLUMN bad_utc TEXT;
+ALTER TABLE calibrations ADD COLUMN bad_by TEXT;
+ALTER TABLE calibrations ADD COLUMN bad_reason TEXT
+"""
+_MIGRATIONS = {1: _SCHEMA_V1, 2: _SCHEMA_V2}
 TABLES = ("jobs", "events", "calibrations", "activations", "verifies")
 REBUILD_HINT = "lasercal serve --rebuild-history (docs/daemon.md, Crash safety)"
 
@@ -273,10 +281,12 @@ class HistoryStore:
         summary: dict[str, Any],
         directory: Path,
     ) -> None:
-        """Store a finished calibration (never replaced)."""
+        """Store a finished calibration (never replaced); ``robot_calibration_checksum`` is
+        the robot's kinematics checksum it was made with (None: unknown)."""
+        robot_calibration = (summary.get("devices") or {}).get("robot_calibration") or {}
         self._execute(
-            "INSERT INTO calibrations (id, created_utc, job_id, dry_run, passed, summary, dir) "
-            "VALUES (?, ?, ?, ?, ?, ?, ?)",
+            "INSERT INTO calibrations (id, created_utc, job_id, dry_run, passed, summary, dir, "
+            "robot_calibration_checksum) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
             (
                 calibration_id,
                 summary["created_utc"],
@@ -285,20 +295,35 @@ class HistoryStore:
                 int(passed),
                 json.dumps(summary, allow_nan=False),
                 str(directory),
+                robot_calibration.get("checksum"),
             ),
         )
 
     def calibration(self, calibration_id: str) -> tuple[dict[str, Any], Path] | None:
-        """A calibration's stored summary and folder, or None."""
-        rows = self._query("SELECT summary, dir FROM calibrations WHERE id = ?", (calibration_id,))
-        return (json.loads(rows[0]["summary"]), Path(rows[0]["dir"])) if rows else None
+        """A calibration's stored summary (with ``bad``: who marked it bad, when and why, or
+        None) and folder, or None."""
+        rows = self._query(
+            f"SELECT {_CALIBRATION_COLUMNS}, dir FROM calibrations WHERE id = ?", (calibration_id,)
+        )
+        return (_calibration_dict(rows[0]), Path(rows[0]["dir"])) if rows else None
 
     def calibrations(self) -> list[dict[str, Any]]:
-        """Every calibration's stored summary, newest first."""
+        """Every calibration's stored summary (with ``bad``), newest first."""
         return [
-            json.loads(r["summary"])
-            for r in self._query("SELECT summary FROM calibrations ORDER BY created_utc DESC, id DESC")
+            _calibration_dict(r)
+            for r in self._query(
+                f"SELECT {_CALIBRATION_COLUMNS} FROM calibrations ORDER BY created_utc DESC, id DESC"
+            )
         ]
+
+    def mark_bad(self, calibration_id: str, by: str, reason: str) -> str:
+        """Record that ``by`` found the calibration bad, and why; returns the time."""
+        time_utc = utc_now()
+        self._execute(
+            "UPDATE calibrations SET bad_utc = ?, bad_by = ?, bad_reason = ? WHERE id = ?",
+            (time_utc, by, reason, calibration_id),
+        )
+        return time_utc
 
     def activate(self, calibration_id: str, reason: str) -> None:
         """Record an activation: the calibration becomes the active one."""
@@ -308,9 +333,13 @@ class HistoryStore:
         )
 
     def active_calibration_id(self) -> str | None:
-        """The id of the newest activation's calibration."""
-        rows = self._query("SELECT calibration_id FROM activations ORDER BY id DESC LIMIT 1")
-        return str(rows[0]["calibration_id"]) if rows else None
+        """The id of the newest activation's calibration; None when there is none or it was
+        marked bad since (marking the active one bad deactivates it)."""
+        rows = self._query(
+            "SELECT a.calibration_id, c.bad_utc FROM activations a "
+            "JOIN calibrations c ON c.id = a.calibration_id ORDER BY a.id DESC LIMIT 1"
+        )
+        return str(rows[0]["calibration_id"]) if rows and rows[0]["bad_utc"] is None else None
 
     def activations(self) -> list[dict[str, Any]]:
         """The activation log, newest first."""
@@ -337,6 +366,16 @@ class HistoryStore:
             json.loads(r["document"])
             for r in self._query("SELECT document FROM verifies ORDER BY created_utc DESC, id DESC")
         ]
+
+
+_CALIBRATION_COLUMNS = "summary, bad_utc, bad_by, bad_reason"
+
+
+def _calibration_dict(row: sqlite3.Row) -> dict[str, Any]:
+    summary: dict[str, Any] = json.loads(row["summary"])
+    if row["bad_utc"] is None:
+        return summary | {"bad": None}
+    return summary | {"bad": {"time_utc": row["bad_utc"], "by": row["bad_by"], "reason": row["bad_reason"]}}
 
 
 def _job_dict(row: sqlite3.Row) -> dict[str, Any]:
