@@ -30,6 +30,7 @@ prints every judged position not found and every silent > 3 std centre, with the
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -142,6 +143,13 @@ def own_echo_beams(dwell: SimulatedDwell) -> int:
     return int(own.sum())
 
 
+def reason_kind(reason: str | None) -> str:
+    """A refusal's first sentence with its figures left out (to count refusals by kind)."""
+    if reason is None:
+        return "a centre was returned (judged only for > 3 std without a warning)"
+    return re.sub(r"[-+]?\d+(\.\d+)?", "#", reason.split(";")[0].split(":")[0])[:100]
+
+
 def measure(
     model: str,
     radius_m: float,
@@ -210,8 +218,8 @@ def main(argv: list[str] | None = None) -> int:
                             )
                             notable = by_rod[(model, label, material)].add(outcome)
                             by_range[(model, range_m)].add(outcome)
-                            if model == "physical" and outcome.own_beams < MIN_BEAMS and outcome.reason:
-                                skip_reasons[outcome.reason.split(";")[0][:110]] += 1
+                            if model == "physical" and outcome.own_beams < MIN_BEAMS:
+                                skip_reasons[reason_kind(outcome.reason)] += 1
                             if args.misses and notable:
                                 what = outcome.reason or f"error {1000 * outcome.error_m} mm"  # type: ignore[operator]
                                 print(
@@ -239,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     for (model, _, _), tally in by_rod.items():
         total[model].merge(tally)
     print(f"\n{'all':32s}{total['physical'].row()}   | {total['ideal'].row()}")
-    print("\nskipped positions (fewer than 5 beams read the rod's own echo), physical model, by reason:")
+    print("\nskipped positions (fewer than 5 beams read the rod's own echo), physical model, by outcome:")
     for reason, count in sorted(skip_reasons.items(), key=lambda item: -item[1]):
         print(f"  {count:4d}  {reason}")
     return 0
