@@ -48,6 +48,8 @@ DRY_RUN_SCENE_FILE = "dry_run_scene.toml"
 #: dry run's recording resumes against a new fake cell of the same world.
 META_DRY_RUN = "dry_run"
 META_SCENE = "dry_run_scene_toml"
+#: Recording meta: the scanner of a cell job this recording calibrates (docs/cell.md).
+META_SCANNER_NAME = "scanner_name"
 
 
 @dataclass(frozen=True)
@@ -67,6 +69,9 @@ class RunRequest:
     #: The number each waypoint goes by in messages (default: its position in ``waypoints``).
     waypoint_names: tuple[int, ...] | None = None
     title: str = "lasercal run"
+    #: Which of the cell's scanners this run calibrates (a dry run picks it from the scene's
+    #: ``[scanners.NAME]``); None: the one scanner.
+    scanner_name: str | None = None
 
 
 OutcomeT = TypeVar("OutcomeT")
@@ -349,7 +354,7 @@ def _as_recorded(request: RunRequest, meta: dict[str, Any]) -> RunRequest:
         scene = request.resume.parent / DRY_RUN_SCENE_FILE
         if not scene.is_file() or scene.read_text(encoding="utf-8") != scene_toml:
             scene.write_text(scene_toml, encoding="utf-8")
-    return replace(request, dry_run=True, scene=scene)
+    return replace(request, dry_run=True, scene=scene, scanner_name=meta.get(META_SCANNER_NAME))
 
 
 def _start_fake_cell(
@@ -373,10 +378,11 @@ def _start_fake_cell(
         cancel.fail(DeviceError(f"the dry run's fake cell died: {death}"))
 
     cell = stack.enter_context(FakeCellProcess(scene=scene, on_death=died))
-    job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": cell.scanner_url})
+    scanner_url, ground_truth = cell.scanner(request.scanner_name)
+    job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": scanner_url})
     sink.emit(
         "stage",
-        f"fake cell on {cell.address} (pid {cell.pid}): scanner {cell.scanner_url}",
+        f"fake cell on {cell.address} (pid {cell.pid}): scanner {scanner_url}",
         stage=Stage.FAKE_CELL,
         address=cell.address,
         pid=cell.pid,
@@ -384,7 +390,7 @@ def _start_fake_cell(
     difference = rods_differ(cell.info.get("rod"), job.rod.rod_line())
     if difference is not None:
         sink.emit("warning", difference)
-    return job, cell.ground_truth, {"address": cell.address, "pid": cell.pid, "scene": str(scene)}
+    return job, ground_truth, {"address": cell.address, "pid": cell.pid, "scene": str(scene)}
 
 
 def _open_recorder(
@@ -407,6 +413,8 @@ def _open_recorder(
         "robot": asdict(robot.identity()) | {"host": job.robot.host},
         "scanner": asdict(scanner.identity()) | {"url": job.scanner.url},
     }
+    if request.scanner_name is not None:
+        meta[META_SCANNER_NAME] = request.scanner_name
     if ground_truth is not None:
         meta["ground_truth_T_base_laser"] = np.asarray(ground_truth).tolist()
     if fake_cell is not None:
