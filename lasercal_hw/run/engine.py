@@ -207,7 +207,8 @@ def calibrate(
             )
         sink.emit("stage", "writing the outputs", stage=Stage.OUTPUTS)
         files = {"session": session.session_path} | write_outputs(
-            session.out_dir, outcome, session.job, ground_truth=session.ground_truth, title=request.title
+            session.out_dir, outcome, session.job, ground_truth=session.ground_truth, title=request.title,
+            scanner=request.scanner_name,
         )
     ground_truth, fake_cell, out_dir = session.ground_truth, session.fake_cell, session.out_dir
     report = RunReport(outcome, files, out_dir, ground_truth, fake_cell, time.monotonic() - started_s)

@@ -20,7 +20,7 @@ from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import rotation_angle_rad
 from lasercal_hw.models import FloatArray
-from lasercal_hw.outputs.exports import exports, static_transform_publisher_args, urdf_joint
+from lasercal_hw.outputs.exports import exports, scanner_frame, static_transform_publisher_args, urdf_joint
 from lasercal_hw.outputs.report import ReportData, render_report
 from lasercal_hw.run.records import RunOutcome
 
@@ -45,9 +45,10 @@ def transform_error(T_estimate: FloatArray, T_truth: FloatArray) -> dict[str, fl
 
 
 def result_document(
-    outcome: RunOutcome, job: JobConfig, *, ground_truth: FloatArray | None = None
+    outcome: RunOutcome, job: JobConfig, *, ground_truth: FloatArray | None = None, scanner: str | None = None
 ) -> dict[str, Any]:
-    """``result.json``: the solver's result plus the run's verdict, skips and timings."""
+    """``result.json``: the solver's result plus the run's verdict, skips and timings (and the
+    cell scanner it calibrated, whose frame the exports name)."""
     result = outcome.result
     document = result.to_json_dict()
     document["verdict"] = outcome.verdict.as_dict()
@@ -72,7 +73,9 @@ def result_document(
         "scanner": asdict(outcome.preflight.scanner),
         "job": job.model_dump(mode="json"),
     }
-    document["exports"] = exports(result.matrix())
+    if scanner is not None:
+        document["run"]["scanner_name"] = scanner
+    document["exports"] = exports(result.matrix(), child=scanner_frame(scanner))
     if ground_truth is not None:
         document["ground_truth"] = {
             "T_base_laser": np.asarray(ground_truth, dtype=float).tolist(),
@@ -189,6 +192,7 @@ def write_outputs(
     *,
     ground_truth: FloatArray | None = None,
     title: str = "lasercal calibration",
+    scanner: str | None = None,
 ) -> dict[str, Path]:
     """Write every result file into ``out_dir``; returns them by name.
 
@@ -201,13 +205,14 @@ def write_outputs(
         "result": out_dir / RESULT_FILE,
     }
     write_observations_csv(files["observations"], outcome.observations, outcome.solve_settings)
-    document = result_document(outcome, job, ground_truth=ground_truth)
+    document = result_document(outcome, job, ground_truth=ground_truth, scanner=scanner)
     write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
     T = outcome.result.matrix()
     ros_files = {"urdf": out_dir / URDF_FILE, "static_transform_publisher": out_dir / TF_ARGS_FILE}
     if outcome.verdict.passed:
-        write_text(ros_files["urdf"], urdf_joint(T))
-        tf_args = " ".join(static_transform_publisher_args(T))
+        child = scanner_frame(scanner)
+        write_text(ros_files["urdf"], urdf_joint(T, child=child))
+        tf_args = " ".join(static_transform_publisher_args(T, child_frame_id=child))
         write_text(ros_files["static_transform_publisher"], tf_args + "\n")
         files |= ros_files
     else:

@@ -21,6 +21,7 @@ from typing import Any, Protocol
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import InterruptedRunError, LasercalError
 from lasercal_hw.run.cancel import CancelToken
+from lasercal_hw.run.cell import CELL_FILE
 from lasercal_hw.run.events import RunEvent
 from lasercal_hw.service.errors import (
     ConflictError,
@@ -80,6 +81,8 @@ class RunResult:
     passed: bool
     verdict: dict[str, Any]
     calibration_dir: Path | None = None  # a calibration to file (its result.json is there)
+    #: A cell job's calibrations to file, by scanner (each folder holds its result.json).
+    calibration_dirs: dict[str, Path] | None = None
     verify: dict[str, Any] | None = None  # a verify document to file
 
 
@@ -89,7 +92,8 @@ Runner = Callable[[RunContext], RunResult]
 class CalibrationFiler(Protocol):
     """Files a finished calibration or verify into the history (``calibrations.CalibrationHistory``)."""
 
-    def record(self, job_id: str, directory: Path, dry_run: bool) -> str: ...
+    def record(self, job_id: str, directory: Path, dry_run: bool, created_utc: str | None = None,
+               scanner: str = ...) -> str: ...
     def activate(self, calibration_id: str, reason: str) -> Any: ...
     def record_verify(self, job_id: str, summary: dict[str, Any]) -> str: ...
 
@@ -256,7 +260,10 @@ class JobManager:
         """Continue a cancelled or interrupted job from its recording (ConflictError otherwise)."""
         require_confirmation(body.confirm_motion)
         record = self.get(job_id)
+        # a cell job resumes from its folder (cell.json: the scanners done, the one stopped)
         session = Path(record.out_dir) / SESSION_FILE
+        if (Path(record.out_dir) / CELL_FILE).exists():
+            session = Path(record.out_dir)
         stopped_by = record.error.code if record.error is not None else None
         device_failure = record.state == JobState.FAILED and stopped_by in RESUMABLE_ERRORS
         if record.state not in RESUMABLE_STATES and not device_failure:
@@ -464,8 +471,8 @@ class JobManager:
         """File a finished run's calibration or verify; the job fields to store with its end."""
         job_id = record.id
         fields: dict[str, Any] = {"verdict": result.verdict, "document": result.document}
+        dry_run = record.kind == "dry_run" or self._dry_run_daemon
         if result.calibration_dir is not None:
-            dry_run = record.kind == "dry_run" or self._dry_run_daemon
             calibration_id = self._history.record(job_id, result.calibration_dir, dry_run)
             fields["calibration_id"] = calibration_id
             self._bus.publish(
@@ -473,6 +480,20 @@ class JobManager:
             )
             if result.passed and record.request.get("activate_on_pass"):
                 self._history.activate(calibration_id, f"activated on pass by job {job_id}")
+        filed = {}
+        for scanner, directory in (result.calibration_dirs or {}).items():
+            calibration_id = self._history.record(job_id, directory, dry_run, scanner=scanner)
+            passed = bool(result.document["scanners"][scanner]["passed"])
+            self._bus.publish(
+                "calibration", {"calibration_id": calibration_id, "passed": passed, "scanner": scanner},
+                job_id,
+            )
+            if passed and record.request.get("activate_on_pass"):
+                self._history.activate(calibration_id, f"activated on pass by job {job_id}")
+            filed[scanner] = calibration_id
+        if filed:  # a cell job: the first scanner's calibration in the job's column, all in its document
+            fields["calibration_id"] = next(iter(filed.values()))
+            fields["document"] = result.document | {"calibration_ids": filed}
         if result.verify is not None:
             fields["verify_id"] = self._history.record_verify(job_id, result.verify)
         return fields

@@ -24,6 +24,8 @@ def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None 
     Foxglove ``live`` view if there is one."""
     from lasercal_hw.run.engine import RunRequest, calibrate
 
+    if ctx.job.scanners:
+        return _run_cell(ctx, dry_run=dry_run)
     request = RunRequest(
         job=ctx.job,
         out_dir=ctx.out_dir,
@@ -46,6 +48,31 @@ def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None 
         passed=bool(document["passed"]),
         verdict=document["verdict"],
         calibration_dir=report.out_dir,
+    )
+
+
+def _run_cell(ctx: RunContext, *, dry_run: bool) -> RunResult:
+    """A cell job (``[scanners.NAME]``): every scanner through ``run/cell.calibrate_cell``, each
+    scanner's calibration filed on its own; a resumed one continues the job's folder."""
+    from lasercal_hw.run.cell import CellRunRequest, calibrate_cell
+
+    request = CellRunRequest(
+        job=ctx.job,
+        out_dir=ctx.out_dir,
+        robot_host=ctx.devices.robot_host,
+        dry_run=dry_run,
+        scene=ctx.scene_file if dry_run else None,
+        resume=ctx.out_dir if ctx.resume_from is not None else None,
+        title=f"lasercal {'dry run' if dry_run else 'calibration'} (job {ctx.job_id})",
+    )
+    report = calibrate_cell(request, on_event=ctx.on_event, cancel=ctx.cancel, confirm=ctx.confirm)
+    document = report.document()
+    return RunResult(
+        document=document,
+        passed=report.passed,
+        verdict={"passed": report.passed,
+                 "scanners": {name: entry["passed"] for name, entry in document["scanners"].items()}},
+        calibration_dirs={name: outcome.result_path.parent for name, outcome in report.scanners.items()},
     )
 
 

@@ -16,11 +16,12 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.errors import HistoryUnavailableError, StorageFullError
 from lasercal_hw.service.job_record import UNFINISHED_STATES
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 DB_FILE = "lasercal.sqlite3"
 _JSON_COLUMNS = ("request", "progress", "verdict", "error", "document")
 
@@ -49,7 +50,10 @@ CREATE TABLE verifies (
     document TEXT NOT NULL
 );
 """
-_MIGRATIONS = {1: _SCHEMA_V1}
+#: Version 2: each calibration is of one of the cell's scanners (docs/cell.md); the calibrations of
+#: a one-scanner daemon, and all those filed before, are of the scanner "default".
+_SCANNER_V2 = f"ALTER TABLE calibrations ADD COLUMN scanner TEXT NOT NULL DEFAULT '{DEFAULT_SCANNER_NAME}'"
+_MIGRATIONS = {1: _SCHEMA_V1, 2: _SCANNER_V2}
 TABLES = ("jobs", "events", "calibrations", "activations", "verifies")
 REBUILD_HINT = "lasercal serve --rebuild-history (docs/daemon.md, Crash safety)"
 
@@ -272,11 +276,12 @@ class HistoryStore:
         passed: bool,
         summary: dict[str, Any],
         directory: Path,
+        scanner: str = DEFAULT_SCANNER_NAME,
     ) -> None:
-        """Store a finished calibration (never replaced)."""
+        """Store a finished calibration of ``scanner`` (never replaced)."""
         self._execute(
-            "INSERT INTO calibrations (id, created_utc, job_id, dry_run, passed, summary, dir) "
-            "VALUES (?, ?, ?, ?, ?, ?, ?)",
+            "INSERT INTO calibrations (id, created_utc, job_id, dry_run, passed, summary, dir, scanner) "
+            "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
             (
                 calibration_id,
                 summary["created_utc"],
@@ -285,19 +290,27 @@ class HistoryStore:
                 int(passed),
                 json.dumps(summary, allow_nan=False),
                 str(directory),
+                scanner,
             ),
         )
 
     def calibration(self, calibration_id: str) -> tuple[dict[str, Any], Path] | None:
-        """A calibration's stored summary and folder, or None."""
-        rows = self._query("SELECT summary, dir FROM calibrations WHERE id = ?", (calibration_id,))
-        return (json.loads(rows[0]["summary"]), Path(rows[0]["dir"])) if rows else None
+        """A calibration's stored summary (with its scanner) and folder, or None."""
+        rows = self._query("SELECT summary, dir, scanner FROM calibrations WHERE id = ?", (calibration_id,))
+        if not rows:
+            return None
+        return json.loads(rows[0]["summary"]) | {"scanner": rows[0]["scanner"]}, Path(rows[0]["dir"])
 
-    def calibrations(self) -> list[dict[str, Any]]:
-        """Every calibration's stored summary, newest first."""
+    def calibrations(self, scanner: str | None = None) -> list[dict[str, Any]]:
+        """Every calibration's stored summary (of ``scanner``, or of all), newest first, each
+        with its scanner."""
+        where, params = ("WHERE scanner = ?", (scanner,)) if scanner is not None else ("", ())
         return [
-            json.loads(r["summary"])
-            for r in self._query("SELECT summary FROM calibrations ORDER BY created_utc DESC, id DESC")
+            json.loads(r["summary"]) | {"scanner": r["scanner"]}
+            for r in self._query(
+                f"SELECT summary, scanner FROM calibrations {where} ORDER BY created_utc DESC, id DESC",
+                params,
+            )
         ]
 
     def activate(self, calibration_id: str, reason: str) -> None:
@@ -307,9 +320,17 @@ class HistoryStore:
             (calibration_id, utc_now(), reason),
         )
 
-    def active_calibration_id(self) -> str | None:
-        """The id of the newest activation's calibration."""
-        rows = self._query("SELECT calibration_id FROM activations ORDER BY id DESC LIMIT 1")
+    def active_calibration_id(self, scanner: str | None = None) -> str | None:
+        """The id of the newest activation's calibration (of ``scanner``; None: of any scanner,
+        a one-scanner daemon's one)."""
+        if scanner is None:
+            rows = self._query("SELECT calibration_id FROM activations ORDER BY id DESC LIMIT 1")
+        else:
+            rows = self._query(
+                "SELECT a.calibration_id FROM activations a JOIN calibrations c ON c.id = a.calibration_id "
+                "WHERE c.scanner = ? ORDER BY a.id DESC LIMIT 1",
+                (scanner,),
+            )
         return str(rows[0]["calibration_id"]) if rows else None
 
     def activations(self) -> list[dict[str, Any]]:
