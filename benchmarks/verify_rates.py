@@ -21,7 +21,7 @@ with a 95 % Clopper-Pearson interval) against the stated rate; the detection rat
 test flags the moved scanner); the smallest move the test detects 90 % of the time along
 its weakest direction (its power; above the tolerance the verdict is ``inconclusive``); the
 coverage of the estimated move (|error| / std per component) and the verdict counts; and
-the time of the verify (motion + settle margin + dwell: ``verify.timing.visit_time_s``,
+the time of the verify (motion + settle margin + dwell: ``run.timing.visit_time_s``,
 joint trapezoid profiles at the job's caps between UR5 inverse kinematics solutions) against
 the calibration's, estimated the same way.
 """
@@ -40,10 +40,10 @@ from fakes.world import World
 from lasercal_hw.config import load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_to_matrix
+from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify.drift import DriftTest
 from lasercal_hw.verify.procedure import VerifyPlan, plan_verify, range_curve_of, refit_and_test
-from lasercal_hw.verify.timing import visit_time_s
 from lasercal_hw.verify.verdict import decide
 
 SHIFT_M = 0.003

@@ -29,7 +29,11 @@ from lasercal_hw.models import RodLine
 
 def rod_lines_in_base(tcp_poses: FloatArray, rod: RodLine) -> tuple[FloatArray, FloatArray]:
     """Origins (N, 3) and unit directions (N, 3) of the rod axis in the base frame."""
-    transforms = pose_to_matrix(np.asarray(tcp_poses, dtype=float))
+    return rod_lines_of_transforms(pose_to_matrix(np.asarray(tcp_poses, dtype=float)), rod)
+
+
+def rod_lines_of_transforms(transforms: FloatArray, rod: RodLine) -> tuple[FloatArray, FloatArray]:
+    """``rod_lines_in_base`` from the TCP poses as 4x4 transforms (N, 4, 4)."""
     rotations = transforms[:, :3, :3]
     origins = rotations @ np.asarray(rod.origin_m, dtype=float) + transforms[:, :3, 3]
     directions = rotations @ rod.unit_direction()

@@ -23,8 +23,10 @@ MAX_CENTRE_DISTANCE_M = 100.0
 """No SCIP scanner measures this far (a UTM-30LX-EW: 60 m)."""
 
 
-def check_physical(observations: Sequence[Observation]) -> None:
-    """``ConfigError`` naming the first row (by its index) holding an impossible value.
+def check_physical(observations: Sequence[Observation]) -> np.ndarray:
+    """``ConfigError`` naming the first row (by its index) holding an impossible value;
+    else the rows (N, 8) of TCP pose and centre that were screened (NaN rows where a shape
+    is wrong), for the solver to use.
 
     The rows are screened as one array (10,000 rows in a few ms); a row that fails the
     screen is examined on its own for the message."""
@@ -40,6 +42,7 @@ def check_physical(observations: Sequence[Observation]) -> None:
         if problem is not None:
             index = observations[row].index
             raise ConfigError(f"observation index {index}: {problem}; fix or remove that row")
+    return table
 
 
 def _table(observations: Sequence[Observation]) -> np.ndarray:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, TypeAdapter
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -41,7 +41,7 @@ from lasercal_hw.calibration.model import (
     plane_crossing,
     range_error_basis,
     range_error_m,
-    rod_lines_in_base,
+    rod_lines_of_transforms,
     whiten,
     whiten_residual,
     whitening,
@@ -72,6 +72,8 @@ from lasercal_hw.geometry import (
 from lasercal_hw.models import Observation, RodLine
 
 logger = logging.getLogger(__name__)
+
+_RESIDUALS = TypeAdapter(list[WaypointResidual])
 
 MIN_WAYPOINTS = 5
 _MEDIAN_CHI2_2DOF = 2.0 * np.log(2.0)
@@ -211,8 +213,7 @@ def solve(
     opts = options or SolverOptions()
     if formulation is not None:
         opts = opts.model_copy(update={"formulation": formulation})
-    check_physical(observations)
-    data = _arrays(observations, rod, opts)
+    data = _arrays(observations, check_physical(observations), rod, opts)
     _check_rod_directions(data.directions, opts)
     weights = 1.0 / np.sqrt(0.5 * np.trace(data.covariance, axis1=1, axis2=2))
     initial = linear_initial_pose(data.origins, data.directions, data.centres, weights)
@@ -266,7 +267,10 @@ def solve(
     return result
 
 
-def _arrays(observations: Sequence[Observation], rod: RodLine, opts: SolverOptions) -> _Data:
+def _arrays(
+    observations: Sequence[Observation], table: FloatArray, rod: RodLine, opts: SolverOptions
+) -> _Data:
+    """The solver's arrays from the observations and their (N, 8) pose and centre rows."""
     n = len(observations)
     if n < MIN_WAYPOINTS:
         raise DegenerateDataError(
@@ -274,16 +278,16 @@ def _arrays(observations: Sequence[Observation], rod: RodLine, opts: SolverOptio
             "(each gives 2 equations for 6 unknowns): record more waypoints"
         )
     index = np.array([o.index for o in observations])
-    poses = np.array([np.asarray(o.tcp_pose, dtype=float) for o in observations])
-    centres = np.array([np.asarray(o.centre_uv_m, dtype=float) for o in observations])
+    poses, centres = table[:, :6], table[:, 6:]
+    default = np.eye(2) * opts.default_sigma_uv_m**2
     covariance = np.array(
-        [
-            np.eye(2) * opts.default_sigma_uv_m**2 if o.covariance_uv_m2 is None else o.covariance_uv_m2
-            for o in observations
-        ],
-        dtype=float,
+        [default if o.covariance_uv_m2 is None else o.covariance_uv_m2 for o in observations], dtype=float
     )
-    if poses.shape != (n, 6) or centres.shape != (n, 2) or covariance.shape != (n, 2, 2):
+    misshapen = covariance.shape != (n, 2, 2) or any(
+        np.shape(observations[row].tcp_pose) != (6,) or np.shape(observations[row].centre_uv_m) != (2,)
+        for row in np.flatnonzero(np.isnan(table).all(axis=1))
+    )
+    if misshapen:
         raise ConfigError(
             "each observation needs a 6-element TCP pose, a 2-element centre and a 2x2 covariance"
         )
@@ -304,8 +308,8 @@ def _arrays(observations: Sequence[Observation], rod: RodLine, opts: SolverOptio
             f"centre covariance of waypoint {index[bad_cov][0]} is not positive definite: "
             "give positive sigma_u, sigma_v"
         )
-    origins, directions = rod_lines_in_base(poses, rod)
     transforms = pose_to_matrix(poses)
+    origins, directions = rod_lines_of_transforms(transforms, rod)
     return _Data(index, origins, directions, centres, covariance, transforms, rod, rod)
 
 
@@ -462,8 +466,8 @@ def _refine(
         loss=loss,
         f_scale=knee,
         x_scale="jac",
-        xtol=1e-12,
-        ftol=1e-12,
+        xtol=1e-12 if loss == "linear" else 1e-8,
+        ftol=1e-12 if loss == "linear" else 1e-8,
     )
     rod, offset = line(fit.x)
     moved = data.with_line(rod, offset) if extras.count else data
@@ -652,10 +656,12 @@ def _result(
         used.tolist(),
         strict=True,
     )
-    residuals = [  # validated construction: in pydantic 2 it is faster than model_construct
-        WaypointResidual(index=i, du_mm=du, dv_mm=dv, norm_mm=nm, whitened_norm=wn, used=u)
-        for i, du, dv, nm, wn, u in columns
-    ]
+    residuals = _RESIDUALS.validate_python(  # one validation of plain dicts: twice as fast as
+        [  # 10,000 model constructors, and faster than model_construct
+            {"index": i, "du_mm": du, "dv_mm": dv, "norm_mm": nm, "whitened_norm": wn, "used": u}
+            for i, du, dv, nm, wn, u in columns
+        ]
+    )
     transform = make_transform(rotation, translation)
     options = opts.model_dump()
     options["robust"] = robust and opts.formulation == "ours"  # the paper's problem has no robust mode

@@ -387,6 +387,8 @@ def _start_fake_cell(
         stage=Stage.FAKE_CELL,
         address=cell.address,
         pid=cell.pid,
+        robot_host=cell.robot_host,
+        scanner_url=cell.scanner_url,
     )
     difference = rods_differ(cell.info.get("rod"), job.rod.rod_line())
     if difference is not None:

@@ -44,6 +44,7 @@ from lasercal_hw.run.records import (
     record_event,
 )
 from lasercal_hw.run.retract import retract_candidates
+from lasercal_hw.run.timing import move_times_s
 from lasercal_hw.run.two_pass import predict_rod
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
@@ -113,6 +114,7 @@ class Sequencer:
         self._joint_targets: dict[int, FloatArray] = {}
         self._current: int | None = None
         self._moves = 0
+        self._planned_move_s: float | None = None
         self._consensus: tuple[tuple[int, ...], FloatArray | None] | None = None
 
     # -- public -------------------------------------------------------------------------
@@ -476,4 +478,10 @@ class Sequencer:
         )
 
     def _mean_motion_s(self) -> float:
-        return self._timings.motion_s / max(self._moves, 1)
+        """The mean move so far; before the first move, the mean of the planned moves."""
+        if self._moves:
+            return self._timings.motion_s / self._moves
+        if self._planned_move_s is None:
+            planned_s = move_times_s(self._job, self._waypoints) if len(self._waypoints) else None
+            self._planned_move_s = float(np.mean(planned_s)) if planned_s else 0.0
+        return self._planned_move_s

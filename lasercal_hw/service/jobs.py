@@ -22,7 +22,7 @@ from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import InterruptedRunError, LasercalError
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.cell import CELL_FILE
-from lasercal_hw.run.events import RunEvent
+from lasercal_hw.run.events import RunEvent, Stage
 from lasercal_hw.service.errors import (
     ConflictError,
     InvalidRequestError,
@@ -391,6 +391,9 @@ class JobManager:
             if event.stage is not None and JobState.of_phase(event.stage.phase) != current["state"]:
                 current["state"] = JobState.of_phase(event.stage.phase)
                 self._set_state(job_id, current["state"])
+            if event.stage is Stage.FAKE_CELL and "scanner_url" in event.data:
+                record.request = record.request | {"resolved_job": _pointed_at_fake_cell(record, event.data)}
+                self._store.update_job(job_id, request=record.request)
             if event.kind == "progress":
                 current["progress"] = current["progress"].after(event)
                 self._store.update_job(job_id, progress=current["progress"].model_dump(mode="json"))
@@ -497,3 +500,13 @@ class JobManager:
         if result.verify is not None:
             fields["verify_id"] = self._history.record_verify(job_id, result.verify)
         return fields
+
+
+def _pointed_at_fake_cell(record: Job, cell: dict[str, Any]) -> dict[str, Any]:
+    """The dry run's resolved job with the addresses of the fake cell it started (until then
+    it names the default job's devices, which the dry run never uses)."""
+    resolved = record.request["resolved_job"]
+    return resolved | {
+        "robot": resolved["robot"] | {"host": cell["robot_host"]},
+        "scanner": resolved["scanner"] | {"url": cell["scanner_url"]},
+    }

@@ -27,6 +27,7 @@ from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.engine import MotionPlan, ProcedureReport, RunRequest, open_sequencer
 from lasercal_hw.run.events import EventSink, RunEvent, Stage
 from lasercal_hw.run.records import Measured, Timings, WaypointMeasurement
+from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.two_pass import refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
@@ -35,7 +36,6 @@ from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
 from lasercal_hw.verify.identity import IdentityCheck, check_identity
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
 from lasercal_hw.verify.selection import Selection, select_waypoints
-from lasercal_hw.verify.timing import visit_time_s
 from lasercal_hw.verify.verdict import Verdict, decide, with_time_note
 
 MIN_MEASURED = 2

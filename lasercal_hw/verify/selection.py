@@ -8,7 +8,7 @@ chosen waypoints spread over the scan plane and the tool tilts by themselves: a 
 that left one direction of the transform untested would have a near-zero factor there.
 Greedy selection, then exchanges until no swap improves the determinant; with a time
 budget (``verify.max_time_fraction`` of the calibration's own motion and dwell, estimated
-by ``verify.timing``), the exchanges keep the subset inside it.
+by ``run.timing``), the exchanges keep the subset inside it.
 """
 
 from __future__ import annotations

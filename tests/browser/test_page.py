@@ -171,6 +171,8 @@ def _check_plot_labels(browser: Any) -> None:
     assert not found["clipped"], f"labels clipped by the plot's edge: {found['clipped']}"
     clipped = _by_id(browser, "scan").get_attribute("data-clipped-labels")
     assert clipped is None, f"a label of the scan picture did not fit its space: {clipped}"
+    overlapping = _by_id(browser, "scan").get_attribute("data-overlapping-labels")
+    assert overlapping is None, f"labels of the scan picture overlap: {overlapping}"
 
 
 def test_api_docs_render_from_the_daemon_alone(daemon: DaemonProcess, browser: Any, artifacts: Path) -> None:

@@ -25,6 +25,7 @@ from lasercal_hw.run.records import Progress
 from lasercal_hw.run.replay import solve_recording
 from lasercal_hw.run.resume import resume_state
 from lasercal_hw.run.retract import NOMINAL_CLEARANCE_M, background_lift_m
+from lasercal_hw.run.timing import move_times_s
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
 from tests.doubles import (
@@ -388,3 +389,19 @@ def test_waypoints_go_by_their_names_in_messages_and_by_position_in_the_recordin
     assert moves[0] == "moving to waypoint 10 (1 of 6)" and moves[-1] == "moving to waypoint 23 (6 of 6)"
     assert any(p.message.startswith("waypoint 14: rod at") for p in progress if p.stage == "centre")
     assert [fields["index"] for _, kind, fields in recorder.events if kind == "dwell_start"] == list(range(6))
+
+
+def test_time_left_counts_the_planned_moves_before_the_arm_has_moved() -> None:
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    progress: list[Progress] = []
+    waypoints = semicircle_waypoints(6)
+    run_calibration(robot, scanner, MemoryRecorder(), job, waypoints, on_progress=progress.append,
+                    clock=clock)
+
+    first = progress[0]
+    dwell_only_s = len(waypoints) * (job.dwell_s + job.settle.margin_s)
+    planned_s = move_times_s(job, waypoints)
+    assert planned_s is not None
+    assert first.completed == 0
+    assert first.time_left_s == pytest.approx(dwell_only_s + sum(planned_s), rel=1e-6)

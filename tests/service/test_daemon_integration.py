@@ -118,6 +118,11 @@ def test_dry_run_to_the_end_with_every_event_and_file(daemon: DaemonProcess) -> 
         finished = client.get(f"/v1/jobs/{job_id}").json()
         # The verdict is the calibration's business (a loaded machine can fail a gate), not the daemon's.
         assert finished["state"] == "succeeded" and isinstance(finished["verdict"]["passed"], bool)
+        cell = next(data for _, kind, data in everything if kind == "stage" and "scanner_url" in data)
+        resolved = finished["request"]["resolved_job"]  # the fake cell's devices, not the defaults
+        assert resolved["robot"]["host"] == cell["robot_host"]
+        assert resolved["scanner"]["url"] == cell["scanner_url"]
+        assert cell["scanner_url"].startswith("scip+tcp://127.")
         document = finished["document"]
         assert document["dry_run"] is True and document["ground_truth"]["error"]["translation_mm"] < 20.0
         calibration = client.get(f"/v1/calibrations/{finished['calibration_id']}").json()

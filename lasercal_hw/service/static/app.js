@@ -363,7 +363,10 @@ function renderScan() {
   // u (scanner x) to the right, v (scanner y) up.
   const px = (u, v) => [W / 2 + (u - midU) * scale, H / 2 - (v - midV) * scale];
 
-  drawGrid(ctx, W, H, px, scale, midU, midV, span);
+  ctx.font = "11px system-ui, sans-serif";
+  const caption = scan ? `waypoint ${scan.waypoint}: ${rodBeams.size} beams on the rod` : "no scan yet";
+  const captionBox = textBox(ctx, caption, 8, H - 8);
+  drawGrid(ctx, W, H, px, midU, midV, span, [captionBox]);
   drawScanner(ctx, px);
   ctx.fillStyle = cssVar("--scan");
   points.forEach(([u, v, i]) => {
@@ -393,34 +396,57 @@ function renderScan() {
   });
   if (scan && scan.circle) drawInset(ctx, W, scan, rodPoints);
   ctx.fillStyle = cssVar("--muted");
-  ctx.fillText(scan ? `waypoint ${scan.waypoint}: ${rodBeams.size} beams on the rod` : "no scan yet", 8, H - 8);
+  ctx.font = "11px system-ui, sans-serif";
+  ctx.fillText(caption, 8, H - 8);
   canvas.dataset.scans = String(live.scans);
   canvas.dataset.waypoint = scan ? String(scan.waypoint) : "";
 }
 
 function cssVar(name) { return getComputedStyle(document.documentElement).getPropertyValue(name).trim(); }
 
-function drawGrid(ctx, W, H, px, scale, midU, midV, span) {
+/** The grid and its labels; a label that would overlap a text already placed (the caption,
+ *  the axes, another label) is left out, and the canvas's data-overlapping-labels names any
+ *  overlap that remains (the browser test fails on it). */
+function drawGrid(ctx, W, H, px, midU, midV, span, placed) {
   const step = span > 4 ? 1 : span > 1.5 ? 0.5 : 0.1;
   ctx.strokeStyle = "#eef0f3";
   ctx.lineWidth = 1;
   ctx.fillStyle = cssVar("--muted");
   ctx.font = "10px system-ui, sans-serif";
+  const axes = "u [m] →, v [m] ↑ (scan plane)";
+  const axesX = W - ctx.measureText(axes).width - 8;
+  placed.push(textBox(ctx, axes, axesX, H - 8));
+  const label = (text, x, y) => {
+    const box = textBox(ctx, text, x, y);
+    if (placed.some((other) => boxesOverlap(box, other))) return;
+    placed.push(box);
+    ctx.fillText(text, x, y);
+  };
   const u0 = Math.floor((midU - span) / step) * step;
   const v0 = Math.floor((midV - span) / step) * step;
   for (let u = u0; u <= midU + span; u += step) {
     const [x] = px(u, 0);
     ctx.beginPath(); ctx.moveTo(x, 0); ctx.lineTo(x, H); ctx.stroke();
-    if (x < W - INSET_PX - 40) ctx.fillText(gridLabel(u), x + 2, 10);  // none under the close-up
+    if (x < W - INSET_PX - 40) label(gridLabel(u), x + 2, 10);  // none under the close-up
   }
   for (let v = v0; v <= midV + span; v += step) {
     const [, y] = px(0, v);
     ctx.beginPath(); ctx.moveTo(0, y); ctx.lineTo(W, y); ctx.stroke();
-    ctx.fillText(gridLabel(v), 2, y - 2);
+    label(gridLabel(v), 2, y - 2);
   }
-  const axes = "u [m] →, v [m] ↑ (scan plane)";
-  ctx.fillText(axes, W - ctx.measureText(axes).width - 8, H - 8);
+  ctx.fillText(axes, axesX, H - 8);
+  const overlaps = placed.flatMap((a, i) => placed.slice(i + 1).filter((b) => boxesOverlap(a, b)).map((b) => `${a.text} / ${b.text}`));
+  if (overlaps.length) ctx.canvas.dataset.overlappingLabels = overlaps.join("; ");
+  else delete ctx.canvas.dataset.overlappingLabels;
 }
+
+/** The box a text drawn at (x, y) on its baseline covers, in the context's current font. */
+function textBox(ctx, text, x, y) {
+  const m = ctx.measureText(text);
+  return { text, x0: x, x1: x + m.width, y0: y - m.actualBoundingBoxAscent, y1: y + m.actualBoundingBoxDescent };
+}
+
+function boxesOverlap(a, b) { return a.x0 < b.x1 && b.x0 < a.x1 && a.y0 < b.y1 && b.y0 < a.y1; }
 
 function gridLabel(metres) { return (Math.abs(metres) < 1e-9 ? 0 : metres).toFixed(1); }
 

@@ -1,5 +1,6 @@
 """How long visiting a list of waypoints takes (motion plus dwell), estimated before the
-arm moves, so the verify can choose waypoints that fit its time budget.
+arm moves: the verify chooses waypoints that fit its time budget by it, and a run's
+time-left estimate uses it until the arm has made its first move.
 
 Joint moves (the default ``motion.move``) last as long as the largest joint's trapezoid
 profile at the job's joint speed and acceleration caps; joint targets are the UR5 inverse
@@ -32,8 +33,9 @@ def joint_move_s(distance_rad: float, speed_rad_s: float, accel_rad_s2: float) -
     return distance_rad / speed_rad_s + speed_rad_s / accel_rad_s2
 
 
-def visit_time_s(job: JobConfig, poses: FloatArray) -> float | None:
-    """Background, then each pose in order; None when the UR5 model cannot reach a pose."""
+def move_times_s(job: JobConfig, poses: FloatArray) -> list[float] | None:
+    """Each joint move's duration: from the retract pose to the first pose, then pose to pose;
+    None when the UR5 model cannot reach a pose."""
     poses = np.asarray(poses, dtype=float).reshape(-1, 6)
     targets = [inverse_kinematics_pose(pose, HOME_POSTURE_RAD) for pose in poses]
     reachable = (inverse_kinematics_pose(c, HOME_POSTURE_RAD) for c in retract_candidates(job, poses))
@@ -41,10 +43,18 @@ def visit_time_s(job: JobConfig, poses: FloatArray) -> float | None:
     if current is None or any(q is None for q in targets):
         return None
     motion = job.motion
-    total_s = job.background.scans * SCAN_PERIOD_S
+    durations_s = []
     for target in targets:
         distance = float(np.max(np.abs(target - current)))
-        total_s += joint_move_s(distance, motion.joint_speed_rad_s, motion.joint_accel_rad_s2)
-        total_s += job.settle.margin_s + job.dwell_s
+        durations_s.append(joint_move_s(distance, motion.joint_speed_rad_s, motion.joint_accel_rad_s2))
         current = target
-    return total_s
+    return durations_s
+
+
+def visit_time_s(job: JobConfig, poses: FloatArray) -> float | None:
+    """Background, then each pose in order; None when the UR5 model cannot reach a pose."""
+    moves_s = move_times_s(job, poses)
+    if moves_s is None:
+        return None
+    per_waypoint_s = job.settle.margin_s + job.dwell_s
+    return job.background.scans * SCAN_PERIOD_S + sum(moves_s) + len(moves_s) * per_waypoint_s
