@@ -69,6 +69,13 @@ class NominalPose(_Strict):
         return make_transform(euler_zyx_to_matrix(yaw, pitch, roll), self.translation_m)
 
 
+def check_scanner_url(url: str) -> str:
+    """``url`` when lasercal speaks its scheme (a ValueError saying which it speaks otherwise)."""
+    if not url.startswith(("scip+tcp://", "scip+serial://")):
+        raise ValueError("must start with scip+tcp:// or scip+serial://")
+    return url
+
+
 class ScannerConfig(_Strict):
     """How to reach the scanner (``--scanner`` overrides ``url``) and where it roughly is."""
 
@@ -96,12 +103,7 @@ class ScannerConfig(_Strict):
         "show it",
     )
 
-    @field_validator("url")
-    @classmethod
-    def _known_scheme(cls, url: str) -> str:
-        if not url.startswith(("scip+tcp://", "scip+serial://")):
-            raise ValueError("must start with scip+tcp:// or scip+serial://")
-        return url
+    _known_scheme = field_validator("url")(check_scanner_url)
 
 
 class RodConfig(_Strict):

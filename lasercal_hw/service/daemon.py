@@ -98,6 +98,7 @@ class Daemon:
             default_job=config.default_job,
             dry_run_daemon=config.dry_run,
             on_state=self._on_state,
+            scanner_urls={name: scanner.url for name, scanner in config.scanners.items()},
         )
         try:
             self.interrupted = self.jobs.recover()

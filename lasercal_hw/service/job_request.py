@@ -54,9 +54,15 @@ class DeviceAddresses:
 
     robot_host: str | None = None
     scanner_url: str | None = None
+    #: A cell's scanners by name (daemon.toml's ``[scanners.NAME]``), for a cell job's scanners.
+    scanner_urls: tuple[tuple[str, str], ...] = ()
 
     def applied_to(self, job: JobConfig) -> JobConfig:
-        """``job`` pointed at these devices."""
+        """``job`` pointed at these devices: a one-scanner job at ``scanner_url``, a cell job's
+        scanners at the ``scanner_urls`` of the same names."""
+        if job.scanners:
+            urls = {f"scanners.{name}.url": url for name, url in self.scanner_urls if name in job.scanners}
+            return with_overrides(job, {"robot.host": self.robot_host} | urls)
         return with_overrides(job, {"robot.host": self.robot_host, "scanner.url": self.scanner_url})
 
 

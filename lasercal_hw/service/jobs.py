@@ -131,6 +131,7 @@ class JobManager:
         default_job: Path | None = None,
         dry_run_daemon: bool = False,
         on_state: Callable[[str, str], None] | None = None,
+        scanner_urls: dict[str, str] | None = None,
     ) -> None:
         self._store = store
         self._bus = bus
@@ -141,6 +142,7 @@ class JobManager:
         self._history = history
         self._devices = devices
         self._default_job = default_job
+        self._scanner_urls = tuple((scanner_urls or {}).items())
         self._dry_run_daemon = dry_run_daemon
         self._on_state = on_state or (lambda job_id, state: None)
         self._lock = threading.Lock()
@@ -333,7 +335,7 @@ class JobManager:
         """The daemon's devices for a job of ``kind`` (a dry run brings its own)."""
         if kind == "dry_run":
             return DeviceAddresses()
-        return DeviceAddresses(self._devices.robot_host, self._devices.scanner_url)
+        return DeviceAddresses(self._devices.robot_host, self._devices.scanner_url, self._scanner_urls)
 
     def _refuse_if_busy(self) -> None:
         if self._active is not None:

@@ -13,9 +13,12 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from lasercal_hw.config import JobConfig
+from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.app import create_app
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
+from lasercal_hw.service.job_request import DeviceAddresses
 from lasercal_hw.service.jobs import RunContext, RunResult
 from lasercal_hw.service.store import DB_FILE, HistoryStore
 from tests.daemon_helpers import fake_result
@@ -123,3 +126,22 @@ def test_a_one_scanner_history_opens_as_the_scanner_default(tmp_path: Path) -> N
         assert store.active_calibration_id("front") is None
     finally:
         store.close()
+
+
+def test_daemon_toml_scanners_point_a_cell_jobs_scanners_and_leave_one_scanner_jobs_alone(
+    tmp_path: Path,
+) -> None:
+    (tmp_path / "daemon.toml").write_text(
+        'scanner_url = "scip+tcp://127.0.0.1:10940"\n'
+        '[scanners.rear]\nurl = "scip+tcp://127.0.0.2:10940"\n'
+    )
+    config = load_daemon_config(tmp_path / "daemon.toml", {})
+    urls = tuple((name, scanner.url) for name, scanner in config.scanners.items())
+    devices = DeviceAddresses("127.0.0.9", config.scanner_url, urls)
+    cell = devices.applied_to(JobConfig.model_validate({"scanners": {"front": {}, "rear": {}}}))
+    assert cell.robot.host == "127.0.0.9" and cell.scanners["rear"].url == "scip+tcp://127.0.0.2:10940"
+    assert cell.scanners["front"].url == JobConfig().scanner.url  # the job's own
+    assert devices.applied_to(JobConfig()).scanner.url == "scip+tcp://127.0.0.1:10940"
+    (tmp_path / "daemon.toml").write_text('[scanners.rear]\nurl = "http://127.0.0.2"\n')
+    with pytest.raises(ConfigError, match=r"scanners\.rear\.url"):
+        load_daemon_config(tmp_path / "daemon.toml", {})
