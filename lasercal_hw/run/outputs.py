@@ -97,6 +97,8 @@ class ResultFile:
     scanner: dict[str, Any] | None
     job: JobConfig | None
     motion_and_dwell_s: float | None
+    #: The cell scanner it calibrated (None: a one-scanner job's).
+    scanner_name: str | None = None
 
     @property
     def passed(self) -> bool:
@@ -144,6 +146,7 @@ def read_result_file(path: Path) -> ResultFile:
         scanner=_table(run, "scanner"),
         job=job,
         motion_and_dwell_s=float(busy_s) if busy_s > 0 else None,
+        scanner_name=run.get("scanner_name"),
     )
 
 

@@ -107,9 +107,9 @@ class Daemon:
         self.monitor: DeviceMonitor | None = None
         self.state_listeners: list[Callable[[str, str], None]] = []
 
-    def active_calibration(self) -> tuple[str, Path] | None:
-        """The active calibration's id and folder, or None."""
-        calibration_id = self.store.active_calibration_id()
+    def active_calibration(self, scanner: str | None = None) -> tuple[str, Path] | None:
+        """The active calibration's (of ``scanner``) id and folder, or None."""
+        calibration_id = self.store.active_calibration_id(scanner)
         found = self.store.calibration(calibration_id) if calibration_id is not None else None
         return (calibration_id, found[1]) if calibration_id is not None and found is not None else None
 

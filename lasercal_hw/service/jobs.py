@@ -71,6 +71,8 @@ class RunContext:
     on_event: Callable[[RunEvent], None]
     cancel: CancelToken
     confirm: Callable[[Any], None]  # called once preflight passed
+    #: A verify job's scanner of the cell (None: the newest activation's).
+    scanner: str | None = None
 
 
 @dataclass(frozen=True)
@@ -212,9 +214,10 @@ class JobManager:
                 "no robot configured: set robot_host in the daemon configuration or robot.host in the job",
                 "job.robot.host",
             )
-        if body.kind == "verify" and self._store.active_calibration_id() is None:
+        if body.kind == "verify" and self._store.active_calibration_id(body.scanner) is None:
+            of = "" if body.scanner is None else f" for the scanner {body.scanner!r}"
             raise ConflictError(
-                "there is no active calibration to verify: run a calibration and activate it first",
+                f"there is no active calibration{of} to verify: run a calibration and activate it first",
                 code="no_active_calibration",
             )
         scene_text = scene_file_text(body)
@@ -425,7 +428,8 @@ class JobManager:
                 restore = self._devices.program_snapshot(str(devices.applied_to(job).robot.host))
             out_dir = Path(record.out_dir)
             context = RunContext(
-                job_id, kind, job, devices, out_dir, resume_from, scene_file, on_event, cancel, confirm
+                job_id, kind, job, devices, out_dir, resume_from, scene_file, on_event, cancel, confirm,
+                scanner=record.request.get("scanner"),
             )
             final, fields = JobState.SUCCEEDED, self._file_result(record, self._runners[kind](context))
         except Exception as exc:

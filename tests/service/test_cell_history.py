@@ -59,7 +59,7 @@ class FakeCellEngine:
 @pytest.fixture
 def client(tmp_path: Path) -> Iterator[TestClient]:
     engine = FakeCellEngine()
-    runners = lambda active: {"calibrate": engine, "dry_run": engine}  # noqa: E731
+    runners = lambda active: {"calibrate": engine, "dry_run": engine, "verify": engine}  # noqa: E731
     daemon = Daemon(load_daemon_config(None, {"data_dir": tmp_path / "data"}), runners=runners)
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as test_client:
         test_client.headers["Authorization"] = f"Bearer {daemon.token}"
@@ -145,3 +145,12 @@ def test_daemon_toml_scanners_point_a_cell_jobs_scanners_and_leave_one_scanner_j
     (tmp_path / "daemon.toml").write_text('[scanners.rear]\nurl = "http://127.0.0.2"\n')
     with pytest.raises(ConfigError, match=r"scanners\.rear\.url"):
         load_daemon_config(tmp_path / "daemon.toml", {})
+
+
+def test_a_verify_job_names_the_scanner_whose_calibration_it_checks(client: TestClient) -> None:
+    _run(client, {**CELL_JOB, "job": {"scanners": {"front": {}}}, "activate_on_pass": True})
+    verify = {"kind": "verify", "confirm_motion": True, "job": {"robot": {"host": "127.0.0.9"}}}
+    refused = client.post("/v1/jobs", json=verify | {"scanner": "rear"})
+    assert refused.status_code == 409 and "for the scanner 'rear'" in refused.json()["message"]
+    bad = client.post("/v1/jobs", json=verify | {"scanner": "Rear!"})
+    assert bad.status_code == 422
