@@ -126,7 +126,7 @@ def stopped_line(message: str, data: dict[str, Any]) -> str:
         return message
     if not data.get("resumable"):
         return f"recording kept in {session}; start again"
-    command = f"lasercal run --resume {shlex.quote(str(session))}"
+    command = f"lasercal run --resume {shlex.quote(str(data.get('resume') or session))}"
     when = "" if data.get("interrupted") else "after fixing the cause, "
     return f"recording kept in {session}; {when}continue with: {command}"
 

@@ -157,6 +157,7 @@ def calibrate_cell(
             "scanner (fakes/scenes/two_scanners.toml is one)"
         )
     request, job, names = _start(request)
+    on_event = _resuming_the_cell(on_event, request.out_dir)
     outcomes: dict[str, ScannerOutcome] = {}
     for name in names:
         folder = request.out_dir / name
@@ -180,6 +181,23 @@ def calibrate_cell(
     document = _read_cell_file(request.out_dir) | cell.document()
     write_text(request.out_dir / CELL_FILE, json.dumps(document, indent=2, allow_nan=False) + "\n")
     return cell
+
+
+def _resuming_the_cell(
+    on_event: Callable[[RunEvent], None] | None, folder: Path
+) -> Callable[[RunEvent], None] | None:
+    """``on_event`` with a scanner run's ``stopped`` event saying the cell folder is what
+    resumes the job (``resume``), beside the scanner's recording (``session``)."""
+    if on_event is None:
+        return None
+    sink = on_event
+
+    def forward(event: RunEvent) -> None:
+        if event.kind == "stopped" and "session" in event.data:
+            event = replace(event, data=event.data | {"resume": str(folder)})
+        sink(event)
+
+    return forward
 
 
 def _scanner_outcome(name: str, path: Path, report: RunReport | None) -> ScannerOutcome:

@@ -20,6 +20,7 @@ from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.job_request import DeviceAddresses
 from lasercal_hw.service.jobs import RunContext, RunResult
+from lasercal_hw.service.rebuild import rebuild_history
 from lasercal_hw.service.store import DB_FILE, HistoryStore
 from tests.daemon_helpers import fake_result
 
@@ -154,3 +155,28 @@ def test_a_verify_job_names_the_scanner_whose_calibration_it_checks(client: Test
     assert refused.status_code == 409 and "for the scanner 'rear'" in refused.json()["message"]
     bad = client.post("/v1/jobs", json=verify | {"scanner": "Rear!"})
     assert bad.status_code == 422
+
+
+def test_the_history_rebuilds_a_cell_jobs_calibrations_per_scanner(tmp_path: Path) -> None:
+    """A lost history rebuilt from the job folders: a whole cell job files each scanner's
+    calibration with its scanner; one stopped after its first scanner is interrupted."""
+    jobs = tmp_path / "jobs"
+    for job_id, names in (("job-whole", ["front", "rear"]), ("job-stopped", ["front"])):
+        folder = jobs / job_id
+        for name in names:
+            (folder / name).mkdir(parents=True)
+            (folder / name / "result.json").write_text(json.dumps(fake_result(PLACES_M[name])))
+        cell = {"job": {"scanners": {"front": {}, "rear": {}}}, "scanners_run": ["front", "rear"],
+                "request": {"dry_run": True, "scene": None}}
+        (folder / "cell.json").write_text(json.dumps(cell))
+    report = rebuild_history(tmp_path)
+    assert report.calibrations == 3
+    store = HistoryStore(tmp_path / DB_FILE)
+    try:
+        assert sorted(c["scanner"] for c in store.calibrations()) == ["front", "front", "rear"]
+        assert store.job("job-whole")["state"] == "succeeded"
+        stopped = store.job("job-stopped")
+        assert stopped["state"] == "interrupted" and stopped["kind"] == "dry_run"
+        assert stopped["request"]["resolved_job"]["scanners"] == {"front": {}, "rear": {}}
+    finally:
+        store.close()
