@@ -122,8 +122,6 @@ def _start(request: CellRunRequest) -> tuple[CellRunRequest, JobConfig, list[str
         request = replace(request, out_dir=folder, dry_run=bool(recorded.get("dry_run")), scene=scene)
         return request, job, list(document.get("scanners_run", job.scanner_names()))
     names = list(request.scanners or request.job.scanner_names())
-    for name in names:
-        request.job.for_scanner(name)  # a ConfigError naming the job's scanners when it has none such
     folder = request.out_dir
     if (folder / CELL_FILE).exists():
         raise ConfigError(f"{folder / CELL_FILE} already exists: choose another output folder, or resume it")
@@ -151,6 +149,8 @@ def calibrate_cell(
 ) -> CellReport:
     """Calibrate the cell's scanners one after the other (see the module docstring); raises
     what stopped it, the scanners finished before keeping their results."""
+    for name in request.scanners or ():
+        request.job.for_scanner(name)  # a ConfigError naming the job's scanners when it has none such
     if request.dry_run and request.scene is None and request.resume is None:
         raise ConfigError(
             "a dry run of a cell job needs --scene: a scene file with a [scanners.NAME] table for each "

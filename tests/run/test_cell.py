@@ -113,6 +113,8 @@ def test_a_stopped_cell_job_resumes_at_the_scanner_and_waypoint_where_it_stopped
 ) -> None:
     run = stopped_and_resumed
     assert run.stopped.args and "stopped by the test" in str(run.stopped)
+    stopped = [event for event in run.events if event.kind == "stopped"]
+    assert stopped and stopped[0].data["resume"] == str(run.out)  # the cell folder resumes the job
     # The front scanner's result is kept as it was; only the rear scanner ran again.
     assert (run.out / "front" / "result.json").read_bytes() == run.front_result_before
     assert run.report.scanners["front"].report is None and run.report.scanners["rear"].report is not None
