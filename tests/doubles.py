@@ -127,7 +127,7 @@ class SimRobot:
     def stop(self) -> None:
         self.stops += 1
 
-    def inverse_kinematics(self, pose: FloatArray) -> FloatArray | None:
+    def inverse_kinematics(self, pose: FloatArray, q_near_rad: FloatArray | None = None) -> FloatArray | None:
         p = np.asarray(pose[:3], dtype=float)
         if np.linalg.norm(p) > self.reach_m or p[2] < -0.1:
             return None

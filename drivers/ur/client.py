@@ -450,14 +450,16 @@ class URRobot:
         major, minor = self.version[:2]
         return (major == 5 and minor >= 10) or (major == 3 and minor >= 15)
 
-    def inverse_kinematics(self, pose: FloatArray) -> FloatArray | None:
-        """Controller's joint solution nearest the current joints, or None if unreachable.
+    def inverse_kinematics(self, pose: FloatArray, q_near_rad: FloatArray | None = None) -> FloatArray | None:
+        """Controller's joint solution nearest ``q_near_rad`` (default: the current joints), or
+        None if unreachable.
 
         On controllers without ``get_inverse_kin_has_solution`` (before 5.10 / 3.15) an
         unreachable pose stops the control program; that raises RobotError.
         """
         target = np.asarray(pose, dtype=float).reshape(6).tolist()
-        q_near = self.joint_positions_rad().tolist()
+        near = self.joint_positions_rad() if q_near_rad is None else np.asarray(q_near_rad, dtype=float)
+        q_near = near.reshape(6).tolist()
         control = self._control
         if self._supports_ik_has_solution() and not self._command(
                 "getInverseKinematicsHasSolution",

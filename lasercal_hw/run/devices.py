@@ -85,8 +85,9 @@ class Robot(Protocol):
         """Decelerate and stop any motion now."""
         ...
 
-    def inverse_kinematics(self, pose: FloatArray) -> FloatArray | None:
-        """Joint solution for a TCP pose, or None when it is not reachable."""
+    def inverse_kinematics(self, pose: FloatArray, q_near_rad: FloatArray | None = None) -> FloatArray | None:
+        """Joint solution for a TCP pose nearest ``q_near_rad`` (default: the arm's present
+        joints), or None when it is not reachable."""
         ...
 
     def is_within_safety_limits(self, pose: FloatArray) -> bool:

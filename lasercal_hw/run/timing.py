@@ -4,8 +4,9 @@ time-left estimate uses it until the arm has made its first move.
 
 Joint moves (the default ``motion.move``) last as long as the largest joint's trapezoid
 profile at the job's joint speed and acceleration caps; joint targets are the UR5 inverse
-kinematics solutions nearest the UR home posture (the preflight solves near the arm's
-joints at that time, which an estimate made beforehand cannot know). Add the background
+kinematics solutions nearest the previous target, from the retract pose's solution nearest
+the UR home posture (the preflight solves near the arm's joints at that time, which an
+estimate made beforehand cannot know). Add the background
 scans, and per waypoint the settle margin and the dwell. An estimate, used to compare
 subsets with each other and with the calibration's own trajectory.
 """
@@ -37,14 +38,16 @@ def move_times_s(job: JobConfig, poses: FloatArray) -> list[float] | None:
     """Each joint move's duration: from the retract pose to the first pose, then pose to pose;
     None when the UR5 model cannot reach a pose."""
     poses = np.asarray(poses, dtype=float).reshape(-1, 6)
-    targets = [inverse_kinematics_pose(pose, HOME_POSTURE_RAD) for pose in poses]
     reachable = (inverse_kinematics_pose(c, HOME_POSTURE_RAD) for c in retract_candidates(job, poses))
     current = next((q for q in reachable if q is not None), None)
-    if current is None or any(q is None for q in targets):
+    if current is None:
         return None
     motion = job.motion
     durations_s = []
-    for target in targets:
+    for pose in poses:  # each target the solution nearest the last, as the preflight solves
+        target = inverse_kinematics_pose(pose, current)
+        if target is None:
+            return None
         distance = float(np.max(np.abs(target - current)))
         durations_s.append(joint_move_s(distance, motion.joint_speed_rad_s, motion.joint_accel_rad_s2))
         current = target

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import threading
 from pathlib import Path
 
@@ -405,3 +406,27 @@ def test_time_left_counts_the_planned_moves_before_the_arm_has_moved() -> None:
     assert planned_s is not None
     assert first.completed == 0
     assert first.time_left_s == pytest.approx(dwell_only_s + sum(planned_s), rel=1e-6)
+
+
+def test_preflight_solves_each_pose_nearest_the_one_before() -> None:
+    """Consecutive joint moves stay short: the retract pose is solved near the arm's present
+    joints, every waypoint near the solution before it, in the order they are visited."""
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    asked: list[tuple[np.ndarray, np.ndarray | None]] = []
+    solve = robot.inverse_kinematics
+
+    def recording_ik(pose: np.ndarray, q_near_rad: np.ndarray | None = None) -> np.ndarray | None:
+        asked.append((np.asarray(pose, dtype=float), q_near_rad))
+        return solve(pose, q_near_rad)
+
+    robot.inverse_kinematics = recording_ik  # type: ignore[method-assign]
+    waypoints = semicircle_waypoints(6)
+    run_calibration(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock)
+
+    start = next(i for i, (pose, _) in enumerate(asked) if np.allclose(pose, waypoints[0])) - 1
+    chain = asked[start : start + 1 + len(waypoints)]  # the preflight's retract, then every waypoint
+    assert chain[0][1] is None
+    for (previous_pose, _), (_, near) in itertools.pairwise(chain):
+        assert near is not None and np.allclose(near, solve(previous_pose))
+    assert [pose.tolist() for pose, _ in chain[1:]] == waypoints.tolist()
