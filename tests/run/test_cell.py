@@ -35,10 +35,10 @@ def write_job(folder: Path) -> Path:
         # the header row and the first WAYPOINTS
         (folder / f"{name}-waypoints.csv").write_text("\n".join(rows[: WAYPOINTS + 1]) + "\n")
     example = (REPO / "examples" / "cell.toml").read_text().replace("cell/", "").replace("dwell_s = 1.0", "")
+    example = example.replace("pose = [", "scans = 10\npose = [")  # [background]
     job = folder / "job.toml"
     job.write_text(
         "dwell_s = 0.5\n"
-        "[background]\nscans = 10\npose = [0.2, -0.3, 0.75, 3.1416, 0.0, 0.0]\n"
         "[motion]\njoint_speed_rad_s = 1.5\njoint_accel_rad_s2 = 4.0\n"
         "[quality]\nmax_std_translation_mm = 100.0\nmax_std_rotation_deg = 10.0\nmin_observations = 6\n"
         + example
