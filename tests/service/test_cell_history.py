@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import sqlite3
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from lasercal_hw.service.job_request import DeviceAddresses
 from lasercal_hw.service.jobs import RunContext, RunResult
 from lasercal_hw.service.rebuild import rebuild_history
 from lasercal_hw.service.store import DB_FILE, HistoryStore
-from tests.daemon_helpers import fake_result
+from tests.daemon_helpers import fake_result, finish_job
 
 CELL_JOB = {
     "kind": "dry_run", "confirm_motion": True, "dwell_s": 0.5,
@@ -69,14 +68,7 @@ def client(tmp_path: Path) -> Iterator[TestClient]:
 
 
 def _run(client: TestClient, body: dict) -> dict:
-    job_id = client.post("/v1/jobs", json=body).json()["id"]
-    deadline = time.monotonic() + 10.0
-    while time.monotonic() < deadline:
-        job = client.get(f"/v1/jobs/{job_id}").json()
-        if job["state"] in ("succeeded", "failed", "cancelled", "interrupted"):
-            return job
-        time.sleep(0.02)
-    raise AssertionError(f"job {job_id} did not finish")
+    return finish_job(client, client.post("/v1/jobs", json=body).json()["id"])
 
 
 def test_a_cell_job_files_and_activates_each_scanner_on_its_own(client: TestClient) -> None:
