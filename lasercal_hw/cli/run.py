@@ -275,7 +275,7 @@ def _print_cell_summary(report: CellReport) -> None:
 
 RunScannerOption = Annotated[str | None, typer.Option(
     "--scanner", help="Scanner URL (default: the job's scanner.url), or the name of one of the job's "
-    "[scanners.NAME] to calibrate that one alone.")]
+    "scanners (scanners.NAME) to calibrate that one alone.")]
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Job file (TOML); defaults without it.")]
 DwellOption = Annotated[float | None, typer.Option("--dwell", help="Dwell per waypoint in s (default 3).")]
 OutOption = Annotated[Path | None, typer.Option("--out", help="Output folder (./lasercal-out/<time>).")]
