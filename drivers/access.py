@@ -41,8 +41,16 @@ def _universal_robots(host: str, **options: Any) -> Any:
     return URRobot.connect(host, **options)
 
 
+def _universal_robots_calibration(host: str, **options: Any) -> Any:
+    from drivers.ur.primary import read_robot_calibration
+
+    return read_robot_calibration(host, **options)
+
+
 SCANNER_DRIVERS: dict[str, ScannerOpener] = {"scip+tcp": _hokuyo, "scip+serial": _hokuyo}
 ROBOT_DRIVERS: dict[str, RobotConnector] = {ROBOT_SCHEME: _universal_robots}
+ROBOT_CALIBRATION_READERS: dict[str, Callable[..., Any]] = {ROBOT_SCHEME: _universal_robots_calibration}
+"""``reader(host, *, timeout_s)`` -> the robot's own kinematics calibration (``models.RobotCalibration``)."""
 
 
 def _driver(registry: dict[str, Any], scheme: str, what: str, address: str) -> Any:
@@ -90,6 +98,13 @@ class DeviceAccess:
         """The robot at ``address`` (``HOST`` or ``scheme://HOST``), through its driver."""
         scheme, _, host = address.rpartition("://")
         return _driver(self._robot_drivers, scheme or ROBOT_SCHEME, "robot", address)(host, **options)
+
+    def read_robot_calibration(self, address: str, timeout_s: float = 2.0) -> Any:
+        """The robot's own kinematics calibration (``models.RobotCalibration``), read only
+        (``drivers.ur.primary``); a LasercalError when it cannot be read."""
+        scheme, _, host = address.rpartition("://")
+        reader = _driver(ROBOT_CALIBRATION_READERS, scheme or ROBOT_SCHEME, "robot calibration", address)
+        return reader(host, timeout_s=timeout_s)
 
     def connect(self, job: JobConfig, stack: contextlib.ExitStack) -> tuple[Any, Any]:
         """The job's robot and scanner, closed by ``stack``. The scanner first: a typo in its

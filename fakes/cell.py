@@ -37,11 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from fakes.scene import load_scene, with_model_override
+from fakes.scene import RobotKinematicsSettings, load_scene, with_model_override
 from fakes.scip_faults import ScipFaults
 from fakes.scip_server import DEFAULT_PORT, FakeScannerServer
 from fakes.serving import serve_until_signal
 from fakes.ur_controller.controller import ControllerConfig, FaultPlan
+from fakes.ur_controller.kinematics_calibration import KinematicsCalibration
 from fakes.ur_controller.process import FakeRobot
 from fakes.world import World, WorldRangeSource
 from lasercal_hw.errors import LasercalError
@@ -50,6 +51,15 @@ from lasercal_hw.models import FloatArray
 READY_PREFIX = "fake cell ready:"
 MOVES_BEFORE_FIRST_WAYPOINT = 1
 SCANNER_DROP_DELAY_S = 0.3
+
+
+def _kinematics(settings: RobotKinematicsSettings) -> KinematicsCalibration:
+    """The scene's robot calibration as the fake controller holds it."""
+    return KinematicsCalibration(
+        checksums=tuple(settings.checksums), delta_theta_rad=tuple(settings.delta_theta_rad),
+        delta_a_m=tuple(settings.delta_a_m), delta_d_m=tuple(settings.delta_d_m),
+        delta_alpha_rad=tuple(settings.delta_alpha_rad),
+    )
 
 
 class FakeCell:
@@ -65,7 +75,8 @@ class FakeCell:
         config = ControllerConfig(
             faults=FaultPlan(
                 protective_stop_at_move=None if stop_at is None else stop_at + 1 + MOVES_BEFORE_FIRST_WAYPOINT
-            )
+            ),
+            kinematics=_kinematics(self.world.scene.robot_kinematics),
         )
         self.robot = FakeRobot(address, config)
         self.scanners = {

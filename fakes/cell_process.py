@@ -2,9 +2,9 @@
 ``dry_run`` jobs, ``lasercal serve --dry-run``) asks for when it needs a cell.
 
 The child is ``python -m fakes.cell --address 127.x.y.z [--scene FILE]``: one process serving
-a fake UR controller (ports 29999, 30004, 30003) and a fake UTM-30LX-EW per scene scanner
-(ports 10940, 10941, ...) that share one simulated world. It announces readiness with one
-line on standard output::
+a fake UR controller (ports 29999, 30004, 30003, 30001, 30011) and a fake UTM-30LX-EW per
+scene scanner (ports 10940, 10941, ...) that share one simulated world. It announces readiness
+with one line on standard output::
 
     fake cell ready: {"robot_host": "127.0.0.7", "scanner_url": "scip+tcp://127.0.0.7:10940",
                       "T_base_laser": [[...4x4 row-major...]]}
@@ -49,7 +49,7 @@ from lasercal_hw.models import FloatArray
 
 logger = logging.getLogger(__name__)
 
-CELL_PORTS = (29999, 30004, 30003, 10940)
+CELL_PORTS = (29999, 30004, 30003, 30001, 30011, 10940)
 #: One BLAS thread in the cell unless the environment says otherwise, as ``lasercal`` sets for
 #: itself and its children (``lasercal_hw.cli.threads``): a cell started from a script or the
 #: daemon's library code runs as one the CLI started did.

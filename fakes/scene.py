@@ -17,6 +17,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from fakes.ur_controller.kinematics_calibration import DEFAULT_CHECKSUMS
 from lasercal_hw.errors import ConfigError
 
 Vector3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -208,6 +209,25 @@ class FaultSettings(_Strict):
     """``"KEY=VALUE"``: the scanner's VV/PP/II line of KEY says VALUE under the old checksum."""
 
 
+class RobotKinematicsSettings(_Strict):
+    """The fake controller's own kinematics calibration, as its primary interface reports it:
+    one checksum per joint and the corrections to the nominal UR5 DH rows (m, rad). Identity
+    data only: the fake moves on the nominal model (docs/ur.md)."""
+
+    checksums: list[int] = Field(default_factory=lambda: list(DEFAULT_CHECKSUMS), min_length=6, max_length=6)
+    delta_theta_rad: list[float] = Field(default_factory=lambda: [0.0] * 6, min_length=6, max_length=6)
+    delta_a_m: list[float] = Field(default_factory=lambda: [0.0] * 6, min_length=6, max_length=6)
+    delta_d_m: list[float] = Field(default_factory=lambda: [0.0] * 6, min_length=6, max_length=6)
+    delta_alpha_rad: list[float] = Field(default_factory=lambda: [0.0] * 6, min_length=6, max_length=6)
+
+    @field_validator("checksums")
+    @classmethod
+    def _uint32(cls, checksums: list[int]) -> list[int]:
+        if any(not 0 <= value < 1 << 32 for value in checksums):
+            raise ValueError("each checksum is an unsigned 32-bit number (0 to 4294967295)")
+        return checksums
+
+
 def _default_walls() -> list[WallSettings]:
     corners = [(-1.5, -1.5), (2.5, -1.5), (2.5, 2.5), (-1.5, 2.5)]
     names = ["south", "east", "north", "west"]
@@ -238,6 +258,7 @@ class Scene(_Strict):
     physics: PhysicsSettings = PhysicsSettings()
     noise: NoiseSettings = NoiseSettings()
     faults: FaultSettings = FaultSettings()
+    robot_kinematics: RobotKinematicsSettings = RobotKinematicsSettings()
 
     @model_validator(mode="after")
     def _one_way_to_place_scanners(self) -> Scene:

@@ -142,3 +142,63 @@ class Observation:
     tcp_pose: FloatArray
     centre_uv_m: FloatArray
     covariance_uv_m2: FloatArray | None = None
+
+
+@dataclass(frozen=True)
+class RobotCalibration:
+    """The robot controller's own kinematics calibration, as its primary client interface
+    reports it (docs/ur.md): one checksum per joint and the calibrated DH rows (nominal
+    table plus the factory's corrections), with the model and software it came from."""
+
+    checksums: tuple[int, ...]
+    dh_theta_rad: tuple[float, ...]
+    dh_a_m: tuple[float, ...]
+    dh_d_m: tuple[float, ...]
+    dh_alpha_rad: tuple[float, ...]
+    calibration_status: int
+    #: ``UR5``, ``UR5e``, ``UR10e``, ... (robot type and software generation), or ``unknown``.
+    model: str
+    software_version: str
+
+    @property
+    def checksum(self) -> str:
+        """The six joint checksums as one hex word per joint, ``-`` between them."""
+        return "-".join(f"{value:08x}" for value in self.checksums)
+
+    def as_dict(self) -> dict[str, object]:
+        """The JSON form recorded with a calibration and a verify."""
+        return {
+            "checksum": self.checksum, "checksums": list(self.checksums),
+            "dh_theta_rad": list(self.dh_theta_rad), "dh_a_m": list(self.dh_a_m),
+            "dh_d_m": list(self.dh_d_m), "dh_alpha_rad": list(self.dh_alpha_rad),
+            "calibration_status": self.calibration_status, "model": self.model,
+            "software_version": self.software_version,
+        }
+
+    @classmethod
+    def from_dict(cls, record: dict[str, object]) -> RobotCalibration:
+        """The inverse of ``as_dict`` (KeyError, TypeError or ValueError on a bad record)."""
+        def floats(key: str) -> tuple[float, ...]:
+            return tuple(float(v) for v in record[key])  # type: ignore[attr-defined]
+
+        return cls(
+            checksums=tuple(int(v) for v in record["checksums"]),  # type: ignore[attr-defined]
+            dh_theta_rad=floats("dh_theta_rad"), dh_a_m=floats("dh_a_m"), dh_d_m=floats("dh_d_m"),
+            dh_alpha_rad=floats("dh_alpha_rad"), calibration_status=int(record["calibration_status"]),  # type: ignore[arg-type]
+            model=str(record["model"]), software_version=str(record["software_version"]),
+        )
+
+    def change_from(self, recorded: RobotCalibration) -> str | None:
+        """None when this is the calibration ``recorded``; else what changed, in words."""
+        if self.checksums != recorded.checksums:
+            return f"checksum {recorded.checksum} -> {self.checksum}"
+        rows = ("dh_theta_rad", "dh_a_m", "dh_d_m", "dh_alpha_rad")
+        pairs = (zip(getattr(self, row), getattr(recorded, row), strict=True) for row in rows)
+        largest = max(abs(a - b) for row in pairs for a, b in row)
+        if largest > DH_SAME_TOLERANCE:
+            return f"same checksum {self.checksum}, but a DH value moved by {largest:.3g}"
+        return None
+
+
+#: DH values closer than this (m or rad) are the same calibration (they travel as doubles).
+DH_SAME_TOLERANCE = 1e-9

@@ -29,13 +29,14 @@ a near-singular pose makes inaccurate is dropped rather than returned wrong.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import invert_transform, pose_to_matrix, rotation_angle_rad
+from lasercal_hw.models import RobotCalibration, RobotIdentity
 
 FloatArray = NDArray[np.float64]
 
@@ -51,6 +52,8 @@ class DHParameters:
     d_m: tuple[float, float, float, float, float, float]
     a_m: tuple[float, float, float, float, float, float]
     alpha_rad: tuple[float, float, float, float, float, float]
+    #: Joint zero offsets: a robot's own calibration has small ones, the published tables none.
+    theta_offset_rad: tuple[float, ...] = (0.0,) * 6
 
 
 _UR_ALPHA_RAD = (np.pi / 2.0, 0.0, 0.0, np.pi / 2.0, -np.pi / 2.0, 0.0)
@@ -68,6 +71,11 @@ class URModel:
     joint_speed_limits_rad_s: FloatArray
     #: Maximum TCP speed (m/s).
     tool_speed_limit_m_s: float
+    #: The published table the closed-form IK starts from when ``dh`` is a robot's own
+    #: calibration (then refined on ``dh``); None: ``dh`` is the published table.
+    nominal: DHParameters | None = None
+    #: The robot calibration's checksum (``models.RobotCalibration.checksum``) ``dh`` came from.
+    calibration_checksum: str | None = None
 
 
 def _ur_arm(name: str, d_m: tuple[float, ...], a_m: tuple[float, ...]) -> URModel:
@@ -102,6 +110,41 @@ def robot_model(name: str) -> URModel:
         ) from None
 
 
+def model_from_robot_calibration(calibration: RobotCalibration) -> URModel:
+    """The kinematics of one robot from its own calibration (its primary interface's DH rows),
+    with the limits of the published model whose table is nearest (the closed-form IK starts
+    there and is refined on the robot's rows)."""
+    rows = {"d_m": calibration.dh_d_m, "a_m": calibration.dh_a_m, "alpha_rad": calibration.dh_alpha_rad}
+
+    def distance(model: URModel) -> float:
+        pairs = (zip(values, getattr(model.dh, key), strict=True) for key, values in rows.items())
+        return max(abs(v - n) for row in pairs for v, n in row)
+
+    base = min(MODELS.values(), key=distance)
+    if distance(base) <= _SAME_TABLE and max(map(abs, calibration.dh_theta_rad)) <= _SAME_TABLE:
+        return replace(base, calibration_checksum=calibration.checksum)  # the published table itself
+    dh = DHParameters(
+        d_m=tuple(rows["d_m"]), a_m=tuple(rows["a_m"]), alpha_rad=tuple(rows["alpha_rad"]),  # type: ignore[arg-type]
+        theta_offset_rad=tuple(calibration.dh_theta_rad),
+    )
+    return replace(base, dh=dh, nominal=base.dh, calibration_checksum=calibration.checksum)
+
+
+def offline_model(
+    calibration: RobotCalibration | None, identity: RobotIdentity | None = None, named: str | None = None
+) -> URModel:
+    """The kinematics offline design and checks use: the robot's own calibration when it is
+    known; else the model a job or option ``named``; else the model the robot reports (UR5 or
+    UR5e by its software generation); else the UR5."""
+    if calibration is not None:
+        return model_from_robot_calibration(calibration)
+    if named:
+        return robot_model(named)
+    if identity is not None and identity.model.strip().lower() in ("ur5", "ur5e"):
+        return model_of_controller(identity.model, identity.controller_version)
+    return UR5
+
+
 def model_of_controller(reported_model: str, controller_version: tuple[int, ...]) -> URModel:
     """The model of a connected robot: the dashboard's "get robot model" answer (``UR5``
     on both generations) and the controller's software version (5.x: e-Series)."""
@@ -111,6 +154,12 @@ def model_of_controller(reported_model: str, controller_version: tuple[int, ...]
     return robot_model(name)
 
 
+# Newton steps from the published table's IK to a robot's own calibrated rows.
+_REFINE_STEPS = 4
+_JACOBIAN_STEP_RAD = 1e-7
+_DAMPING = 1e-12
+# A robot's rows this close to a published table are that table (no refinement needed).
+_SAME_TABLE = 1e-12
 # A candidate solution must reproduce the target this closely to be returned.
 _POSITION_TOLERANCE_M = 1e-6
 _ROTATION_TOLERANCE_RAD = 1e-6
@@ -155,7 +204,7 @@ def forward_kinematics(
     if q.shape[-1:] != (6,):
         raise ValueError(f"joint vector must have 6 entries, got shape {q.shape}")
     dh = model.dh
-    links = _link_transforms(q, dh.d_m, dh.a_m, dh.alpha_rad)
+    links = _link_transforms(q + np.asarray(dh.theta_offset_rad), dh.d_m, dh.a_m, dh.alpha_rad)
     transform = links[..., 0, :, :]
     for i in range(1, 6):
         transform = transform @ links[..., i, :, :]
@@ -248,6 +297,36 @@ def _flange_targets(T_base_tcp: ArrayLike, tcp_offset_pose: ArrayLike | None) ->
     return target if tcp is None else target @ invert_transform(tcp)
 
 
+def _pose_error(reached: FloatArray, target: FloatArray) -> FloatArray:
+    """(..., 6): target minus reached position, and the small rotation taking reached to target."""
+    rotation = target[..., :3, :3] @ np.swapaxes(reached[..., :3, :3], -1, -2)
+    turn = 0.5 * np.stack(
+        [rotation[..., 2, 1] - rotation[..., 1, 2], rotation[..., 0, 2] - rotation[..., 2, 0],
+         rotation[..., 1, 0] - rotation[..., 0, 1]], axis=-1,
+    )
+    return np.concatenate([target[..., :3, 3] - reached[..., :3, 3], turn], axis=-1)
+
+
+def _refined(q: FloatArray, flange: FloatArray, model: URModel) -> FloatArray:
+    """Newton steps from the nominal table's solutions (N, 8, 6) to the robot's own rows
+    (calibration corrections are sub-millimetre: a few steps reach 1e-9)."""
+    finite = np.all(np.isfinite(q), axis=-1)
+    q = np.where(finite[..., None], q, 0.0)
+    target = np.broadcast_to(flange[:, None], (*q.shape[:2], 4, 4))
+    for _ in range(_REFINE_STEPS):
+        error = _pose_error(forward_kinematics(q, model=model), target)
+        steps = _JACOBIAN_STEP_RAD * np.eye(6)
+        columns = [
+            (_pose_error(forward_kinematics(q + steps[j], model=model), target) - error) / _JACOBIAN_STEP_RAD
+            for j in range(6)
+        ]
+        jacobian = np.stack(columns, axis=-1)  # d error / d q
+        transposed = np.swapaxes(jacobian, -1, -2)
+        normal = transposed @ jacobian + _DAMPING * np.eye(6)  # damped: a singular pose stays finite
+        q = q - np.linalg.solve(normal, transposed @ error[..., None])[..., 0]
+    return np.where(finite[..., None], _wrap_pi(q), np.nan)
+
+
 def inverse_kinematics_branches(
     T_base_tcp: ArrayLike,
     *,
@@ -260,7 +339,9 @@ def inverse_kinematics_branches(
     flange = _flange_targets(T_base_tcp, tcp_offset_pose).reshape(-1, 4, 4)
     with np.errstate(invalid="ignore", divide="ignore"):
         theta6_free = np.broadcast_to(np.asarray(theta6_if_singular_rad, dtype=float), len(flange))
-        q = _wrap_pi(_candidate_solutions(flange, theta6_free, model.dh))
+        q = _wrap_pi(_candidate_solutions(flange, theta6_free, model.nominal or model.dh))
+        if model.nominal is not None:
+            q = _refined(q, flange, model)
         finite = np.all(np.isfinite(q), axis=-1)
         reached = forward_kinematics(np.where(finite[..., None], q, 0.0), model=model)
     position_error = np.linalg.norm(reached[..., :3, 3] - flange[:, None, :3, 3], axis=-1)

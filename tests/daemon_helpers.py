@@ -14,16 +14,19 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
+import uvicorn
 
 from lasercal_hw.errors import DeviceError, InterruptedRunError
 from lasercal_hw.run.events import EventSink, Stage
+from lasercal_hw.service.app import create_app
+from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
-from tests.verify_helpers import calibration_document, fast_job
+from tests.verify_helpers import calibration_document, fake_robot_calibration, fast_job
 
 # A short dry run: the quick preset (10 waypoints), 0.5 s dwell, fast joint moves,
 # and acquisition settings that ride out the scan gaps a loaded CI machine causes.
@@ -59,7 +62,9 @@ def fake_result(translation_m: list[float], std_mm: float = 0.5, passed: bool = 
         "crb_rotation_deg": [0.02] * 3,
         "rms_residual_mm": 0.3,
         "verdict": {"passed": passed, "checks": []},
-        "run": {"robot": {"model": "UR5"}, "scanner": {}},
+        "run": {
+            "robot": {"model": "UR5"}, "scanner": {}, "robot_calibration": fake_robot_calibration().as_dict()
+        },
     }
 
 
@@ -125,6 +130,25 @@ def finish_job(client: httpx.Client, job_id: str, timeout_s: float = 10.0) -> di
 def fake_runners(engine: FakeEngine) -> Callable[[Any], dict[str, Runner]]:
     """``Daemon(runners=...)`` giving every calibration kind to ``engine`` (verify stays out)."""
     return lambda active: {"calibrate": engine, "dry_run": engine}
+
+
+@contextlib.contextmanager
+def served_in_thread(daemon: Daemon) -> Iterator[str]:
+    """``daemon`` served by uvicorn on 127.0.0.1 (a free port) in a thread, as the real one
+    is served: yields its URL."""
+    server = uvicorn.Server(uvicorn.Config(create_app(daemon), host="127.0.0.1", port=0, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    for _ in range(500):
+        if server.started:
+            break
+        threading.Event().wait(0.01)
+    port = server.servers[0].sockets[0].getsockname()[1]
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        thread.join(10.0)
 
 
 def read_sse(

@@ -3,6 +3,8 @@ closed-form inverse kinematics against forward kinematics on every branch."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -11,6 +13,7 @@ from hypothesis.extra.numpy import arrays
 
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_pose, pose_to_matrix, rotation_angle_rad
+from lasercal_hw.models import RobotCalibration, RobotIdentity
 from lasercal_hw.ur_kinematics import (
     UR5,
     UR5E,
@@ -20,7 +23,9 @@ from lasercal_hw.ur_kinematics import (
     inverse_kinematics_all,
     inverse_kinematics_branches,
     inverse_kinematics_pose,
+    model_from_robot_calibration,
     model_of_controller,
+    offline_model,
     robot_model,
 )
 
@@ -253,3 +258,54 @@ def test_malformed_inputs_are_rejected() -> None:
         forward_kinematics([0.0, 1.0])
     with pytest.raises(ValueError, match="4x4"):
         inverse_kinematics(np.eye(3))
+
+
+def _robot_calibration(base: URModel, spread: float, seed: int = 1, model: str = "UR5e") -> RobotCalibration:
+    """A robot's own calibration: ``base``'s table with corrections of about ``spread``."""
+    rng = np.random.default_rng(seed)
+
+    def off(values: tuple[float, ...]) -> tuple[float, ...]:
+        return tuple(float(v) for v in np.asarray(values) + rng.normal(0.0, spread, 6))
+
+    return RobotCalibration(
+        checksums=(11, 22, 33, 44, 55, 66), dh_theta_rad=off((0.0,) * 6), dh_a_m=off(base.dh.a_m),
+        dh_d_m=off(base.dh.d_m), dh_alpha_rad=off(base.dh.alpha_rad), calibration_status=0, model=model,
+        software_version="5.11.6.108949",
+    )
+
+
+def test_the_robots_own_rows_move_the_flange_and_the_ik_solves_them() -> None:
+    """Sub-millimetre corrections (as a factory calibration has) move the flange by about as
+    much; the IK starts on the published table and lands on the robot's rows."""
+    model = model_from_robot_calibration(_robot_calibration(UR5E, 3e-4))
+    assert model.name == "ur5e" and model.nominal == UR5E.dh
+    assert model.calibration_checksum == "0000000b-00000016-00000021-0000002c-00000037-00000042"
+    q = np.random.default_rng(2).uniform(-2.5, 2.5, (100, 6))
+    flange_m = forward_kinematics(q, model=model)[:, :3, 3]
+    moved_m = np.linalg.norm(flange_m - forward_kinematics(q, model=UR5E)[:, :3, 3], axis=1)
+    assert 1e-4 < np.median(moved_m) < 5e-3
+    solutions = inverse_kinematics_branches(forward_kinematics(q, model=model), model=model)
+    found = np.isfinite(solutions).all(axis=-1)
+    assert found.sum(axis=1).mean() > 6.0  # as many branches as the published table gives
+    difference = np.abs(_wrap(solutions - q[:, None]))
+    recovered = np.min(np.where(found, difference.max(axis=-1), np.inf), axis=1) < 1e-6
+    assert recovered.mean() > 0.95
+    reached = forward_kinematics(np.where(found[..., None], solutions, 0.0), model=model)[found]
+    target = np.broadcast_to(forward_kinematics(q, model=model)[:, None], (*found.shape, 4, 4))[found]
+    assert np.max(np.linalg.norm(reached[:, :3, 3] - target[:, :3, 3], axis=1)) < 1e-6
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+def test_which_kinematics_offline_design_and_checks_use() -> None:
+    """The robot's own rows when known (a fake's exact CB3 table stays the published UR5 one,
+    whatever model it reports); else the named model; else the reported one; else the UR5."""
+    exact = _robot_calibration(UR5, 0.0, model="UR5e")
+    assert offline_model(exact) == dataclasses.replace(UR5, calibration_checksum=exact.checksum)
+    assert offline_model(_robot_calibration(UR5E, 2e-4)).nominal == UR5E.dh
+    e_series = RobotIdentity("UR5", "20185500042", "5.11.6", (5, 11, 6, 108949))
+    assert offline_model(None, e_series) == UR5E
+    assert offline_model(None, e_series, named="ur5") == UR5
+    assert offline_model(None, RobotIdentity("unknown", "", "3.15", (3, 15, 7, 0))) == UR5

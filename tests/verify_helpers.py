@@ -13,12 +13,13 @@ import numpy as np
 from fakes.scene import load_scene
 from fakes.scip_identity import UTM_30LX_EW
 from fakes.ur_controller.controller import ControllerConfig
+from fakes.ur_controller.kinematics_calibration import KinematicsCalibration
 from fakes.world import World
 from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_pose, pose_to_matrix, rotvec_to_matrix
-from lasercal_hw.models import Observation
+from lasercal_hw.models import Observation, RobotCalibration
 from lasercal_hw.run.waypoints import job_waypoints
 
 CENTRE_SIGMA_M = 0.0005
@@ -47,8 +48,19 @@ def true_centres(job: JobConfig, world: World) -> np.ndarray:
     return plane_crossing(T[:3, :3], T[:3, 3], origins, directions)[0]
 
 
+def fake_robot_calibration(kinematics: KinematicsCalibration | None = None) -> RobotCalibration:
+    """What a default fake controller's primary interface reports (with ``kinematics``)."""
+    controller = ControllerConfig(kinematics=kinematics or KinematicsCalibration())
+    theta, a, d, alpha = controller.kinematics.rows()
+    return RobotCalibration(
+        checksums=controller.kinematics.checksums, dh_theta_rad=theta, dh_a_m=a, dh_d_m=d, dh_alpha_rad=alpha,
+        calibration_status=0, model=f"{controller.model}e", software_version=controller.version_text,
+    )
+
+
 def calibration_document(job: JobConfig, *, scanner_serial: str = UTM_30LX_EW.serial) -> dict[str, Any]:
-    """A result.json of the default scene as ``lasercal run`` writes it (noise-free centres)."""
+    """A result.json of the default scene as ``lasercal run`` writes it (noise-free centres),
+    made on a default fake controller (its kinematics calibration recorded)."""
     world = World(load_scene(None))
     poses = job_waypoints(job)
     centres = true_centres(job, world)
@@ -62,6 +74,7 @@ def calibration_document(job: JobConfig, *, scanner_serial: str = UTM_30LX_EW.se
     document["run"] = {
         "robot": {"model": controller.model, "serial_number": controller.serial_number},
         "scanner": {"serial": scanner_serial, "firmware": UTM_30LX_EW.firmware},
+        "robot_calibration": fake_robot_calibration().as_dict(),
         "job": job.model_dump(mode="json"),
         "timings": {"motion_s": 30.0, "dwell_s": 10.0},
     }

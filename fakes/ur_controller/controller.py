@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fakes.ur_controller.control_script import ControlScript, ScriptRuntimeError
+from fakes.ur_controller.kinematics_calibration import KinematicsCalibration
 from fakes.ur_controller.motion import JointPath, LinearPath, Motion, track_pose
 from fakes.ur_controller.rtde_protocol import REGISTER_COUNT
 from lasercal_hw.geometry import invert_transform, matrix_to_pose, pose_to_matrix
@@ -95,6 +96,8 @@ class ControllerConfig:
     safety_box_m: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     """Axis-aligned box (min corner, max corner) the TCP must stay in, or None."""
     faults: FaultPlan = field(default_factory=FaultPlan)
+    kinematics: KinematicsCalibration = field(default_factory=KinematicsCalibration)
+    """The kinematics calibration the primary interface reports (a new client sees a change)."""
 
     @property
     def cycle_hz(self) -> float:
@@ -148,6 +151,7 @@ class FakeController:
         self.remote_control = self.config.remote_control
         self._protective_stop_time: float | None = None
         self.last_error = ""
+        self._kinematics = self.config.kinematics
         self.in_int = [0] * REGISTER_COUNT
         self.in_double = [0.0] * REGISTER_COUNT
         self.out_int = [0] * REGISTER_COUNT
@@ -202,6 +206,20 @@ class FakeController:
     def moves_completed(self) -> int:
         """Move commands that ran to their target (the fake cell's waypoint count)."""
         return self._moves_completed
+
+    def kinematics_calibration(self) -> KinematicsCalibration:
+        """The kinematics calibration the primary interface reports now."""
+        with self.lock:
+            return self._kinematics
+
+    def replace_joint(self, joint: int) -> KinematicsCalibration:
+        """A joint was replaced and the arm calibrated again (``with_joint_replaced``);
+        ValueError for a joint that does not exist."""
+        with self.lock:
+            self._kinematics = self._kinematics.with_joint_replaced(joint)
+            logger.warning("joint %d replaced: kinematics checksums %s", joint,
+                           " ".join(f"{c:08x}" for c in self._kinematics.checksums))
+            return self._kinematics
 
     def snapshot(self) -> Snapshot:
         """The newest published cycle."""

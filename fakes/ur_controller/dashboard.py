@@ -25,6 +25,11 @@ BANNER = "Connected: Universal Robots Dashboard Server"
 _BUILD_DATE = "(Jan 27 2022)"
 
 
+FAKE_REPLACE_JOINT = "fake replace joint"
+"""The fake's own command (a real dashboard answers "could not understand"): ``fake replace
+joint N`` changes the robot's kinematics calibration as a joint replacement does."""
+
+
 class Dashboard:
     """Answers dashboard commands from the controller's state."""
 
@@ -35,11 +40,21 @@ class Dashboard:
         major, minor = self.controller.config.version[:2]
         return (major == 5 and minor >= 6) or major > 5
 
+    def _replace_joint(self, argument: str) -> str:
+        try:
+            calibration = self.controller.replace_joint(int(argument))
+        except ValueError:
+            return f"could not understand: 'fake replace joint {argument}' (joint 1 to 6)"
+        checksums = " ".join(f"{c:08x}" for c in calibration.checksums)
+        return f"Joint {argument} replaced: kinematics checksums {checksums}"
+
     def reply(self, command: str) -> tuple[str, bool]:
         """The reply line for one command, and whether to close the connection."""
         ctrl = self.controller
         text = command.strip()
         lower = text.lower()
+        if lower.startswith(FAKE_REPLACE_JOINT):
+            return self._replace_joint(lower[len(FAKE_REPLACE_JOINT):].strip()), False
         if lower == "robotmode":
             return f"Robotmode: {ROBOT_MODE_NAMES[ctrl.robot_mode]}", False
         if lower == "safetystatus":

@@ -16,6 +16,7 @@ from types import TracebackType
 from fakes.ur_controller.controller import ControllerConfig, FakeController
 from fakes.ur_controller.dashboard import Dashboard
 from fakes.ur_controller.net import TcpListener, require_loopback
+from fakes.ur_controller.primary_server import PRIMARY_PORT, PRIMARY_READ_ONLY_PORT, PrimaryServer
 from fakes.ur_controller.rtde_server import RtdeServer
 from fakes.ur_controller.script_server import ScriptServer
 from lasercal_hw.errors import TransportError
@@ -27,7 +28,7 @@ READY_PREFIX = "fake robot ready"
 
 
 class FakeRobot:
-    """Controller + dashboard + RTDE + script servers on one loopback address."""
+    """Controller + dashboard + RTDE + script + primary servers on one loopback address."""
 
     def __init__(self, address: str, config: ControllerConfig | None = None) -> None:
         self.address = require_loopback(address)
@@ -37,11 +38,13 @@ class FakeRobot:
         self._thread = threading.Thread(target=self.controller.run, name="fake-ur-cycle", daemon=True)
 
     def start(self) -> None:
-        """Bind the three ports and start the controller cycle; TransportError if a port
+        """Bind the ports and start the controller cycle; TransportError if a port
         is taken (the listeners already bound are closed again)."""
         servers = [(DASHBOARD_PORT, Dashboard(self.controller).serve, "dashboard"),
                    (RTDE_PORT, self.rtde.serve, "rtde"),
-                   (SCRIPT_PORT, ScriptServer(self.controller).serve, "script")]
+                   (SCRIPT_PORT, ScriptServer(self.controller).serve, "script"),
+                   (PRIMARY_PORT, PrimaryServer(self.controller).serve, "primary"),
+                   (PRIMARY_READ_ONLY_PORT, PrimaryServer(self.controller).serve, "primary-read-only")]
         try:
             for port, handler, name in servers:
                 self._listeners.append(TcpListener(self.address, port, handler, name))
@@ -61,7 +64,8 @@ class FakeRobot:
     def ready_line(self) -> str:
         """The line announcing readiness on standard output."""
         return (f"{READY_PREFIX}: address={self.address} version={self.controller.config.version_text} "
-                f"dashboard={DASHBOARD_PORT} rtde={RTDE_PORT} script={SCRIPT_PORT} pid={os.getpid()}")
+                f"dashboard={DASHBOARD_PORT} rtde={RTDE_PORT} script={SCRIPT_PORT} "
+                f"primary={PRIMARY_PORT},{PRIMARY_READ_ONLY_PORT} pid={os.getpid()}")
 
     def close(self) -> None:
         """Stop the servers and the cycle; safe to call twice."""

@@ -1,5 +1,6 @@
 """``lasercal remote``: drive a running daemon from a script or a shell (``calibrate``,
-``verify``, ``status``, ``jobs``, ``history``, ``activate``, ``cancel``, ``resume``, ``diff``)."""
+``verify``, ``status``, ``health``, ``jobs``, ``history``, ``activate``, ``mark-bad``, ``cancel``,
+``resume``, ``diff``)."""
 
 from __future__ import annotations
 
@@ -195,6 +196,13 @@ def status_command(daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = 
     _print(status, as_json, remote_text.status_lines(status))
 
 
+@remote_app.command("health")
+def health_command(daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = False) -> None:
+    """Every scanner's calibration: active, passed, age, last verify, robot calibration."""
+    health = _client(daemon, None).health()
+    _print(health, as_json, remote_text.health_lines(health))
+
+
 @remote_app.command("jobs")
 def jobs_command(daemon: DaemonOption = DEFAULT_DAEMON, as_json: JsonOption = False) -> None:
     """Jobs, newest first."""
@@ -238,6 +246,22 @@ def activate_command(
     """Make a calibration the active one (also how to roll back)."""
     summary = _client(daemon, token_file).activate(calibration_id, reason, force)
     lines = [f"active now: {calibration_id} ({reason})", *remote_text.calibration_lines(summary)]
+    _print(summary, as_json, lines)
+
+
+@remote_app.command("mark-bad")
+def mark_bad_command(
+    calibration_id: str,
+    by: Annotated[str, typer.Option("--by", help="Who found it bad (a name or an address).")],
+    reason: Annotated[str, typer.Option("--reason", help="Why it is bad (kept in the history).")],
+    daemon: DaemonOption = DEFAULT_DAEMON,
+    token_file: TokenFileOption = None,
+    as_json: JsonOption = False,
+) -> None:
+    """Mark a calibration bad: it is never active again (the active one is deactivated)."""
+    summary = _client(daemon, token_file).mark_bad(calibration_id, by, reason)
+    bad = summary["bad"]
+    lines = [f"marked bad: {calibration_id} by {bad['by']} at {bad['time_utc']} ({bad['reason']})"]
     _print(summary, as_json, lines)
 
 

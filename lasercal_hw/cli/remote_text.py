@@ -105,6 +105,35 @@ def status_lines(status: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _age(age_s: float | None) -> str:
+    """``3 min``, ``5.2 h``, ``12 d``."""
+    if age_s is None:
+        return "-"
+    if age_s < 3600:
+        return f"{age_s / 60:.0f} min"
+    return f"{age_s / 3600:.1f} h" if age_s < 86400 else f"{age_s / 86400:.0f} d"
+
+
+def health_lines(health: dict[str, Any]) -> list[str]:
+    """One line per scanner: calibration, its age, the last verify, the robot's calibration."""
+    lines = []
+    for scanner in health["scanners"]:
+        if not scanner["active_calibration"]:
+            lines.append(f"{scanner['name']}: no active calibration")
+            continue
+        verify = scanner["last_verify"]
+        verified = "never verified"
+        if verify is not None:
+            verified = f"verify {verify['verdict']} {_age(verify['age_s'])} ago"
+        matches = scanner["robot_calibration_matches"]
+        lines.append(
+            f"{scanner['name']}: {scanner['calibration_id']} {'passed' if scanner['passed'] else 'FAILED'}, "
+            f"{_age(scanner['age_s'])} old, {verified}; robot calibration matches: "
+            f"{matches if matches == 'unknown' else _yes_no(matches)} ({scanner['robot_calibration_note']})"
+        )
+    return lines
+
+
 def diff_lines(diff: dict[str, Any], a: str, b: str) -> list[str]:
     """``GET /v1/calibrations/{a}/diff/{b}`` for a person."""
     significant = diff["significant"]

@@ -16,7 +16,7 @@ from lasercal_hw.config import JobConfig, WorkspaceConfig, load_job
 from lasercal_hw.errors import ConfigError, ExitCode
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
 from lasercal_hw.models import RodLine
-from lasercal_hw.ur_kinematics import MODELS, URModel, inverse_kinematics_pose, robot_model
+from lasercal_hw.ur_kinematics import MODELS, URModel, inverse_kinematics_pose, offline_model, robot_model
 from trajectories.checks import check_waypoints
 from trajectories.presets import DEFAULT_PRESET, PRESETS, get_preset, preset_names
 from trajectories.waypoint import Waypoint
@@ -30,6 +30,24 @@ _JSON_OPT = typer.Option(False, "--json", help="Print one JSON document instead 
 _MODEL_OPT = typer.Option(
     None, "--robot-model", help=f"Robot model of the offline kinematics ({', '.join(MODELS)}; default ur5)."
 )
+
+
+_ROBOT_OPT = typer.Option(
+    None, "--robot", help="Read this robot's own kinematics calibration (its primary interface, read only) "
+    "and use its DH values instead of a published model's.",
+)
+
+
+def _kinematics(robot: str | None, model_name: str | None) -> URModel:
+    """The robot's own kinematics (``--robot``), else the named model, else the UR5."""
+    if robot is None:
+        return robot_model(model_name or "ur5")
+    from drivers.access import DeviceAccess
+
+    calibration = DeviceAccess().read_robot_calibration(robot)
+    err_console.print(f"kinematics: the robot's own calibration ({calibration.model}, checksum "
+                      f"{calibration.checksum})", markup=False)
+    return offline_model(calibration)
 
 
 def _offline_ik(model: URModel):
@@ -100,9 +118,11 @@ def check(
     box_min: str = typer.Option(_DEFAULT_BOX_MIN, "--box-min", help="Workspace box minimum x,y,z (m)."),
     box_max: str = typer.Option(_DEFAULT_BOX_MAX, "--box-max", help="Workspace box maximum x,y,z (m)."),
     robot_model_name: str | None = _MODEL_OPT,
+    robot: str | None = _ROBOT_OPT,
     json_output: bool = _JSON_OPT,
 ) -> None:
-    """Check waypoints offline against a UR5 (CB3) or UR5e model and the workspace box.
+    """Check waypoints offline against a UR5 (CB3) or UR5e model, or the robot's own kinematics
+    (--robot: its primary interface, read only), and the workspace box.
 
     Exit code 2 when any waypoint is unreachable or outside the box (all are listed).
     On a real cell the run's preflight asks the controller instead.
@@ -114,7 +134,7 @@ def check(
         )
     except ValidationError as exc:
         raise ConfigError(f"--box-min/--box-max: {exc.errors()[0]['msg']}") from None
-    model = robot_model(robot_model_name or "ur5")
+    model = _kinematics(robot, robot_model_name)
     report = check_waypoints(waypoints, inverse_kinematics=_offline_ik(model), workspace=box, rod=rod)
     if json_output:
         print_json(
@@ -189,6 +209,7 @@ def design(
     config: ConfigOption = None,
     waypoints: WaypointCountOption = 20,
     robot_model_name: DesignModelOption = None,
+    robot: str | None = _ROBOT_OPT,
     out: OutOption = Path("waypoints.csv"),
     seed: SeedOption = 0,
     json_output: bool = _JSON_OPT,
@@ -217,7 +238,7 @@ def design(
         raise ConfigError(
             f"--pose-uncertainty {translation_m:g} {rotation_deg:g}: give 0-0.5 m and 0-45 deg"
         )
-    model = robot_model(robot_model_name or job.robot.model or "ur5")
+    model = _kinematics(robot, robot_model_name or job.robot.model)
     request = request_for_job(
         job,
         _rough_pose(job, scanner_pose),

@@ -74,9 +74,10 @@ def first_design(job: JobConfig) -> Design:
 
 
 def second_design(job: JobConfig, estimate: FloatArray, estimate_std: tuple[float, float],
-                  measured_poses: FloatArray, first_index: int) -> Design:
+                  measured_poses: FloatArray, first_index: int, model: URModel | None = None) -> Design:
     """The rest of the waypoints, designed around ``estimate`` (``T_base_laser``) together
-    with the information of the waypoints already measured, starting near the last of them."""
+    with the information of the waypoints already measured, starting near the last of them,
+    on ``model`` (the robot's own kinematics when known; default ``design_model``)."""
     std_mm, std_deg = estimate_std
     uncertainty = PoseUncertainty(
         translation_m=max(LEAST_UNCERTAINTY.translation_m, ESTIMATE_SIGMAS * std_mm / 1000.0),
@@ -85,7 +86,7 @@ def second_design(job: JobConfig, estimate: FloatArray, estimate_std: tuple[floa
     request = request_for_job(
         job,
         estimate,
-        design_model(job),
+        model or design_model(job),
         uncertainty=uncertainty,
         waypoints=job.trajectory.design_waypoints - first_index,
         seed=1,
@@ -134,10 +135,11 @@ def run_second_design(
     on_progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
     clock: Callable[[], float] = time.time,
+    model: URModel | None = None,
 ) -> RunOutcome:
-    """After the first part's run: design the rest from its estimate, measure it, and solve
-    over all waypoints. A run resumed after the second design already holds every waypoint
-    and is returned as it is."""
+    """After the first part's run: design the rest from its estimate (on ``model``, the
+    robot's own kinematics when known), measure it, and solve over all waypoints. A run
+    resumed after the second design already holds every waypoint and is returned as it is."""
     first_count = len(waypoints)
     if first_count >= job.trajectory.design_waypoints:
         return first
@@ -151,6 +153,7 @@ def run_second_design(
         (max(estimate.std_translation_mm), max(estimate.std_rotation_deg)),
         measured,
         first_count,
+        model,
     )
     poses = np.array([w.tcp_pose for w in result.waypoints]).reshape(-1, 6)
     _record_design(recorder, clock, 2, first_count, poses, estimate.matrix(), result)

@@ -23,7 +23,7 @@ import numpy as np
 from lasercal_hw import __version__
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import ConfigError, DeviceError, InterruptedRunError, LasercalError
-from lasercal_hw.models import FloatArray
+from lasercal_hw.models import FloatArray, RobotCalibration
 from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
@@ -37,6 +37,7 @@ from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
+from lasercal_hw.ur_kinematics import offline_model
 
 __all__ = [
     "CancelToken", "MotionPlan", "ProcedureReport", "RunEvent", "RunReport", "RunRequest", "SequencerSession",
@@ -50,6 +51,8 @@ META_DRY_RUN = "dry_run"
 META_SCENE = "dry_run_scene_toml"
 #: Recording meta: the scanner of a cell job this recording calibrates (docs/cell.md).
 META_SCANNER_NAME = "scanner_name"
+#: Recording meta: the robot's own kinematics calibration (``RobotCalibration.as_dict``, or None: unknown).
+META_ROBOT_CALIBRATION = "robot_calibration"
 
 
 @dataclass(frozen=True)
@@ -161,6 +164,8 @@ class MotionPlan:
     waypoint_count: int
     #: A fake cell's arm (a resumed dry run's recording decides it, not the command line).
     dry_run: bool = False
+    #: The robot's own kinematics calibration (None: its primary interface could not be read).
+    robot_calibration: RobotCalibration | None = None
 
     def summary(self) -> str:
         """One paragraph for the operator."""
@@ -204,11 +209,13 @@ def calibrate(
             outcome = run_second_design(
                 session.robot, session.scanner, session.recorder, session.job, session.waypoints, outcome,
                 on_progress=session.on_progress, cancel=cancel,
+                model=offline_model(session.robot_calibration, named=session.job.robot.model),
             )
         sink.emit("stage", "writing the outputs", stage=Stage.OUTPUTS)
         files = {"session": session.session_path} | write_outputs(
             session.out_dir, outcome, session.job, ground_truth=session.ground_truth, title=request.title,
             scanner=request.scanner_name,
+            robot_calibration=session.robot_calibration,
         )
     ground_truth, fake_cell, out_dir = session.ground_truth, session.fake_cell, session.out_dir
     report = RunReport(outcome, files, out_dir, ground_truth, fake_cell, time.monotonic() - started_s)
@@ -242,6 +249,8 @@ class SequencerSession:
     ground_truth: FloatArray | None
     fake_cell: dict[str, Any] | None
     on_progress: ProgressCallback
+    #: The robot's own kinematics calibration (None: unknown, and a warning said so).
+    robot_calibration: RobotCalibration | None = None
 
 
 @contextlib.contextmanager
@@ -271,9 +280,11 @@ def open_sequencer(
             sink.emit("stage", "connecting to the scanner and the robot", stage=Stage.CONNECT)
             from drivers.access import DeviceAccess  # the connect step: nothing above needs a driver
 
-            robot, scanner = DeviceAccess().connect(job, stack)
+            devices = DeviceAccess()
+            robot, scanner = devices.connect(job, stack)
+            robot_calibration = _read_robot_calibration(devices, job.robot.host, sink)
             recorder = _open_recorder(request, job, waypoints, robot, scanner, fake_cell, ground_truth,
-                                      session_path)
+                                      session_path, robot_calibration)
             stack.callback(recorder.close)
             on_progress = sink.progress_listener(job.rod.radius_m)
             sequencer = Sequencer(
@@ -284,7 +295,8 @@ def open_sequencer(
                 waypoints,
                 on_progress=on_progress,
                 before_motion=None if confirm is None else lambda report: confirm(
-                    MotionPlan(report, job, len(waypoints), dry_run=request.dry_run)
+                    MotionPlan(report, job, len(waypoints), dry_run=request.dry_run,
+                               robot_calibration=robot_calibration)
                 ),
                 resume=state,
                 cancel=cancel,
@@ -292,7 +304,7 @@ def open_sequencer(
             )
             yield SequencerSession(
                 job, waypoints, out_dir, session_path, sequencer, robot, scanner, recorder, ground_truth,
-                fake_cell, on_progress,
+                fake_cell, on_progress, robot_calibration,
             )
     except (LasercalError, KeyboardInterrupt, OSError) as exc:  # OSError: a full disk, say
         _after_failure(
@@ -396,6 +408,21 @@ def _start_fake_cell(
     return job, ground_truth, {"address": cell.address, "pid": cell.pid, "scene": str(scene)}
 
 
+def _read_robot_calibration(devices: Any, host: str, sink: EventSink) -> RobotCalibration | None:
+    """The robot's own kinematics calibration from its primary interface; when it cannot be
+    read, a warning says so and the run goes on with it unknown."""
+    try:
+        calibration: RobotCalibration = devices.read_robot_calibration(host)
+    except LasercalError as exc:
+        sink.emit("warning", f"the robot's kinematics calibration is unknown and recorded as unknown: {exc}")
+        return None
+    sink.emit(
+        "stage", f"robot kinematics calibration: {calibration.model}, checksum {calibration.checksum}",
+        stage=Stage.CONNECT, robot_calibration_checksum=calibration.checksum,
+    )
+    return calibration
+
+
 def _open_recorder(
     request: RunRequest,
     job: JobConfig,
@@ -405,6 +432,7 @@ def _open_recorder(
     fake_cell: dict[str, Any] | None,
     ground_truth: FloatArray | None,
     session_path: Path,
+    robot_calibration: RobotCalibration | None,
 ) -> SessionRecorder:
     """A new ``session.mcap``, or the interrupted one continued, with the run's meta."""
     meta = {
@@ -415,6 +443,7 @@ def _open_recorder(
         "started_utc": datetime.now(UTC).isoformat(),
         "robot": asdict(robot.identity()) | {"host": job.robot.host},
         "scanner": asdict(scanner.identity()) | {"url": job.scanner.url},
+        META_ROBOT_CALIBRATION: None if robot_calibration is None else robot_calibration.as_dict(),
     }
     if request.scanner_name is not None:
         meta[META_SCANNER_NAME] = request.scanner_name

@@ -55,7 +55,9 @@ class CalibrationHistory:
             "passed": read.passed,
         } | {key: result[key] for key in _SUMMARY_FIELDS}
         summary["verdict"] = read.verdict
-        summary["devices"] = {"robot": read.robot, "scanner": read.scanner}
+        summary["devices"] = {
+            "robot": read.robot, "scanner": read.scanner, "robot_calibration": read.robot_calibration
+        }
         self._store.add_calibration(calibration_id, job_id, dry_run, read.passed, summary, directory, scanner)
         return calibration_id
 
@@ -129,6 +131,7 @@ class CalibrationHistory:
         """Make a calibration the active one (recorded in the activation log). One that failed
         its quality gates needs ``force``."""
         summary, _ = self._stored(calibration_id)
+        _refuse_if_bad(summary, "calibration_marked_bad", "a bad one is never active: activate another one")
         if not summary["passed"] and not force:
             raise ConflictError(
                 f"calibration {calibration_id} failed its quality "
@@ -141,6 +144,27 @@ class CalibrationHistory:
             "activation", {"calibration_id": calibration_id, "reason": reason, "scanner": summary["scanner"]}
         )
         return self.summary(calibration_id)
+
+    def mark_bad(self, calibration_id: str, by: str, reason: str) -> dict[str, Any]:
+        """Record that ``by`` found the calibration bad and why (ConflictError when it already
+        is: the first record stays). The active one is deactivated, and the event says so."""
+        summary, _ = self._stored(calibration_id)
+        _refuse_if_bad(summary, "already_marked_bad", "the first record stays")
+        was_active = self._store.active_calibration_id(summary["scanner"]) == calibration_id
+        time_utc = self._store.mark_bad(calibration_id, by, reason)
+        event = {"calibration_id": calibration_id, "by": by, "reason": reason, "time_utc": time_utc,
+                 "deactivated": was_active}
+        self._bus.publish("calibration_marked_bad", event)
+        if was_active:
+            self._bus.publish(
+                "deactivation",
+                {"calibration_id": calibration_id, "reason": f"marked bad by {by}: {reason}"},
+            )
+        return self.summary(calibration_id)
+
+    def latest_verify(self, calibration_id: str) -> dict[str, Any] | None:
+        """The newest verify of one calibration, or None."""
+        return next((v for v in self._store.verifies() if v.get("calibration_id") == calibration_id), None)
 
     def activations(self) -> list[dict[str, Any]]:
         """The activation log, newest first."""
@@ -169,6 +193,18 @@ class CalibrationHistory:
                 code="different_scanners",
             )
         return transform_change(first, second)
+
+
+def _refuse_if_bad(summary: dict[str, Any], code: str, consequence: str) -> None:
+    """ConflictError ``code`` naming who marked the calibration bad, when and why."""
+    bad = summary["bad"]
+    if bad is not None:
+        raise ConflictError(
+            f"calibration {summary['id']} was marked bad by {bad['by']} at {bad['time_utc']} "
+            f"({bad['reason']}); {consequence}",
+            {"calibration_id": summary["id"], "bad": bad},
+            code=code,
+        )
 
 
 def transform_change(first: dict[str, Any], second: dict[str, Any]) -> dict[str, Any]:

@@ -132,6 +132,14 @@ class DaemonClient:
             "POST", f"/v1/calibrations/{calibration_id}/activate", {"reason": reason, "force": force}
         )
 
+    def mark_bad(self, calibration_id: str, by: str, reason: str) -> dict[str, Any]:
+        """Record who found a calibration bad and why (the active one is deactivated)."""
+        return self.call("POST", f"/v1/calibrations/{calibration_id}/mark-bad", {"by": by, "reason": reason})
+
+    def health(self) -> dict[str, Any]:
+        """``GET /v1/health``: every scanner's calibration health."""
+        return self.call("GET", "/v1/health")
+
     def diff(self, a: str, b: str) -> dict[str, Any]:
         """The change between two calibrations."""
         return self.call("GET", f"/v1/calibrations/{a}/diff/{b}")

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections.abc import Callable
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -17,6 +18,7 @@ from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.config import DaemonConfig
 from lasercal_hw.service.errors import ServiceError, StorageFullError
 from lasercal_hw.service.events import EventBus
+from lasercal_hw.service.health import DEFAULT_SCANNER, scanner_health
 from lasercal_hw.service.jobs import JobManager, Runner
 from lasercal_hw.service.monitor import DeviceMonitor
 from lasercal_hw.service.rebuild import job_folders
@@ -172,6 +174,28 @@ class Daemon:
         if self.fake_cell is not None:
             self.fake_cell.stop()
         self.store.close()
+
+    def scanners(self) -> list[tuple[str, str | None]]:
+        """The cell's scanners as the configuration lists them: ``(name, url)``, daemon.toml's
+        ``[scanners.NAME]`` or the one ``scanner_url`` (named ``default``)."""
+        named = [(name, scanner.url) for name, scanner in self.config.scanners.items()]
+        return named or [(DEFAULT_SCANNER, self.devices.scanner_url)]
+
+    def health(self) -> dict[str, Any]:
+        """``GET /v1/health``: liveness, and per scanner its calibration's health (from the
+        history and the monitor's last readings, no device I/O)."""
+        unread = {"known": False, "calibration": None, "read_utc": None, "error": "not read yet"}
+        robot_reading = self.monitor.robot_calibration() if self.monitor else unread
+        now = datetime.now(UTC)
+        scanners = []
+        for name, url in self.scanners():
+            active = self.history.active_summary(name)
+            last_verify = None if active is None else self.history.latest_verify(active["id"])
+            scanners.append(scanner_health(name, url, active, last_verify, robot_reading, now))
+        return {
+            "ok": True, "version": __version__, "api_version": API_VERSION, "time_utc": now.isoformat(),
+            "robot_calibration": robot_reading, "scanners": scanners,
+        }
 
     def status(self) -> dict[str, Any]:
         """``GET /v1/status``: from memory and the store, no device I/O."""

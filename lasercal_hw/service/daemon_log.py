@@ -1,5 +1,6 @@
-"""The daemon's log: one line per job state, activation, calibration filed, cancel request,
-fault and device change, each with its ids, on stderr (what ``journalctl -u lasercal`` shows).
+"""The daemon's log: one line per job state, activation, calibration filed or marked bad,
+deactivation, cancel request, fault and device change, each with its ids, on stderr (what
+``journalctl -u lasercal`` shows).
 
 ``text`` lines are for a person (``2026-11-25T16:59:56Z INFO job job-... running``);
 ``json`` lines are one JSON object each (``time_utc``, ``level``, ``event``, ``message`` and
@@ -40,6 +41,11 @@ def _event_line(kind: str, data: dict[str, Any], job_id: str | None) -> str | No
         return f"job {job_id} robot program: {data.get('message')}"
     if kind == "activation":
         return f"calibration {data.get('calibration_id')} activated: {data.get('reason')}"
+    if kind == "calibration_marked_bad":
+        who = data.get("by")
+        return f"calibration {data.get('calibration_id')} marked bad by {who}: {data.get('reason')}"
+    if kind == "deactivation":
+        return f"calibration {data.get('calibration_id')} deactivated: {data.get('reason')}"
     if kind == "daemon":
         return str(data.get("message"))
     return None
@@ -50,7 +56,9 @@ def log_event(kind: str, data: dict[str, Any], job_id: str | None) -> None:
     line = _event_line(kind, data, job_id)
     if line is None:
         return
-    failed = kind == "fault" or (kind == "state" and data.get("state") == "failed")
+    failed = kind in ("fault", "calibration_marked_bad", "deactivation") or (
+        kind == "state" and data.get("state") == "failed"
+    )
     fields = {"event": kind, **({"job_id": job_id} if job_id else {}), **data}
     logger.log(logging.WARNING if failed else logging.INFO, line, extra={"fields": fields})
 

@@ -3,8 +3,10 @@ waits on a device.
 
 The probes are the device door's (``drivers.access.DeviceAccess``): the robot through its
 dashboard server only (robot mode, safety status, remote control, program state), which
-leaves the owner's program alone and costs nothing between polls; the scanner opened
-briefly for its identity, and only while no job holds the devices.
+leaves the owner's program alone and costs nothing between polls; the robot's kinematics
+calibration from its read-only primary interface (``GET /v1/health`` compares it with the
+active calibration's); the scanner opened briefly for its identity, and only while no job
+holds the devices.
 """
 
 from __future__ import annotations
@@ -13,7 +15,9 @@ import logging
 import threading
 from typing import TYPE_CHECKING, Any, Literal
 
+from lasercal_hw.errors import LasercalError
 from lasercal_hw.service.daemon_log import device_summary, log_device
+from lasercal_hw.service.store import utc_now
 
 if TYPE_CHECKING:
     from drivers.access import DeviceAccess
@@ -41,6 +45,10 @@ class DeviceMonitor:
             "identity": None,
             "error": None if devices.scanner_url else "no scanner configured",
         }
+        self._robot_calibration: dict[str, Any] = {
+            "known": False, "calibration": None, "read_utc": None,
+            "error": None if devices.robot_host else "no robot configured",
+        }
         self._logged: dict[str, tuple[Any, ...]] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="device-monitor", daemon=True)
@@ -59,6 +67,12 @@ class DeviceMonitor:
         with self._lock:
             return {"robot": dict(self._robot_status), "scanner": dict(self._scanner_status)}
 
+    def robot_calibration(self) -> dict[str, Any]:
+        """The last reading of the robot's kinematics calibration: ``known``, ``calibration``
+        (``RobotCalibration.as_dict``), ``read_utc`` and the ``error`` that left it unknown."""
+        with self._lock:
+            return dict(self._robot_calibration)
+
     def _loop(self) -> None:
         polls = 0
         while not self._stop.is_set():
@@ -67,10 +81,22 @@ class DeviceMonitor:
                 with self._lock:
                     self._robot_status = status
                 self._log_if_changed("robot", status)
+                if polls % SCANNER_EVERY_POLLS == 0:
+                    self._read_robot_calibration(self._devices.robot_host)
             if self._devices.scanner_url and polls % SCANNER_EVERY_POLLS == 0:
                 self._poll_scanner(self._devices.scanner_url)
             polls += 1
             self._stop.wait(self._poll_s)
+
+    def _read_robot_calibration(self, host: str) -> None:
+        """Read the primary interface (read only: it never disturbs a job's program)."""
+        reading: dict[str, Any] = {"known": False, "calibration": None, "read_utc": utc_now(), "error": None}
+        try:
+            reading |= {"known": True, "calibration": self._devices.read_robot_calibration(host).as_dict()}
+        except LasercalError as exc:
+            reading["error"] = str(exc)
+        with self._lock:
+            self._robot_calibration = reading
 
     def _poll_scanner(self, url: str) -> None:
         probe = self._devices.probe_scanner()

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from lasercal_hw.models import RobotIdentity, RodLine, ScannerIdentity
+from lasercal_hw.models import RobotCalibration, RobotIdentity, RodLine, ScannerIdentity
 
 ROD_TOLERANCE_M = 0.0005
 ROD_DIRECTION_TOLERANCE_DEG = 0.5
@@ -23,6 +23,8 @@ class IdentityCheck:
     name: str
     recorded: str | None
     current: str
+    #: Says more than the two values: what changed, or why nothing was compared.
+    note: str | None = None
 
     @property
     def matches(self) -> bool:
@@ -31,6 +33,8 @@ class IdentityCheck:
 
     def describe(self) -> str:
         """One line for a report."""
+        if self.note is not None:
+            return self.note if not self.matches else f"{self.name}: {self.current} ({self.note})"
         if self.recorded is None:
             return f"{self.name}: {self.current} (not recorded with the calibration)"
         if self.matches:
@@ -58,6 +62,33 @@ def _same_rod(a: RodLine, b: RodLine) -> bool:
         and abs(a.length_m - b.length_m) <= ROD_TOLERANCE_M
         and np.linalg.norm(np.asarray(a.origin_m) - np.asarray(b.origin_m)) <= ROD_TOLERANCE_M
         and angle_deg <= ROD_DIRECTION_TOLERANCE_DEG
+    )
+
+
+ROBOT_CALIBRATION = "robot kinematics calibration"
+
+
+def robot_calibration_check(
+    recorded: dict[str, Any] | None, current: RobotCalibration | None
+) -> IdentityCheck:
+    """The robot's own kinematics calibration now against the one recorded with the
+    calibration: a changed one names the change; an unknown one (either side) is not compared."""
+    if current is None:
+        return IdentityCheck(ROBOT_CALIBRATION, None, "unknown",
+                             note="the robot's primary interface could not be read now; not compared")
+    if recorded is None:
+        return IdentityCheck(ROBOT_CALIBRATION, None, current.checksum)
+    try:
+        then = RobotCalibration.from_dict(recorded)
+    except (KeyError, TypeError, ValueError):
+        return IdentityCheck(ROBOT_CALIBRATION, None, current.checksum,
+                             note="the calibration's record of it cannot be read; not compared")
+    change = current.change_from(then)
+    if change is None:
+        return IdentityCheck(ROBOT_CALIBRATION, then.checksum, current.checksum)
+    return IdentityCheck(
+        ROBOT_CALIBRATION, then.checksum, f"{current.checksum} (changed)",
+        note=f"the robot's kinematics calibration changed since the calibration: {change}",
     )
 
 

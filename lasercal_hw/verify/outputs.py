@@ -13,7 +13,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from lasercal_hw.config import JobConfig
-from lasercal_hw.models import FloatArray
+from lasercal_hw.models import FloatArray, RobotCalibration
 from lasercal_hw.outputs.report import ReportData, render_report
 from lasercal_hw.run.outputs import transform_error, write_text
 from lasercal_hw.run.records import Timings
@@ -41,6 +41,8 @@ class VerifyOutcome:
     skipped: list[tuple[int, str]]
     kept_first_fit: list[tuple[int, str]]
     timings: Timings
+    #: The robot's own kinematics calibration during this verify (None: unknown).
+    robot_calibration: RobotCalibration | None = None
 
     def time_fraction(self) -> float | None:
         """Motion plus dwell of this verify over that of the calibration (None: not recorded)."""
@@ -103,7 +105,7 @@ def _test_document(test: DriftTest, visited: list[bool]) -> dict[str, Any]:
 
 def verify_document(outcome: VerifyOutcome, *, ground_truth: FloatArray | None = None) -> dict[str, Any]:
     """``verify.json``: the verdict, the test, the identity checks, the timings."""
-    test = outcome.test
+    test, robot_calibration = outcome.test, outcome.robot_calibration
     selection = outcome.selection
     timings = outcome.timings
     document: dict[str, Any] = {
@@ -120,6 +122,7 @@ def verify_document(outcome: VerifyOutcome, *, ground_truth: FloatArray | None =
             {"name": c.name, "recorded": c.recorded, "current": c.current, "matches": c.matches}
             for c in outcome.identity
         ],
+        "robot_calibration": None if robot_calibration is None else robot_calibration.as_dict(),
         "selection": {
             "waypoints": selection.indices,
             "candidates": selection.candidates,

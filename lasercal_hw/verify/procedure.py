@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +33,7 @@ from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.verify.active import ActiveCalibration, load_active_calibration, recorded_residuals
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
-from lasercal_hw.verify.identity import IdentityCheck, check_identity
+from lasercal_hw.verify.identity import IdentityCheck, check_identity, robot_calibration_check
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
 from lasercal_hw.verify.selection import Selection, select_waypoints
 from lasercal_hw.verify.verdict import Verdict, decide, with_time_note
@@ -208,9 +208,11 @@ def verify(
     found: dict[str, Any] = {}
 
     def before_motion(motion: MotionPlan) -> None:
-        identity = check_identity(
-            active.robot, active.scanner, active.rod, motion.preflight.robot, motion.preflight.scanner, rod
-        )
+        now = motion.preflight
+        identity = [
+            *check_identity(active.robot, active.scanner, active.rod, now.robot, now.scanner, rod),
+            robot_calibration_check(active.robot_calibration, motion.robot_calibration),
+        ]
         found["identity"] = identity
         if not all(check.matches for check in identity):
             raise _OtherDevicesError()  # the verdict is known: nothing moves
@@ -236,6 +238,7 @@ def verify(
         outcome = VerifyOutcome(
             active, job, selection, found["identity"], None, verdict, [], [], [], Timings()
         )
+    outcome = replace(outcome, robot_calibration=session.robot_calibration)
     sink.emit("stage", "writing the outputs", stage=Stage.OUTPUTS)
     files = {"session": session.session_path} | write_verify_outputs(
         session.out_dir, outcome, ground_truth=session.ground_truth

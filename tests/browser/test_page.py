@@ -77,6 +77,7 @@ def test_dry_run_from_the_page(daemon: DaemonProcess, browser: Any, artifacts: P
     _wait(browser, lambda d: "connected" in _by_id(d, "robot-status").text, "the robot's status")
     _wait(browser, lambda d: _by_id(d, "stream-state").text == "stream: live", "the live event stream")
     assert "dry-run daemon" in _by_id(browser, "dry-run-badge").text
+    assert "no active calibration" in _by_id(browser, "health").text
     _screenshot(browser, artifacts, "idle")
 
     # Declining the confirmation starts nothing and never asks for the token.
@@ -143,6 +144,13 @@ def test_dry_run_from_the_page(daemon: DaemonProcess, browser: Any, artifacts: P
     _wait(browser, lambda d: d.find_elements("css selector", '#history-body tr[data-kind^="verify"]'),
           "the verify's history row")
     assert verdict in _by_id(browser, "history-body").text
+    # Health at a glance: the calibration's age, the verify's verdict, the robot's calibration
+    # (the dry-run daemon's monitor reads the fake controller's primary interface).
+    health = '#health [data-scanner="default"]'
+    _wait(browser, lambda d: f"verify {verdict}" in d.find_element("css selector", health).text,
+          "the verify's verdict in the health line")
+    glance = browser.find_element("css selector", health).text
+    assert "passed ·" in glance and " old" in glance and "robot calibration same" in glance, glance
     _check_plot_labels(browser)
     _screenshot(browser, artifacts, "verify")
 

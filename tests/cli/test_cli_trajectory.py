@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from lasercal_hw.cli.main import app
+from tests.drivers.ur.robot_process import in_process_robot
 from trajectories.presets import preset_waypoints
 
 runner = CliRunner()
@@ -88,3 +89,15 @@ def test_bad_input_is_one_line_and_exit_code_2(args: list[str], message: str) ->
     assert result.returncode == 2
     assert message in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_check_with_the_robots_own_kinematics_reads_its_primary_interface() -> None:
+    """``--robot HOST``: the fake controller's calibration (read only, over its primary port)."""
+    with in_process_robot() as robot:
+        result = runner.invoke(app, ["trajectory", "check", "quick", "--robot", robot.address, "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["ok"] is True
+    assert "kinematics: the robot's own calibration (UR5e, checksum 5ec0a1d1-" in result.stderr
+    unreachable = run_cli("trajectory", "check", "--robot", "127.0.0.254")  # nothing listens there
+    assert unreachable.returncode == 3, unreachable.stderr
+    assert "cannot reach the robot's primary interface at 127.0.0.254:30011" in unreachable.stderr

@@ -5,18 +5,15 @@ from __future__ import annotations
 
 import json
 import sys
-import threading
 from collections.abc import Callable, Iterator
 
 import pytest
-import uvicorn
 
 from lasercal_hw.cli.main import main
 from lasercal_hw.cli.remote_text import event_line
-from lasercal_hw.service.app import create_app
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
-from tests.daemon_helpers import FakeEngine, fake_runners
+from tests.daemon_helpers import FakeEngine, fake_runners, served_in_thread
 
 
 @pytest.fixture(scope="module")
@@ -24,19 +21,8 @@ def daemon_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, 
     """``(url, token)`` of a daemon with a fake engine on 127.0.0.1 (a free port)."""
     config = load_daemon_config(None, {"data_dir": tmp_path_factory.mktemp("remote") / "data"})
     daemon = Daemon(config, runners=fake_runners(FakeEngine(waypoints=3)))
-    server = uvicorn.Server(uvicorn.Config(create_app(daemon), host="127.0.0.1", port=0, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    for _ in range(500):
-        if server.started:
-            break
-        threading.Event().wait(0.01)
-    port = server.servers[0].sockets[0].getsockname()[1]
-    try:
-        yield f"http://127.0.0.1:{port}", daemon.token
-    finally:
-        server.should_exit = True
-        thread.join(10.0)
+    with served_in_thread(daemon) as url:
+        yield url, daemon.token
 
 
 @pytest.fixture
@@ -81,6 +67,17 @@ def test_every_remote_command_prints_text_and_json_only_when_asked(remote) -> No
     code, out, _ = remote("diff", older, newer)
     assert code == 0 and "significant: no" in out and "translation (0.00, 0.00, 0.00) mm" in out, out
     assert json.loads(remote("diff", older, newer, "--json")[1])["significant"] is False
+
+    code, out, _ = remote("health")
+    assert code == 0 and out.startswith(f"default: {newer} passed, ") and "never verified" in out, out
+    assert "robot calibration matches: unknown" in out
+    assert json.loads(remote("health", "--json")[1])["scanners"][0]["calibration_id"] == newer
+
+    code, out, _ = remote("mark-bad", newer, "--by", "qa@cell-7", "--reason", "rod bent")
+    assert code == 0 and out.startswith(f"marked bad: {newer} by qa@cell-7 at ") and "(rod bent)" in out, out
+    assert json.loads(remote("status", "--json")[1])["active_calibration"] is None
+    code, _, err = remote("activate", newer)
+    assert code != 0 and "marked bad by qa@cell-7" in err, err
 
     code, out, _ = remote("calibrate", "--dry-run", "--yes")
     assert code == 0 and out.startswith("job job-") and "see how it goes with" in out, out

@@ -100,21 +100,21 @@ def test_a_cell_job_files_and_activates_each_scanner_on_its_own(client: TestClie
 
 
 def test_a_one_scanner_history_opens_as_the_scanner_default(tmp_path: Path) -> None:
-    """A history file of schema 1 (before cells) is migrated: its calibrations are of 'default'."""
+    """A history file of schema 2 (before cells) is migrated: its calibrations are of 'default'."""
     path = tmp_path / DB_FILE
     store = HistoryStore(path)
     store.close()
-    with sqlite3.connect(path) as db:  # back to schema 1, one calibration filed then
+    with sqlite3.connect(path) as db:  # back to schema 2, one calibration filed then
         db.execute("ALTER TABLE calibrations DROP COLUMN scanner")
         db.execute(
             "INSERT INTO calibrations (id, created_utc, job_id, dry_run, passed, summary, dir) VALUES "
             "('cal-1', '2026-01-01T00:00:00Z', NULL, 1, 1, '{\"id\": \"cal-1\"}', '/nowhere')"
         )
         db.execute("INSERT INTO activations (calibration_id, time_utc, reason) VALUES ('cal-1', 'now', 'x')")
-        db.execute("PRAGMA user_version = 1")
+        db.execute("PRAGMA user_version = 2")
     store = HistoryStore(path)
     try:
-        assert store.calibrations() == [{"id": "cal-1", "scanner": "default"}]
+        assert store.calibrations() == [{"id": "cal-1", "scanner": "default", "bad": None}]
         assert store.active_calibration_id("default") == "cal-1" == store.active_calibration_id()
         assert store.active_calibration_id("front") is None
     finally:

@@ -13,14 +13,14 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from lasercal_hw.errors import ConfigError
+from lasercal_hw.errors import ConfigError, TransportError
 from lasercal_hw.service import daemon_log
 from lasercal_hw.service.app import create_app
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.monitor import DeviceMonitor
-from tests.daemon_helpers import FakeEngine, fake_runners
-from tests.service.test_service import JOB, _finish
+from tests.daemon_helpers import FakeEngine, fake_runners, finish_job
+from tests.service.test_service import JOB
 
 
 @pytest.fixture(params=["text", "json"])
@@ -52,9 +52,11 @@ def test_a_job_and_an_activation_are_one_line_each_with_their_ids(
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         client.headers["Authorization"] = f"Bearer {daemon.token}"
         job_id = client.post("/v1/jobs", json=JOB).json()["id"]
-        calibration_id = _finish(client, job_id)["calibration_id"]
+        calibration_id = finish_job(client, job_id)["calibration_id"]
         activated = client.post(f"/v1/calibrations/{calibration_id}/activate", json={"reason": "first"})
         assert activated.status_code == 200
+        bad = {"by": "qa", "reason": "rod bent"}
+        assert client.post(f"/v1/calibrations/{calibration_id}/mark-bad", json=bad).status_code == 200
     lines = _lines(log_format, stream)
     assert lines[0].startswith("lasercal ") and lines[0].endswith("daemon started")
     assert lines[1:] == [
@@ -65,6 +67,8 @@ def test_a_job_and_an_activation_are_one_line_each_with_their_ids(
         f"job {job_id} filed calibration {calibration_id} (passed its gates)",
         f"job {job_id} succeeded",
         f"calibration {calibration_id} activated: first",
+        f"calibration {calibration_id} marked bad by qa: rod bent",
+        f"calibration {calibration_id} deactivated: marked bad by qa: rod bent",
     ]
     if log_format == "json":
         records = [json.loads(line) for line in stream.getvalue().splitlines()]
@@ -83,6 +87,9 @@ class _Devices:
         if len(self.answers) == 1:
             self.asked.set()
         return self.answers.pop(0) if len(self.answers) > 1 else self.answers[0]
+
+    def read_robot_calibration(self, host: str) -> Any:
+        raise TransportError(f"no primary interface at {host}")
 
 
 def test_a_device_change_is_one_line(logged: tuple[str, io.StringIO]) -> None:

@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fakes.ur_controller.kinematics_calibration import KinematicsCalibration
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.verify import VerifyRequest, verify
-from tests.verify_helpers import fast_job, moved_scene, write_calibration
+from tests.verify_helpers import fake_robot_calibration, fast_job, moved_scene, write_calibration
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
 
@@ -91,3 +92,24 @@ def test_another_scanner_needs_recalibration_before_anything_moves(tmp_path: Pat
     assert report.outcome.test is None and report.outcome.timings.motion_s == 0.0
     document = json.loads((tmp_path / "verify" / "verify.json").read_text())
     assert document["verdict"] == "recalibrate" and document["test"] is None
+
+
+def test_a_changed_robot_calibration_needs_recalibration_naming_the_robot(tmp_path: Path) -> None:
+    """The robot's joint 3 was replaced since the calibration (the fake controller's scene
+    says so): verify answers recalibrate before anything moves, naming the robot's
+    calibration and both checksums, and records the calibration it read."""
+    calibration = write_calibration(tmp_path / "calibration", fast_job())
+    replaced = KinematicsCalibration().with_joint_replaced(3)
+    scene = tmp_path / "replaced_joint.toml"
+    scene.write_text(f"[robot_kinematics]\nchecksums = {list(replaced.checksums)}\n", encoding="utf-8")
+    report = verify(VerifyRequest(out_dir=tmp_path / "verify", dry_run=True, scene=scene), calibration)
+    before, after = fake_robot_calibration().checksum, fake_robot_calibration(replaced).checksum
+    assert report.verdict.status == "recalibrate"
+    assert report.verdict.reason == (
+        f"the robot's kinematics calibration changed since the calibration: checksum {before} -> {after}"
+    )
+    assert report.outcome.test is None and report.outcome.timings.motion_s == 0.0
+    document = json.loads((tmp_path / "verify" / "verify.json").read_text())
+    assert document["robot_calibration"]["checksum"] == after
+    check = next(c for c in document["identity"] if c["name"] == "robot kinematics calibration")
+    assert check["recorded"] == before and not check["matches"]

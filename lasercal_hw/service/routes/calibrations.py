@@ -16,6 +16,16 @@ router = APIRouter()
 
 MAX_REASON_CHARS = 500
 """An activation's reason is one line for the log and the page."""
+MAX_NAME_CHARS = 100
+"""Who marked a calibration bad: a name or an address."""
+
+
+def _encodable(text: str) -> str:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError("must be text (a lone surrogate such as \\ud800 is not)") from None
+    return text
 
 
 class ActivateBody(BaseModel):
@@ -28,12 +38,22 @@ class ActivateBody(BaseModel):
 
     @field_validator("reason")
     @classmethod
-    def _encodable(cls, reason: str) -> str:
-        try:
-            reason.encode("utf-8")
-        except UnicodeEncodeError:
-            raise ValueError("must be text (a lone surrogate such as \\ud800 is not)") from None
-        return reason
+    def _text(cls, reason: str) -> str:
+        return _encodable(reason)
+
+
+class MarkBadBody(BaseModel):
+    """Who found a calibration bad, and why."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    by: str = Field(min_length=1, max_length=MAX_NAME_CHARS)
+    reason: str = Field(min_length=1, max_length=MAX_REASON_CHARS)
+
+    @field_validator("by", "reason")
+    @classmethod
+    def _text(cls, value: str) -> str:
+        return _encodable(value)
 
 
 ScannerQuery = Annotated[
@@ -72,6 +92,14 @@ def activate(calibration_id: str, daemon: DaemonDep, body: ActivateBody | None =
     """Make a calibration active (also a rollback); recorded in the activation log."""
     body = body or ActivateBody()
     return daemon.history.activate(calibration_id, body.reason, force=body.force)
+
+
+@router.post("/v1/calibrations/{calibration_id}/mark-bad", dependencies=[Authorized])
+def mark_bad(calibration_id: str, body: MarkBadBody, daemon: DaemonDep) -> dict[str, Any]:
+    """Record who found a calibration bad, when and why. A bad calibration is never active:
+    marking the active one deactivates it (the ``deactivation`` event says so), and
+    activating a bad one is a 409."""
+    return daemon.history.mark_bad(calibration_id, body.by, body.reason)
 
 
 @router.get("/v1/calibrations/{a}/diff/{b}")

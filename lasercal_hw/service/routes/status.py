@@ -2,20 +2,70 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 from fastapi import APIRouter
+from pydantic import BaseModel
 
-from lasercal_hw import __version__
 from lasercal_hw.service.routes.deps import DaemonDep
 
 router = APIRouter()
 
 
-@router.get("/v1/health")
-def health() -> dict[str, Any]:
-    """Liveness without device I/O."""
-    return {"ok": True, "version": __version__}
+class RobotCalibrationReading(BaseModel):
+    """The device monitor's last reading of the robot's primary interface."""
+
+    known: bool
+    calibration: dict[str, Any] | None
+    """``checksum``, ``checksums``, ``dh_theta_rad``, ``dh_a_m``, ``dh_d_m``, ``dh_alpha_rad``,
+    ``calibration_status``, ``model``, ``software_version`` (docs/ur.md)."""
+    read_utc: str | None
+    error: str | None
+
+
+class VerifyHealth(BaseModel):
+    """The newest verify of a calibration."""
+
+    id: str | None
+    time_utc: str
+    verdict: Literal["ok", "inconclusive", "degraded", "recalibrate"]
+    reason: str | None
+    age_s: float
+
+
+class ScannerHealth(BaseModel):
+    """One scanner's calibration at a glance."""
+
+    name: str
+    url: str | None
+    active_calibration: bool
+    calibration_id: str | None
+    passed: bool | None
+    created_utc: str | None
+    age_s: float | None
+    last_verify: VerifyHealth | None
+    robot_calibration_matches: bool | Literal["unknown"]
+    """Whether the robot's kinematics calibration is still the one the calibration was made with."""
+    robot_calibration_note: str
+
+
+class Health(BaseModel):
+    """``GET /v1/health``: liveness and every scanner's calibration health."""
+
+    ok: bool
+    version: str
+    api_version: int
+    time_utc: str
+    robot_calibration: RobotCalibrationReading
+    scanners: list[ScannerHealth]
+
+
+@router.get("/v1/health", response_model=Health)
+def health(daemon: DaemonDep) -> dict[str, Any]:
+    """Liveness, and per scanner: an active calibration or not, passed, its age, the last
+    verify's time and verdict, and whether the robot's own kinematics calibration still
+    matches (from the history and the device monitor's last reading; no device I/O)."""
+    return daemon.health()
 
 
 @router.get("/v1/status")

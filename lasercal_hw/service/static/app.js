@@ -13,6 +13,7 @@ const $ = (id) => document.getElementById(id);
 
 const state = {
   status: null,
+  health: null,           // GET /v1/health: every scanner's calibration at a glance
   job: null,              // the job shown in the run panel
   calibrations: [],
   trajectories: [],       // GET /v1/trajectories: presets and designed waypoint files
@@ -201,6 +202,7 @@ function stateKind(jobState) {
 function renderStatus() {
   const s = state.status;
   if (!s) return;
+  renderHealth();
   $("daemon-version").textContent = `daemon ${s.daemon.version}`;
   $("dry-run-badge").hidden = !s.daemon.dry_run;
   const robot = s.robot || {};
@@ -238,9 +240,43 @@ function renderStatus() {
   }
 }
 
+const VERDICT_KIND = { ok: "ok", inconclusive: "warn", degraded: "warn", recalibrate: "bad" };
+
+/** Seconds as "45 s", "12 min", "5 h", "3 days". */
+function duration(seconds) {
+  if (seconds < 120) return `${Math.round(seconds)} s`;
+  if (seconds < 7200) return `${Math.round(seconds / 60)} min`;
+  if (seconds < 172800) return `${Math.round(seconds / 3600)} h`;
+  return `${Math.round(seconds / 86400)} days`;
+}
+
+/** One line per scanner: its calibration's age, the last verify's verdict, the robot's calibration. */
+function renderHealth() {
+  const node = $("health");
+  if (!state.health) return;
+  node.replaceChildren(...state.health.scanners.map((s) => {
+    const row = el("div", { class: "health-row", "data-scanner": s.name }, el("span", { class: "mono", text: s.name }), " ");
+    if (!s.active_calibration) {
+      row.append(badge("no active calibration", "off"));
+      return row;
+    }
+    const verify = s.last_verify;
+    const robot = s.robot_calibration_matches;
+    row.append(
+      badge(`${s.passed ? "passed" : "failed"} · ${duration(s.age_s)} old`, s.passed ? "ok" : "bad"), " ",
+      verify ? badge(`verify ${verify.verdict} · ${duration(verify.age_s)} ago`, VERDICT_KIND[verify.verdict] || "off")
+        : badge("never verified", "warn"), " ",
+      el("span", { title: s.robot_calibration_note }, badge(
+        robot === true ? "robot calibration same" : robot === false ? "robot calibration changed" : "robot calibration unknown",
+        robot === true ? "ok" : robot === false ? "bad" : "off")));
+    if (robot === false) row.append(el("div", { class: "small bad-text", text: s.robot_calibration_note }));
+    return row;
+  }));
+}
+
 async function refreshStatus() {
   try {
-    state.status = await api("GET", "/v1/status");
+    [state.status, state.health] = await Promise.all([api("GET", "/v1/status"), api("GET", "/v1/health")]);
     const job = state.status.job;
     if (job && (!state.job || job.id === state.job.id || ACTIVE_STATES.has(job.state))) takeSnapshot(job);
     markDirty("status", "job");
@@ -571,7 +607,10 @@ function renderHistory() {
       const action = el("td");
       if (row.kind.endsWith("calibration")) {
         if (item.active) action.append(badge("active", "ok"));
-        else {
+        else if (item.bad) {
+          action.append(el("span", { title: `marked bad by ${item.bad.by} ${utc(item.bad.time_utc)}: ${item.bad.reason}` },
+            badge("bad", "bad")));
+        } else {
           const button = el("button", { type: "button", class: "activate", "data-id": item.id, text: "Activate" });
           button.addEventListener("click", () => activate(item));
           action.append(button);
@@ -662,7 +701,7 @@ function plotKind(row) {
 // ---- live events --------------------------------------------------------------------------
 
 const EVENT_KINDS = ["stage", "progress", "centre", "skip", "scan", "fault", "result", "state",
-                     "confirmed", "warning", "stopped", "daemon"];
+                     "confirmed", "warning", "stopped", "daemon", "calibration_marked_bad", "deactivation"];
 
 /** The daemon's events from now on, and the latest job's from its start (a reload mid-run). */
 function connectEvents() {
@@ -714,6 +753,13 @@ function applyEvent(kind, data) {
     case "warning":
     case "daemon":
       log(`${kind}: ${data.message || ""}`);
+      markDirty("log");
+      break;
+    case "calibration_marked_bad":
+    case "deactivation":
+      log(`${kind.replace(/_/g, " ")}: ${data.calibration_id}${data.reason ? " (" + data.reason + ")" : ""}`);
+      refreshHistory();
+      refreshStatus();
       markDirty("log");
       break;
     case "stopped":

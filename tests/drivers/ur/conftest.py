@@ -11,8 +11,9 @@ import pytest
 import rtde_control
 import rtde_receive
 
+from fakes.ur_controller.process import FakeRobot
 from lasercal_hw.errors import TransportError
-from tests.drivers.ur.robot_process import FakeRobotProcess
+from tests.drivers.ur.robot_process import FakeRobotProcess, in_process_robot
 
 # Addresses 127.0.0.<first>..: spread by process id so parallel pytest runs rarely meet,
 # and skip addresses whose ports are taken (the fake exits with "cannot listen").
@@ -88,3 +89,11 @@ def control_interface(address: str, *,
         if stop_script and control.isProgramRunning():
             control.stopScript()
         control.disconnect()
+
+
+
+@pytest.fixture
+def robot() -> Iterator[FakeRobot]:
+    """A ``FakeRobot`` in this process (``in_process_robot``: raw-socket tests only)."""
+    with in_process_robot() as fake:
+        yield fake

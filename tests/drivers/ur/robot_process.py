@@ -9,11 +9,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from types import TracebackType
 
 from fakes.ur_controller.net import require_loopback
-from fakes.ur_controller.process import READY_PREFIX
+from fakes.ur_controller.process import READY_PREFIX, FakeRobot
 from lasercal_hw.errors import DeviceTimeoutError, TransportError
 
 
@@ -95,3 +96,21 @@ class FakeRobotProcess:
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+
+@contextmanager
+def in_process_robot() -> Iterator[FakeRobot]:
+    """A ``FakeRobot`` in this process on a free 127.0.0.200+ address, for raw-socket clients
+    only (ur_rtde must never talk to an in-process fake)."""
+    for octet in range(200, 250):
+        fake = FakeRobot(f"127.0.0.{octet}")
+        try:
+            fake.start()
+        except TransportError:
+            continue
+        try:
+            yield fake
+        finally:
+            fake.close()
+        return
+    raise RuntimeError("no free loopback address")

@@ -7,33 +7,15 @@ from __future__ import annotations
 
 import socket
 import struct
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
 from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
 from fakes.ur_controller.process import DASHBOARD_PORT, RTDE_PORT, FakeRobot
-from lasercal_hw.errors import TransportError
 from lasercal_hw.ur_kinematics import forward_kinematics
 
 pytestmark = pytest.mark.timeout(30)
-
-
-@pytest.fixture
-def robot() -> Iterator[FakeRobot]:
-    for octet in range(200, 250):
-        fake = FakeRobot(f"127.0.0.{octet}")
-        try:
-            fake.start()
-        except TransportError:
-            continue
-        try:
-            yield fake
-        finally:
-            fake.close()
-        return
-    raise RuntimeError("no free loopback address")
 
 
 def dashboard(robot: FakeRobot) -> tuple[socket.socket, socket.SocketIO]:

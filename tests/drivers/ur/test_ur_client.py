@@ -223,6 +223,7 @@ def test_robot_info_cli_prints_the_pose(start_fake: StartFake) -> None:
     assert document["identity"]["serial_number"] == "20185500042"
     assert document["state"]["robot_mode"] == "RUNNING"
     assert document["state"]["program_running"] is False  # read-only: no control script uploaded
+    assert document["robot_calibration"]["checksum"].startswith("5ec0a1d1-5ec0a1d2-")
     text = subprocess.run(
         [sys.executable, "-m", "lasercal_hw.cli.main", "robot", "info", "--robot", fake.address],
         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
@@ -231,6 +232,7 @@ def test_robot_info_cli_prints_the_pose(start_fake: StartFake) -> None:
     pose_line = next(line for line in text.stdout.splitlines() if line.startswith("TCP pose [m, rad]: "))
     printed = [float(v) for v in pose_line.split(": ", 1)[1].split(",")]
     assert np.allclose(printed, START_POSE, atol=1e-6)
+    assert "Kinematics calibration: UR5e, checksum 5ec0a1d1-" in text.stdout
 
 
 def test_frozen_stream_during_a_move_raises_timeout_and_refuses_motion(start_fake: StartFake) -> None:
