@@ -34,7 +34,7 @@ WAYPOINTS = len(preset_waypoints("quick"))
 def write_job(folder: Path) -> Path:
     job = folder / "job.toml"
     job.write_text(
-        "dwell_s = 1.0\n"
+        "dwell_s = 0.5\n"
         "[trajectory]\npreset = \"quick\"\n"
         "[background]\nscans = 10\n"
         # the job file's highest joint speed and acceleration: motion is most of a dry run's time

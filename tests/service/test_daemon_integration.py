@@ -5,6 +5,7 @@ activate / roll back / diff. The tests of the module share one daemon and run in
 from __future__ import annotations
 
 import json
+import socket
 import sys
 import time
 from collections.abc import Iterator
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from drivers.ur.dashboard import DASHBOARD_PORT
 from lasercal_hw.cli.main import main
 from tests.daemon_helpers import QUICK_DRY_RUN, DaemonProcess, read_sse, wait_for
 
@@ -218,6 +220,38 @@ def test_verify_checks_the_active_calibration_and_files_it(daemon: DaemonProcess
         filed = client.get("/v1/verifies").json()["verifies"][0]
         assert (filed["id"], filed["calibration_id"]) == (done["verify_id"], active)
         assert filed["verdict"] in ("ok", "inconclusive", "degraded", "recalibrate") and filed["reason"]
+
+
+def _replace_joint(host: str, joint: int) -> str:
+    """The fake controller's own dashboard command: its kinematics calibration changes."""
+    with socket.create_connection((host, DASHBOARD_PORT), timeout=5.0) as sock:
+        reader = sock.makefile("rb")
+        reader.readline()  # banner
+        sock.sendall(f"fake replace joint {joint}\n".encode())
+        return reader.readline().decode().strip()
+
+
+def test_a_joint_replaced_since_the_calibration_makes_verify_recalibrate_naming_the_robot(
+    daemon: DaemonProcess,
+) -> None:
+    """Between the dry-run calibrations above and this verify, joint 3 of the daemon's fake
+    robot is replaced: the verify answers recalibrate before anything moves, naming the
+    robot's calibration and both checksums (the health's view of it: tests/service/test_health.py)."""
+    with daemon.client() as client:
+        host = client.get("/v1/status").json()["robot"]["host"]
+        before = client.get("/v1/health").json()
+        assert before["scanners"][0]["robot_calibration_matches"] is True, before
+        old = before["robot_calibration"]["calibration"]["checksum"]
+        assert _replace_joint(host, 3).startswith("Joint 3 replaced")
+        job = client.post("/v1/jobs", json={"kind": "verify", "confirm_motion": True})
+        done = wait_for(client, job.json()["id"], lambda j: j["state"] in TERMINAL)
+        filed = client.get("/v1/verifies").json()["verifies"][0]
+        assert filed["id"] == done["verify_id"] and filed["verdict"] == "recalibrate", filed
+        prefix = f"the robot's kinematics calibration changed since the calibration: checksum {old} -> "
+        assert filed["reason"].startswith(prefix), filed["reason"]
+        assert filed["document"]["timings"]["motion_s"] == 0.0  # nothing moved
+        new = filed["reason"][len(prefix):]
+        assert new != old and filed["document"]["robot_calibration"]["checksum"] == new
 
 
 def test_sigkill_mid_run_then_restart_finds_it_interrupted_and_resumes(tmp_path: Path) -> None:

@@ -13,6 +13,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from types import TracebackType
 
+from fakes.ur_controller.controller import ControllerConfig
 from fakes.ur_controller.net import require_loopback
 from fakes.ur_controller.process import READY_PREFIX, FakeRobot
 from lasercal_hw.errors import DeviceTimeoutError, TransportError
@@ -99,11 +100,11 @@ class FakeRobotProcess:
 
 
 @contextmanager
-def in_process_robot() -> Iterator[FakeRobot]:
-    """A ``FakeRobot`` in this process on a free 127.0.0.200+ address, for raw-socket clients
-    only (ur_rtde must never talk to an in-process fake)."""
+def in_process_robot(config: ControllerConfig | None = None) -> Iterator[FakeRobot]:
+    """A ``FakeRobot`` (``config``) in this process on a free 127.0.0.200+ address, for
+    raw-socket clients only (ur_rtde must never talk to an in-process fake)."""
     for octet in range(200, 250):
-        fake = FakeRobot(f"127.0.0.{octet}")
+        fake = FakeRobot(f"127.0.0.{octet}", config)
         try:
             fake.start()
         except TransportError:

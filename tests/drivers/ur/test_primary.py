@@ -20,10 +20,12 @@ from drivers.ur.primary_codec import (
     model_name,
     sub_packages,
 )
+from fakes.ur_controller.controller import ControllerConfig
 from fakes.ur_controller.kinematics_calibration import DEFAULT_CHECKSUMS, REPLACED_JOINT_THETA_RAD
 from fakes.ur_controller.process import DASHBOARD_PORT, FakeRobot
 from lasercal_hw.errors import DeviceTimeoutError, ProtocolError, TransportError
 from lasercal_hw.ur_kinematics import UR5
+from tests.drivers.ur.robot_process import in_process_robot
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -109,6 +111,13 @@ def test_the_client_reads_the_fake_and_sees_a_replaced_joint(robot: FakeRobot) -
     assert change == f"checksum {before.checksum} -> {after.checksum}"
     assert before.change_from(before) is None
     assert "could not understand" in _dashboard(robot, "fake replace joint 7")
+
+
+def test_a_cb3_controller_reports_the_same_layout_as_a_ur5() -> None:
+    with in_process_robot(ControllerConfig(version=(3, 15, 7, 106331))) as robot:
+        calibration = read_robot_calibration(robot.address, timeout_s=5.0)
+    assert calibration.model == "UR5" and calibration.software_version == "3.15.7.106331"
+    assert calibration.checksums == DEFAULT_CHECKSUMS and calibration.dh_a_m == UR5.dh.a_m
 
 
 @pytest.fixture
