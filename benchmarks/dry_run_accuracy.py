@@ -63,9 +63,12 @@ def world_for(job: JobConfig, scene_path: Path | None, robot_error_seed: int) ->
     return world_with(load_scene(scene_path), job.rod.rod_line(), robot_error_seed)
 
 
-def world_with(scene: Scene, rod: RodLine, robot_error_seed: int, **noise: float) -> World:
-    """The fake world of ``scene`` with ``rod`` in the gripper, the given robot error field
-    and other ``[noise]`` settings (e.g. ``bias_offset_m``)."""
+def world_with(
+    scene: Scene, rod: RodLine, robot_error_seed: int, scanner: str | None = None, **noise: float
+) -> World:
+    """The fake world of ``scene`` as ``scanner`` sees it (default: the first) with ``rod`` in
+    the gripper, the given robot error field and other ``[noise]`` settings (e.g.
+    ``bias_offset_m``)."""
     scene = scene.model_copy(
         update={
             "rod": scene.rod.model_copy(
@@ -79,7 +82,7 @@ def world_with(scene: Scene, rod: RodLine, robot_error_seed: int, **noise: float
             "noise": scene.noise.model_copy(update={"robot_error_seed": robot_error_seed, **noise}),
         }
     )
-    return World(scene)
+    return World(scene, scanner)
 
 
 def dwell(world: World, tcp_pose: np.ndarray, scans: int, rng: np.random.Generator) -> AveragedScan:

@@ -1,12 +1,15 @@
-"""The fake cell: a fake UR controller and a fake UTM-30LX-EW on one loopback address,
-sharing one simulated world (``fakes.world``), so the scanner sees the rod wherever the
-fake robot holds it.
+"""The fake cell: a fake UR controller and one fake UTM-30LX-EW per scene scanner on one
+loopback address, sharing one simulated world (``fakes.world``), so every scanner sees the
+rod wherever the fake robot holds it.
 
 Both fakes run in this process (the robot's servers and cycle as threads, the scanner's
 server as a thread); clients must run in another process (ur_rtde holds the GIL). When
 ready, one line goes to standard output::
 
-    fake cell ready: {"robot_host": ..., "scanner_url": ..., "T_base_laser": [[...]], ...}
+    fake cell ready: {"robot_host": ..., "scanner_url": ..., "T_base_laser": [[...]],
+                      "scanners": {"front": {"scanner_url": ..., "T_base_laser": ...}, ...}, ...}
+
+(``scanner_url`` and ``T_base_laser``: the first scanner's, as for a one-scanner scene.)
 
 A dry run starts the cell as a child process (``fakes.cell_process``, which runs
 ``python -m fakes.cell``), reads that line and compares its result with ``T_base_laser``,
@@ -16,7 +19,7 @@ Scene faults acted on here (a run first moves to its retract pose for the backgr
 then to waypoint 0, 1, ...):
 
 * ``protective_stop_at_waypoint = k`` stops the robot halfway through move ``k + 2``;
-* ``scanner_drop_at_waypoint = k`` drops the scanner's connection once,
+* ``scanner_drop_at_waypoint = k`` drops the first scanner's connection once,
   ``SCANNER_DROP_DELAY_S`` after move ``k + 2`` has ended (during that waypoint's dwell);
 * ``corrupt_checksum_every_scans = N`` corrupts a data-line checksum in every N-th scan;
 * ``scanner_stale_field = "AFRT=560"`` changes that VV/PP/II value but not its checksum.
@@ -60,10 +63,13 @@ def _kinematics(settings: RobotKinematicsSettings) -> KinematicsCalibration:
 
 
 class FakeCell:
-    """A fake robot and a fake scanner on ``address`` looking at one world."""
+    """A fake robot and one fake scanner per scene scanner on ``address``, all looking at one
+    world: the first scanner serves on ``DEFAULT_PORT``, the next on the ports after it."""
 
     def __init__(self, address: str, scene: Path | None = None, seed: int = 0) -> None:
-        self.world = World(with_model_override(load_scene(scene)))
+        full_scene = with_model_override(load_scene(scene))
+        self.worlds = {name: World(full_scene, name) for name in full_scene.scanner_names()}
+        self.world = next(iter(self.worlds.values()))
         faults = self.world.scene.faults
         stop_at = faults.protective_stop_at_waypoint
         config = ControllerConfig(
@@ -73,21 +79,30 @@ class FakeCell:
             kinematics=_kinematics(self.world.scene.robot_kinematics),
         )
         self.robot = FakeRobot(address, config)
-        source = WorldRangeSource(self.world, self._tcp_pose_at, seed)
-        self.scanner = FakeScannerServer(
-            address, DEFAULT_PORT, source=source,
-            faults=ScipFaults(
-                corrupt_every_scans=faults.corrupt_checksum_every_scans,
-                stale_field=faults.scanner_stale_field,
-            ),
-        )
+        self.scanners = {
+            name: FakeScannerServer(
+                address, DEFAULT_PORT + index,
+                source=WorldRangeSource(world, self._tcp_pose_at, seed + index),
+                faults=ScipFaults(
+                    corrupt_every_scans=faults.corrupt_checksum_every_scans,
+                    stale_field=faults.scanner_stale_field,
+                ),
+            )
+            for index, (name, world) in enumerate(self.worlds.items())
+        }
+        self.scanner = next(iter(self.scanners.values()))
         self.address = self.robot.address
-        self.scanner_url = ""
+        self.scanner_urls: dict[str, str] = {}
         drop_at = faults.scanner_drop_at_waypoint
         self._drop_after_moves = None if drop_at is None else drop_at + 1 + MOVES_BEFORE_FIRST_WAYPOINT
         self._drop_due_s: float | None = None
         if self._drop_after_moves is not None:
             self.robot.controller.add_tick_listener(self._maybe_drop_scanner)
+
+    @property
+    def scanner_url(self) -> str:
+        """The first scanner's URL ("" before ``start``)."""
+        return next(iter(self.scanner_urls.values()), "")
 
     def _maybe_drop_scanner(self, _snapshot: object) -> None:
         """On the controller's cycle: drop the scanner link once, shortly after the move to
@@ -109,7 +124,8 @@ class FakeCell:
         """Bind every port and start serving; closes what was opened on failure."""
         try:
             self.robot.start()
-            self.scanner_url = self.scanner.start()
+            for name, server in self.scanners.items():
+                self.scanner_urls[name] = server.start()
         except BaseException:
             self.close()
             raise
@@ -127,6 +143,11 @@ class FakeCell:
                 "radius_m": rod.radius_m,
                 "length_m": rod.length_m,
             },
+            "scanners": {
+                name: {"scanner_url": self.scanner_urls.get(name, ""),
+                       "T_base_laser": world.ground_truth_T_base_laser.tolist()}
+                for name, world in self.worlds.items()
+            },
             "pid": os.getpid(),
         }
 
@@ -136,7 +157,8 @@ class FakeCell:
 
     def close(self) -> None:
         """Stop both fakes; safe to call twice."""
-        self.scanner.stop()
+        for server in self.scanners.values():
+            server.stop()
         self.robot.close()
 
 

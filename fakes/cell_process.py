@@ -2,8 +2,9 @@
 ``dry_run`` jobs, ``lasercal serve --dry-run``) asks for when it needs a cell.
 
 The child is ``python -m fakes.cell --address 127.x.y.z [--scene FILE]``: one process serving
-a fake UR controller (ports 29999, 30004, 30003, 30001, 30011) and a fake UTM-30LX-EW (port 10940) that
-share one simulated world. It announces readiness with one line on standard output::
+a fake UR controller (ports 29999, 30004, 30003, 30001, 30011) and a fake UTM-30LX-EW per
+scene scanner (ports 10940, 10941, ...) that share one simulated world. It announces readiness
+with one line on standard output::
 
     fake cell ready: {"robot_host": "127.0.0.7", "scanner_url": "scip+tcp://127.0.0.7:10940",
                       "T_base_laser": [[...4x4 row-major...]]}
@@ -43,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from fakes.cell import READY_PREFIX
-from lasercal_hw.errors import DeviceTimeoutError, InterruptedRunError, TransportError
+from lasercal_hw.errors import ConfigError, DeviceTimeoutError, InterruptedRunError, TransportError
 from lasercal_hw.models import FloatArray
 
 logger = logging.getLogger(__name__)
@@ -136,13 +137,27 @@ class FakeCellProcess:
 
     @property
     def scanner_url(self) -> str:
-        """Where the fake scanner listens."""
+        """Where the fake scanner (the first one) listens."""
         return str(self.info["scanner_url"])
 
     @property
     def ground_truth(self) -> FloatArray:
-        """The cell's true ``T_base_laser``."""
+        """The cell's true ``T_base_laser`` (of the first scanner)."""
         return np.asarray(self.info["T_base_laser"], dtype=float).reshape(4, 4)
+
+    def scanner(self, name: str | None) -> tuple[str, FloatArray]:
+        """Where the scene's scanner ``name`` listens and its true ``T_base_laser`` (``None``:
+        the first scanner); a ConfigError naming the scene's scanners when it has no such one."""
+        if name is None:
+            return self.scanner_url, self.ground_truth
+        scanners = self.info.get("scanners", {})
+        if name not in scanners:
+            raise ConfigError(
+                f"the dry run's scene has no scanner {name!r} (its scanners: {', '.join(scanners)}); "
+                "give a scene with a [scanners.NAME] table for every scanner of the job"
+            )
+        entry = scanners[name]
+        return str(entry["scanner_url"]), np.asarray(entry["T_base_laser"], dtype=float).reshape(4, 4)
 
     def start(self) -> FakeCellProcess:
         """Launch the child and wait for its ready line."""

@@ -237,10 +237,16 @@ def _default_walls() -> list[WallSettings]:
     ]
 
 
+DEFAULT_SCANNER_NAME = "default"
+"""The name of a scene's one ``[scanner]`` (as in a one-scanner job file)."""
+
+
 class Scene(_Strict):
-    """Everything the simulated world needs."""
+    """Everything the simulated world needs: one ``[scanner]``, or several ``[scanners.NAME]``
+    in the same world (each its own SCIP endpoint in the fake cell)."""
 
     scanner: ScannerSettings = ScannerSettings()
+    scanners: dict[str, ScannerSettings] = Field(default_factory=dict)
     rod: RodSettings = RodSettings()
     column: ColumnSettings = ColumnSettings()
     walls: list[WallSettings] = Field(default_factory=_default_walls)
@@ -253,6 +259,25 @@ class Scene(_Strict):
     noise: NoiseSettings = NoiseSettings()
     faults: FaultSettings = FaultSettings()
     robot_kinematics: RobotKinematicsSettings = RobotKinematicsSettings()
+
+    @model_validator(mode="after")
+    def _one_way_to_place_scanners(self) -> Scene:
+        if self.scanners and self.scanner != ScannerSettings():
+            raise ValueError("give either [scanner] (one scanner) or [scanners.NAME] tables, not both")
+        return self
+
+    def scanner_names(self) -> list[str]:
+        """The scanners in the scene file's order (``default`` for a one-scanner scene)."""
+        return list(self.scanners) or [DEFAULT_SCANNER_NAME]
+
+    def for_scanner(self, name: str) -> Scene:
+        """The one-scanner scene of scanner ``name``: the same world seen by that scanner."""
+        if not self.scanners and name == DEFAULT_SCANNER_NAME:
+            return self
+        if name not in self.scanners:
+            known = ", ".join(self.scanner_names())
+            raise ConfigError(f"the scene has no scanner {name!r}; its scanners: {known}")
+        return self.model_copy(update={"scanner": self.scanners[name], "scanners": {}})
 
     def to_toml(self) -> str:
         """The scene as a scene file (every field; unset optional ones left out), which

@@ -89,7 +89,9 @@ class RobotErrorField:
 class World:
     """The simulated cell: scanner pose, rod, walls, floor, noise; casts scans."""
 
-    def __init__(self, scene: Scene) -> None:
+    def __init__(self, scene: Scene, scanner: str | None = None) -> None:
+        """The world as ``scanner`` sees it (default: the scene's first scanner)."""
+        scene = scene.for_scanner(scanner or scene.scanner_names()[0])
         self.scene = scene
         s = scene.scanner
         self.geometry = ScanGeometry(

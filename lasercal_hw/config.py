@@ -7,6 +7,7 @@ Unknown keys are refused, and every error names the file and the field.
 
 from __future__ import annotations
 
+import re
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -23,6 +24,10 @@ PoseVector = Annotated[list[float], Field(min_length=6, max_length=6)]
 
 DEFAULT_SCANNER_URL = "scip+tcp://192.168.0.10:10940"
 DEFAULT_PRESET = "paper"
+DEFAULT_SCANNER_NAME = "default"
+"""The name of a job's one scanner when it gives ``[scanner]`` (or nothing) rather than
+``[scanners.NAME]`` tables: a one-scanner job of today is a cell of the scanner ``default``."""
+SCANNER_NAME_PATTERN = r"^[a-z][a-z0-9_-]{0,31}$"
 
 
 class _Strict(BaseModel):
@@ -64,6 +69,13 @@ class NominalPose(_Strict):
         return make_transform(euler_zyx_to_matrix(yaw, pitch, roll), self.translation_m)
 
 
+def check_scanner_url(url: str) -> str:
+    """``url`` when lasercal speaks its scheme (a ValueError saying which it speaks otherwise)."""
+    if not url.startswith(("scip+tcp://", "scip+serial://")):
+        raise ValueError("must start with scip+tcp:// or scip+serial://")
+    return url
+
+
 class ScannerConfig(_Strict):
     """How to reach the scanner (``--scanner`` overrides ``url``) and where it roughly is."""
 
@@ -91,12 +103,7 @@ class ScannerConfig(_Strict):
         "show it",
     )
 
-    @field_validator("url")
-    @classmethod
-    def _known_scheme(cls, url: str) -> str:
-        if not url.startswith(("scip+tcp://", "scip+serial://")):
-            raise ValueError("must start with scip+tcp:// or scip+serial://")
-        return url
+    _known_scheme = field_validator("url")(check_scanner_url)
 
 
 class RodConfig(_Strict):
@@ -271,6 +278,26 @@ class QualityConfig(_Strict):
     min_observations: int = Field(8, ge=6)
 
 
+class CellScannerConfig(ScannerConfig):
+    """One of a cell's scanners (``[scanners.NAME]``): how to reach it, where it roughly is,
+    and the rod, trajectory and quality gates where they differ from the job's."""
+
+    rod: RodConfig | None = Field(
+        None, description="the rod as this scanner sees it (default: the job's [rod])"
+    )
+    trajectory: TrajectoryConfig | None = Field(
+        None, description="this scanner's waypoints (default: the job's [trajectory])"
+    )
+    quality: QualityConfig | None = Field(
+        None, description="this scanner's gates (default: the job's [quality])"
+    )
+
+    def scanner_config(self) -> ScannerConfig:
+        """The scanner fields alone, as a one-scanner job's ``[scanner]``."""
+        fields = set(ScannerConfig.model_fields)
+        return ScannerConfig.model_validate({k: v for k, v in self.model_dump().items() if k in fields})
+
+
 class VerifyConfig(_Strict):
     """The drift check ``lasercal verify`` (docs/verify.md): how many waypoints, the
     false-alarm rate of its chi-square test, and the application tolerance that separates
@@ -315,6 +342,52 @@ class JobConfig(_Strict):
     quality: QualityConfig = Field(default_factory=QualityConfig)
     verify: VerifyConfig = Field(default_factory=VerifyConfig)
     output: OutputConfig = Field(default_factory=OutputConfig)
+    scanners: dict[str, CellScannerConfig] = Field(
+        default_factory=dict,
+        description="the cell's named scanners ([scanners.NAME]); without them the one [scanner] is "
+        f"named {DEFAULT_SCANNER_NAME!r}",
+    )
+
+    @field_validator("scanners")
+    @classmethod
+    def _scanner_names(cls, scanners: dict[str, CellScannerConfig]) -> dict[str, CellScannerConfig]:
+        for name in scanners:
+            if not re.match(SCANNER_NAME_PATTERN, name):
+                raise ValueError(
+                    f"scanner name {name!r}: use a lower-case letter, then up to 31 of a-z, 0-9, _ and -"
+                )
+        return scanners
+
+    @model_validator(mode="after")
+    def _one_way_to_name_scanners(self) -> JobConfig:
+        if self.scanners and self.scanner != ScannerConfig():
+            raise ValueError("give either [scanner] (one scanner) or [scanners.NAME] tables, not both")
+        return self
+
+    def scanner_names(self) -> list[str]:
+        """The cell's scanners in the job file's order (``default`` for a one-scanner job)."""
+        return list(self.scanners) or [DEFAULT_SCANNER_NAME]
+
+    def for_scanner(self, name: str) -> JobConfig:
+        """The one-scanner job of scanner ``name``: its ``[scanners.NAME]`` as ``[scanner]``, with
+        its own rod, trajectory and gates where it gives them. A one-scanner job is itself."""
+        if not self.scanners:
+            if name != DEFAULT_SCANNER_NAME:
+                raise ConfigError(
+                    f"the job has one scanner, {DEFAULT_SCANNER_NAME!r}, not {name!r}: leave out the scanner "
+                    "name or add [scanners.NAME] tables to the job file"
+                )
+            return self
+        entry = self.scanners.get(name)
+        if entry is None:
+            raise ConfigError(f"the job has no scanner {name!r}; its scanners: {', '.join(self.scanners)}")
+        return self.model_copy(update={
+            "scanner": entry.scanner_config(),
+            "rod": entry.rod or self.rod,
+            "trajectory": entry.trajectory or self.trajectory,
+            "quality": entry.quality or self.quality,
+            "scanners": {},
+        })
 
     def background_lift_m(self) -> float:
         """How far above the first waypoint the background is taken."""
@@ -360,13 +433,19 @@ def load_job(path: Path | None) -> JobConfig:
     if path is None:
         return JobConfig()
     job = job_from_mapping(read_toml(path, "job file"), str(path))
-    waypoints_file = job.trajectory.waypoints_file
-    if waypoints_file is not None and not waypoints_file.is_absolute():
-        trajectory = job.trajectory.model_copy(
-            update={"waypoints_file": (Path(path).parent / waypoints_file).resolve()}
-        )
-        job = job.model_copy(update={"trajectory": trajectory})
-    return job
+    folder = Path(path).parent
+    scanners = {
+        name: entry.model_copy(update={"trajectory": _resolved(entry.trajectory, folder)})
+        for name, entry in job.scanners.items()
+    }
+    return job.model_copy(update={"trajectory": _resolved(job.trajectory, folder), "scanners": scanners})
+
+
+def _resolved(trajectory: TrajectoryConfig | None, folder: Path) -> TrajectoryConfig | None:
+    """``trajectory`` with a relative ``waypoints_file`` taken relative to ``folder``."""
+    if trajectory is None or trajectory.waypoints_file is None or trajectory.waypoints_file.is_absolute():
+        return trajectory
+    return trajectory.model_copy(update={"waypoints_file": (folder / trajectory.waypoints_file).resolve()})
 
 
 def with_overrides(job: JobConfig, overrides: dict[str, Any], source: str = "command line") -> JobConfig:

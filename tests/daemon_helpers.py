@@ -116,6 +116,17 @@ class FakeEngine:
         )
 
 
+def finish_job(client: httpx.Client, job_id: str, timeout_s: float = 10.0) -> dict[str, Any]:
+    """Wait for a job of the in-process daemon to end; its last state."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if job["state"] in ("succeeded", "failed", "cancelled", "interrupted"):
+            return dict(job)
+        time.sleep(0.02)
+    raise AssertionError(f"job {job_id} did not finish")
+
+
 def fake_runners(engine: FakeEngine) -> Callable[[Any], dict[str, Runner]]:
     """``Daemon(runners=...)`` giving every calibration kind to ``engine`` (verify stays out)."""
     return lambda active: {"calibrate": engine, "dry_run": engine}

@@ -25,7 +25,6 @@ from lasercal_hw.cli.common import (
     FoxglovePortOption,
     JsonOption,
     RobotOption,
-    ScannerOption,
     SceneOption,
     YesOption,
     console,
@@ -33,9 +32,10 @@ from lasercal_hw.cli.common import (
     print_json,
 )
 from lasercal_hw.cli.solve import print_result
-from lasercal_hw.config import load_job, with_overrides
+from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
 from lasercal_hw.live.foxglove import foxglove_view
+from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate, default_out_dir
 
 OVERHEAD_TARGET = 0.10
@@ -126,7 +126,7 @@ def stopped_line(message: str, data: dict[str, Any]) -> str:
         return message
     if not data.get("resumable"):
         return f"recording kept in {session}; start again"
-    command = f"lasercal run --resume {shlex.quote(str(session))}"
+    command = f"lasercal run --resume {shlex.quote(str(data.get('resume') or session))}"
     when = "" if data.get("interrupted") else "after fixing the cause, "
     return f"recording kept in {session}; {when}continue with: {command}"
 
@@ -214,6 +214,68 @@ def _print_summary(report: RunReport) -> None:
     console.print(f"verdict: {verdict}")
 
 
+def _run_cell(
+    job: JobConfig, scanner_name: str | None, robot: str | None, dry_run: bool, scene: Path | None,
+    resume: Path | None, *, yes: bool, as_json: bool,
+) -> None:
+    """``lasercal run`` of a job with ``[scanners.NAME]``: every scanner (or the one named) in
+    turn, one folder each, the scanner-to-scanner transforms at the end (docs/cell.md)."""
+    if robot is None and job.robot.host is None and not dry_run and resume is None:
+        raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
+    ui = err_console if as_json else console
+    request = CellRunRequest(
+        job=job,
+        out_dir=job.output.dir or default_out_dir(),
+        scanners=None if scanner_name is None else (scanner_name,),
+        robot_host=robot,
+        dry_run=dry_run,
+        scene=scene,
+        resume=resume,
+        title=f"lasercal {'dry run' if dry_run else 'run'}",
+    )
+    with interrupt_once(), ProgressView(ui) as view:
+        report = calibrate_cell(
+            request, on_event=view, confirm=None if yes or dry_run else confirm_before_motion(view, ui)
+        )
+    if as_json:
+        print_json(report.document())
+    else:
+        _print_cell_summary(report)
+    if not report.passed:
+        failed = ", ".join(name for name, outcome in report.scanners.items() if not outcome.passed)
+        err_console.print(f"[bold red]quality gate failed:[/] scanner {escape(failed)}")
+        raise typer.Exit(int(ExitCode.QUALITY_GATE_FAILED))
+
+
+def _print_cell_summary(report: CellReport) -> None:
+    document = report.document()
+    for name, entry in document["scanners"].items():
+        verdict = "[green]passed[/]" if entry["passed"] else "[red]QUALITY GATE FAILED[/]"
+        truth = entry.get("ground_truth_error")
+        against = "" if truth is None else (
+            f"; against the fake cell's truth {truth['translation_mm']:.2f} mm, "
+            f"{truth['rotation_deg']:.3f} deg"
+        )
+        console.print(f"scanner {escape(name)}: {verdict}{against}; {escape(entry['result'])}")
+    for pair in document["pairs"]:
+        std_mm = ", ".join(f"{v:.2f}" for v in pair["std_translation_mm"])
+        std_deg = ", ".join(f"{v:.3f}" for v in pair["std_rotation_deg"])
+        line = f"{pair['from']} -> {pair['to']}: std {std_mm} mm, {std_deg} deg"
+        truth = pair.get("ground_truth_error")
+        if truth is not None:
+            line += (
+                f"; against the truth {truth['translation_mm']:.2f} mm, {truth['rotation_deg']:.3f} deg, "
+                f"largest axis {truth['max_axis_in_std']:.2f} std"
+            )
+        console.print(escape(line))
+    console.print(f"cell: {escape(str(report.out_dir / CELL_FILE))}")
+    verdict = "[bold green]PASSED[/]" if report.passed else "[bold red]QUALITY GATE FAILED[/]"
+    console.print(f"verdict: {verdict}")
+
+
+RunScannerOption = Annotated[str | None, typer.Option(
+    "--scanner", help="Scanner URL (default: the job's scanner.url), or the name of one of the job's "
+    "scanners (scanners.NAME) to calibrate that one alone.")]
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Job file (TOML); defaults without it.")]
 DwellOption = Annotated[float | None, typer.Option("--dwell", help="Dwell per waypoint in s (default 3).")]
 OutOption = Annotated[Path | None, typer.Option("--out", help="Output folder (./lasercal-out/<time>).")]
@@ -222,7 +284,7 @@ ResumeOption = Annotated[Path | None, typer.Option("--resume", help="Continue an
 
 def run_command(
     robot: RobotOption = None,
-    scanner: ScannerOption = None,
+    scanner: RunScannerOption = None,
     config: ConfigOption = None,
     dwell: DwellOption = None,
     yes: YesOption = False,
@@ -249,6 +311,13 @@ def run_command(
         raise ConfigError("--resume continues the recorded job: leave out --config, --dwell and --out")
     flags = {"trajectory.adaptive": True} if adaptive else {}
     job = with_overrides(load_job(config), {"dwell_s": dwell, "output.dir": out} | flags)
+    scanner_name = None if scanner is None or "://" in scanner else scanner
+    if job.scanners or (resume is not None and (resume.is_dir() or resume.name == CELL_FILE)):
+        _run_cell(job, scanner_name, robot, dry_run, scene, resume, yes=yes, as_json=as_json)
+        return
+    if scanner_name is not None:  # a one-scanner job's scanner is named "default"
+        job.for_scanner(scanner_name)
+        scanner = None
     if robot is None and job.robot.host is None and not dry_run and resume is None:
         raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
     request = RunRequest(

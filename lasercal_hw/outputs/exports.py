@@ -15,6 +15,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 from numpy.typing import ArrayLike
 
+from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_quat
 from lasercal_hw.models import FloatArray
@@ -37,11 +38,19 @@ def _number(value: float) -> str:
     return repr(float(value))
 
 
+def scanner_frame(scanner: str | None) -> str:
+    """The scanner's frame in the exports: ``laser`` for a one-scanner job's scanner (``default``),
+    ``laser_<name>`` for a cell's named one."""
+    return "laser" if scanner in (None, DEFAULT_SCANNER_NAME) else f"laser_{scanner}"
+
+
 def urdf_joint(
-    T_base_laser: ArrayLike, *, name: str = "base_to_laser", parent: str = "base", child: str = "laser"
+    T_base_laser: ArrayLike, *, name: str | None = None, parent: str = "base", child: str = "laser"
 ) -> str:
-    """A URDF fixed joint placing ``child`` (the scanner) in ``parent`` (the robot base)."""
+    """A URDF fixed joint ``name`` (default ``base_to_<child>``) placing ``child`` (the
+    scanner) in ``parent`` (the robot base)."""
     transform = _checked_transform(T_base_laser)
+    name = name or f"base_to_{child}"
     yaw, pitch, roll = matrix_to_euler_zyx(transform[:3, :3])
     xyz = " ".join(_number(v) for v in transform[:3, 3])
     rpy = " ".join(_number(v) for v in (roll, pitch, yaw))

@@ -49,6 +49,8 @@ DRY_RUN_SCENE_FILE = "dry_run_scene.toml"
 #: dry run's recording resumes against a new fake cell of the same world.
 META_DRY_RUN = "dry_run"
 META_SCENE = "dry_run_scene_toml"
+#: Recording meta: the scanner of a cell job this recording calibrates (docs/cell.md).
+META_SCANNER_NAME = "scanner_name"
 #: Recording meta: the robot's own kinematics calibration (``RobotCalibration.as_dict``, or None: unknown).
 META_ROBOT_CALIBRATION = "robot_calibration"
 
@@ -70,6 +72,9 @@ class RunRequest:
     #: The number each waypoint goes by in messages (default: its position in ``waypoints``).
     waypoint_names: tuple[int, ...] | None = None
     title: str = "lasercal run"
+    #: Which of the cell's scanners this run calibrates (a dry run picks it from the scene's
+    #: ``[scanners.NAME]``); None: the one scanner.
+    scanner_name: str | None = None
 
 
 OutcomeT = TypeVar("OutcomeT")
@@ -209,6 +214,7 @@ def calibrate(
         sink.emit("stage", "writing the outputs", stage=Stage.OUTPUTS)
         files = {"session": session.session_path} | write_outputs(
             session.out_dir, outcome, session.job, ground_truth=session.ground_truth, title=request.title,
+            scanner=request.scanner_name,
             robot_calibration=session.robot_calibration,
         )
     ground_truth, fake_cell, out_dir = session.ground_truth, session.fake_cell, session.out_dir
@@ -361,7 +367,7 @@ def _as_recorded(request: RunRequest, meta: dict[str, Any]) -> RunRequest:
         scene = request.resume.parent / DRY_RUN_SCENE_FILE
         if not scene.is_file() or scene.read_text(encoding="utf-8") != scene_toml:
             scene.write_text(scene_toml, encoding="utf-8")
-    return replace(request, dry_run=True, scene=scene)
+    return replace(request, dry_run=True, scene=scene, scanner_name=meta.get(META_SCANNER_NAME))
 
 
 def _start_fake_cell(
@@ -385,10 +391,11 @@ def _start_fake_cell(
         cancel.fail(DeviceError(f"the dry run's fake cell died: {death}"))
 
     cell = stack.enter_context(FakeCellProcess(scene=scene, on_death=died))
-    job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": cell.scanner_url})
+    scanner_url, ground_truth = cell.scanner(request.scanner_name)
+    job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": scanner_url})
     sink.emit(
         "stage",
-        f"fake cell on {cell.address} (pid {cell.pid}): scanner {cell.scanner_url}",
+        f"fake cell on {cell.address} (pid {cell.pid}): scanner {scanner_url}",
         stage=Stage.FAKE_CELL,
         address=cell.address,
         pid=cell.pid,
@@ -398,7 +405,7 @@ def _start_fake_cell(
     difference = rods_differ(cell.info.get("rod"), job.rod.rod_line())
     if difference is not None:
         sink.emit("warning", difference)
-    return job, cell.ground_truth, {"address": cell.address, "pid": cell.pid, "scene": str(scene)}
+    return job, ground_truth, {"address": cell.address, "pid": cell.pid, "scene": str(scene)}
 
 
 def _read_robot_calibration(devices: Any, host: str, sink: EventSink) -> RobotCalibration | None:
@@ -438,6 +445,8 @@ def _open_recorder(
         "scanner": asdict(scanner.identity()) | {"url": job.scanner.url},
         META_ROBOT_CALIBRATION: None if robot_calibration is None else robot_calibration.as_dict(),
     }
+    if request.scanner_name is not None:
+        meta[META_SCANNER_NAME] = request.scanner_name
     if ground_truth is not None:
         meta["ground_truth_T_base_laser"] = np.asarray(ground_truth).tolist()
     if fake_cell is not None:

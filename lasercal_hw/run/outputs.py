@@ -20,7 +20,7 @@ from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import rotation_angle_rad
 from lasercal_hw.models import FloatArray, RobotCalibration
-from lasercal_hw.outputs.exports import exports, static_transform_publisher_args, urdf_joint
+from lasercal_hw.outputs.exports import exports, scanner_frame, static_transform_publisher_args, urdf_joint
 from lasercal_hw.outputs.report import ReportData, render_report
 from lasercal_hw.run.records import RunOutcome
 
@@ -50,9 +50,11 @@ def result_document(
     *,
     ground_truth: FloatArray | None = None,
     robot_calibration: RobotCalibration | None = None,
+    scanner: str | None = None,
 ) -> dict[str, Any]:
-    """``result.json``: the solver's result plus the run's verdict, skips and timings, and
-    the robot's own kinematics calibration (``run.robot_calibration``; null: unknown)."""
+    """``result.json``: the solver's result plus the run's verdict, skips and timings, the
+    robot's own kinematics calibration (``run.robot_calibration``; null: unknown), and the cell
+    scanner it calibrated (``run.scanner_name``, whose frame the exports name)."""
     result = outcome.result
     document = result.to_json_dict()
     document["verdict"] = outcome.verdict.as_dict()
@@ -78,7 +80,9 @@ def result_document(
         "robot_calibration": None if robot_calibration is None else robot_calibration.as_dict(),
         "job": job.model_dump(mode="json"),
     }
-    document["exports"] = exports(result.matrix())
+    if scanner is not None:
+        document["run"]["scanner_name"] = scanner
+    document["exports"] = exports(result.matrix(), child=scanner_frame(scanner))
     if ground_truth is not None:
         document["ground_truth"] = {
             "T_base_laser": np.asarray(ground_truth, dtype=float).tolist(),
@@ -100,6 +104,8 @@ class ResultFile:
     scanner: dict[str, Any] | None
     job: JobConfig | None
     motion_and_dwell_s: float | None
+    #: The cell scanner it calibrated (None: a one-scanner job's).
+    scanner_name: str | None = None
     #: The robot's own kinematics calibration as recorded (``RobotCalibration.as_dict``), or None.
     robot_calibration: dict[str, Any] | None = None
 
@@ -149,6 +155,7 @@ def read_result_file(path: Path) -> ResultFile:
         scanner=_table(run, "scanner"),
         job=job,
         motion_and_dwell_s=float(busy_s) if busy_s > 0 else None,
+        scanner_name=run.get("scanner_name"),
         robot_calibration=_table(run, "robot_calibration"),
     )
 
@@ -198,6 +205,7 @@ def write_outputs(
     *,
     ground_truth: FloatArray | None = None,
     title: str = "lasercal calibration",
+    scanner: str | None = None,
     robot_calibration: RobotCalibration | None = None,
 ) -> dict[str, Path]:
     """Write every result file into ``out_dir``; returns them by name.
@@ -211,13 +219,16 @@ def write_outputs(
         "result": out_dir / RESULT_FILE,
     }
     write_observations_csv(files["observations"], outcome.observations, outcome.solve_settings)
-    document = result_document(outcome, job, ground_truth=ground_truth, robot_calibration=robot_calibration)
+    document = result_document(
+        outcome, job, ground_truth=ground_truth, robot_calibration=robot_calibration, scanner=scanner
+    )
     write_text(files["result"], json.dumps(document, indent=2, allow_nan=False) + "\n")
     T = outcome.result.matrix()
     ros_files = {"urdf": out_dir / URDF_FILE, "static_transform_publisher": out_dir / TF_ARGS_FILE}
     if outcome.verdict.passed:
-        write_text(ros_files["urdf"], urdf_joint(T))
-        tf_args = " ".join(static_transform_publisher_args(T))
+        child = scanner_frame(scanner)
+        write_text(ros_files["urdf"], urdf_joint(T, child=child))
+        tf_args = " ".join(static_transform_publisher_args(T, child_frame_id=child))
         write_text(ros_files["static_transform_publisher"], tf_args + "\n")
         files |= ros_files
     else:

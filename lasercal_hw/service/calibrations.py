@@ -9,8 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.geometry import matrix_to_rotvec
-from lasercal_hw.outputs.exports import static_transform_publisher_args, urdf_joint
+from lasercal_hw.outputs.exports import scanner_frame, static_transform_publisher_args, urdf_joint
 from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
 from lasercal_hw.service.errors import ConflictError, NotFoundError, folder_file, not_found
 from lasercal_hw.service.events import EventBus
@@ -38,10 +39,11 @@ class CalibrationHistory:
         self._bus = bus
 
     def record(
-        self, job_id: str | None, directory: Path, dry_run: bool, created_utc: str | None = None
+        self, job_id: str | None, directory: Path, dry_run: bool, created_utc: str | None = None,
+        scanner: str = DEFAULT_SCANNER_NAME,
     ) -> str:
-        """File the calibration whose ``result.json`` is in ``directory`` (made at
-        ``created_utc``, default now); returns its id."""
+        """File the calibration of ``scanner`` whose ``result.json`` is in ``directory`` (made
+        at ``created_utc``, default now); returns its id."""
         read = read_result_file(directory / RESULT_FILE)
         calibration_id = new_id("cal")
         result = read.result.model_dump(mode="json")
@@ -56,7 +58,7 @@ class CalibrationHistory:
         summary["devices"] = {
             "robot": read.robot, "scanner": read.scanner, "robot_calibration": read.robot_calibration
         }
-        self._store.add_calibration(calibration_id, job_id, dry_run, read.passed, summary, directory)
+        self._store.add_calibration(calibration_id, job_id, dry_run, read.passed, summary, directory, scanner)
         return calibration_id
 
     def _stored(self, calibration_id: str) -> tuple[dict[str, Any], Path]:
@@ -65,7 +67,7 @@ class CalibrationHistory:
             raise not_found("calibration", calibration_id)
         return found
 
-    def _present(self, summary: dict[str, Any], directory: Path, active_id: str | None) -> dict[str, Any]:
+    def _present(self, summary: dict[str, Any], directory: Path) -> dict[str, Any]:
         base = f"/v1/calibrations/{summary['id']}/files/"
         files = (
             {
@@ -76,37 +78,42 @@ class CalibrationHistory:
             if directory.is_dir()
             else {}
         )
-        return summary | {"active": summary["id"] == active_id, "files": files}
+        active = summary["id"] == self._store.active_calibration_id(summary["scanner"])
+        return summary | {"active": active, "files": files}
 
     def summary(self, calibration_id: str) -> dict[str, Any]:
         """One calibration summary (NotFoundError when unknown)."""
         summary, directory = self._stored(calibration_id)
-        return self._present(summary, directory, self._store.active_calibration_id())
+        return self._present(summary, directory)
 
-    def all(self) -> list[dict[str, Any]]:
-        """Every summary, newest first."""
-        active_id = self._store.active_calibration_id()
-        return [self._present(s, self._stored(s["id"])[1], active_id) for s in self._store.calibrations()]
+    def all(self, scanner: str | None = None) -> list[dict[str, Any]]:
+        """Every summary (of ``scanner``, or of every scanner), newest first."""
+        return [self._present(s, self._stored(s["id"])[1]) for s in self._store.calibrations(scanner)]
 
-    def active_summary(self) -> dict[str, Any] | None:
-        """The active calibration's summary, or None."""
-        active_id = self._store.active_calibration_id()
+    def active_summary(self, scanner: str | None = None) -> dict[str, Any] | None:
+        """The active calibration's summary (of ``scanner``; None: the newest activation of
+        any scanner, a one-scanner daemon's one), or None."""
+        active_id = self._store.active_calibration_id(scanner)
         return None if active_id is None else self.summary(active_id)
 
-    def active(self) -> dict[str, Any]:
-        """The active calibration with its exports (NotFoundError when none is active)."""
-        summary = self.active_summary()
+    def active(self, scanner: str | None = None) -> dict[str, Any]:
+        """The active calibration (of ``scanner``) with its exports, whose child frame is
+        ``laser`` for the scanner ``default`` and ``laser_<name>`` for a named one
+        (NotFoundError when none is active)."""
+        summary = self.active_summary(scanner)
         if summary is None:
+            of = "" if scanner is None else f" for the scanner {scanner!r}"
             raise NotFoundError(
-                "no calibration is active yet; run a calibrate job "
+                f"no calibration is active{of} yet; run a calibrate job "
                 "with activate_on_pass or activate one with POST /v1/calibrations/{id}/activate",
                 code="no_active_calibration",
             )
         T = np.asarray(summary["T_base_laser"], dtype=float)
+        child = scanner_frame(summary["scanner"])
         return summary | {
             "exports": {
-                "urdf_joint": urdf_joint(T),
-                "static_transform_publisher_args": static_transform_publisher_args(T),
+                "urdf_joint": urdf_joint(T, child=child),
+                "static_transform_publisher_args": static_transform_publisher_args(T, child_frame_id=child),
             }
         }
 
@@ -133,7 +140,9 @@ class CalibrationHistory:
                 code="failed_quality_gates",
             )
         self._store.activate(calibration_id, reason)
-        self._bus.publish("activation", {"calibration_id": calibration_id, "reason": reason})
+        self._bus.publish(
+            "activation", {"calibration_id": calibration_id, "reason": reason, "scanner": summary["scanner"]}
+        )
         return self.summary(calibration_id)
 
     def mark_bad(self, calibration_id: str, by: str, reason: str) -> dict[str, Any]:
@@ -141,7 +150,7 @@ class CalibrationHistory:
         is: the first record stays). The active one is deactivated, and the event says so."""
         summary, _ = self._stored(calibration_id)
         _refuse_if_bad(summary, "already_marked_bad", "the first record stays")
-        was_active = self._store.active_calibration_id() == calibration_id
+        was_active = self._store.active_calibration_id(summary["scanner"]) == calibration_id
         time_utc = self._store.mark_bad(calibration_id, by, reason)
         event = {"calibration_id": calibration_id, "by": by, "reason": reason, "time_utc": time_utc,
                  "deactivated": was_active}
@@ -175,6 +184,14 @@ class CalibrationHistory:
         """The change from ``a`` to ``b`` in mm and degrees, and whether it is significant."""
         first, _ = self._stored(a)
         second, _ = self._stored(b)
+        if first["scanner"] != second["scanner"]:
+            raise ConflictError(
+                f"calibration {a} is of the scanner {first['scanner']!r} and {b} of {second['scanner']!r}: "
+                "compare two calibrations of one scanner (the scanner-to-scanner transform is in the cell "
+                "job's cell.json)",
+                {"from": a, "to": b},
+                code="different_scanners",
+            )
         return transform_change(first, second)
 
 

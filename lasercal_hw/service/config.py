@@ -10,7 +10,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from lasercal_hw.config import read_toml
+from lasercal_hw.config import check_scanner_url, read_toml
 from lasercal_hw.errors import ConfigError
 
 DEFAULT_PORT = 8766  # beside Foxglove's 8765, which the live view may use
@@ -23,6 +23,17 @@ def default_data_dir() -> Path:
     return Path(state_home) / "lasercal"
 
 
+class DaemonScanner(BaseModel):
+    """One of the cell's scanners (``[scanners.NAME]``): where a cell job's scanner of that
+    name is (the job's ``scanners.NAME.url`` otherwise)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    url: str
+
+    _known_scheme = field_validator("url")(check_scanner_url)
+
+
 class DaemonConfig(BaseModel):
     """What ``lasercal serve`` needs besides the job itself."""
 
@@ -32,6 +43,9 @@ class DaemonConfig(BaseModel):
     data_dir: Path = Field(default_factory=default_data_dir)
     robot_host: str | None = None
     scanner_url: str | None = None
+    scanners: dict[str, DaemonScanner] = Field(
+        default_factory=dict, description="a cell's scanners by name, for cell jobs (docs/cell.md)"
+    )
     default_job: Path | None = None
     token_file: Path | None = Field(None, description="default: <data_dir>/token")
     status_poll_s: float = Field(2.0, gt=0.0, le=60.0)

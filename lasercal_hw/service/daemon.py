@@ -100,6 +100,7 @@ class Daemon:
             default_job=config.default_job,
             dry_run_daemon=config.dry_run,
             on_state=self._on_state,
+            scanner_urls={name: scanner.url for name, scanner in config.scanners.items()},
         )
         try:
             self.interrupted = self.jobs.recover()
@@ -108,9 +109,9 @@ class Daemon:
         self.monitor: DeviceMonitor | None = None
         self.state_listeners: list[Callable[[str, str], None]] = []
 
-    def active_calibration(self) -> tuple[str, Path] | None:
-        """The active calibration's id and folder, or None."""
-        calibration_id = self.store.active_calibration_id()
+    def active_calibration(self, scanner: str | None = None) -> tuple[str, Path] | None:
+        """The active calibration's (of ``scanner``) id and folder, or None."""
+        calibration_id = self.store.active_calibration_id(scanner)
         found = self.store.calibration(calibration_id) if calibration_id is not None else None
         return (calibration_id, found[1]) if calibration_id is not None and found is not None else None
 
@@ -175,21 +176,22 @@ class Daemon:
         self.store.close()
 
     def scanners(self) -> list[tuple[str, str | None]]:
-        """The cell's scanners as the configuration lists them: ``(name, url)`` (today one)."""
-        return [(DEFAULT_SCANNER, self.devices.scanner_url)]
+        """The cell's scanners as the configuration lists them: ``(name, url)``, daemon.toml's
+        ``[scanners.NAME]`` or the one ``scanner_url`` (named ``default``)."""
+        named = [(name, scanner.url) for name, scanner in self.config.scanners.items()]
+        return named or [(DEFAULT_SCANNER, self.devices.scanner_url)]
 
     def health(self) -> dict[str, Any]:
         """``GET /v1/health``: liveness, and per scanner its calibration's health (from the
         history and the monitor's last readings, no device I/O)."""
         unread = {"known": False, "calibration": None, "read_utc": None, "error": "not read yet"}
         robot_reading = self.monitor.robot_calibration() if self.monitor else unread
-        active = self.history.active_summary()
-        last_verify = None if active is None else self.history.latest_verify(active["id"])
         now = datetime.now(UTC)
-        scanners = [
-            scanner_health(name, url, active, last_verify, robot_reading, now)
-            for name, url in self.scanners()
-        ]
+        scanners = []
+        for name, url in self.scanners():
+            active = self.history.active_summary(name)
+            last_verify = None if active is None else self.history.latest_verify(active["id"])
+            scanners.append(scanner_health(name, url, active, last_verify, robot_reading, now))
         return {
             "ok": True, "version": __version__, "api_version": API_VERSION, "time_utc": now.isoformat(),
             "robot_calibration": robot_reading, "scanners": scanners,

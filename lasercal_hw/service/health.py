@@ -8,9 +8,10 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
+from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.models import RobotCalibration
 
-DEFAULT_SCANNER = "default"
+DEFAULT_SCANNER = DEFAULT_SCANNER_NAME
 """The name of the one scanner a daemon configuration of today has."""
 
 

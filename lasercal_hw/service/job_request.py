@@ -9,7 +9,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
-from lasercal_hw.config import JobConfig, job_from_mapping, load_job, with_overrides
+from lasercal_hw.config import SCANNER_NAME_PATTERN, JobConfig, job_from_mapping, load_job, with_overrides
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.service.errors import ConfirmationRequiredError, InvalidRequestError
@@ -32,6 +32,11 @@ class JobBody(BaseModel):
         None, description="job file (TOML) as a JSON object, merged over the daemon's default job"
     )
     activate_on_pass: StrictBool = Field(False, description="make the result active when it passes the gates")
+    scanner: str | None = Field(
+        None, pattern=SCANNER_NAME_PATTERN,
+        description="verify only: the scanner of the cell whose active calibration to check "
+        "(default: the newest activation's)",
+    )
     restore_robot: StrictBool = Field(True, description="reload (and replay) the robot's program afterwards")
     dwell_s: float | None = Field(None, gt=0.0, le=60.0, description="dwell per waypoint in s")
     scene: dict[str, Any] | None = Field(
@@ -54,9 +59,15 @@ class DeviceAddresses:
 
     robot_host: str | None = None
     scanner_url: str | None = None
+    #: A cell's scanners by name (daemon.toml's ``[scanners.NAME]``), for a cell job's scanners.
+    scanner_urls: tuple[tuple[str, str], ...] = ()
 
     def applied_to(self, job: JobConfig) -> JobConfig:
-        """``job`` pointed at these devices."""
+        """``job`` pointed at these devices: a one-scanner job at ``scanner_url``, a cell job's
+        scanners at the ``scanner_urls`` of the same names."""
+        if job.scanners:
+            urls = {f"scanners.{name}.url": url for name, url in self.scanner_urls if name in job.scanners}
+            return with_overrides(job, {"robot.host": self.robot_host} | urls)
         return with_overrides(job, {"robot.host": self.robot_host, "scanner.url": self.scanner_url})
 
 

@@ -21,6 +21,7 @@ from typing import Any, Protocol
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import InterruptedRunError, LasercalError
 from lasercal_hw.run.cancel import CancelToken
+from lasercal_hw.run.cell import CELL_FILE
 from lasercal_hw.run.events import RunEvent, Stage
 from lasercal_hw.service.errors import (
     ConflictError,
@@ -70,6 +71,8 @@ class RunContext:
     on_event: Callable[[RunEvent], None]
     cancel: CancelToken
     confirm: Callable[[Any], None]  # called once preflight passed
+    #: A verify job's scanner of the cell (None: the newest activation's).
+    scanner: str | None = None
 
 
 @dataclass(frozen=True)
@@ -80,6 +83,8 @@ class RunResult:
     passed: bool
     verdict: dict[str, Any]
     calibration_dir: Path | None = None  # a calibration to file (its result.json is there)
+    #: A cell job's calibrations to file, by scanner (each folder holds its result.json).
+    calibration_dirs: dict[str, Path] | None = None
     verify: dict[str, Any] | None = None  # a verify document to file
 
 
@@ -89,7 +94,8 @@ Runner = Callable[[RunContext], RunResult]
 class CalibrationFiler(Protocol):
     """Files a finished calibration or verify into the history (``calibrations.CalibrationHistory``)."""
 
-    def record(self, job_id: str, directory: Path, dry_run: bool) -> str: ...
+    def record(self, job_id: str, directory: Path, dry_run: bool, created_utc: str | None = None,
+               scanner: str = ...) -> str: ...
     def activate(self, calibration_id: str, reason: str) -> Any: ...
     def record_verify(self, job_id: str, summary: dict[str, Any]) -> str: ...
 
@@ -127,6 +133,7 @@ class JobManager:
         default_job: Path | None = None,
         dry_run_daemon: bool = False,
         on_state: Callable[[str, str], None] | None = None,
+        scanner_urls: dict[str, str] | None = None,
     ) -> None:
         self._store = store
         self._bus = bus
@@ -137,6 +144,7 @@ class JobManager:
         self._history = history
         self._devices = devices
         self._default_job = default_job
+        self._scanner_urls = tuple((scanner_urls or {}).items())
         self._dry_run_daemon = dry_run_daemon
         self._on_state = on_state or (lambda job_id, state: None)
         self._lock = threading.Lock()
@@ -206,9 +214,10 @@ class JobManager:
                 "no robot configured: set robot_host in the daemon configuration or robot.host in the job",
                 "job.robot.host",
             )
-        if body.kind == "verify" and self._store.active_calibration_id() is None:
+        if body.kind == "verify" and self._store.active_calibration_id(body.scanner) is None:
+            of = "" if body.scanner is None else f" for the scanner {body.scanner!r}"
             raise ConflictError(
-                "there is no active calibration to verify: run a calibration and activate it first",
+                f"there is no active calibration{of} to verify: run a calibration and activate it first",
                 code="no_active_calibration",
             )
         scene_text = scene_file_text(body)
@@ -256,7 +265,10 @@ class JobManager:
         """Continue a cancelled or interrupted job from its recording (ConflictError otherwise)."""
         require_confirmation(body.confirm_motion)
         record = self.get(job_id)
+        # a cell job resumes from its folder (cell.json: the scanners done, the one stopped)
         session = Path(record.out_dir) / SESSION_FILE
+        if (Path(record.out_dir) / CELL_FILE).exists():
+            session = Path(record.out_dir)
         stopped_by = record.error.code if record.error is not None else None
         device_failure = record.state == JobState.FAILED and stopped_by in RESUMABLE_ERRORS
         if record.state not in RESUMABLE_STATES and not device_failure:
@@ -326,7 +338,7 @@ class JobManager:
         """The daemon's devices for a job of ``kind`` (a dry run brings its own)."""
         if kind == "dry_run":
             return DeviceAddresses()
-        return DeviceAddresses(self._devices.robot_host, self._devices.scanner_url)
+        return DeviceAddresses(self._devices.robot_host, self._devices.scanner_url, self._scanner_urls)
 
     def _refuse_if_busy(self) -> None:
         if self._active is not None:
@@ -416,7 +428,8 @@ class JobManager:
                 restore = self._devices.program_snapshot(str(devices.applied_to(job).robot.host))
             out_dir = Path(record.out_dir)
             context = RunContext(
-                job_id, kind, job, devices, out_dir, resume_from, scene_file, on_event, cancel, confirm
+                job_id, kind, job, devices, out_dir, resume_from, scene_file, on_event, cancel, confirm,
+                scanner=record.request.get("scanner"),
             )
             final, fields = JobState.SUCCEEDED, self._file_result(record, self._runners[kind](context))
         except Exception as exc:
@@ -467,8 +480,8 @@ class JobManager:
         """File a finished run's calibration or verify; the job fields to store with its end."""
         job_id = record.id
         fields: dict[str, Any] = {"verdict": result.verdict, "document": result.document}
+        dry_run = record.kind == "dry_run" or self._dry_run_daemon
         if result.calibration_dir is not None:
-            dry_run = record.kind == "dry_run" or self._dry_run_daemon
             calibration_id = self._history.record(job_id, result.calibration_dir, dry_run)
             fields["calibration_id"] = calibration_id
             self._bus.publish(
@@ -476,6 +489,20 @@ class JobManager:
             )
             if result.passed and record.request.get("activate_on_pass"):
                 self._history.activate(calibration_id, f"activated on pass by job {job_id}")
+        filed = {}
+        for scanner, directory in (result.calibration_dirs or {}).items():
+            calibration_id = self._history.record(job_id, directory, dry_run, scanner=scanner)
+            passed = bool(result.document["scanners"][scanner]["passed"])
+            self._bus.publish(
+                "calibration", {"calibration_id": calibration_id, "passed": passed, "scanner": scanner},
+                job_id,
+            )
+            if passed and record.request.get("activate_on_pass"):
+                self._history.activate(calibration_id, f"activated on pass by job {job_id}")
+            filed[scanner] = calibration_id
+        if filed:  # a cell job: the first scanner's calibration in the job's column, all in its document
+            fields["calibration_id"] = next(iter(filed.values()))
+            fields["document"] = result.document | {"calibration_ids": filed}
         if result.verify is not None:
             fields["verify_id"] = self._history.record_verify(job_id, result.verify)
         return fields

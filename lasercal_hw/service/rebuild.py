@@ -9,12 +9,14 @@ active afterwards) and verifies. A database found in the way is kept beside it, 
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 from lasercal_hw.errors import LasercalError
+from lasercal_hw.run.cell import CELL_FILE
 from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
 from lasercal_hw.run.resume import recorded_job
 from lasercal_hw.service.calibrations import CalibrationHistory
@@ -67,13 +69,46 @@ def _mtime_utc(path: Path) -> str:
     return datetime.fromtimestamp(path.stat().st_mtime, UTC).isoformat(timespec="milliseconds")
 
 
+def _rebuilt_cell(
+    folder: Path, history: CalibrationHistory, report: RebuildReport, request: dict[str, Any],
+    fields: dict[str, Any],
+) -> JobState:
+    """A cell job's folder (docs/cell.md): every scanner's calibration filed with its scanner;
+    interrupted (resumable) while a scanner has none."""
+    try:
+        document = json.loads((folder / CELL_FILE).read_text(encoding="utf-8"))
+        names = list(document["scanners_run"])
+        dry_run = bool(document.get("request", {}).get("dry_run"))
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        fields["error"] = JobError(code="rebuilt", message=f"{CELL_FILE} unreadable: {exc}")
+        return JobState.FAILED
+    request |= {"kind": "dry_run" if dry_run else "calibrate", "resolved_job": document.get("job")}
+    filed = {}
+    for name in names:
+        result = folder / name / RESULT_FILE
+        if result.exists():
+            made_utc = _mtime_utc(result)
+            filed[name] = history.record(folder.name, result.parent, dry_run, made_utc, scanner=name)
+    report.calibrations += len(filed)
+    if filed:
+        fields["calibration_id"] = next(iter(filed.values()))
+    if len(filed) == len(names):
+        return JobState.SUCCEEDED
+    fields["error"] = JobError(
+        code="interrupted", message="rebuilt from its folder; resume it with POST /v1/jobs/{id}/resume"
+    )
+    return JobState.INTERRUPTED
+
+
 def _rebuilt_job(folder: Path, history: CalibrationHistory, report: RebuildReport) -> Job:
     """The job row a folder tells of (filing its calibration, if it has one)."""
     dry_run = any((folder / name).exists() for name in DRY_RUN_FILES)
     request: dict[str, Any] = {"kind": "dry_run" if dry_run else "calibrate", "rebuilt_from": str(folder)}
     fields: dict[str, Any] = {}
     result, session = folder / RESULT_FILE, folder / SESSION_FILE
-    if result.exists():
+    if (folder / CELL_FILE).exists():
+        state = _rebuilt_cell(folder, history, report, request, fields)
+    elif result.exists():
         try:
             read = read_result_file(result)
             fields["calibration_id"] = history.record(folder.name, folder, dry_run, _mtime_utc(result))

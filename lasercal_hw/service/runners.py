@@ -8,6 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
 from lasercal_hw.service.store import utc_now
@@ -15,8 +16,9 @@ from lasercal_hw.service.store import utc_now
 if TYPE_CHECKING:
     from lasercal_hw.live.foxglove import FoxgloveLiveView
 
-#: ``active()`` -> (id, folder) of the active calibration, or None.
-ActiveCalibration = Callable[[], tuple[str, Path] | None]
+#: ``active(scanner)`` -> (id, folder) of the active calibration (of that scanner; None: the
+#: newest activation's), or None.
+ActiveCalibration = Callable[[str | None], tuple[str, Path] | None]
 
 
 def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None = None) -> RunResult:
@@ -24,6 +26,8 @@ def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None 
     Foxglove ``live`` view if there is one."""
     from lasercal_hw.run.engine import RunRequest, calibrate
 
+    if ctx.job.scanners:
+        return _run_cell(ctx, dry_run=dry_run)
     request = RunRequest(
         job=ctx.job,
         out_dir=ctx.out_dir,
@@ -49,20 +53,50 @@ def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None 
     )
 
 
+def _run_cell(ctx: RunContext, *, dry_run: bool) -> RunResult:
+    """A cell job (``[scanners.NAME]``): every scanner through ``run/cell.calibrate_cell``, each
+    scanner's calibration filed on its own; a resumed one continues the job's folder."""
+    from lasercal_hw.run.cell import CellRunRequest, calibrate_cell
+
+    request = CellRunRequest(
+        job=ctx.job,
+        out_dir=ctx.out_dir,
+        robot_host=ctx.devices.robot_host,
+        dry_run=dry_run,
+        scene=ctx.scene_file if dry_run else None,
+        resume=ctx.out_dir if ctx.resume_from is not None else None,
+        title=f"lasercal {'dry run' if dry_run else 'calibration'} (job {ctx.job_id})",
+    )
+    report = calibrate_cell(request, on_event=ctx.on_event, cancel=ctx.cancel, confirm=ctx.confirm)
+    document = report.document()
+    return RunResult(
+        document=document,
+        passed=report.passed,
+        verdict={"passed": report.passed,
+                 "scanners": {name: entry["passed"] for name, entry in document["scanners"].items()}},
+        calibration_dirs={name: outcome.result_path.parent for name, outcome in report.scanners.items()},
+    )
+
+
 def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     """Check the active calibration (``lasercal_hw.verify``) with the job recorded with it;
     the result is filed in the verify history with the calibration it checked."""
-    from lasercal_hw.run.outputs import RESULT_FILE
+    from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
     from lasercal_hw.verify.procedure import VerifyRequest, verify
 
-    found = active()
+    found = active(ctx.scanner)
     if found is None:
-        raise ConfigError("there is no active calibration to verify: run a calibration and activate it first")
+        of = "" if ctx.scanner is None else f" for the scanner {ctx.scanner!r}"
+        raise ConfigError(
+            f"there is no active calibration{of} to verify: run a calibration and activate it first"
+        )
     calibration_id, folder = found
+    named = dict(ctx.devices.scanner_urls)
+    scanner_name = read_result_file(folder / RESULT_FILE).scanner_name
+    # a cell scanner at daemon.toml's [scanners.NAME] url, else the recorded job's; one scanner at scanner_url
+    scanner_url = named.get(scanner_name) if scanner_name is not None else ctx.devices.scanner_url
     report = verify(
-        VerifyRequest(
-            out_dir=ctx.out_dir, robot_host=ctx.devices.robot_host, scanner_url=ctx.devices.scanner_url
-        ),
+        VerifyRequest(out_dir=ctx.out_dir, robot_host=ctx.devices.robot_host, scanner_url=scanner_url),
         folder / RESULT_FILE,
         on_event=ctx.on_event,
         cancel=ctx.cancel,
@@ -73,6 +107,7 @@ def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     summary = {
         "created_utc": utc_now(),
         "calibration_id": calibration_id,
+        "scanner": scanner_name or DEFAULT_SCANNER_NAME,
         "verdict": document["verdict"],
         "reason": document["reason"],
         "shift_translation_mm": correction.get("shift_mm"),

@@ -16,11 +16,12 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.errors import HistoryUnavailableError, StorageFullError
 from lasercal_hw.service.job_record import UNFINISHED_STATES
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 DB_FILE = "lasercal.sqlite3"
 _JSON_COLUMNS = ("request", "progress", "verdict", "error", "document")
 
@@ -57,7 +58,10 @@ ALTER TABLE calibrations ADD COLUMN bad_utc TEXT;
 ALTER TABLE calibrations ADD COLUMN bad_by TEXT;
 ALTER TABLE calibrations ADD COLUMN bad_reason TEXT
 """
-_MIGRATIONS = {1: _SCHEMA_V1, 2: _SCHEMA_V2}
+#: Version 3 (issue 22): each calibration is of one of the cell's scanners (docs/cell.md); the
+#: calibrations of a one-scanner daemon, and all those filed before, are of the scanner "default".
+_SCANNER_V3 = f"ALTER TABLE calibrations ADD COLUMN scanner TEXT NOT NULL DEFAULT '{DEFAULT_SCANNER_NAME}'"
+_MIGRATIONS = {1: _SCHEMA_V1, 2: _SCHEMA_V2, 3: _SCANNER_V3}
 TABLES = ("jobs", "events", "calibrations", "activations", "verifies")
 REBUILD_HINT = "lasercal serve --rebuild-history (docs/daemon.md, Crash safety)"
 
@@ -280,13 +284,14 @@ class HistoryStore:
         passed: bool,
         summary: dict[str, Any],
         directory: Path,
+        scanner: str = DEFAULT_SCANNER_NAME,
     ) -> None:
-        """Store a finished calibration (never replaced); ``robot_calibration_checksum`` is
-        the robot's kinematics checksum it was made with (None: unknown)."""
+        """Store a finished calibration of ``scanner`` (never replaced); ``robot_calibration_checksum``
+        is the robot's kinematics checksum it was made with (None: unknown)."""
         robot_calibration = (summary.get("devices") or {}).get("robot_calibration") or {}
         self._execute(
             "INSERT INTO calibrations (id, created_utc, job_id, dry_run, passed, summary, dir, "
-            "robot_calibration_checksum) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            "robot_calibration_checksum, scanner) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
             (
                 calibration_id,
                 summary["created_utc"],
@@ -296,23 +301,27 @@ class HistoryStore:
                 json.dumps(summary, allow_nan=False),
                 str(directory),
                 robot_calibration.get("checksum"),
+                scanner,
             ),
         )
 
     def calibration(self, calibration_id: str) -> tuple[dict[str, Any], Path] | None:
-        """A calibration's stored summary (with ``bad``: who marked it bad, when and why, or
-        None) and folder, or None."""
+        """A calibration's stored summary (with its ``scanner`` and ``bad``: who marked it bad,
+        when and why, or None) and folder, or None."""
         rows = self._query(
             f"SELECT {_CALIBRATION_COLUMNS}, dir FROM calibrations WHERE id = ?", (calibration_id,)
         )
         return (_calibration_dict(rows[0]), Path(rows[0]["dir"])) if rows else None
 
-    def calibrations(self) -> list[dict[str, Any]]:
-        """Every calibration's stored summary (with ``bad``), newest first."""
+    def calibrations(self, scanner: str | None = None) -> list[dict[str, Any]]:
+        """Every calibration's stored summary (of ``scanner``, or of all; with its scanner and
+        ``bad``), newest first."""
+        where, params = ("WHERE scanner = ?", (scanner,)) if scanner is not None else ("", ())
         return [
             _calibration_dict(r)
             for r in self._query(
-                f"SELECT {_CALIBRATION_COLUMNS} FROM calibrations ORDER BY created_utc DESC, id DESC"
+                f"SELECT {_CALIBRATION_COLUMNS} FROM calibrations {where} ORDER BY created_utc DESC, id DESC",
+                params,
             )
         ]
 
@@ -332,12 +341,15 @@ class HistoryStore:
             (calibration_id, utc_now(), reason),
         )
 
-    def active_calibration_id(self) -> str | None:
-        """The id of the newest activation's calibration; None when there is none or it was
-        marked bad since (marking the active one bad deactivates it)."""
+    def active_calibration_id(self, scanner: str | None = None) -> str | None:
+        """The id of the newest activation's calibration (of ``scanner``; None: of any scanner,
+        a one-scanner daemon's one); None when there is none or it was marked bad since
+        (marking the active one bad deactivates it)."""
+        where, params = ("WHERE c.scanner = ? ", (scanner,)) if scanner is not None else ("", ())
         rows = self._query(
             "SELECT a.calibration_id, c.bad_utc FROM activations a "
-            "JOIN calibrations c ON c.id = a.calibration_id ORDER BY a.id DESC LIMIT 1"
+            f"JOIN calibrations c ON c.id = a.calibration_id {where}ORDER BY a.id DESC LIMIT 1",
+            params,
         )
         return str(rows[0]["calibration_id"]) if rows and rows[0]["bad_utc"] is None else None
 
@@ -368,11 +380,11 @@ class HistoryStore:
         ]
 
 
-_CALIBRATION_COLUMNS = "summary, bad_utc, bad_by, bad_reason"
+_CALIBRATION_COLUMNS = "summary, scanner, bad_utc, bad_by, bad_reason"
 
 
 def _calibration_dict(row: sqlite3.Row) -> dict[str, Any]:
-    summary: dict[str, Any] = json.loads(row["summary"])
+    summary: dict[str, Any] = json.loads(row["summary"]) | {"scanner": row["scanner"]}
     if row["bad_utc"] is None:
         return summary | {"bad": None}
     return summary | {"bad": {"time_utc": row["bad_utc"], "by": row["bad_by"], "reason": row["bad_reason"]}}

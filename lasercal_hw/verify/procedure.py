@@ -201,6 +201,7 @@ def verify(
         waypoints=waypoints[selection.indices],
         waypoint_names=tuple(selection.indices),
         title="lasercal verify",
+        scanner_name=active.scanner_name,  # a dry run checks that scanner of the scene
     )
     started_s = time.monotonic()
     rod = job.rod.rod_line()

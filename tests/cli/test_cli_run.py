@@ -7,11 +7,15 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from fakes.world import World
 from lasercal_hw.config import load_job
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.run.dry_run_scene import write_rod_scene
+from tests.cli_helpers import assert_one_line_error
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -77,3 +81,21 @@ def test_the_stopped_line_gives_the_command_that_resumes_the_recording() -> None
     not_resumable = failed_live | {"resumable": False}
     assert stopped_line("", not_resumable) == "recording kept in out/session.mcap; start again"
     assert stopped_line("nothing was recorded", {"error": "boom"}) == "nothing was recorded"
+
+
+@pytest.mark.parametrize(
+    ("args", "fragments"),
+    [
+        (("--dry-run", "--scanner", "front"), ("one scanner, 'default', not 'front'",)),
+        (("--dry-run", "--config", str(EXAMPLES / "cell.toml"), "--scanner", "side"),
+         ("no scanner 'side'", "front, rear")),
+        (("--dry-run", "--config", str(EXAMPLES / "cell.toml")), ("needs --scene", "two_scanners.toml")),
+    ],
+)
+def test_a_scanner_named_on_the_command_line_must_be_the_jobs(
+    tmp_path: Path, args: tuple[str, ...], fragments: tuple[str, ...]
+) -> None:
+    """``--scanner NAME`` picks one of the job's scanners (a one-scanner job's is 'default'),
+    and a dry run of a cell job needs a scene of its scanners; nothing moves otherwise."""
+    assert_one_line_error(run_cli(*args, cwd=tmp_path), ExitCode.BAD_INPUT, *fragments)
+    assert not any(tmp_path.iterdir())

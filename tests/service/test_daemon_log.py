@@ -19,8 +19,8 @@ from lasercal_hw.service.app import create_app
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.monitor import DeviceMonitor
-from tests.daemon_helpers import FakeEngine, fake_runners
-from tests.service.test_service import JOB, _finish
+from tests.daemon_helpers import FakeEngine, fake_runners, finish_job
+from tests.service.test_service import JOB
 
 
 @pytest.fixture(params=["text", "json"])
@@ -52,7 +52,7 @@ def test_a_job_and_an_activation_are_one_line_each_with_their_ids(
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         client.headers["Authorization"] = f"Bearer {daemon.token}"
         job_id = client.post("/v1/jobs", json=JOB).json()["id"]
-        calibration_id = _finish(client, job_id)["calibration_id"]
+        calibration_id = finish_job(client, job_id)["calibration_id"]
         activated = client.post(f"/v1/calibrations/{calibration_id}/activate", json={"reason": "first"})
         assert activated.status_code == 200
         bad = {"by": "qa", "reason": "rod bent"}

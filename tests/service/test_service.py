@@ -8,7 +8,6 @@ import socket
 import sqlite3
 import stat
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -25,7 +24,7 @@ from lasercal_hw.service.errors import ServiceError
 from lasercal_hw.service.routes.problems import STATUS_OF
 from lasercal_hw.service.sd_notify import notify, watchdog_interval_s
 from lasercal_hw.service.store import SCHEMA_VERSION, HistoryStore
-from tests.daemon_helpers import FakeEngine, fake_runners, read_sse
+from tests.daemon_helpers import FakeEngine, fake_runners, finish_job, read_sse
 
 JOB = {"kind": "dry_run", "confirm_motion": True, "job": {"trajectory": {"preset": "quick"}}, "dwell_s": 0.5}
 
@@ -41,16 +40,6 @@ def client(tmp_path: Path, engine: FakeEngine) -> Iterator[TestClient]:
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as test_client:
         test_client.headers["Authorization"] = f"Bearer {daemon.token}"
         yield test_client
-
-
-def _finish(client: TestClient, job_id: str, timeout_s: float = 10.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        job = client.get(f"/v1/jobs/{job_id}").json()
-        if job["state"] in ("succeeded", "failed", "cancelled", "interrupted"):
-            return job
-        time.sleep(0.02)
-    raise AssertionError(f"job {job_id} did not finish")
 
 
 def test_every_kind_of_service_error_has_its_http_status() -> None:
@@ -108,7 +97,7 @@ def test_one_motion_job_at_a_time_and_cancel_keeps_active_calibration(
     client: TestClient, engine: FakeEngine
 ) -> None:
     first = client.post("/v1/jobs", json=JOB | {"activate_on_pass": True}).json()
-    active = _finish(client, first["id"])["calibration_id"]
+    active = finish_job(client, first["id"])["calibration_id"]
     engine.release.clear()
     engine.started.clear()
     running = client.post("/v1/jobs", json=JOB | {"activate_on_pass": True}).json()
@@ -118,13 +107,13 @@ def test_one_motion_job_at_a_time_and_cancel_keeps_active_calibration(
     assert second.json()["code"] == "job_running" and second.json()["detail"]["job_id"] == running["id"]
     client.post(f"/v1/jobs/{running['id']}/cancel")
     engine.release.set()
-    cancelled = _finish(client, running["id"])
+    cancelled = finish_job(client, running["id"])
     assert cancelled["state"] == "cancelled" and cancelled["calibration_id"] is None
     assert client.get("/v1/calibration").json()["id"] == active
     assert client.get(f"/v1/jobs/{running['id']}/files/session.mcap").content == b"recording"
     resumed = client.post(f"/v1/jobs/{running['id']}/resume", json={"confirm_motion": True})
     assert resumed.status_code == 200
-    done = _finish(client, running["id"])
+    done = finish_job(client, running["id"])
     assert done["state"] == "succeeded" and done["progress"]["completed"] == engine.waypoints
     assert engine.contexts[-1].resume_from is not None
     assert client.get("/v1/calibration").json()["id"] == done["calibration_id"] != active
@@ -134,18 +123,18 @@ def test_a_device_failure_is_failed_with_its_code_and_resumable(
     client: TestClient, engine: FakeEngine
 ) -> None:
     engine.fail = True
-    job = _finish(client, client.post("/v1/jobs", json=JOB).json()["id"])
+    job = finish_job(client, client.post("/v1/jobs", json=JOB).json()["id"])
     assert job["state"] == "failed" and job["error"]["code"] == "device_error"
     engine.fail = False  # the device is back: the recording continues
     assert client.post(f"/v1/jobs/{job['id']}/resume", json={"confirm_motion": True}).status_code == 200
-    assert _finish(client, job["id"])["state"] == "succeeded"
+    assert finish_job(client, job["id"])["state"] == "succeeded"
     again = client.post(f"/v1/jobs/{job['id']}/resume", json={"confirm_motion": True})
     assert (again.status_code, again.json()["code"]) == (409, "not_resumable")
 
 
 def test_events_have_ids_and_replay_after_last_event_id(client: TestClient) -> None:
     job_id = client.post("/v1/jobs", json=JOB).json()["id"]
-    _finish(client, job_id)
+    finish_job(client, job_id)
     with client.stream("GET", f"/v1/jobs/{job_id}/events") as response:
         assert response.headers["content-type"].startswith("text/event-stream")
         events = read_sse(response)
@@ -170,9 +159,9 @@ def test_events_have_ids_and_replay_after_last_event_id(client: TestClient) -> N
 
 
 def test_history_activate_rollback_and_diff(client: TestClient, engine: FakeEngine) -> None:
-    a = _finish(client, client.post("/v1/jobs", json=JOB).json()["id"])["calibration_id"]
+    a = finish_job(client, client.post("/v1/jobs", json=JOB).json()["id"])["calibration_id"]
     engine.translation_m = [0.305, 0.5, 0.2]
-    b = _finish(client, client.post("/v1/jobs", json=JOB).json()["id"])["calibration_id"]
+    b = finish_job(client, client.post("/v1/jobs", json=JOB).json()["id"])["calibration_id"]
     assert [c["id"] for c in client.get("/v1/calibrations").json()["calibrations"]] == [b, a]
     for calibration_id in (b, a):
         assert (

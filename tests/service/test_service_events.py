@@ -17,8 +17,8 @@ from lasercal_hw.service.app import create_app
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.store import HistoryStore, utc_now
-from tests.daemon_helpers import FakeEngine, fake_runners, read_sse
-from tests.service.test_service import JOB, _finish
+from tests.daemon_helpers import FakeEngine, fake_runners, finish_job, read_sse
+from tests.service.test_service import JOB
 
 
 @pytest.fixture
@@ -57,7 +57,7 @@ def test_a_plain_connect_starts_now_and_history_comes_on_request(
 ) -> None:
     daemon, client = daemon_client
     job = client.post("/v1/jobs", json=JOB).json()
-    _finish(client, job["id"])
+    finish_job(client, job["id"])
     stored = _daemon_stream(daemon, client, "/v1/events?last_event_id=0")
     assert len(stored) > 10 and stored[0][1] == "daemon"
 
@@ -86,7 +86,7 @@ def test_every_event_carries_the_time_it_happened(daemon_client: tuple[Daemon, T
     _, client = daemon_client
     before = datetime.now(UTC)
     job_id = client.post("/v1/jobs", json=JOB).json()["id"]
-    _finish(client, job_id)
+    finish_job(client, job_id)
     with client.stream("GET", f"/v1/jobs/{job_id}/events") as response:
         events = read_sse(response)
     times = [datetime.fromisoformat(data["time_utc"]) for _, _, data in events]

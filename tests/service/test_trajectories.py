@@ -10,8 +10,7 @@ from fastapi.testclient import TestClient
 from lasercal_hw.service.app import create_app
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
-from tests.daemon_helpers import FakeEngine, fake_runners
-from tests.service.test_service import _finish
+from tests.daemon_helpers import FakeEngine, fake_runners, finish_job
 from trajectories.presets import preset_names
 
 DRILL_JOB = Path(__file__).resolve().parents[2] / "examples" / "drill.toml"
@@ -42,7 +41,7 @@ def _body(job: dict) -> dict:
 def _start_and_finish(client: TestClient, job: dict) -> None:
     started = client.post("/v1/jobs", json=_body(job))
     assert started.status_code == 202, started.json()
-    _finish(client, started.json()["id"])
+    finish_job(client, started.json()["id"])
 
 
 def test_without_a_default_job_only_presets(tmp_path: Path) -> None:

@@ -3,12 +3,13 @@ files, activation (and rollback) and the difference between two."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Query
 from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, field_validator
 
+from lasercal_hw.config import SCANNER_NAME_PATTERN
 from lasercal_hw.service.routes.deps import Authorized, DaemonDep
 
 router = APIRouter()
@@ -55,16 +56,23 @@ class MarkBadBody(BaseModel):
         return _encodable(value)
 
 
+ScannerQuery = Annotated[
+    str | None,
+    Query(pattern=SCANNER_NAME_PATTERN, description="a scanner of the cell ([scanners.NAME]; default: any)"),
+]
+
+
 @router.get("/v1/calibration")
-def active_calibration(daemon: DaemonDep) -> dict[str, Any]:
-    """The active calibration with its exports."""
-    return daemon.history.active()
+def active_calibration(daemon: DaemonDep, scanner: ScannerQuery = None) -> dict[str, Any]:
+    """The active calibration (of ``scanner``; without it the newest activation, a one-scanner
+    daemon's one) with its exports."""
+    return daemon.history.active(scanner)
 
 
 @router.get("/v1/calibrations")
-def calibrations(daemon: DaemonDep) -> dict[str, Any]:
-    """Every calibration, newest first."""
-    return {"calibrations": daemon.history.all(), "activations": daemon.history.activations()}
+def calibrations(daemon: DaemonDep, scanner: ScannerQuery = None) -> dict[str, Any]:
+    """Every calibration (of ``scanner``, or of all), newest first."""
+    return {"calibrations": daemon.history.all(scanner), "activations": daemon.history.activations()}
 
 
 @router.get("/v1/calibrations/{calibration_id}")
