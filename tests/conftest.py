@@ -24,6 +24,8 @@ REAL_TIME_MODULES = frozenset(
     {
         "browser/test_page.py",
         "cli/test_cli_run.py",
+        "cli/test_cli_trajectory.py",
+        "cli/test_remote_output.py",
         "drivers/hokuyo/test_scanner_contract.py",
         "drivers/ur/test_cli_ur.py",
         "drivers/ur/test_controller.py",
@@ -32,6 +34,7 @@ REAL_TIME_MODULES = frozenset(
         "drivers/ur/test_ur_client.py",
         "fakes/test_fake_scanner_e2e.py",
         "live/test_foxglove_live.py",
+        "run/test_cell.py",
         "run/test_dry_run.py",
         "run/test_dry_run_robust.py",
         "run/test_engine.py",
