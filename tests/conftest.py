@@ -38,6 +38,7 @@ REAL_TIME_MODULES = frozenset(
         "run/test_dry_run.py",
         "run/test_dry_run_robust.py",
         "run/test_engine.py",
+        "service/test_daemon_cell_kill.py",
         "service/test_daemon_faults.py",
         "service/test_daemon_integration.py",
         "service/test_daemon_log.py",

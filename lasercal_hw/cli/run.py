@@ -41,7 +41,7 @@ from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, 
 OVERHEAD_TARGET = 0.10
 
 
-_LINE_COLOURS = {"centre": "green", "skip": "yellow", "warning": "yellow"}
+_LINE_COLOURS = {"centre": "green", "skip": "yellow", "warning": "yellow", "scanner_result": "bold"}
 
 
 class ProgressView:

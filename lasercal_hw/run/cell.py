@@ -25,9 +25,14 @@ from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate
+from lasercal_hw.run.events import EventSink
 from lasercal_hw.run.outputs import RESULT_FILE, SESSION_FILE, read_result_file, write_text
 
 CELL_FILE = "cell.json"
+#: The event a cell job sends once a scanner has its ``result.json`` (run now, or kept from
+#: before a resume): ``scanner``, ``folder``, ``passed``, ``kept``. A daemon files the scanner's
+#: calibration on it, so a job killed later keeps it in the history.
+SCANNER_RESULT = "scanner_result"
 
 
 @dataclass(frozen=True)
@@ -158,10 +163,12 @@ def calibrate_cell(
         )
     request, job, names = _start(request)
     on_event = _resuming_the_cell(on_event, request.out_dir)
+    sink = EventSink(on_event)
     outcomes: dict[str, ScannerOutcome] = {}
     for name in names:
         folder = request.out_dir / name
-        if not (folder / RESULT_FILE).is_file():
+        kept = (folder / RESULT_FILE).is_file()
+        if not kept:
             session = folder / SESSION_FILE
             run = RunRequest(
                 job=job.for_scanner(name),
@@ -177,6 +184,13 @@ def calibrate_cell(
             outcomes[name] = _scanner_outcome(name, folder / RESULT_FILE, report)
         else:
             outcomes[name] = _scanner_outcome(name, folder / RESULT_FILE, None)
+        passed = outcomes[name].passed
+        sink.emit(
+            SCANNER_RESULT,
+            f"scanner {name}: {'passed' if passed else 'failed its quality gates'}"
+            + (" (kept from before the resume)" if kept else ""),
+            scanner=name, folder=str(folder), passed=passed, kept=kept,
+        )
     cell = CellReport(request.out_dir, outcomes, _pairs(outcomes))
     document = _read_cell_file(request.out_dir) | cell.document()
     write_text(request.out_dir / CELL_FILE, json.dumps(document, indent=2, allow_nan=False) + "\n")

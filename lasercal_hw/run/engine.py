@@ -400,7 +400,8 @@ def _start_fake_cell(
         address=cell.address,
         pid=cell.pid,
         robot_host=cell.robot_host,
-        scanner_url=cell.scanner_url,
+        scanner_url=scanner_url,
+        scanner_name=request.scanner_name,
     )
     difference = rods_differ(cell.info.get("rod"), job.rod.rod_line())
     if difference is not None:

@@ -61,6 +61,10 @@ class CalibrationHistory:
         self._store.add_calibration(calibration_id, job_id, dry_run, read.passed, summary, directory, scanner)
         return calibration_id
 
+    def filed(self, job_id: str, scanner: str) -> str | None:
+        """The id of the calibration of ``scanner`` the job ``job_id`` filed, or None."""
+        return self._store.job_calibration_id(job_id, scanner)
+
     def _stored(self, calibration_id: str) -> tuple[dict[str, Any], Path]:
         found = self._store.calibration(calibration_id)
         if found is None:

@@ -21,7 +21,7 @@ from typing import Any, Protocol
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import InterruptedRunError, LasercalError
 from lasercal_hw.run.cancel import CancelToken
-from lasercal_hw.run.cell import CELL_FILE
+from lasercal_hw.run.cell import CELL_FILE, SCANNER_RESULT
 from lasercal_hw.run.events import RunEvent, Stage
 from lasercal_hw.service.errors import (
     ConflictError,
@@ -97,6 +97,7 @@ class CalibrationFiler(Protocol):
     def record(self, job_id: str, directory: Path, dry_run: bool, created_utc: str | None = None,
                scanner: str = ...) -> str: ...
     def activate(self, calibration_id: str, reason: str) -> Any: ...
+    def filed(self, job_id: str, scanner: str) -> str | None: ...
     def record_verify(self, job_id: str, summary: dict[str, Any]) -> str: ...
 
 
@@ -399,6 +400,9 @@ class JobManager:
             if event.stage is Stage.FAKE_CELL and "scanner_url" in event.data:
                 record.request = record.request | {"resolved_job": _pointed_at_fake_cell(record, event.data)}
                 self._store.update_job(job_id, request=record.request)
+            if event.kind == SCANNER_RESULT:  # a cell job's scanner finished: in the history at once
+                self._file_scanner(record, event.data["scanner"], Path(event.data["folder"]),
+                                   bool(event.data["passed"]))
             if event.kind == "progress":
                 current["progress"] = current["progress"].after(event)
                 self._store.update_job(job_id, progress=current["progress"].model_dump(mode="json"))
@@ -489,17 +493,11 @@ class JobManager:
             )
             if result.passed and record.request.get("activate_on_pass"):
                 self._history.activate(calibration_id, f"activated on pass by job {job_id}")
-        filed = {}
-        for scanner, directory in (result.calibration_dirs or {}).items():
-            calibration_id = self._history.record(job_id, directory, dry_run, scanner=scanner)
-            passed = bool(result.document["scanners"][scanner]["passed"])
-            self._bus.publish(
-                "calibration", {"calibration_id": calibration_id, "passed": passed, "scanner": scanner},
-                job_id,
-            )
-            if passed and record.request.get("activate_on_pass"):
-                self._history.activate(calibration_id, f"activated on pass by job {job_id}")
-            filed[scanner] = calibration_id
+        passed = {name: bool(entry["passed"]) for name, entry in result.document.get("scanners", {}).items()}
+        filed = {
+            scanner: self._file_scanner(record, scanner, directory, passed[scanner])
+            for scanner, directory in (result.calibration_dirs or {}).items()
+        }
         if filed:  # a cell job: the first scanner's calibration in the job's column, all in its document
             fields["calibration_id"] = next(iter(filed.values()))
             fields["document"] = result.document | {"calibration_ids": filed}
@@ -507,12 +505,32 @@ class JobManager:
             fields["verify_id"] = self._history.record_verify(job_id, result.verify)
         return fields
 
+    def _file_scanner(self, record: Job, scanner: str, directory: Path, passed: bool) -> str:
+        """File a cell job's calibration of ``scanner`` (activated when it passed and the job
+        asks), once: a scanner filed before (as it finished, before a crash) keeps its id."""
+        job_id = record.id
+        calibration_id = self._history.filed(job_id, scanner)
+        if calibration_id is not None:
+            return calibration_id
+        dry_run = record.kind == "dry_run" or self._dry_run_daemon
+        calibration_id = self._history.record(job_id, directory, dry_run, scanner=scanner)
+        self._bus.publish(
+            "calibration", {"calibration_id": calibration_id, "passed": passed, "scanner": scanner}, job_id
+        )
+        if passed and record.request.get("activate_on_pass"):
+            self._history.activate(calibration_id, f"activated on pass by job {job_id}")
+        return calibration_id
+
 
 def _pointed_at_fake_cell(record: Job, cell: dict[str, Any]) -> dict[str, Any]:
     """The dry run's resolved job with the addresses of the fake cell it started (until then
-    it names the default job's devices, which the dry run never uses)."""
+    it names the default job's devices, which the dry run never uses): a cell job's scanner
+    (``scanner_name``) in its ``scanners`` table, a one-scanner job's in ``scanner``."""
     resolved = record.request["resolved_job"]
-    return resolved | {
-        "robot": resolved["robot"] | {"host": cell["robot_host"]},
-        "scanner": resolved["scanner"] | {"url": cell["scanner_url"]},
-    }
+    robot = {"robot": resolved["robot"] | {"host": cell["robot_host"]}}
+    scanners = resolved.get("scanners") or {}
+    name = cell.get("scanner_name")
+    if name in scanners:
+        pointed = scanners[name] | {"url": cell["scanner_url"]}
+        return resolved | robot | {"scanners": scanners | {name: pointed}}
+    return resolved | robot | {"scanner": resolved["scanner"] | {"url": cell["scanner_url"]}}

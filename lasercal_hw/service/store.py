@@ -325,6 +325,15 @@ class HistoryStore:
             )
         ]
 
+    def job_calibration_id(self, job_id: str, scanner: str) -> str | None:
+        """The calibration of ``scanner`` a job filed, or None (a cell job files each
+        scanner's once, as it finishes)."""
+        rows = self._query(
+            "SELECT id FROM calibrations WHERE job_id = ? AND scanner = ? ORDER BY created_utc LIMIT 1",
+            (job_id, scanner),
+        )
+        return str(rows[0]["id"]) if rows else None
+
     def mark_bad(self, calibration_id: str, by: str, reason: str) -> str:
         """Record that ``by`` found the calibration bad, and why; returns the time."""
         time_utc = utc_now()
