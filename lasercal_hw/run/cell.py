@@ -12,6 +12,7 @@ waypoint where it stopped, and runs the rest (docs/cell.md).
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -24,6 +25,7 @@ from lasercal_hw.calibration.pairs import error_in_std, relative_pose
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.run.cancel import CancelToken
+from lasercal_hw.run.dry_run_cell import DryRunCell, start_fake_cell
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate
 from lasercal_hw.run.events import EventSink
 from lasercal_hw.run.outputs import RESULT_FILE, SESSION_FILE, read_result_file, write_text
@@ -164,37 +166,58 @@ def calibrate_cell(
     request, job, names = _start(request)
     on_event = _resuming_the_cell(on_event, request.out_dir)
     sink = EventSink(on_event)
+    cancel = cancel or CancelToken()
     outcomes: dict[str, ScannerOutcome] = {}
-    for name in names:
-        folder = request.out_dir / name
-        kept = (folder / RESULT_FILE).is_file()
-        if not kept:
-            session = folder / SESSION_FILE
-            run = RunRequest(
-                job=job.for_scanner(name),
-                out_dir=folder,
-                robot_host=None if request.dry_run else request.robot_host,
-                dry_run=request.dry_run,
-                scene=request.scene,
-                resume=session if session.is_file() else None,
-                title=f"{request.title}: scanner {name}",
-                scanner_name=name,
-            )
-            report = calibrate(run, on_event=on_event, cancel=cancel, confirm=confirm)
-            outcomes[name] = _scanner_outcome(name, folder / RESULT_FILE, report)
-        else:
-            outcomes[name] = _scanner_outcome(name, folder / RESULT_FILE, None)
-        passed = outcomes[name].passed
-        sink.emit(
-            SCANNER_RESULT,
-            f"scanner {name}: {'passed' if passed else 'failed its quality gates'}"
-            + (" (kept from before the resume)" if kept else ""),
-            scanner=name, folder=str(folder), passed=passed, kept=kept,
-        )
+    with contextlib.ExitStack() as stack:
+        fake_cell = None
+        if request.dry_run and any(not (request.out_dir / name / RESULT_FILE).is_file() for name in names):
+            assert request.scene is not None, "a cell job's dry run has a scene (checked above, or recorded)"
+            fake_cell = start_fake_cell(request.scene, stack, sink, cancel)  # one world for every scanner
+        for name in names:
+            outcomes[name] = _scanner(request, job, name, fake_cell, sink, on_event, cancel, confirm)
     cell = CellReport(request.out_dir, outcomes, _pairs(outcomes))
     document = _read_cell_file(request.out_dir) | cell.document()
     write_text(request.out_dir / CELL_FILE, json.dumps(document, indent=2, allow_nan=False) + "\n")
     return cell
+
+
+def _scanner(
+    request: CellRunRequest,
+    job: JobConfig,
+    name: str,
+    fake_cell: DryRunCell | None,
+    sink: EventSink,
+    on_event: Callable[[RunEvent], None] | None,
+    cancel: CancelToken,
+    confirm: Callable[[MotionPlan], None] | None,
+) -> ScannerOutcome:
+    """One scanner's outcome: its run (continued from its recording when it has one), or its
+    ``result.json`` kept from before a resume; told as a ``scanner_result`` event."""
+    folder = request.out_dir / name
+    kept = (folder / RESULT_FILE).is_file()
+    report = None
+    if not kept:
+        session = folder / SESSION_FILE
+        run = RunRequest(
+            job=job.for_scanner(name),
+            out_dir=folder,
+            robot_host=None if request.dry_run else request.robot_host,
+            dry_run=request.dry_run,
+            scene=request.scene,
+            resume=session if session.is_file() else None,
+            title=f"{request.title}: scanner {name}",
+            scanner_name=name,
+            fake_cell=fake_cell,
+        )
+        report = calibrate(run, on_event=on_event, cancel=cancel, confirm=confirm)
+    outcome = _scanner_outcome(name, folder / RESULT_FILE, report)
+    sink.emit(
+        SCANNER_RESULT,
+        f"scanner {name}: {'passed' if outcome.passed else 'failed its quality gates'}"
+        + (" (kept from before the resume)" if kept else ""),
+        scanner=name, folder=str(folder), passed=outcome.passed, kept=kept,
+    )
+    return outcome
 
 
 def _resuming_the_cell(

@@ -22,11 +22,12 @@ import numpy as np
 
 from lasercal_hw import __version__
 from lasercal_hw.config import JobConfig, with_overrides
-from lasercal_hw.errors import ConfigError, DeviceError, InterruptedRunError, LasercalError
+from lasercal_hw.errors import ConfigError, InterruptedRunError, LasercalError
 from lasercal_hw.models import FloatArray, RobotCalibration
 from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
+from lasercal_hw.run.dry_run_cell import DryRunCell, start_fake_cell
 from lasercal_hw.run.events import EventSink, RunEvent, Stage
 from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
@@ -75,6 +76,9 @@ class RunRequest:
     #: Which of the cell's scanners this run calibrates (a dry run picks it from the scene's
     #: ``[scanners.NAME]``); None: the one scanner.
     scanner_name: str | None = None
+    #: A dry run's fake cell already running (a cell job starts one for all its scanners);
+    #: None: a dry run starts its own.
+    fake_cell: DryRunCell | None = None
 
 
 OutcomeT = TypeVar("OutcomeT")
@@ -378,35 +382,31 @@ def _start_fake_cell(
     sink: EventSink,
     cancel: CancelToken,
 ) -> tuple[JobConfig, FloatArray, dict[str, Any]]:
-    """Start the dry run's fake cell and point the job at it; if the cell dies during the
-    run, the run stops at once with a DeviceError that says so."""
-    from fakes.cell_process import FakeCellProcess
+    """Start the dry run's fake cell (or take the one a cell job started: ``request.fake_cell``)
+    and point the job at its scanner (``request.scanner_name``)."""
     from lasercal_hw.run.dry_run_scene import rods_differ, write_rod_scene
 
-    sink.emit("stage", "starting a fake cell for the dry run", stage=Stage.FAKE_CELL)
-    scene = request.scene
-    if scene is None:  # the fake cell holds the rod the job describes
-        scene = write_rod_scene(job.rod.rod_line(), out_dir / DRY_RUN_SCENE_FILE)
-    def died(death: str) -> None:
-        cancel.fail(DeviceError(f"the dry run's fake cell died: {death}"))
-
-    cell = stack.enter_context(FakeCellProcess(scene=scene, on_death=died))
-    scanner_url, ground_truth = cell.scanner(request.scanner_name)
-    job = with_overrides(job, {"robot.host": cell.robot_host, "scanner.url": scanner_url})
+    cell = request.fake_cell
+    if cell is None:  # the fake cell holds the rod the job describes, unless a scene is given
+        scene = request.scene or write_rod_scene(job.rod.rod_line(), out_dir / DRY_RUN_SCENE_FILE)
+        cell = start_fake_cell(scene, stack, sink, cancel)
+    process = cell.process
+    scanner_url, ground_truth = process.scanner(request.scanner_name)
+    job = with_overrides(job, {"robot.host": process.robot_host, "scanner.url": scanner_url})
     sink.emit(
         "stage",
-        f"fake cell on {cell.address} (pid {cell.pid}): scanner {scanner_url}",
+        f"fake cell on {process.address} (pid {process.pid}): scanner {scanner_url}",
         stage=Stage.FAKE_CELL,
-        address=cell.address,
-        pid=cell.pid,
-        robot_host=cell.robot_host,
+        address=process.address,
+        pid=process.pid,
+        robot_host=process.robot_host,
         scanner_url=scanner_url,
         scanner_name=request.scanner_name,
     )
-    difference = rods_differ(cell.info.get("rod"), job.rod.rod_line())
+    difference = rods_differ(process.info.get("rod"), job.rod.rod_line())
     if difference is not None:
         sink.emit("warning", difference)
-    return job, ground_truth, {"address": cell.address, "pid": cell.pid, "scene": str(scene)}
+    return job, ground_truth, {"address": process.address, "pid": process.pid, "scene": str(cell.scene)}
 
 
 def _read_robot_calibration(devices: Any, host: str, sink: EventSink) -> RobotCalibration | None:

@@ -130,3 +130,17 @@ def test_a_stopped_cell_job_resumes_at_the_scanner_and_waypoint_where_it_stopped
     assert final.meta["scanner"]["url"].endswith(":10941")
     rear = json.loads((run.out / "rear" / "result.json").read_text())
     assert rear["run"]["resumed_after_waypoints"] == len(run.rear_recording_before)
+
+
+def test_a_dry_run_of_the_cell_starts_one_fake_cell_for_all_its_scanners(
+    stopped_and_resumed: StoppedAndResumed,
+) -> None:
+    run = stopped_and_resumed
+    started = [event for event in run.events if event.message == "starting a fake cell for the dry run"]
+    used = [(event.data["scanner_name"], event.data["pid"]) for event in run.events
+            if event.kind == "stage" and "scanner_name" in event.data]
+    # the stopped job: front and rear on one cell; the resumed one: rear on a new cell
+    assert len(started) == 2 and [name for name, _ in used] == ["front", "rear", "rear"]
+    assert used[0][1] == used[1][1] != used[2][1]
+    results = [(e.data["scanner"], e.data["kept"]) for e in run.events if e.kind == "scanner_result"]
+    assert results == [("front", False), ("front", True), ("rear", False)]
