@@ -21,14 +21,21 @@ from typing import Any
 
 import numpy as np
 
+from lasercal_hw.calibration.agreement import SharedCentre, agreement_test
+from lasercal_hw.calibration.model import range_error_m, rod_lines_in_base
+from lasercal_hw.calibration.observations import read_observations_csv
 from lasercal_hw.calibration.pairs import error_in_std, relative_pose
-from lasercal_hw.config import JobConfig, job_from_mapping
+from lasercal_hw.calibration.result import RangeOffset
+from lasercal_hw.config import JobConfig, ScannerConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
+from lasercal_hw.models import FloatArray
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.dry_run_cell import DryRunCell, start_fake_cell
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate
 from lasercal_hw.run.events import EventSink
-from lasercal_hw.run.outputs import RESULT_FILE, SESSION_FILE, read_result_file, write_text
+from lasercal_hw.run.outputs import OBSERVATIONS_FILE, RESULT_FILE, SESSION_FILE, read_result_file, write_text
+from lasercal_hw.run.watchers import SHARED_OBSERVATION
+from lasercal_hw.session.reader import read_session
 
 CELL_FILE = "cell.json"
 #: The event a cell job sends once a scanner has its ``result.json`` (run now, or kept from
@@ -65,6 +72,9 @@ class ScannerOutcome:
     covariance: list[list[float]]
     ground_truth: list[list[float]] | None
     report: RunReport | None
+    #: The range error curve it estimated (None: none) and its solve's RMS residual.
+    range_offset: RangeOffset | None = None
+    rms_residual_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -174,8 +184,12 @@ def calibrate_cell(
             assert request.scene is not None, "a cell job's dry run has a scene (checked above, or recorded)"
             fake_cell = start_fake_cell(request.scene, stack, sink, cancel)  # one world for every scanner
         for name in names:
-            outcomes[name] = _scanner(request, job, name, fake_cell, sink, on_event, cancel, confirm)
-    cell = CellReport(request.out_dir, outcomes, _pairs(outcomes))
+            watch = tuple(
+                (other, job.for_scanner(other).scanner) for other in names
+                if other != name and job.for_scanner(other).scanner.nominal is not None
+            )
+            outcomes[name] = _scanner(request, job, name, watch, fake_cell, sink, on_event, cancel, confirm)
+    cell = CellReport(request.out_dir, outcomes, _pairs(outcomes, request.out_dir, job))
     document = _read_cell_file(request.out_dir) | cell.document()
     write_text(request.out_dir / CELL_FILE, json.dumps(document, indent=2, allow_nan=False) + "\n")
     return cell
@@ -185,13 +199,15 @@ def _scanner(
     request: CellRunRequest,
     job: JobConfig,
     name: str,
+    watch: tuple[tuple[str, ScannerConfig], ...],
     fake_cell: DryRunCell | None,
     sink: EventSink,
     on_event: Callable[[RunEvent], None] | None,
     cancel: CancelToken,
     confirm: Callable[[MotionPlan], None] | None,
 ) -> ScannerOutcome:
-    """One scanner's outcome: its run (continued from its recording when it has one), or its
+    """One scanner's outcome: its run (continued from its recording when it has one; the
+    scanners of ``watch`` measure the rod where they see it: ``run/watchers``), or its
     ``result.json`` kept from before a resume; told as a ``scanner_result`` event."""
     folder = request.out_dir / name
     kept = (folder / RESULT_FILE).is_file()
@@ -208,6 +224,7 @@ def _scanner(
             title=f"{request.title}: scanner {name}",
             scanner_name=name,
             fake_cell=fake_cell,
+            watch=watch,
         )
         report = calibrate(run, on_event=on_event, cancel=cancel, confirm=confirm)
     outcome = _scanner_outcome(name, folder / RESULT_FILE, report)
@@ -249,12 +266,16 @@ def _scanner_outcome(name: str, path: Path, report: RunReport | None) -> Scanner
         covariance=result_file.result.covariance,
         ground_truth=truth,
         report=report,
+        range_offset=result_file.result.range_offset,
+        rms_residual_mm=result_file.result.rms_residual_mm,
     )
 
 
-def _pairs(outcomes: dict[str, ScannerOutcome]) -> list[dict[str, Any]]:
+def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) -> list[dict[str, Any]]:
     """Every scanner-to-scanner transform ``T_a_b`` (a before b in the job's order) with its
-    covariance, and against the truth when both scanners have one (a dry run)."""
+    covariance, the two poses' agreement where both scanners saw the rod at one waypoint
+    (``calibration/agreement``), and against the truth when both have one (a dry run)."""
+    centres = {name: _recorded_centres(folder / name) for name in outcomes}
     names = list(outcomes)
     pairs = []
     for i, a in enumerate(names):
@@ -274,9 +295,101 @@ def _pairs(outcomes: dict[str, ScannerOutcome]) -> list[dict[str, Any]]:
                 "std_translation_mm": (1000.0 * std[:3]).tolist(),
                 "std_rotation_deg": np.degrees(std[3:]).tolist(),
                 "passed": first.passed and second.passed,
+                "agreement": _agreement(a, b, outcomes, centres, job),
             }
             if first.ground_truth is not None and second.ground_truth is not None:
                 truth = np.linalg.inv(np.asarray(first.ground_truth)) @ np.asarray(second.ground_truth)
                 pair["ground_truth_error"] = error_in_std(T_ab, covariance, truth)
             pairs.append(pair)
     return pairs
+
+
+#: A scanner's centres by waypoint index: its own (``None``) and its watchers' (by name),
+#: each ``(tcp_pose, centre_uv_m, covariance_uv_m2)``.
+RecordedCentres = dict[str | None, dict[int, tuple[Any, Any, Any]]]
+#: How far beyond the distances a scanner's range error curve spans a watcher's centre is
+#: still corrected by it; farther ones are left out of the agreement test.
+CURVE_REACH_M = 0.1
+
+
+def _recorded_centres(folder: Path) -> RecordedCentres:
+    """A scanner's centres: its own as its solve used them (``observations.csv``: second pass,
+    range offset removed) and those its run's watchers measured (``shared_observation`` events,
+    run/watchers); empty without a recording."""
+    if not (folder / SESSION_FILE).is_file() or not (folder / OBSERVATIONS_FILE).is_file():
+        return {}
+    own = {o.index: (o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2)
+           for o in read_observations_csv(folder / OBSERVATIONS_FILE)}
+    centres: RecordedCentres = {None: own}
+    for event in read_session(folder / SESSION_FILE).events_of(SHARED_OBSERVATION):
+        entry = (event["tcp_pose"], event["centre_uv_m"], event["covariance_uv_m2"])
+        centres.setdefault(event["scanner"], {})[int(event["index"])] = entry  # measured again: the last
+    return centres
+
+
+def _agreement(
+    a: str, b: str, outcomes: dict[str, ScannerOutcome], centres: dict[str, RecordedCentres], job: JobConfig
+) -> dict[str, Any]:
+    """The agreement test of ``a`` and ``b`` (``calibration/agreement``) over the waypoints of
+    either run where the other saw the rod too; a watcher's centre corrected by its scanner's
+    range error curve, and left out beyond the distances that curve spans."""
+    forward, left_out_ab = _shared(a, b, outcomes, centres, job)
+    backward, left_out_ba = _shared(b, a, outcomes, centres, job)
+    first, second = outcomes[a], outcomes[b]
+    result = agreement_test(
+        np.asarray(first.T_base_laser), np.asarray(first.covariance),
+        np.asarray(second.T_base_laser), np.asarray(second.covariance),
+        forward + _swapped(backward),
+    )
+    left_out = left_out_ab + left_out_ba
+    if left_out:
+        result["left_out"] = left_out
+        result["reason"] += (f"; {len(left_out)} more left out: a scanner saw the rod there beyond the "
+                             "distances its range error was calibrated at")
+    return result
+
+
+def _shared(
+    owner: str, other: str, outcomes: dict[str, ScannerOutcome], centres: dict[str, RecordedCentres],
+    job: JobConfig,
+) -> tuple[list[SharedCentre], list[str]]:
+    """The waypoints of ``owner``'s run where ``other`` saw the rod too (owner's centre first),
+    and those left out (the other's centre beyond its range error curve's reach). Each centre's
+    covariance has its scanner's RMS residual added: the model error its solve showed."""
+    own, seen = centres[owner].get(None, {}), centres[owner].get(other, {})
+    rod = job.for_scanner(owner).rod.rod_line()
+    floor = {name: np.eye(2) * (outcomes[name].rms_residual_mm / 1000.0) ** 2 for name in (owner, other)}
+    shared, left_out = [], []
+    for index in sorted(set(own) & set(seen)):
+        tcp_pose, centre, covariance = own[index]
+        _, other_centre, other_covariance = seen[index]
+        corrected = _without_range_error(np.asarray(other_centre, dtype=float), outcomes[other].range_offset)
+        if corrected is None:
+            left_out.append(f"{owner} {index}")
+            continue
+        _, directions = rod_lines_in_base(np.asarray(tcp_pose, dtype=float)[None, :], rod)
+        shared.append(SharedCentre(
+            f"{owner} {index}", np.asarray(centre, dtype=float),
+            np.asarray(covariance, dtype=float) + floor[owner],
+            corrected, np.asarray(other_covariance, dtype=float) + floor[other], directions[0],
+        ))
+    return shared, left_out
+
+
+def _without_range_error(centre_uv_m: FloatArray, range_offset: RangeOffset | None) -> FloatArray | None:
+    """A watcher's centre moved back along its bearing by its scanner's range error there, or
+    None beyond ``CURVE_REACH_M`` of the distances the curve spans."""
+    if range_offset is None or not range_offset.curve:
+        return centre_uv_m
+    distance_m = float(np.linalg.norm(centre_uv_m))
+    spanned = [point.distance_m for point in range_offset.curve]
+    if not min(spanned) - CURVE_REACH_M <= distance_m <= max(spanned) + CURVE_REACH_M:
+        return None
+    error_m, _ = range_error_m(np.asarray(range_offset.coefficients_m()), np.asarray([distance_m]))
+    return centre_uv_m * (1.0 - float(error_m[0]) / distance_m)
+
+
+def _swapped(shared: list[SharedCentre]) -> list[SharedCentre]:
+    """The same waypoints with the two scanners' centres the other way round."""
+    return [replace(s, centre_a_uv_m=s.centre_b_uv_m, covariance_a_uv_m2=s.covariance_b_uv_m2,
+                    centre_b_uv_m=s.centre_a_uv_m, covariance_b_uv_m2=s.covariance_a_uv_m2) for s in shared]

@@ -21,7 +21,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from lasercal_hw import __version__
-from lasercal_hw.config import JobConfig, with_overrides
+from lasercal_hw.config import JobConfig, ScannerConfig, with_overrides
 from lasercal_hw.errors import ConfigError, InterruptedRunError, LasercalError
 from lasercal_hw.models import FloatArray, RobotCalibration
 from lasercal_hw.run.adaptive import run_second_design
@@ -35,6 +35,7 @@ from lasercal_hw.run.preflight import PreflightReport
 from lasercal_hw.run.records import ProgressCallback, ResumeState, RunOutcome
 from lasercal_hw.run.resume import META_JOB, META_WAYPOINTS, recorded_job, resume_state
 from lasercal_hw.run.sequencer import Sequencer
+from lasercal_hw.run.watchers import Watcher
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
@@ -79,6 +80,9 @@ class RunRequest:
     #: A dry run's fake cell already running (a cell job starts one for all its scanners);
     #: None: a dry run starts its own.
     fake_cell: DryRunCell | None = None
+    #: The cell's other scanners that measure the rod at this run's waypoints where they see it
+    #: (``run/watchers``): name and settings (url, nominal pose; a dry run's url is its fake cell's).
+    watch: tuple[tuple[str, ScannerConfig], ...] = ()
 
 
 OutcomeT = TypeVar("OutcomeT")
@@ -276,8 +280,11 @@ def open_sequencer(
         with contextlib.ExitStack() as stack:
             ground_truth: FloatArray | None = None
             fake_cell: dict[str, Any] | None = None
+            watch_urls = {name: config.url for name, config in request.watch}
             if request.dry_run:
-                job, ground_truth, fake_cell = _start_fake_cell(request, job, out_dir, stack, sink, cancel)
+                job, ground_truth, fake_cell, watch_urls = _start_fake_cell(
+                    request, job, out_dir, stack, sink, cancel
+                )
             cancel.raise_if_cancelled()
             if job.robot.host is None:
                 raise ConfigError("no robot given: say where the robot is (robot.host in the job file)")
@@ -286,6 +293,7 @@ def open_sequencer(
 
             devices = DeviceAccess()
             robot, scanner = devices.connect(job, stack)
+            watchers = _connect_watchers(request, watch_urls, devices, stack)
             robot_calibration = _read_robot_calibration(devices, job.robot.host, sink)
             recorder = _open_recorder(request, job, waypoints, robot, scanner, fake_cell, ground_truth,
                                       session_path, robot_calibration)
@@ -305,6 +313,7 @@ def open_sequencer(
                 resume=state,
                 cancel=cancel,
                 waypoint_names=request.waypoint_names,
+                watchers=watchers,
             )
             yield SequencerSession(
                 job, waypoints, out_dir, session_path, sequencer, robot, scanner, recorder, ground_truth,
@@ -381,9 +390,10 @@ def _start_fake_cell(
     stack: contextlib.ExitStack,
     sink: EventSink,
     cancel: CancelToken,
-) -> tuple[JobConfig, FloatArray, dict[str, Any]]:
+) -> tuple[JobConfig, FloatArray, dict[str, Any], dict[str, str]]:
     """Start the dry run's fake cell (or take the one a cell job started: ``request.fake_cell``)
-    and point the job at its scanner (``request.scanner_name``)."""
+    and point the job at its scanner (``request.scanner_name``); the urls of the scanners it
+    watches (``request.watch``) there."""
     from lasercal_hw.run.dry_run_scene import rods_differ, write_rod_scene
 
     cell = request.fake_cell
@@ -406,7 +416,22 @@ def _start_fake_cell(
     difference = rods_differ(process.info.get("rod"), job.rod.rod_line())
     if difference is not None:
         sink.emit("warning", difference)
-    return job, ground_truth, {"address": process.address, "pid": process.pid, "scene": str(cell.scene)}
+    watch_urls = {name: process.scanner(name)[0] for name, _ in request.watch}
+    started = {"address": process.address, "pid": process.pid, "scene": str(cell.scene)}
+    return job, ground_truth, started, watch_urls
+
+
+def _connect_watchers(
+    request: RunRequest, urls: dict[str, str], devices: Any, stack: contextlib.ExitStack
+) -> list[Watcher]:
+    """The cell's other scanners of ``request.watch``, connected (closed by ``stack``)."""
+    watchers = []
+    for name, config in request.watch:
+        assert config.nominal is not None, "a cell watches its scanners with a nominal pose only"
+        scanner = devices.open_scanner(urls[name], timeout_s=config.timeout_s)
+        stack.callback(scanner.close)
+        watchers.append(Watcher(name, scanner, config.nominal.matrix()))
+    return watchers
 
 
 def _read_robot_calibration(devices: Any, host: str, sink: EventSink) -> RobotCalibration | None:

@@ -46,6 +46,7 @@ from lasercal_hw.run.records import (
 from lasercal_hw.run.retract import retract_candidates
 from lasercal_hw.run.timing import move_times_s
 from lasercal_hw.run.two_pass import predict_rod
+from lasercal_hw.run.watchers import Watcher, watch_waypoint
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 
@@ -87,6 +88,7 @@ class Sequencer:
         cancel: CancelToken | None = None,
         clock: Callable[[], float] = time.time,
         waypoint_names: Sequence[int] | None = None,
+        watchers: Sequence[Watcher] = (),
     ) -> None:
         """``before_motion`` is called once preflight passed and before the first motion
         (the CLI asks the operator there; raising from it aborts with nothing moved).
@@ -94,7 +96,8 @@ class Sequencer:
         stop at once, the run raises InterruptedRunError at its next checkpoint.
         ``waypoint_names``: the number each waypoint goes by in messages (verify visits a few
         waypoints of a calibration's trajectory and names them by their index there); the
-        recording always counts positions."""
+        recording always counts positions. ``watchers``: the cell's other scanners, each
+        measuring the rod at the waypoints where it sees it (``run/watchers``)."""
         self._robot = robot
         self._scanner = scanner
         self._recorder = recorder
@@ -107,6 +110,7 @@ class Sequencer:
         self._cancel = cancel or CancelToken()
         self._clock = clock
         self._waypoint_names = None if waypoint_names is None else list(waypoint_names)
+        self._watchers = tuple(watchers)
         self._background: AveragedScan | None = self._resume.background
         self._measurements: list[WaypointMeasurement] = list(self._resume.measurements)
         self._skipped: list[SkippedWaypoint] = list(self._resume.skipped)
@@ -297,6 +301,7 @@ class Sequencer:
             )
         except RodNotFoundError as exc:
             self._skip(index, str(exc), averaged)
+            self._watch(index, tcp_start)
             return
         self._measurements.append(WaypointMeasurement(index, tcp_start, averaged, centre))
         u, v = (float(c) for c in centre.centre_uv_m)
@@ -321,6 +326,19 @@ class Sequencer:
             averaged=averaged,
             centre=centre,
         )
+        self._watch(index, tcp_start)
+
+    def _watch(self, index: int, tcp_pose: FloatArray) -> None:
+        """The cell's other scanners measure the rod here, where they see it (the arm stands still)."""
+        for watcher in self._watchers:
+            watch_waypoint(
+                watcher, index, tcp_pose, self._rod,
+                dwell_s=self._job.dwell_s,
+                scan_timeout_s=self._job.acquisition.scan_timeout_s,
+                clock=self._clock,
+                record=self._event,
+                on_scan=lambda _scan: self._cancel.raise_if_cancelled(),
+            )
 
     def _check_capture(self, capture: DwellCapture, drift_mm: float) -> None:
         """Raise ``_RetryError`` when the dwell's scans cannot be trusted."""

@@ -1,0 +1,114 @@
+"""The cell's other scanners at one scanner's waypoints (docs/cell.md, shared waypoints).
+
+While a cell job visits scanner A's waypoints, each other scanner of the cell with a nominal
+pose is a *watcher*: at a waypoint where that pose says the rod crosses the watcher's plane
+inside its field of view, the watcher measures the rod at the same standstill, right after
+A's dwell, and its centre goes on record in A's recording as a ``shared_observation`` event
+(``scanner``, ``index``, ``tcp_pose``, ``centre_uv_m``, ``covariance_uv_m2``, ``quality``,
+``scans``). Where two scan planes see the rod at one waypoint both centres are then on record,
+and the cell tests whether the two poses agree (``calibration/agreement.py``). A watcher's raw
+scans are not recorded (the recording holds the calibrated scanner's); no background is taken
+for it: its nominal pose picks the rod among the scan's objects.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from lasercal_hw.errors import InterruptedRunError, LasercalError
+from lasercal_hw.models import FloatArray, RodLine
+from lasercal_hw.run.devices import Scanner
+from lasercal_hw.run.dwell import collect_window
+from lasercal_hw.run.two_pass import predict_rod
+from lasercal_hw.scan.average import average_scans
+from lasercal_hw.scan.extraction import find_rod_centre
+
+logger = logging.getLogger(__name__)
+
+SHARED_OBSERVATION = "shared_observation"
+#: The part of a watcher's field of view (and range) a predicted crossing must lie in: a
+#: nominal pose is a few centimetres and degrees off.
+_EDGE_MARGIN_RAD = np.radians(3.0)
+
+
+@dataclass(frozen=True)
+class Watcher:
+    """Another scanner of the cell, connected, and its rough pose in the base frame."""
+
+    name: str
+    scanner: Scanner
+    nominal: FloatArray
+
+
+def expected_crossing(
+    watcher: Watcher, tcp_pose: FloatArray, rod: RodLine
+) -> tuple[FloatArray, FloatArray] | None:
+    """Where the watcher's nominal pose puts the rod's crossing (u, v) in its plane and the rod's
+    axis in its frame, or None when the rod misses its plane or its field of view."""
+    predicted = predict_rod(watcher.nominal, tcp_pose, rod)
+    if predicted.expected_uv_m is None:
+        return None
+    geometry = watcher.scanner.geometry()
+    uv = np.asarray(predicted.expected_uv_m, dtype=float)
+    angle_rad = float(np.arctan2(uv[1], uv[0]))
+    angle_max_rad = geometry.angle_min_rad + (geometry.beam_count - 1) * geometry.angle_increment_rad
+    inside = geometry.angle_min_rad + _EDGE_MARGIN_RAD <= angle_rad <= angle_max_rad - _EDGE_MARGIN_RAD
+    if not inside or not geometry.min_range_m < float(np.linalg.norm(uv)) < geometry.max_range_m:
+        return None
+    return uv, np.asarray(predicted.axis_in_scanner, dtype=float)
+
+
+def watch_waypoint(
+    watcher: Watcher,
+    index: int,
+    tcp_pose: FloatArray,
+    rod: RodLine,
+    *,
+    dwell_s: float,
+    scan_timeout_s: float,
+    clock: Callable[[], float],
+    record: Callable[..., None],
+    on_scan: Callable[[Any], None],
+) -> None:
+    """Measure the rod with ``watcher`` at the waypoint the arm stands at, when its nominal pose
+    says it sees the rod; the centre is recorded (``record(SHARED_OBSERVATION, **fields)``).
+    A watcher that fails or finds no rod is logged and left out: it never stops the run."""
+    expected = expected_crossing(watcher, tcp_pose, rod)
+    if expected is None:
+        return
+    expected_uv_m, axis = expected
+    scanner = watcher.scanner
+    try:
+        scanner.start_streaming()
+        try:
+            capture = collect_window(
+                scanner, start_host_s=clock(), duration_s=dwell_s, scan_timeout_s=scan_timeout_s,
+                on_scan=on_scan,
+            )
+        finally:
+            scanner.stop_streaming()
+        averaged = average_scans(capture.scans)
+        centre = find_rod_centre(
+            averaged, radius_m=rod.radius_m, axis_in_scanner=axis, expected_uv_m=expected_uv_m
+        )
+    except InterruptedRunError:
+        raise
+    except LasercalError as exc:  # a failed stream or no rod found (RodNotFoundError)
+        logger.warning("scanner %s at waypoint %d: no shared centre (%s)", watcher.name, index, exc)
+        return
+    record(
+        SHARED_OBSERVATION,
+        scanner=watcher.name,
+        index=index,
+        tcp_pose=tcp_pose,
+        centre_uv_m=[float(c) for c in centre.centre_uv_m],
+        covariance_uv_m2=centre.covariance_uv_m2,
+        quality=centre.quality,
+        scans=len(capture.scans),
+        expected_uv_m=[float(c) for c in expected_uv_m],
+    )
