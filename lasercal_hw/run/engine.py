@@ -292,8 +292,8 @@ def open_sequencer(
             from drivers.access import DeviceAccess  # the connect step: nothing above needs a driver
 
             devices = DeviceAccess()
+            watchers = _connect_watchers(request, watch_urls, devices, stack)  # scanners before the robot
             robot, scanner = devices.connect(job, stack)
-            watchers = _connect_watchers(request, watch_urls, devices, stack)
             robot_calibration = _read_robot_calibration(devices, job.robot.host, sink)
             recorder = _open_recorder(request, job, waypoints, robot, scanner, fake_cell, ground_truth,
                                       session_path, robot_calibration)
