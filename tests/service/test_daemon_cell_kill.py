@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import time
 import tomllib
 from collections import Counter
 from collections.abc import Iterator
@@ -82,12 +81,11 @@ def test_a_cell_job_killed_in_the_second_scanner_resumes_there(tmp_path: Path) -
             assert response.status_code == 202, response.text
             job_id = response.json()["id"]
             rear_session = data_dir / "jobs" / job_id / "rear" / "session.mcap"
-            deadline = time.monotonic() + 300.0
-            while len(_measured(rear_session)) < KILL_AFTER_REAR_OBSERVATIONS:
-                state = client.get(f"/v1/jobs/{job_id}").json()["state"]
-                assert state not in ("succeeded", "failed", "cancelled"), state
-                assert time.monotonic() < deadline, "the rear scanner never got to its waypoints"
-                time.sleep(0.2)
+            # until the rear scanner has measured some waypoints (a device error on a loaded machine,
+            # the fake robot's RTDE stream stalling, is resumed as wait_for does)
+            wait_for(client, job_id, lambda job: len(_measured(rear_session)) >= KILL_AFTER_REAR_OBSERVATIONS
+                     or job["state"] in ("succeeded", "cancelled"), timeout_s=300.0)
+            assert client.get(f"/v1/jobs/{job_id}").json()["state"] not in ("succeeded", "cancelled")
         first.kill()
     finally:
         first.stop()
