@@ -11,7 +11,8 @@ Kinds and their ``data``:
 - ``scan``: the averaged scan of a waypoint for a live picture: ``waypoint``,
   ``angle_min_rad``, ``angle_increment_rad``, ``ranges_m`` (null where no return),
   ``rod_beams``, ``circle`` (``centre_uv_m``, ``radius_m``) or null;
-- ``warning``, ``stopped`` (the run ended on an error: where its recording is), ``result``.
+- ``warning``, ``stopped`` (the run ended on an error: where its recording is), ``result``;
+- a cell job's ``scanner_result`` (``run/cell``): ``scanner``, ``folder``, ``passed``, ``kept``.
 
 Every ``stage`` is a ``Stage``, which says which ``Phase`` of the run it belongs to (what a
 job reports as its state).
