@@ -214,7 +214,7 @@ def print_curve_errors(offsets: list[RangeOffset], bias: dict[str, float]) -> No
             )
             misses.append(point.error_mm - truth_mm)
             z.append((point.error_mm - truth_mm) / point.std_mm)
-    terms = [1 + (o.scale_mm_per_m is not None) + (o.curvature_mm_per_m2 is not None) for o in offsets]
+    terms = [len(o.coefficients_m()) for o in offsets]
     counts = {int(k): int(v) for k, v in zip(*np.unique(terms, return_counts=True), strict=True)}
     worst_mm = np.median([o.worst_mm for o in offsets])
     print(
