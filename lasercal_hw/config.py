@@ -95,7 +95,7 @@ class ScannerConfig(_Strict):
         "offset left out moves the result by as much)",
     )
     range_error_terms: int = Field(
-        4,
+        5,
         ge=1,
         le=5,
         description="most terms of the range error curve estimated: 1 an offset, each more a power of "

@@ -110,7 +110,7 @@ class SolverOptions(BaseModel):
         "ln(distance) where the waypoints pin them down); auto: the offset too only when observable",
     )
     max_range_terms: int = Field(
-        4,
+        5,
         ge=1,
         le=5,
         description="most terms of the range error curve: 1 an offset, each more a power of ln(d / 1 m)",
