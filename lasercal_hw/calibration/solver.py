@@ -116,12 +116,11 @@ class SolverOptions(BaseModel):
         description="most terms of the range error curve: 1 an offset, each more a power of ln(d / 1 m)",
     )
     auto_range_offset_max_std_m: float = Field(
-        0.010,
+        0.002,
         gt=0,
         description="estimate a term of the range error curve when the Cramér-Rao std of what it adds to the "
-        "error (at the farthest crossing from the curve's reference distance) is below this; whether the "
-        "data show it is the significance test's to decide (a centre's covariance already allows for a "
-        "range error, so a tighter bound here keeps out the very curve that would remove it)",
+        "error over the crossings' span (its coefficient's std times half the span in ln d, to its power) is "
+        "below this",
     )
     auto_range_offset_min_sigmas: float = Field(
         3.3, gt=0, description="auto: ... and keep it only when it is this many std from zero"
@@ -811,14 +810,17 @@ def _range_terms_wanted(
     rotation: FloatArray, translation: FloatArray, data: _Data, usable: np.ndarray, opts: SolverOptions
 ) -> tuple[int, str]:
     """How many terms of the range error curve to estimate, and the note when one is left
-    out: a term is taken when the Cramér-Rao std of what it adds to the error at the
-    crossings farthest from the reference distance is within ``auto_range_offset_max_std_m``
-    (the offset must be, when asked for: ``DegenerateDataError`` otherwise)."""
+    out: a term is taken when the Cramér-Rao std of what it adds to the error over the
+    crossings is within ``auto_range_offset_max_std_m`` (the offset must be, when asked for:
+    ``DegenerateDataError`` otherwise). What it adds is its coefficient's std times half the
+    crossings' span in ln d to its power: the highest term's coefficient does not depend on
+    where the curve's reference lies (the lower terms take the rest), so a trajectory whose
+    crossings all lie on one side of 1 m is judged by its own span, not by an extrapolation."""
     if opts.estimate_range_offset is False:
         return 0, ""
     crossing, _ = data.predicted(rotation, translation)
     distances_m = np.linalg.norm(crossing[usable], axis=1)
-    reach = max(float(np.max(np.abs(range_curve_variable(distances_m)[0]))), 1e-3)
+    reach = max(0.5 * float(np.ptp(range_curve_variable(distances_m)[0])), 1e-3)
     terms = 0
     for wanted in range(1, opts.max_range_terms + 1):
         trial = _Extras(range_terms=wanted)
