@@ -63,6 +63,26 @@ def test_a_claimed_scanner_is_not_probed() -> None:
     assert DeviceAccess().probe_scanner().error == "no scanner configured"
 
 
+def test_each_scanner_of_a_cell_is_claimed_and_probed_on_its_own() -> None:
+    log: list[str] = []
+    urls = {"front": "mock://front", "rear": "mock://rear"}
+    drivers = {"mock": _recording(log, "mock")}
+    access = DeviceAccess(None, "mock://one", scanner_urls=urls, scanner_drivers=drivers)
+    assert access.scanners() == [("front", "mock://front"), ("rear", "mock://rear")]
+    access.claim("job-1", ["mock://rear"])
+    assert access.probe_scanner("mock://rear").in_use_by == "job-1"
+    assert access.probe_scanner("mock://front").identity["serial"] == "mock://front"  # type: ignore[index]
+    access.claim("job-2")  # every scanner the cell knows, scanner_url too; rear stays job-1's
+    assert {access.probe_scanner(url).in_use_by for url in ("mock://front", "mock://one")} == {"job-2"}
+    access.release("job-2")
+    assert access.probe_scanner("mock://rear").in_use_by == "job-1"
+    assert access.probe_scanner().in_use_by is None
+    access.release("job-1")
+    assert access.probe_scanner("mock://rear").in_use_by is None
+    assert log == ["mock mock://front", "mock mock://one", "mock mock://rear"]  # never a held one
+    assert DeviceAccess(None, "mock://one").scanners() == [("default", "mock://one")]
+
+
 def test_robot_status_comes_from_the_dashboard_server() -> None:
     replies = {
         "is in remote control": "true",
