@@ -173,7 +173,7 @@ def calibrate_cell(
                 title=f"{request.title}: scanner {name}",
                 scanner_name=name,
             )
-            report = calibrate(run, on_event=on_event, cancel=cancel, confirm=confirm)
+            report = calibrate(run, on_event=_of_scanner(on_event, name), cancel=cancel, confirm=confirm)
             outcomes[name] = _scanner_outcome(name, folder / RESULT_FILE, report)
         else:
             outcomes[name] = _scanner_outcome(name, folder / RESULT_FILE, None)
@@ -198,6 +198,15 @@ def _resuming_the_cell(
         sink(event)
 
     return forward
+
+
+def _of_scanner(on_event: Callable[[RunEvent], None] | None, name: str) -> Callable[[RunEvent], None] | None:
+    """``on_event`` with every event of scanner ``name``'s run naming it (``data["scanner"]``),
+    so a page or a live view shows each scanner's scans and centres as its own."""
+    if on_event is None:
+        return None
+    sink = on_event
+    return lambda event: sink(replace(event, data=event.data | {"scanner": name}))
 
 
 def _scanner_outcome(name: str, path: Path, report: RunReport | None) -> ScannerOutcome:

@@ -59,7 +59,7 @@ def _run_cell(ctx: RunContext, *, dry_run: bool) -> RunResult:
     from lasercal_hw.run.cell import CellRunRequest, calibrate_cell
 
     request = CellRunRequest(
-        job=ctx.job,
+        job=ctx.devices.applied_to(ctx.job),  # each scanner at daemon.toml's [scanners.NAME] url
         out_dir=ctx.out_dir,
         robot_host=ctx.devices.robot_host,
         dry_run=dry_run,

@@ -206,3 +206,29 @@ def test_a_job_holds_the_urls_of_the_scanners_it_uses_and_no_other(tmp_path: Pat
     assert daemon.devices.probe_scanner(urls["front"], timeout_s=0.2).in_use_by is None  # released at the end
     assert [s["name"] for s in status["scanners"]] == ["front", "rear", "side"]
     assert status["scanner"]["url"] == urls["front"]
+
+
+def test_a_cell_job_reaches_each_scanner_at_the_daemons_url(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The runner hands the cell run daemon.toml's URLs, never the job file's (a real address)."""
+    import lasercal_hw.run.cell as cell
+    from lasercal_hw.run.cancel import CancelToken
+    from lasercal_hw.service.runners import run_engine
+
+    asked: list[JobConfig] = []
+
+    def calibrate_cell(request: cell.CellRunRequest, **_: object) -> None:
+        asked.append(request.job)
+        raise ConfigError("stop here")
+
+    monkeypatch.setattr(cell, "calibrate_cell", calibrate_cell)
+    example_url = "scip+tcp://192.168.0.10:10940"  # never reached: the test stops before any connection
+    job = JobConfig.model_validate({"scanners": {"front": {"url": example_url}, "rear": {}}})
+    devices = DeviceAddresses("127.0.0.9", None, (("front", "scip+tcp://127.0.0.2:10940"),))
+    ctx = RunContext("job-1", "calibrate", job, devices, tmp_path, None, None, lambda e: None, CancelToken(),
+                     lambda plan: None)
+    with pytest.raises(ConfigError, match="stop here"):
+        run_engine(ctx, dry_run=False)
+    assert asked[0].scanners["front"].url == "scip+tcp://127.0.0.2:10940"
+    assert asked[0].robot.host == "127.0.0.9"
