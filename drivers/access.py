@@ -90,7 +90,8 @@ class DeviceAccess:
         self.scanner_urls: dict[str, str] = dict(scanner_urls or {})
         self._scanner_drivers = SCANNER_DRIVERS if scanner_drivers is None else scanner_drivers
         self._robot_drivers = ROBOT_DRIVERS if robot_drivers is None else robot_drivers
-        self._lock = threading.Lock()
+        self._probing = threading.Lock()  # held through a probe, so a claim waits for it to end
+        self._lock = threading.Lock()  # guards _holders only: read at once, even during a probe
         self._holders: dict[str, str] = {}  # scanner URL -> the owner holding it
 
     def scanners(self) -> list[tuple[str, str | None]]:
@@ -145,13 +146,18 @@ class DeviceAccess:
         """``owner`` holds the scanners at ``urls`` from now (None: every scanner of the cell);
         a scanner probe in progress ends first; a scanner another owner holds stays its."""
         held = self.all_scanner_urls() if urls is None else set(urls)
-        with self._lock:
+        with self._probing, self._lock:
             self._holders = dict.fromkeys(held, owner) | self._holders
 
     def release(self, owner: str) -> None:
         """``owner`` no longer holds any scanner."""
         with self._lock:
             self._holders = {url: held_by for url, held_by in self._holders.items() if held_by != owner}
+
+    def holder(self, url: str | None) -> str | None:
+        """Who holds the scanner at ``url`` now (None: nobody); never waits for a probe."""
+        with self._lock:
+            return self._holders.get(url or "")
 
     # -- status and the robot's program --------------------------------------------------------
 
@@ -167,9 +173,9 @@ class DeviceAccess:
         url = url or self.scanner_url
         if not url:
             return ScannerProbe(error="no scanner configured")
-        with self._lock:
-            if url in self._holders:
-                return ScannerProbe(in_use_by=self._holders[url])
+        with self._probing:
+            if (owner := self.holder(url)) is not None:
+                return ScannerProbe(in_use_by=owner)
             try:
                 options = {"timeout_s": timeout_s, "sync_clock": False, "reconnect": False}
                 with self.open_scanner(url, **options) as scanner:

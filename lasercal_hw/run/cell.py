@@ -173,7 +173,8 @@ def calibrate_cell(
                 title=f"{request.title}: scanner {name}",
                 scanner_name=name,
             )
-            report = calibrate(run, on_event=_of_scanner(on_event, name), cancel=cancel, confirm=confirm)
+            tagged = events_of_scanner(on_event, name)
+            report = calibrate(run, on_event=tagged, cancel=cancel, confirm=confirm)
             outcomes[name] = _scanner_outcome(name, folder / RESULT_FILE, report)
         else:
             outcomes[name] = _scanner_outcome(name, folder / RESULT_FILE, None)
@@ -200,7 +201,9 @@ def _resuming_the_cell(
     return forward
 
 
-def _of_scanner(on_event: Callable[[RunEvent], None] | None, name: str) -> Callable[[RunEvent], None] | None:
+def events_of_scanner(
+    on_event: Callable[[RunEvent], None] | None, name: str
+) -> Callable[[RunEvent], None] | None:
     """``on_event`` with every event of scanner ``name``'s run naming it (``data["scanner"]``),
     so a page or a live view shows each scanner's scans and centres as its own."""
     if on_event is None:

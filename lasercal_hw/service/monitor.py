@@ -67,7 +67,9 @@ class DeviceMonitor:
         """The newest ``{"robot": ..., "scanner": ..., "scanners": [...]}``: every scanner of
         the cell in its order, and ``scanner`` the first one (a one-scanner cell's)."""
         with self._lock:
-            scanners = [dict(status) for status in self._scanner_status.values()]
+            # who holds a scanner is read now: a job's end shows at once, not at the next probe
+            scanners = [status | {"in_use_by_job": self._devices.holder(status["url"])}
+                        for status in self._scanner_status.values()]
             return {"robot": dict(self._robot_status), "scanner": scanners[0], "scanners": scanners}
 
     def robot_calibration(self) -> dict[str, Any]:

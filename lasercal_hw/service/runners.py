@@ -81,6 +81,7 @@ def _run_cell(ctx: RunContext, *, dry_run: bool) -> RunResult:
 def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     """Check the active calibration (``lasercal_hw.verify``) with the job recorded with it;
     the result is filed in the verify history with the calibration it checked."""
+    from lasercal_hw.run.cell import events_of_scanner
     from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
     from lasercal_hw.verify.procedure import VerifyRequest, verify
 
@@ -98,7 +99,8 @@ def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     report = verify(
         VerifyRequest(out_dir=ctx.out_dir, robot_host=ctx.devices.robot_host, scanner_url=scanner_url),
         folder / RESULT_FILE,
-        on_event=ctx.on_event,
+        # a cell scanner's events name it, as its calibration's did
+        on_event=ctx.on_event if scanner_name is None else events_of_scanner(ctx.on_event, scanner_name),
         cancel=ctx.cancel,
         confirm=ctx.confirm,
     )

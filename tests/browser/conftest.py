@@ -61,8 +61,27 @@ def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
 
 
 @pytest.fixture(scope="module")
-def browser(daemon: DaemonProcess) -> Iterator[Any]:
+def cell_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+    """``lasercal serve --dry-run`` serving the two-scanner fake cell (fakes/scenes/two_scanners.toml),
+    its default job examples/cell.toml on the first waypoints of each scanner (tests/run/test_cell.py)."""
+    from tests.run.test_cell import SCENE, write_job
+
+    _require_chromium()
+    folder = tmp_path_factory.mktemp("cell-page-daemon")
+    job = write_job(folder)
+    config = folder / "daemon.toml"
+    config.write_text(f'default_job = "{job.name}"\ndry_run_scene = "{SCENE}"\n', encoding="utf-8")
+    process = DaemonProcess(folder / "data", config=config)
+    try:
+        yield process.start()
+    finally:
+        process.stop()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
     """Headless Chromium with a fresh profile, through the system chromedriver."""
+    _require_chromium()
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 

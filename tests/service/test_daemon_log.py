@@ -86,6 +86,9 @@ class _Devices:
     def scanners(self) -> list[tuple[str, str | None]]:
         return [("default", None)]
 
+    def holder(self, url: str | None) -> str | None:
+        return None
+
     def probe_robot(self) -> dict[str, Any]:
         if len(self.answers) == 1:
             self.asked.set()

@@ -1087,7 +1087,8 @@ async function loadTrajectories() {
   select.replaceChildren(...state.trajectories.map((t) => el("option", {
     value: t.name, title: t.description,
     text: `${t.name} (${t.waypoints} waypoints${t.kind === "waypoints_file" ? ", designed" : ""})` })));
-  if (state.trajectories.some((t) => t.name === current)) select.value = current;
+  if (state.trajectories.length && state.trajectories[0].kind === "cell") select.value = state.trajectories[0].name;
+  else if (state.trajectories.some((t) => t.name === current)) select.value = current;
 }
 
 function init() {
