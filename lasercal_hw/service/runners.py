@@ -27,7 +27,7 @@ def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None 
     from lasercal_hw.run.engine import RunRequest, calibrate
 
     if ctx.job.scanners:
-        return _run_cell(ctx, dry_run=dry_run)
+        return _run_cell(ctx, dry_run=dry_run, live=live)
     request = RunRequest(
         job=ctx.job,
         out_dir=ctx.out_dir,
@@ -53,9 +53,10 @@ def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None 
     )
 
 
-def _run_cell(ctx: RunContext, *, dry_run: bool) -> RunResult:
+def _run_cell(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None) -> RunResult:
     """A cell job (``[scanners.NAME]``): every scanner through ``run/cell.calibrate_cell``, each
-    scanner's calibration filed on its own; a resumed one continues the job's folder."""
+    scanner's calibration filed on its own, all shown in the Foxglove ``live`` view if there is
+    one; a resumed one continues the job's folder."""
     from lasercal_hw.run.cell import CellRunRequest, calibrate_cell
 
     request = CellRunRequest(
@@ -67,7 +68,8 @@ def _run_cell(ctx: RunContext, *, dry_run: bool) -> RunResult:
         resume=ctx.out_dir if ctx.resume_from is not None else None,
         title=f"lasercal {'dry run' if dry_run else 'calibration'} (job {ctx.job_id})",
     )
-    report = calibrate_cell(request, on_event=ctx.on_event, cancel=ctx.cancel, confirm=ctx.confirm)
+    on_event = live.watch_cell(request, ctx.on_event) if live else ctx.on_event
+    report = calibrate_cell(request, on_event=on_event, cancel=ctx.cancel, confirm=ctx.confirm)
     document = report.document()
     return RunResult(
         document=document,
