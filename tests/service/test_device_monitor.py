@@ -7,22 +7,8 @@ import time
 from typing import Any
 
 from drivers.access import DeviceAccess
-from lasercal_hw.models import ScannerIdentity
 from lasercal_hw.service.monitor import DeviceMonitor
-
-
-class _Scanner:
-    def __init__(self, url: str) -> None:
-        self.url = url
-
-    def __enter__(self) -> _Scanner:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        pass
-
-    def identity(self) -> ScannerIdentity:
-        return ScannerIdentity("v", "p", "f", "SCIP 2.0", serial=self.url, model="UTM-30LX-EW")
+from tests.drivers.test_device_access import recording_opener
 
 
 def _until(monitor: DeviceMonitor, done: Any) -> dict[str, dict[str, Any]]:
@@ -36,14 +22,10 @@ def _until(monitor: DeviceMonitor, done: Any) -> dict[str, dict[str, Any]]:
 
 
 def test_every_scanner_of_the_cell_has_its_status_and_a_held_one_is_not_probed() -> None:
-    opened: list[str] = []
-
-    def open_mock(url: str, **options: Any) -> _Scanner:
-        opened.append(url)
-        return _Scanner(url)
-
+    log: list[str] = []
     urls = {"front": "mock://front", "rear": "mock://rear"}
-    devices = DeviceAccess(None, None, scanner_urls=urls, scanner_drivers={"mock": open_mock})
+    drivers = {"mock": recording_opener(log, "mock")}
+    devices = DeviceAccess(None, None, scanner_urls=urls, scanner_drivers=drivers)
     monitor = DeviceMonitor(devices, poll_s=0.001)
     assert [s["name"] for s in monitor.snapshot()["scanners"]] == ["front", "rear"]
     monitor.start()
@@ -53,9 +35,9 @@ def test_every_scanner_of_the_cell_has_its_status_and_a_held_one_is_not_probed()
         assert monitor.snapshot()["scanner"]["name"] == "front"  # the first, as a one-scanner daemon's
         devices.claim("job-1", ["mock://rear"])
         _until(monitor, lambda s: s["rear"]["in_use_by_job"] == "job-1")
-        probed = len(opened)
-        scanners = _until(monitor, lambda s: opened[probed:].count("mock://front") >= 3)
-        assert "mock://rear" not in opened[probed:], "a scanner a job holds is never opened"
+        probed = len(log)
+        scanners = _until(monitor, lambda s: log[probed:].count("mock mock://front") >= 3)
+        assert "mock mock://rear" not in log[probed:], "a scanner a job holds is never opened"
         assert scanners["rear"]["connected"] and scanners["front"]["in_use_by_job"] is None
         devices.release("job-1")
         _until(monitor, lambda s: s["rear"]["in_use_by_job"] is None)
