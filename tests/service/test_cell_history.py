@@ -211,12 +211,19 @@ def test_a_job_holds_the_urls_of_the_scanners_it_uses_and_no_other(tmp_path: Pat
 def test_a_cell_job_reaches_each_scanner_at_the_daemons_url(
     monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    """The runner hands the cell run daemon.toml's URLs, never the job file's (a real address)."""
+    """The runner hands the cell run daemon.toml's URLs, never the job file's (a real address),
+    and shows it in the daemon's Foxglove view (``lasercal serve --foxglove``)."""
     import lasercal_hw.run.cell as cell
     from lasercal_hw.run.cancel import CancelToken
     from lasercal_hw.service.runners import run_engine
 
     asked: list[JobConfig] = []
+    watched: list[object] = []
+
+    class Live:
+        def watch_cell(self, request: cell.CellRunRequest, on_event: object) -> object:
+            watched.append(request)
+            return on_event
 
     def calibrate_cell(request: cell.CellRunRequest, **_: object) -> None:
         asked.append(request.job)
@@ -229,6 +236,7 @@ def test_a_cell_job_reaches_each_scanner_at_the_daemons_url(
     ctx = RunContext("job-1", "calibrate", job, devices, tmp_path, None, None, lambda e: None, CancelToken(),
                      lambda plan: None)
     with pytest.raises(ConfigError, match="stop here"):
-        run_engine(ctx, dry_run=False)
+        run_engine(ctx, dry_run=False, live=Live())  # type: ignore[arg-type]
     assert asked[0].scanners["front"].url == "scip+tcp://127.0.0.2:10940"
     assert asked[0].robot.host == "127.0.0.9"
+    assert len(watched) == 1
