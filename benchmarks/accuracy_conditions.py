@@ -4,6 +4,7 @@ axis, a scanner range offset. Offline, through the fake cell's world; not collec
 Run from the repository root::
 
     .venv/bin/python -m benchmarks.accuracy_conditions [--seeds 20] [--cases default-3s,drill-estimated]
+        [--model physical|ideal]
 
 Each case runs the sequencer's measurement chain (``benchmarks.dry_run_accuracy.simulate``:
 noisy scans of the world at every waypoint, averaging, extraction with the background,
@@ -12,8 +13,8 @@ absolute-accuracy error field. Cases:
 
 * ``default-3s``, ``default-1s``, ``default-0.5s``: the default job (``paper`` preset, 20 mm
   rod) on the default scene with 3, 1 and 0.5 s dwell;
-* ``designed-0.5s``: the same rod and dwell 0.5 s on the 20 waypoints ``lasercal trajectory
-  design`` lays out for the scene's scanner;
+* ``designed-1s``, ``designed-0.5s``: the same rod and dwell 1 s and 0.5 s on the 20
+  waypoints ``lasercal trajectory design`` lays out for the scene's scanner;
 * ``drill-known``: the drill job (``examples/drill.toml``: waypoints designed for the cell with
   the bit's axis estimated) with the bit exactly where the job file says, the axis not
   estimated (the reference);
@@ -36,6 +37,8 @@ Printed per case: waypoints found, the translation (mm) and rotation (deg) error
 the truth (median, 95th percentile, max), the share of error components within 2.5
 reported std, and the estimated axis / range offset against the truth in reported std.
 The default (5 seeds) is a quick look; the figures in docs/solver.md use ``--seeds 20``.
+``--model``: the default scene's scanner model (``physical``, its default: a real
+UTM-30LX-EW's footprint, echoes and range error; or ``ideal``, the reference).
 """
 
 from __future__ import annotations
@@ -108,6 +111,7 @@ def cases() -> list[Case]:
         Case("default-3s", default, default.rod.rod_line(), 3.0),
         Case("default-1s", default, default.rod.rod_line(), 1.0),
         Case("default-0.5s", default, default.rod.rod_line(), 0.5),
+        Case("designed-1s", default, default.rod.rod_line(), 1.0, designed=True),
         Case("designed-0.5s", default, default.rod.rod_line(), 0.5, designed=True),
         Case("drill-known", drill_fixed, drill.rod.rod_line(), drill.dwell_s),
         Case("drill-fixed", drill_fixed, bit, drill.dwell_s),
@@ -138,9 +142,10 @@ def axis_truth(case: Case) -> np.ndarray:
     return axis_deviation(case.job.rod.rod_line(), case.true_rod)
 
 
-def run_case(case: Case, seeds: int) -> None:
-    """Run one case over ``seeds`` seeds and print its distributions."""
-    scene = load_scene(None)
+def run_case(case: Case, seeds: int, model: str) -> None:
+    """Run one case over ``seeds`` seeds on the default scene with its scanner ``model``
+    and print its distributions."""
+    scene = load_scene(None).model_copy(update={"model": model})
     waypoints = designed_waypoints(case.job, scene) if case.designed else job_waypoints(case.job)
     scans = round(case.dwell_s / scene.scanner.scan_period_s)
     trials: list[Trial] = []
@@ -155,7 +160,8 @@ def run_case(case: Case, seeds: int) -> None:
             failures += 1
             print(f"  seed {seed}: failed: {exc}")
     print(
-        f"{case.name}: {len(waypoints)} waypoints, {scans} scans each, {time.perf_counter() - started:.0f} s"
+        f"{case.name} ({model} scanner): {len(waypoints)} waypoints, {scans} scans each, "
+        f"{time.perf_counter() - started:.0f} s"
     )
     if not trials:
         return
@@ -191,6 +197,13 @@ def run_case(case: Case, seeds: int) -> None:
     offsets = [t.result.range_offset for t in trials if t.result.range_offset is not None]
     if offsets and case.bias:
         print_curve_errors(offsets, case.bias)
+    elif offsets and model == "physical":
+        counts = np.unique([len(o.terms_mm) for o in offsets], return_counts=True)
+        terms = {int(k): int(v) for k, v in zip(*counts, strict=True)}
+        print(
+            f"  range curve (the physical scanner's own error: no one truth to compare): terms estimated "
+            f"{terms}, worst_mm median {np.median([o.worst_mm for o in offsets]):.1f}"
+        )
     elif offsets:
         z = np.array([(o.offset_mm - case.range_offset_m * 1e3) / o.std_mm for o in offsets])
         values = np.array([o.offset_mm for o in offsets])
@@ -214,7 +227,7 @@ def print_curve_errors(offsets: list[RangeOffset], bias: dict[str, float]) -> No
             )
             misses.append(point.error_mm - truth_mm)
             z.append((point.error_mm - truth_mm) / point.std_mm)
-    terms = [1 + (o.scale_mm_per_m is not None) + (o.curvature_mm_per_m2 is not None) for o in offsets]
+    terms = [len(o.coefficients_m()) for o in offsets]
     counts = {int(k): int(v) for k, v in zip(*np.unique(terms, return_counts=True), strict=True)}
     worst_mm = np.median([o.worst_mm for o in offsets])
     print(
@@ -258,6 +271,9 @@ def main() -> None:
         "--seeds", type=int, default=5, help="seeds per case (the issue's figures: 20 or more)"
     )
     parser.add_argument("--cases", default=None, help="comma-separated case names (default: all)")
+    parser.add_argument(
+        "--model", choices=("physical", "ideal"), default="physical", help="the scene's scanner model"
+    )
     args = parser.parse_args()
     chosen = cases()
     if args.cases:
@@ -269,7 +285,7 @@ def main() -> None:
             )
         chosen = [c for c in chosen if c.name in names]
     for case in chosen:
-        run_case(case, args.seeds)
+        run_case(case, args.seeds, args.model)
 
 
 if __name__ == "__main__":

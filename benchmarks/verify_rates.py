@@ -43,7 +43,7 @@ from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_t
 from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify.drift import DriftTest
-from lasercal_hw.verify.procedure import VerifyPlan, plan_verify, range_curve_of, refit_and_test
+from lasercal_hw.verify.procedure import VerifyPlan, plan_verify, refit_and_test
 from lasercal_hw.verify.verdict import decide
 
 SHIFT_M = 0.003
@@ -135,7 +135,7 @@ def main() -> None:
             None if args.no_reference else poses,
             count=count,
             budget_s=budget_s,
-            range_curve_m=range_curve_of(calibration.range_offset),
+            range_error=calibration.range_offset,
         )
         selection = plan.selection
         shifted = moved_world(world, rng, SHIFT_M, 0.0)

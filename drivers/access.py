@@ -2,9 +2,11 @@
 registry by scheme (as pyserial chooses a transport by URL), the connections a run opens,
 the one-client scanner claim and the status probes a daemon shows.
 
-A UTM-30LX-EW serves one client at a time: while an owner (a daemon job) holds the devices,
-``probe_scanner`` leaves the scanner alone, and a probe in progress ends before a claim
-returns. Robot probes and program keeping use the dashboard server only
+A cell has one scanner (``scanner_url``, named ``default``) or several (``scanner_urls`` by
+name, daemon.toml's ``[scanners.NAME]``). A UTM-30LX-EW serves one client at a time: while
+an owner (a daemon job) holds a scanner's URL, ``probe_scanner`` leaves that scanner alone
+(the others are still probed), and a probe in progress ends before a claim returns. Robot
+probes and program keeping use the dashboard server only
 (``drivers.ur.dashboard``), which leaves the owner's program alone.
 """
 
@@ -12,13 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any
 from urllib.parse import urlsplit
 
 from drivers.ur import dashboard
-from lasercal_hw.config import JobConfig
+from lasercal_hw.config import DEFAULT_SCANNER_NAME, JobConfig
 from lasercal_hw.errors import ConfigError, LasercalError
 
 ScannerOpener = Callable[..., Any]
@@ -71,22 +73,35 @@ class ScannerProbe:
 
 
 class DeviceAccess:
-    """Where the robot and the scanner are, who holds them, how to reach them."""
+    """Where the robot and the scanners are, who holds them, how to reach them."""
 
     def __init__(
         self,
         robot_host: str | None = None,
         scanner_url: str | None = None,
         *,
+        scanner_urls: Mapping[str, str] | None = None,
         scanner_drivers: dict[str, ScannerOpener] | None = None,
         robot_drivers: dict[str, RobotConnector] | None = None,
     ) -> None:
         self.robot_host = robot_host
         self.scanner_url = scanner_url
+        #: A cell's scanners by name (``[scanners.NAME]``); empty for a one-scanner cell.
+        self.scanner_urls: dict[str, str] = dict(scanner_urls or {})
         self._scanner_drivers = SCANNER_DRIVERS if scanner_drivers is None else scanner_drivers
         self._robot_drivers = ROBOT_DRIVERS if robot_drivers is None else robot_drivers
-        self._lock = threading.Lock()
-        self._owner: str | None = None
+        self._probing = threading.Lock()  # held through a probe, so a claim waits for it to end
+        self._lock = threading.Lock()  # guards _holders only: read at once, even during a probe
+        self._holders: dict[str, str] = {}  # scanner URL -> the owner holding it
+
+    def scanners(self) -> list[tuple[str, str | None]]:
+        """The cell's scanners ``(name, url)``: the named ones, else ``scanner_url`` named ``default``."""
+        return list(self.scanner_urls.items()) or [(DEFAULT_SCANNER_NAME, self.scanner_url)]
+
+    def all_scanner_urls(self) -> set[str]:
+        """Every scanner URL the cell knows (the named ones and ``scanner_url``)."""
+        urls = [url for _, url in self.scanners()] + [self.scanner_url]
+        return {url for url in urls if url}
 
     # -- connections ---------------------------------------------------------------------------
 
@@ -127,16 +142,22 @@ class DeviceAccess:
 
     # -- the claim -----------------------------------------------------------------------------
 
-    def claim(self, owner: str) -> None:
-        """``owner`` holds the devices from now (a scanner probe in progress ends first)."""
-        with self._lock:
-            self._owner = owner
+    def claim(self, owner: str, urls: Iterable[str] | None = None) -> None:
+        """``owner`` holds the scanners at ``urls`` from now (None: every scanner of the cell);
+        a scanner probe in progress ends first; a scanner another owner holds stays its."""
+        held = self.all_scanner_urls() if urls is None else set(urls)
+        with self._probing, self._lock:
+            self._holders = dict.fromkeys(held, owner) | self._holders
 
     def release(self, owner: str) -> None:
-        """``owner`` no longer holds the devices."""
+        """``owner`` no longer holds any scanner."""
         with self._lock:
-            if self._owner == owner:
-                self._owner = None
+            self._holders = {url: held_by for url, held_by in self._holders.items() if held_by != owner}
+
+    def holder(self, url: str | None) -> str | None:
+        """Who holds the scanner at ``url`` now (None: nobody); never waits for a probe."""
+        with self._lock:
+            return self._holders.get(url or "")
 
     # -- status and the robot's program --------------------------------------------------------
 
@@ -146,16 +167,18 @@ class DeviceAccess:
             return dashboard.robot_unknown(None, "no robot configured")
         return dashboard.robot_status(self.robot_host)
 
-    def probe_scanner(self, timeout_s: float = 2.0) -> ScannerProbe:
-        """The scanner's identity, opened briefly, unless an owner holds it."""
-        if not self.scanner_url:
+    def probe_scanner(self, url: str | None = None, timeout_s: float = 2.0) -> ScannerProbe:
+        """The identity of the scanner at ``url`` (None: ``scanner_url``), opened briefly,
+        unless an owner holds it."""
+        url = url or self.scanner_url
+        if not url:
             return ScannerProbe(error="no scanner configured")
-        with self._lock:
-            if self._owner is not None:
-                return ScannerProbe(in_use_by=self._owner)
+        with self._probing:
+            if (owner := self.holder(url)) is not None:
+                return ScannerProbe(in_use_by=owner)
             try:
                 options = {"timeout_s": timeout_s, "sync_clock": False, "reconnect": False}
-                with self.open_scanner(self.scanner_url, **options) as scanner:
+                with self.open_scanner(url, **options) as scanner:
                     return ScannerProbe(identity=asdict(scanner.identity()))
             except LasercalError as exc:
                 return ScannerProbe(error=str(exc))

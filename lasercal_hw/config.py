@@ -95,12 +95,12 @@ class ScannerConfig(_Strict):
         "offset left out moves the result by as much)",
     )
     range_error_terms: int = Field(
-        3,
+        5,
         ge=1,
-        le=3,
-        description="most terms of the range error curve estimated: 1 an offset, 2 also a scale over "
-        "distance, 3 also a smooth (quadratic) term; each only where the waypoints pin it down and the data "
-        "show it",
+        le=5,
+        description="most terms of the range error curve estimated: 1 an offset, each more a power of "
+        "ln(distance / 1 m) (2 a slope, 3 a curvature, ...); each only where the waypoints pin it down and "
+        "the data show it",
     )
 
     _known_scheme = field_validator("url")(check_scanner_url)

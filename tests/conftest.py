@@ -22,6 +22,7 @@ os.environ.setdefault(MODEL_ENV, "ideal")
 
 REAL_TIME_MODULES = frozenset(
     {
+        "browser/test_cell_page.py",
         "browser/test_page.py",
         "cli/test_cli_run.py",
         "cli/test_cli_trajectory.py",

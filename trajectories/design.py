@@ -88,7 +88,7 @@ _WALK_ROUNDS = 12
 #: Pose parameters (the rest of an information matrix are the rod axis's and the range curve's).
 POSE_PARAMETERS = 6
 #: Range error curve terms a job that estimates the range error is designed for: offset and
-#: scale (the solver adds the smooth term only where the waypoints pin it down anyway).
+#: slope over ln d (the solver adds higher terms only where the waypoints pin them down anyway).
 DESIGN_RANGE_TERMS = 2
 _AXES = [f"translation along base {a}" for a in "xyz"] + [f"rotation about base {a}" for a in "xyz"]
 

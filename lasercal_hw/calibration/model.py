@@ -21,6 +21,8 @@ error is not modelled).
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 
 from lasercal_hw.geometry import FloatArray, pose_to_matrix, skew
@@ -166,33 +168,55 @@ def euler_zyx_axes(yaw_rad: float, pitch_rad: float) -> FloatArray:
 # Jacobian in the scanner translation), turning its direction by ``dd`` moves it by
 # ``-s J_t dd`` (``s`` the crossing's line parameter). A range error ``e(|p|)`` (measured minus
 # true range) moves a centre seen at ``p`` to ``p + e(|p|) p/|p|``. The error is a curve over
-# distance (``range_error_m``): an offset, a scale and a smooth (quadratic) term about
-# ``RANGE_CURVE_REFERENCE_M``; a range offset alone is the curve with one term.
+# distance (``range_error_m``): a polynomial in ``x = ln(d / RANGE_CURVE_REFERENCE_M)``, whose
+# first term is the offset (the error at the reference distance); a range offset alone is the
+# curve with one term. Log range because a pulsed scanner's range walk follows the echo's
+# intensity, which falls as a power of range (so the walk is linear in ln d), and its unit curve
+# is smooth over decades of range (0.1-30 m), not over metres: four terms follow a
+# UTM-30LX-EW's curve over 0.3-1.2 m to about 1 mm where powers of (d - ref) need five
+# (docs/solver.md). Calibrations solved before kept powers of ``d - ref`` (basis ``distance``).
 
 RANGE_CURVE_REFERENCE_M = 1.0
 """Distance about which the range error's terms are taken: the offset is the error there."""
-RANGE_CURVE_TERMS = ("offset", "scale", "curvature")
-"""The range error curve's terms in order: ``c0 + c1 (d - ref) + c2 (d - ref)^2``."""
+RangeCurveBasis = Literal["log_distance", "distance"]
+"""``log_distance``: powers of ln(d / reference), the solver's; ``distance``: powers of
+``d - reference`` (metres), the basis of calibrations solved before (read, never written)."""
+RANGE_CURVE_BASIS: RangeCurveBasis = "log_distance"
+"""The basis the solver estimates the range error curve in."""
 
 
-def range_error_basis(distance_m: FloatArray, terms: int) -> FloatArray:
+def range_curve_variable(
+    distance_m: FloatArray, basis: RangeCurveBasis = RANGE_CURVE_BASIS
+) -> tuple[FloatArray, FloatArray]:
+    """The curve's variable x at the distances and its derivative dx/dd (1/m)."""
+    distance = np.asarray(distance_m, dtype=float)
+    if basis == "distance":
+        return distance - RANGE_CURVE_REFERENCE_M, np.ones_like(distance)
+    return np.log(distance / RANGE_CURVE_REFERENCE_M), 1.0 / distance
+
+
+def range_error_basis(
+    distance_m: FloatArray, terms: int, basis: RangeCurveBasis = RANGE_CURVE_BASIS
+) -> FloatArray:
     """The curve's basis functions (N, terms) at the distances."""
-    shifted = np.asarray(distance_m, dtype=float) - RANGE_CURVE_REFERENCE_M
-    return np.stack([shifted**k for k in range(terms)], axis=-1)
+    x, _ = range_curve_variable(distance_m, basis)
+    return np.stack([x**k for k in range(terms)], axis=-1)
 
 
-def range_error_m(curve: FloatArray, distance_m: FloatArray) -> tuple[FloatArray, FloatArray]:
+def range_error_m(
+    curve: FloatArray, distance_m: FloatArray, basis: RangeCurveBasis = RANGE_CURVE_BASIS
+) -> tuple[FloatArray, FloatArray]:
     """The range error (measured minus true, m) of a curve's coefficients at the distances,
     and its slope over distance."""
     coefficients = np.atleast_1d(np.asarray(curve, dtype=float))
-    shifted = np.asarray(distance_m, dtype=float) - RANGE_CURVE_REFERENCE_M
-    error = np.zeros_like(shifted)
-    slope = np.zeros_like(shifted)
+    x, dx_dd = range_curve_variable(distance_m, basis)
+    error = np.zeros_like(x)
+    slope = np.zeros_like(x)
     for k, c in enumerate(coefficients):
-        error = error + c * shifted**k
+        error = error + c * x**k
         if k:
-            slope = slope + k * c * shifted ** (k - 1)
-    return error, slope
+            slope = slope + k * c * x ** (k - 1)
+    return error, slope * dx_dd
 
 
 def axis_basis(direction: FloatArray) -> FloatArray:

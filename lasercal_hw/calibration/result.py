@@ -15,6 +15,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
+from lasercal_hw.calibration.model import RangeCurveBasis, range_error_m
 from lasercal_hw.geometry import FloatArray
 
 
@@ -96,12 +97,22 @@ class RangeErrorPoint(BaseModel):
 
 class RangeOffset(BaseModel):
     """The scanner's range error (measured minus true range) over distance, estimated with the
-    transform: ``offset + scale (d - reference) + curvature (d - reference)^2``, with as many
-    terms as the waypoints pin down (the others None)."""
+    transform: a polynomial in ``ln(d / reference_m)`` (``terms_mm``, basis ``log_distance``)
+    with as many terms as the waypoints pin down and the data show. Calibrations solved before
+    kept ``offset + scale (d - reference) + curvature (d - reference)^2`` (basis ``distance``:
+    ``scale_mm_per_m`` and ``curvature_mm_per_m2``); both are read."""
 
     offset_mm: float = Field(description="the error at reference_m (with one term: at every distance)")
     std_mm: float
     reference_m: float = 1.0
+    basis: RangeCurveBasis = Field(
+        "distance", description="log_distance: powers of ln(d / reference_m); distance: of d - reference_m"
+    )
+    terms_mm: list[float] = Field(
+        default_factory=list,
+        description="log_distance: every term (mm per ln(d / reference_m)^k), the offset first",
+    )
+    terms_std_mm: list[float] = Field(default_factory=list, description="their std")
     scale_mm_per_m: float | None = None
     scale_std_mm_per_m: float | None = None
     curvature_mm_per_m2: float | None = None
@@ -116,11 +127,17 @@ class RangeOffset(BaseModel):
     )
 
     def coefficients_m(self) -> list[float]:
-        """The curve's terms in metres (offset, scale, curvature; as many as were estimated),
-        for ``calibration.model.range_error_m``."""
+        """The curve's terms in metres in its ``basis`` (as many as were estimated), for
+        ``calibration.model.range_error_m``."""
+        if self.terms_mm:
+            return [float(term) / 1000.0 for term in self.terms_mm]
         terms = [self.offset_mm, self.scale_mm_per_m, self.curvature_mm_per_m2]
         count = 1 + sum(1 for term in terms[1:] if term is not None)
         return [float(term or 0.0) / 1000.0 for term in terms[:count]]
+
+    def error_m(self, distance_m: FloatArray) -> FloatArray:
+        """The range error (m) this curve gives at the distances."""
+        return range_error_m(np.asarray(self.coefficients_m()), distance_m, self.basis)[0]
 
 
 class CalibrationResult(BaseModel):
@@ -191,13 +208,20 @@ class CalibrationResult(BaseModel):
 
 def _range_line(offset: RangeOffset) -> str:
     """The range error curve in one line."""
-    if offset.scale_mm_per_m is None:
+    if len(offset.coefficients_m()) == 1:
         return f"scanner range offset (measured - true): {offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm"
-    terms = [f"{offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm at {offset.reference_m:g} m",
-             f"scale {offset.scale_mm_per_m:+.2f} ± {offset.scale_std_mm_per_m:.2f} mm/m"]
-    if offset.curvature_mm_per_m2 is not None:
-        curvature, curvature_std = offset.curvature_mm_per_m2, offset.curvature_std_mm_per_m2
-        terms.append(f"curvature {curvature:+.2f} ± {curvature_std:.2f} mm/m²")
+    terms = [f"{offset.offset_mm:+.2f} ± {offset.std_mm:.2f} mm at {offset.reference_m:g} m"]
+    if offset.basis == "log_distance":
+        terms += [
+            f"{value:+.2f} ± {std:.2f} mm x ln(d/{offset.reference_m:g} m)" + (f"^{k}" if k > 1 else "")
+            for k, (value, std) in enumerate(zip(offset.terms_mm, offset.terms_std_mm, strict=True))
+            if k
+        ]
+    else:
+        terms.append(f"scale {offset.scale_mm_per_m:+.2f} ± {offset.scale_std_mm_per_m:.2f} mm/m")
+        if offset.curvature_mm_per_m2 is not None:
+            curvature, curvature_std = offset.curvature_mm_per_m2, offset.curvature_std_mm_per_m2
+            terms.append(f"curvature {curvature:+.2f} ± {curvature_std:.2f} mm/m²")
     span = f"{offset.curve[0].distance_m:.2f}-{offset.curve[-1].distance_m:.2f} m" if offset.curve else ""
     return (
         f"scanner range error (measured - true): {', '.join(terms)}; largest {offset.worst_mm:.1f} mm over "

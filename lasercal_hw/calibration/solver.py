@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from lasercal_hw import __version__
 from lasercal_hw.calibration.initial import linear_initial_pose
 from lasercal_hw.calibration.model import (
+    RANGE_CURVE_BASIS,
     RANGE_CURVE_REFERENCE_M,
     axis_basis,
     effective_covariance,
@@ -39,6 +40,7 @@ from lasercal_hw.calibration.model import (
     left_jacobian_so3,
     moved_rod,
     plane_crossing,
+    range_curve_variable,
     range_error_basis,
     range_error_m,
     rod_lines_of_transforms,
@@ -104,17 +106,21 @@ class SolverOptions(BaseModel):
     )
     estimate_range_offset: bool | Literal["auto"] = Field(
         False,
-        description="estimate the scanner's range error curve over distance (an offset, then a scale and a "
-        "smooth term where the waypoints pin them down); auto: the offset too only when observable",
+        description="estimate the scanner's range error curve over distance (an offset, then powers of "
+        "ln(distance) where the waypoints pin them down); auto: the offset too only when observable",
     )
     max_range_terms: int = Field(
-        3, ge=1, le=3, description="most terms of the range error curve: 1 offset, 2 + scale, 3 + smooth term"
+        5,
+        ge=1,
+        le=5,
+        description="most terms of the range error curve: 1 an offset, each more a power of ln(d / 1 m)",
     )
     auto_range_offset_max_std_m: float = Field(
         0.002,
         gt=0,
         description="estimate a term of the range error curve when the Cramér-Rao std of what it adds to the "
-        "error (at the farthest crossing from the curve's reference distance) is below this",
+        "error over the crossings' span (its coefficient's std times half the span in ln d, to its power) is "
+        "below this",
     )
     auto_range_offset_min_sigmas: float = Field(
         3.3, gt=0, description="auto: ... and keep it only when it is this many std from zero"
@@ -793,29 +799,35 @@ def _significant_terms(
     return False, replace(extras, range_terms=terms - 1, offset_note=notes)
 
 
-#: Name, unit and scale from SI of each range-curve term in messages.
-_TERM_UNITS = (("offset", "mm", 1e3), ("scale", "mm/m", 1e3), ("curvature", "mm/m²", 1e3))
+#: Name, unit and scale from SI of each range-curve term in messages (``x = ln(d / 1 m)``).
+_TERM_UNITS = tuple(
+    (name, "mm" if not k else f"mm/x{'^' + str(k) if k > 1 else ''}", 1e3)
+    for k, name in enumerate(("offset", "slope", "curvature", "cubic term", "quartic term"))
+)
 
 
 def _range_terms_wanted(
     rotation: FloatArray, translation: FloatArray, data: _Data, usable: np.ndarray, opts: SolverOptions
 ) -> tuple[int, str]:
     """How many terms of the range error curve to estimate, and the note when one is left
-    out: a term is taken when the Cramér-Rao std of what it adds to the error at the
-    crossings farthest from the reference distance is within ``auto_range_offset_max_std_m``
-    (the offset must be, when asked for: ``DegenerateDataError`` otherwise)."""
+    out: a term is taken when the Cramér-Rao std of what it adds to the error over the
+    crossings is within ``auto_range_offset_max_std_m`` (the offset must be, when asked for:
+    ``DegenerateDataError`` otherwise). What it adds is its coefficient's std times half the
+    crossings' span in ln d to its power: the highest term's coefficient does not depend on
+    where the curve's reference lies (the lower terms take the rest), so a trajectory whose
+    crossings all lie on one side of 1 m is judged by its own span, not by an extrapolation."""
     if opts.estimate_range_offset is False:
         return 0, ""
     crossing, _ = data.predicted(rotation, translation)
     distances_m = np.linalg.norm(crossing[usable], axis=1)
-    reach_m = max(float(np.max(np.abs(distances_m - RANGE_CURVE_REFERENCE_M))), 1e-3)
+    reach = max(0.5 * float(np.ptp(range_curve_variable(distances_m)[0])), 1e-3)
     terms = 0
     for wanted in range(1, opts.max_range_terms + 1):
         trial = _Extras(range_terms=wanted)
         fisher = _extended_fisher(rotation, translation, data, usable, opts, trial)
         if wanted == 1 and opts.estimate_range_offset is True:
             _require_observable(fisher, opts, trial)
-        effect_std_m = float(_crb_std(fisher)[-1]) * reach_m ** (wanted - 1)
+        effect_std_m = float(_crb_std(fisher)[-1]) * reach ** (wanted - 1)
         if not effect_std_m <= opts.auto_range_offset_max_std_m:
             if wanted == 1 and opts.estimate_range_offset is True:
                 terms = 1
@@ -975,10 +987,9 @@ def _range_offset(
         offset_mm=float(curve[0]) * 1e3,
         std_mm=float(std[0]) * 1e3,
         reference_m=RANGE_CURVE_REFERENCE_M,
-        scale_mm_per_m=float(curve[1]) * 1e3 if terms > 1 else None,
-        scale_std_mm_per_m=float(std[1]) * 1e3 if terms > 1 else None,
-        curvature_mm_per_m2=float(curve[2]) * 1e3 if terms > 2 else None,
-        curvature_std_mm_per_m2=float(std[2]) * 1e3 if terms > 2 else None,
+        basis=RANGE_CURVE_BASIS,
+        terms_mm=_list(curve * 1e3),
+        terms_std_mm=_list(std * 1e3),
         curve=[
             RangeErrorPoint(distance_m=float(d), error_mm=float(e) * 1e3, std_mm=float(s) * 1e3)
             for d, e, s in zip(grid, values, value_std, strict=True)

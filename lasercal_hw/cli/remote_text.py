@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from lasercal_hw.config import DEFAULT_SCANNER_NAME
+
 # The events a person follows with --wait: stages, one line per waypoint (its centre or its
 # skip; the progress events of the same waypoint say the same again), and what went wrong.
 FOLLOWED_KINDS = ("stage", "centre", "skip", "fault", "warning", "stopped", "result", "calibration")
@@ -85,19 +87,24 @@ def status_lines(status: dict[str, Any]) -> list[str]:
     """``GET /v1/status`` for a person."""
     daemon = status["daemon"]
     robot = status.get("robot") or {}
-    scanner = status.get("scanner") or {}
     lines = [
         f"daemon: lasercal {daemon['version']}{' (dry run: a fake cell)' if daemon.get('dry_run') else ''}, "
         f"up since {daemon['started_utc']}, data in {daemon['data_dir']}",
         f"robot: {robot.get('host') or 'none configured'}, connected {_yes_no(robot.get('connected'))}, "
         f"mode {robot.get('mode') or '-'}, safety {robot.get('safety') or '-'}, "
         f"remote control {_yes_no(robot.get('remote_control'))}",
-        f"scanner: {scanner.get('url') or 'none configured'}, connected {_yes_no(scanner.get('connected'))}"
-        + (f", {_identity(scanner['identity'])}" if scanner.get("identity") else ""),
     ]
-    for device, part in (("robot", robot), ("scanner", scanner)):
-        if part.get("error"):
-            lines.append(f"  {device}: {part['error']}")
+    if robot.get("error"):
+        lines.append(f"  robot: {robot['error']}")
+    for scanner in status.get("scanners") or [status.get("scanner") or {}]:  # a cell's, one line each
+        name = scanner.get("name") or DEFAULT_SCANNER_NAME
+        device = "scanner" if name == DEFAULT_SCANNER_NAME else f"scanner {name}"
+        held = f", in use by {scanner['in_use_by_job']}" if scanner.get("in_use_by_job") else ""
+        identity = f", {_identity(scanner['identity'])}" if scanner.get("identity") else ""
+        url = scanner.get("url") or "none configured"
+        lines.append(f"{device}: {url}, connected {_yes_no(scanner.get('connected'))}{held}{identity}")
+        if scanner.get("error"):
+            lines.append(f"  {device}: {scanner['error']}")
     active = status.get("active_calibration")
     lines += calibration_lines(active, "active calibration") if active else ["active calibration: none"]
     job = status.get("job")

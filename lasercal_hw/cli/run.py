@@ -216,10 +216,11 @@ def _print_summary(report: RunReport) -> None:
 
 def _run_cell(
     job: JobConfig, scanner_name: str | None, robot: str | None, dry_run: bool, scene: Path | None,
-    resume: Path | None, *, yes: bool, as_json: bool,
+    resume: Path | None, *, yes: bool, as_json: bool, live_port: int | None,
 ) -> None:
     """``lasercal run`` of a job with ``[scanners.NAME]``: every scanner (or the one named) in
-    turn, one folder each, the scanner-to-scanner transforms at the end (docs/cell.md)."""
+    turn, one folder each, the scanner-to-scanner transforms at the end (docs/cell.md); shown
+    in the Foxglove view on ``live_port`` (every scanner in one scene) when given."""
     if robot is None and job.robot.host is None and not dry_run and resume is None:
         raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
     ui = err_console if as_json else console
@@ -233,9 +234,10 @@ def _run_cell(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    with interrupt_once(), ProgressView(ui) as view:
+    with interrupt_once(), ProgressView(ui) as view, foxglove_view(live_port) as live:
         report = calibrate_cell(
-            request, on_event=view, confirm=None if yes or dry_run else confirm_before_motion(view, ui)
+            request, on_event=live.watch_cell(request, view) if live else view,
+            confirm=None if yes or dry_run else confirm_before_motion(view, ui),
         )
     if as_json:
         print_json(report.document())
@@ -312,8 +314,10 @@ def run_command(
     flags = {"trajectory.adaptive": True} if adaptive else {}
     job = with_overrides(load_job(config), {"dwell_s": dwell, "output.dir": out} | flags)
     scanner_name = None if scanner is None or "://" in scanner else scanner
+    live_port = foxglove_port if foxglove else None
     if job.scanners or (resume is not None and (resume.is_dir() or resume.name == CELL_FILE)):
-        _run_cell(job, scanner_name, robot, dry_run, scene, resume, yes=yes, as_json=as_json)
+        _run_cell(job, scanner_name, robot, dry_run, scene, resume, yes=yes, as_json=as_json,
+                  live_port=live_port)
         return
     if scanner_name is not None:  # a one-scanner job's scanner is named "default"
         job.for_scanner(scanner_name)
@@ -330,7 +334,6 @@ def run_command(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    live_port = foxglove_port if foxglove else None
     with interrupt_once(), ProgressView(ui) as view, foxglove_view(live_port) as live:
         report = calibrate(
             request, on_event=live.watch(request, view) if live else view,

@@ -12,6 +12,11 @@ Topics (frames ``base``, ``tcp``, ``rod``, ``laser``):
   and the measured centres in the scan plane;
 - ``/lasercal/log`` (``foxglove.Log``): one line per event.
 
+A cell job (``watch_cell``) shows every scanner in the one scene: scanner NAME's scans on
+``/scan/NAME`` in its frame ``laser_NAME`` (as the exports name it), its centres and circle
+in that frame, and base -> laser_NAME for every scanner with an estimate; the events of a
+cell's run name their scanner (``data["scanner"]``).
+
 ``docs/foxglove-layout.json`` arranges these in the app (docs/daemon.md says how to open it).
 """
 
@@ -21,17 +26,19 @@ import contextlib
 import math
 import time
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 
 from lasercal_hw.calibration.initial import linear_initial_pose
 from lasercal_hw.calibration.model import rod_lines_in_base
-from lasercal_hw.config import JobConfig
+from lasercal_hw.config import DEFAULT_SCANNER_NAME, JobConfig
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import make_transform, matrix_to_quat, pose_to_matrix
 from lasercal_hw.models import FloatArray, RodLine
+from lasercal_hw.outputs.exports import scanner_frame
+from lasercal_hw.run.cell import CellRunRequest, cell_scanners
 from lasercal_hw.run.engine import RunRequest
 from lasercal_hw.run.resume import recorded_job
 from lasercal_hw.run.waypoints import job_waypoints
@@ -78,6 +85,31 @@ class RunGeometry:
             return cls.of_job(job, tcp_poses)
         tcp_poses = request.waypoints if request.waypoints is not None else job_waypoints(request.job)
         return cls.of_job(request.job, tcp_poses)
+
+
+@dataclass
+class ScannerView:
+    """One scanner's part of the scene: its geometry, frame, scan topic and what its run has
+    shown so far (centres, the latest circle, the estimate of its frame)."""
+
+    geometry: RunGeometry | None
+    frame: str
+    scan_topic: str
+    centres: dict[int, tuple[float, float]] = field(default_factory=dict)
+    circle: Mapping[str, Any] | None = None
+    T_base_laser: FloatArray | None = None
+
+    @classmethod
+    def named(cls, name: str, geometry: RunGeometry | None) -> ScannerView:
+        """Scanner ``name``'s view (``default``: frame ``laser`` on ``/scan``, as a one-scanner run)."""
+        frame = scanner_frame(name)
+        topic = "/scan" if frame == FRAME_LASER else f"/scan/{name}"
+        return cls(geometry, frame, topic, T_base_laser=geometry.nominal_base_laser if geometry else None)
+
+    @property
+    def suffix(self) -> str:
+        """What tells this scanner's scene entities from another's (none for ``laser``)."""
+        return self.frame[len(FRAME_LASER):]
 
 
 def _import_foxglove() -> Any:
@@ -147,14 +179,13 @@ class FoxgloveLiveView:
             raise ConfigError(f"cannot serve the Foxglove live view on {LOOPBACK}:{port}: {exc}; "
                               "choose another --foxglove-port") from exc
         ctx = self._context
-        self._scan = channels.LaserScanChannel("/scan", context=ctx)
+        self._scan_channels = {"/scan": channels.LaserScanChannel("/scan", context=ctx)}
         self._tf = channels.FrameTransformsChannel("/tf", context=ctx)
         self._scene = channels.SceneUpdateChannel("/lasercal/scene", context=ctx)
         self._log = channels.LogChannel("/lasercal/log", context=ctx)
-        self._geometry: RunGeometry | None = None
-        self._centres: dict[int, tuple[float, float]] = {}
-        self._circle: Mapping[str, Any] | None = None
-        self._T_base_laser: FloatArray | None = None
+        self._scanners: dict[str, ScannerView] = {}
+        self._current = DEFAULT_SCANNER_NAME
+        self.begin(None)
 
     @property
     def port(self) -> int:
@@ -162,29 +193,41 @@ class FoxgloveLiveView:
         return int(self._server.port)
 
     def begin(self, geometry: RunGeometry | None) -> None:
-        """A new run: forget the last one's centres and estimate."""
-        self._geometry = geometry
-        self._centres = {}
-        self._circle = None
-        self._T_base_laser = geometry.nominal_base_laser if geometry is not None else None
+        """A new run of one scanner: forget the last one's centres and estimate."""
+        self.begin_cell({DEFAULT_SCANNER_NAME: geometry})
+
+    def begin_cell(self, geometries: Mapping[str, RunGeometry | None]) -> None:
+        """A new run of a cell's scanners (by name, in the order they run), each in its own frame."""
+        from foxglove import channels
+
+        self._scanners = {name: ScannerView.named(name, geometry) for name, geometry in geometries.items()}
+        self._current = next(iter(self._scanners))
+        for view in self._scanners.values():
+            if view.scan_topic not in self._scan_channels:
+                self._scan_channels[view.scan_topic] = channels.LaserScanChannel(view.scan_topic,
+                                                                               context=self._context)
 
     def __call__(self, event: EventLike) -> None:
         """Show one engine event (usable as ``on_event`` of ``calibrate``)."""
         self.on_event(event.kind, event.data, event.message)
 
     def on_event(self, kind: str, data: Mapping[str, Any], message: str = "") -> None:
-        """Show one event given by kind and data (the daemon's stream carries these)."""
+        """Show one event given by kind and data (the daemon's stream carries these); a cell
+        run's event is its scanner's (``data["scanner"]``)."""
         stamp = _timestamp(self._fm, time.time())
+        if data.get("scanner") in self._scanners:
+            self._current = str(data["scanner"])
+        view = self._scanners[self._current]
         if kind == "scan":
-            self._show_scan(stamp, data)
+            self._show_scan(stamp, view, data)
         elif kind == "centre":
             u, v = data["centre_uv_m"]
-            self._centres[int(data["waypoint"])] = (float(u), float(v))
-            self._update_estimate()
+            view.centres[int(data["waypoint"])] = (float(u), float(v))
+            _update_estimate(view)
             self._show_frames(stamp, data)
             self._show_scene(stamp)
         elif kind == "result":
-            self._T_base_laser = np.asarray(data["T_base_laser"], dtype=float)
+            view.T_base_laser = np.asarray(data["T_base_laser"], dtype=float)
             self._show_frames(stamp, data)
         elif kind == "progress" and data.get("waypoint") is not None:
             self._show_frames(stamp, data)
@@ -202,43 +245,62 @@ class FoxgloveLiveView:
 
         return both
 
+    def watch_cell(self, request: CellRunRequest, on_event: Callable[[Any], None]) -> Callable[[Any], None]:
+        """``watch`` for a cell job (``run.cell.calibrate_cell``): every scanner it runs in the scene."""
+        job, names = cell_scanners(request)
+        geometries = {}
+        for name in names:
+            scanner_job = job.for_scanner(name)
+            geometries[name] = RunGeometry.of_job(scanner_job, job_waypoints(scanner_job))
+        self.begin_cell(geometries)
+
+        def both(event: Any) -> None:
+            on_event(event)
+            self(event)
+
+        return both
+
     def close(self) -> None:
         """Stop the server."""
         self._server.stop()
 
-    def _show_scan(self, stamp: Any, data: Mapping[str, Any]) -> None:
+    def _show_scan(self, stamp: Any, view: ScannerView, data: Mapping[str, Any]) -> None:
         fm = self._fm
         ranges = [math.nan if r is None else float(r) for r in data["ranges_m"]]
         start = float(data["angle_min_rad"])
         end = start + float(data["angle_increment_rad"]) * max(len(ranges) - 1, 0)
-        self._scan.log(fm.LaserScan(timestamp=stamp, frame_id=FRAME_LASER, start_angle=start, end_angle=end,
-                                    ranges=ranges))
-        self._circle = data.get("circle")
+        self._scan_channels[view.scan_topic].log(fm.LaserScan(
+            timestamp=stamp, frame_id=view.frame, start_angle=start, end_angle=end, ranges=ranges))
+        view.circle = data.get("circle")
         self._show_scene(stamp)
 
     def _show_scene(self, stamp: Any) -> None:
-        """The measured centres, the latest fitted circle (if the rod was found) and the rod."""
+        """Every scanner's measured centres and latest fitted circle (if the rod was found) in
+        its frame, and the rod."""
         fm = self._fm
         green = fm.Color(r=0.12, g=0.54, b=0.3, a=1.0)
         blue = fm.Color(r=0.17, g=0.42, b=0.69, a=1.0)
-        entities = [
-            fm.SceneEntity(timestamp=stamp, frame_id=FRAME_LASER, id="measured_centres", spheres=[
-                fm.SpherePrimitive(pose=fm.Pose(position=fm.Vector3(x=u, y=v, z=0.0),
-                                                orientation=fm.Quaternion(x=0, y=0, z=0, w=1)),
-                                   size=fm.Vector3(x=0.01, y=0.01, z=0.01), color=green)
-                for u, v in self._centres.values()]),
-        ]
+        entities = []
         deletions = []
-        if self._circle is not None:
-            ring = [fm.Point3(x=u, y=v, z=0.0) for u, v in circle_points(self._circle)]
-            entities.append(fm.SceneEntity(timestamp=stamp, frame_id=FRAME_LASER, id="fitted_circle", lines=[
-                fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=2.0, scale_invariant=True,
-                                 points=ring, color=blue)]))
-        else:  # the rod was not found in the latest scan
-            deletions.append(fm.SceneEntityDeletion(
-                timestamp=stamp, type=fm.SceneEntityDeletionType.MatchingId, id="fitted_circle"))
-        if self._geometry is not None:
-            rod = self._geometry.rod
+        for view in self._scanners.values():
+            entities.append(fm.SceneEntity(
+                timestamp=stamp, frame_id=view.frame, id=f"measured_centres{view.suffix}", spheres=[
+                    fm.SpherePrimitive(pose=fm.Pose(position=fm.Vector3(x=u, y=v, z=0.0),
+                                                    orientation=fm.Quaternion(x=0, y=0, z=0, w=1)),
+                                       size=fm.Vector3(x=0.01, y=0.01, z=0.01), color=green)
+                    for u, v in view.centres.values()]))
+            circle_id = f"fitted_circle{view.suffix}"
+            if view.circle is not None:
+                ring = [fm.Point3(x=u, y=v, z=0.0) for u, v in circle_points(view.circle)]
+                entities.append(fm.SceneEntity(timestamp=stamp, frame_id=view.frame, id=circle_id, lines=[
+                    fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=2.0,
+                                     scale_invariant=True, points=ring, color=blue)]))
+            else:  # the rod was not found in the scanner's latest scan
+                deletions.append(fm.SceneEntityDeletion(
+                    timestamp=stamp, type=fm.SceneEntityDeletionType.MatchingId, id=circle_id))
+        geometry = self._scanners[self._current].geometry
+        if geometry is not None:
+            rod = geometry.rod
             cylinder = fm.CylinderPrimitive(
                 pose=fm.Pose(position=fm.Vector3(x=0, y=0, z=rod.length_m / 2),
                              orientation=fm.Quaternion(x=0, y=0, z=0, w=1)),
@@ -249,9 +311,10 @@ class FoxgloveLiveView:
         self._scene.log(fm.SceneUpdate(deletions=deletions, entities=entities))
 
     def _show_frames(self, stamp: Any, data: Mapping[str, Any]) -> None:
+        """base -> tcp at the current scanner's waypoint, tcp -> rod, base -> every scanner's estimate."""
         fm = self._fm
         transforms = []
-        geometry = self._geometry
+        geometry = self._scanners[self._current].geometry
         tcp_pose = data.get("tcp_pose")
         waypoint = data.get("waypoint")
         known = geometry is not None and waypoint is not None and 0 <= waypoint < len(geometry.tcp_poses)
@@ -261,23 +324,24 @@ class FoxgloveLiveView:
             transforms.append(_transform(fm, stamp, FRAME_BASE, FRAME_TCP, pose_to_matrix(tcp_pose)))
         if geometry is not None:
             transforms.append(_transform(fm, stamp, FRAME_TCP, FRAME_ROD, rod_frame(geometry.rod)))
-        if self._T_base_laser is not None:
-            transforms.append(_transform(fm, stamp, FRAME_BASE, FRAME_LASER, self._T_base_laser))
+        transforms += [_transform(fm, stamp, FRAME_BASE, view.frame, view.T_base_laser)
+                       for view in self._scanners.values() if view.T_base_laser is not None]
         if transforms:
             self._tf.log(fm.FrameTransforms(transforms=transforms))
 
-    def _update_estimate(self) -> None:
-        """The closed-form fit of the centres so far, once there are enough of them."""
-        geometry = self._geometry
-        if geometry is None or len(self._centres) < MIN_CENTRES_FOR_ESTIMATE:
-            return
-        indices = [i for i in sorted(self._centres) if i < len(geometry.tcp_poses)]
-        if len(indices) < MIN_CENTRES_FOR_ESTIMATE:
-            return
-        origins, directions = rod_lines_in_base(geometry.tcp_poses[indices], geometry.rod)
-        centres = np.array([self._centres[i] for i in indices])
-        initial = linear_initial_pose(origins, directions, centres, np.ones(len(indices)))
-        self._T_base_laser = make_transform(initial.rotation, initial.translation)
+
+def _update_estimate(view: ScannerView) -> None:
+    """The closed-form fit of a scanner's centres so far, once there are enough of them."""
+    geometry = view.geometry
+    if geometry is None or len(view.centres) < MIN_CENTRES_FOR_ESTIMATE:
+        return
+    indices = [i for i in sorted(view.centres) if i < len(geometry.tcp_poses)]
+    if len(indices) < MIN_CENTRES_FOR_ESTIMATE:
+        return
+    origins, directions = rod_lines_in_base(geometry.tcp_poses[indices], geometry.rod)
+    centres = np.array([view.centres[i] for i in indices])
+    initial = linear_initial_pose(origins, directions, centres, np.ones(len(indices)))
+    view.T_base_laser = make_transform(initial.rotation, initial.translation)
 
 
 @contextlib.contextmanager

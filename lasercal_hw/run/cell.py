@@ -127,18 +127,27 @@ def _read_cell_file(folder: Path) -> dict[str, Any]:
     return document
 
 
+def cell_scanners(request: CellRunRequest) -> tuple[JobConfig, list[str]]:
+    """The job and the scanners ``request`` runs: a new job's, or a resumed one's (its
+    ``cell.json``: the recorded job and scanners decide)."""
+    if request.resume is None:
+        return request.job, list(request.scanners or request.job.scanner_names())
+    folder = cell_folder(request.resume)
+    document = _read_cell_file(folder)
+    job = job_from_mapping(document["job"], str(folder / CELL_FILE))
+    return job, list(document.get("scanners_run", job.scanner_names()))
+
+
 def _start(request: CellRunRequest) -> tuple[CellRunRequest, JobConfig, list[str]]:
     """The request, job and scanners of a new cell job (``cell.json`` written) or of the
     resumed one (``cell.json`` read: the recorded job and scanners decide)."""
+    job, names = cell_scanners(request)
     if request.resume is not None:
         folder = cell_folder(request.resume)
-        document = _read_cell_file(folder)
-        job = job_from_mapping(document["job"], str(folder / CELL_FILE))
-        recorded = dict(document.get("request", {}))
+        recorded = dict(_read_cell_file(folder).get("request", {}))
         scene = request.scene or (Path(recorded["scene"]) if recorded.get("scene") else None)
         request = replace(request, out_dir=folder, dry_run=bool(recorded.get("dry_run")), scene=scene)
-        return request, job, list(document.get("scanners_run", job.scanner_names()))
-    names = list(request.scanners or request.job.scanner_names())
+        return request, job, names
     folder = request.out_dir
     if (folder / CELL_FILE).exists():
         raise ConfigError(f"{folder / CELL_FILE} already exists: choose another output folder, or resume it")
@@ -226,7 +235,7 @@ def _scanner(
             fake_cell=fake_cell,
             watch=watch,
         )
-        report = calibrate(run, on_event=on_event, cancel=cancel, confirm=confirm)
+        report = calibrate(run, on_event=events_of_scanner(on_event, name), cancel=cancel, confirm=confirm)
     outcome = _scanner_outcome(name, folder / RESULT_FILE, report)
     sink.emit(
         SCANNER_RESULT,
@@ -252,6 +261,17 @@ def _resuming_the_cell(
         sink(event)
 
     return forward
+
+
+def events_of_scanner(
+    on_event: Callable[[RunEvent], None] | None, name: str
+) -> Callable[[RunEvent], None] | None:
+    """``on_event`` with every event of scanner ``name``'s run naming it (``data["scanner"]``),
+    so a page or a live view shows each scanner's scans and centres as its own."""
+    if on_event is None:
+        return None
+    sink = on_event
+    return lambda event: sink(replace(event, data=event.data | {"scanner": name}))
 
 
 def _scanner_outcome(name: str, path: Path, report: RunReport | None) -> ScannerOutcome:

@@ -14,7 +14,7 @@ import numpy as np
 
 from lasercal_hw.calibration.model import lines_in_scanner, plane_crossing, rod_lines_in_base
 from lasercal_hw.calibration.observations import SolveSettings
-from lasercal_hw.calibration.result import CalibrationResult
+from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray, Observation, RodLine
@@ -44,6 +44,18 @@ def predict_rod(T_base_laser: FloatArray, tcp_pose: FloatArray, rod: RodLine) ->
     crossing, _, line_s = plane_crossing(rotation, translation_m, origins, directions)
     on_rod = 0.0 <= line_s[0] <= rod.length_m
     return RodPrediction(axis, crossing[0] if on_rod else None)
+
+
+def _typical_range_error_m(range_offset: RangeOffset | None) -> float:
+    """The first pass's range error where the crossings are (the median of its curve over
+    their span; its offset when it has no curve): what the second pass takes out of every
+    range. Not the offset itself, the error at 1 m, which lies outside the span of waypoints
+    that all cross nearer (designed ones: 0.3-0.6 m) and is then an extrapolation."""
+    if range_offset is None:
+        return 0.0
+    if not range_offset.curve:
+        return range_offset.offset_mm / 1000.0
+    return float(np.median([point.error_mm for point in range_offset.curve])) / 1000.0
 
 
 def _without_range_offset(observation: Observation, range_offset_m: float) -> Observation:
@@ -100,7 +112,7 @@ def solve_two_pass(
     first = solve([m.observation() for m in measurements], rod, options=options)
     if on_second_pass is not None:
         on_second_pass()
-    range_offset_m = first.range_offset.offset_mm / 1000.0 if first.range_offset is not None else 0.0
+    range_offset_m = _typical_range_error_m(first.range_offset)
     refitted, kept = refit_centres(
         measurements, first.matrix(), estimated_rod(first, rod), background, range_offset_m=range_offset_m
     )

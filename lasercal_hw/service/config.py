@@ -47,6 +47,10 @@ class DaemonConfig(BaseModel):
         default_factory=dict, description="a cell's scanners by name, for cell jobs (docs/cell.md)"
     )
     default_job: Path | None = None
+    dry_run_scene: Path | None = Field(
+        None, description="dry run only: the fake cell's scene file (its [scanners.NAME] are the cell's "
+        "scanners), and the scene of a dry-run job that gives none",
+    )
     token_file: Path | None = Field(None, description="default: <data_dir>/token")
     status_poll_s: float = Field(2.0, gt=0.0, le=60.0)
     dry_run: bool = False
@@ -105,6 +109,10 @@ def load_daemon_config(path: Path | None, overrides: dict[str, Any]) -> DaemonCo
             for e in exc.errors()
         )
         raise ConfigError(f"{source}: {problems} (see docs/daemon.md)") from None
-    if config.default_job is not None and path is not None and not config.default_job.is_absolute():
-        config = config.model_copy(update={"default_job": (Path(path).parent / config.default_job).resolve()})
+    if path is not None:  # files named in daemon.toml are relative to it
+        relative = {key: (Path(path).parent / value).resolve() for key in ("default_job", "dry_run_scene")
+                    if (value := getattr(config, key)) is not None and not value.is_absolute()}
+        config = config.model_copy(update=relative)
+    if config.dry_run_scene is not None and not config.dry_run_scene.is_file():
+        raise ConfigError(f"{source}: dry_run_scene: no scene file {config.dry_run_scene} (see docs/cell.md)")
     return config

@@ -82,7 +82,10 @@ class Daemon:
         self.history = CalibrationHistory(self.store, self.bus)
         from drivers.access import DeviceAccess  # the daemon's one door to its devices
 
-        self.devices: DeviceAccess = DeviceAccess(config.robot_host, config.scanner_url)
+        self.devices: DeviceAccess = DeviceAccess(
+            config.robot_host, config.scanner_url,
+            scanner_urls={name: scanner.url for name, scanner in config.scanners.items()},
+        )
         self.fake_cell: FakeCellProcess | None = None
         self._stopping = False
         self.started_utc = utc_now()
@@ -100,7 +103,7 @@ class Daemon:
             default_job=config.default_job,
             dry_run_daemon=config.dry_run,
             on_state=self._on_state,
-            scanner_urls={name: scanner.url for name, scanner in config.scanners.items()},
+            dry_run_scene=config.dry_run_scene if config.dry_run else None,
         )
         try:
             self.interrupted = self.jobs.recover()
@@ -143,10 +146,15 @@ class Daemon:
         from fakes.cell_process import FakeCellProcess
 
         self.fake_cell = FakeCellProcess(
-            on_death=self._fake_cell_died, serving="serving the dry-run daemon"
+            scene=self.config.dry_run_scene, on_death=self._fake_cell_died,
+            serving="serving the dry-run daemon",
         ).start()
         self.devices.robot_host = self.fake_cell.robot_host
         self.devices.scanner_url = self.fake_cell.scanner_url
+        scene_scanners = self.fake_cell.info.get("scanners", {})
+        named = {name: entry["scanner_url"] for name, entry in scene_scanners.items()}
+        # a scene of named scanners ([scanners.NAME]) is a cell; one [scanner] table is one scanner
+        self.devices.scanner_urls = {} if set(named) <= {DEFAULT_SCANNER} else named
 
     def _fake_cell_died(self, why: str) -> None:
         if self._stopping:
@@ -158,9 +166,8 @@ class Daemon:
         except LasercalError as exc:
             logger.error("the fake cell could not be started again: %s", exc)
             return
-        message = (
-            f"{why}; started a new one (robot {self.devices.robot_host}, scanner {self.devices.scanner_url})"
-        )
+        scanners = ", ".join(url for _, url in self.devices.scanners() if url)
+        message = f"{why}; started a new one (robot {self.devices.robot_host}, scanners {scanners})"
         logger.warning("%s", message)
         with contextlib.suppress(ServiceError):
             self.bus.publish("daemon", {"message": message, "dry_run": True})
@@ -175,12 +182,6 @@ class Daemon:
             self.fake_cell.stop()
         self.store.close()
 
-    def scanners(self) -> list[tuple[str, str | None]]:
-        """The cell's scanners as the configuration lists them: ``(name, url)``, daemon.toml's
-        ``[scanners.NAME]`` or the one ``scanner_url`` (named ``default``)."""
-        named = [(name, scanner.url) for name, scanner in self.config.scanners.items()]
-        return named or [(DEFAULT_SCANNER, self.devices.scanner_url)]
-
     def health(self) -> dict[str, Any]:
         """``GET /v1/health``: liveness, and per scanner its calibration's health (from the
         history and the monitor's last readings, no device I/O)."""
@@ -188,7 +189,7 @@ class Daemon:
         robot_reading = self.monitor.robot_calibration() if self.monitor else unread
         now = datetime.now(UTC)
         scanners = []
-        for name, url in self.scanners():
+        for name, url in self.devices.scanners():
             active = self.history.active_summary(name)
             last_verify = None if active is None else self.history.latest_verify(active["id"])
             scanners.append(scanner_health(name, url, active, last_verify, robot_reading, now))
@@ -199,7 +200,8 @@ class Daemon:
 
     def status(self) -> dict[str, Any]:
         """``GET /v1/status``: from memory and the store, no device I/O."""
-        devices = self.monitor.snapshot() if self.monitor else {"robot": None, "scanner": None}
+        unread: dict[str, Any] = {"robot": None, "scanner": None, "scanners": []}
+        devices = self.monitor.snapshot() if self.monitor else unread
         return {
             "daemon": {
                 "version": __version__,

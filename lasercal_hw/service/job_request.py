@@ -127,15 +127,18 @@ def resolve_job(body: JobBody, default_job: Path | None, data_dir: Path) -> JobC
         if body.dwell_s is not None:
             data["dwell_s"] = body.dwell_s
         job = job_from_mapping(data, "job")
-        if job.trajectory.waypoints_file is not None:
-            _require_readable_here(job.trajectory.waypoints_file, folders)
-        if _estimated_waypoints(job) > MAX_WAYPOINTS:
-            raise InvalidRequestError(
-                f"job.trajectory.parameters ask for {_estimated_waypoints(job)} waypoints; at most "
-                f"{MAX_WAYPOINTS} are taken (raise step_deg or use fewer arcs)",
-                "job.trajectory.parameters",
-            )
-        count = len(job_waypoints(job, live=body.kind == "calibrate"))
+        count = 0
+        for name in job.scanner_names():  # a cell job's scanners each visit their own waypoints
+            scanner_job = job.for_scanner(name)
+            if scanner_job.trajectory.waypoints_file is not None:
+                _require_readable_here(scanner_job.trajectory.waypoints_file, folders)
+            if (estimated := _estimated_waypoints(scanner_job)) > MAX_WAYPOINTS:
+                raise InvalidRequestError(
+                    f"job.trajectory.parameters ask for {estimated} waypoints; at most "
+                    f"{MAX_WAYPOINTS} are taken (raise step_deg or use fewer arcs)",
+                    "job.trajectory.parameters",
+                )
+            count += len(job_waypoints(scanner_job, live=body.kind == "calibrate"))
     except ConfigError as exc:
         raise InvalidRequestError(str(exc).replace("\n ", ""), "job") from None
     if count > MAX_WAYPOINTS:

@@ -13,12 +13,12 @@ import contextlib
 import logging
 import shutil
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from lasercal_hw.config import JobConfig, job_from_mapping
+from lasercal_hw.config import DEFAULT_SCANNER_NAME, JobConfig, job_from_mapping
 from lasercal_hw.errors import InterruptedRunError, LasercalError
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.cell import CELL_FILE, SCANNER_RESULT
@@ -107,8 +107,9 @@ class DeviceDoor(Protocol):
 
     robot_host: str | None
     scanner_url: str | None
+    scanner_urls: dict[str, str]
 
-    def claim(self, owner: str) -> None: ...
+    def claim(self, owner: str, urls: Iterable[str] | None = None) -> None: ...
     def release(self, owner: str) -> None: ...
     def program_snapshot(self, host: str) -> Callable[[], str] | None: ...
 
@@ -134,7 +135,7 @@ class JobManager:
         default_job: Path | None = None,
         dry_run_daemon: bool = False,
         on_state: Callable[[str, str], None] | None = None,
-        scanner_urls: dict[str, str] | None = None,
+        dry_run_scene: Path | None = None,
     ) -> None:
         self._store = store
         self._bus = bus
@@ -145,7 +146,7 @@ class JobManager:
         self._history = history
         self._devices = devices
         self._default_job = default_job
-        self._scanner_urls = tuple((scanner_urls or {}).items())
+        self._dry_run_scene = dry_run_scene  # a dry-run daemon's scene, for dry runs that give none
         self._dry_run_daemon = dry_run_daemon
         self._on_state = on_state or (lambda job_id, state: None)
         self._lock = threading.Lock()
@@ -222,6 +223,8 @@ class JobManager:
                 code="no_active_calibration",
             )
         scene_text = scene_file_text(body)
+        if scene_text is None and body.kind == "dry_run" and self._dry_run_scene is not None:
+            scene_text = self._dry_run_scene.read_text(encoding="utf-8")  # the dry-run daemon's own world
         job_id = new_id("job")
         out_dir = self._jobs_dir / job_id
         record = Job(
@@ -339,7 +342,25 @@ class JobManager:
         """The daemon's devices for a job of ``kind`` (a dry run brings its own)."""
         if kind == "dry_run":
             return DeviceAddresses()
-        return DeviceAddresses(self._devices.robot_host, self._devices.scanner_url, self._scanner_urls)
+        devices = self._devices
+        return DeviceAddresses(devices.robot_host, devices.scanner_url, tuple(devices.scanner_urls.items()))
+
+    def _scanners_used(self, record: Job, job: JobConfig, devices: DeviceAddresses) -> Iterable[str] | None:
+        """The URLs of the daemon's scanners a job talks to, held for it (None: every one): a
+        calibration's, the scanner a verify checks; none for a dry run (its own fake cell)."""
+        if record.kind == "dry_run":
+            return ()
+        if record.kind == "calibrate":
+            resolved = devices.applied_to(job)
+            return [scanner.url for scanner in resolved.scanners.values()] or [resolved.scanner.url]
+        name = record.request.get("scanner")
+        if name is None and (active := self._store.active_calibration_id(None)) is not None:
+            found = self._store.calibration(active)
+            name = found[0]["scanner"] if found is not None else None
+        url = self._devices.scanner_urls.get(name or "", None)
+        if url is None and name == DEFAULT_SCANNER_NAME:
+            url = self._devices.scanner_url
+        return None if url is None else [url]
 
     def _refuse_if_busy(self) -> None:
         if self._active is not None:
@@ -365,7 +386,8 @@ class JobManager:
             daemon=True,
             args=(record, job, devices, cancel, resume_from, scene_file),
         )
-        self._devices.claim(record.id)  # a status probe of the scanner in progress ends first
+        # a status probe of a scanner the job uses, in progress, ends first
+        self._devices.claim(record.id, self._scanners_used(record, job, devices))
         self._active = _Active(record.id, cancel, thread)
         self._last_id = record.id
         thread.start()

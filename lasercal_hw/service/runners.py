@@ -27,7 +27,7 @@ def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None 
     from lasercal_hw.run.engine import RunRequest, calibrate
 
     if ctx.job.scanners:
-        return _run_cell(ctx, dry_run=dry_run)
+        return _run_cell(ctx, dry_run=dry_run, live=live)
     request = RunRequest(
         job=ctx.job,
         out_dir=ctx.out_dir,
@@ -53,13 +53,14 @@ def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None 
     )
 
 
-def _run_cell(ctx: RunContext, *, dry_run: bool) -> RunResult:
+def _run_cell(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None) -> RunResult:
     """A cell job (``[scanners.NAME]``): every scanner through ``run/cell.calibrate_cell``, each
-    scanner's calibration filed on its own; a resumed one continues the job's folder."""
+    scanner's calibration filed on its own, all shown in the Foxglove ``live`` view if there is
+    one; a resumed one continues the job's folder."""
     from lasercal_hw.run.cell import CellRunRequest, calibrate_cell
 
     request = CellRunRequest(
-        job=ctx.job,
+        job=ctx.devices.applied_to(ctx.job),  # each scanner at daemon.toml's [scanners.NAME] url
         out_dir=ctx.out_dir,
         robot_host=ctx.devices.robot_host,
         dry_run=dry_run,
@@ -67,7 +68,8 @@ def _run_cell(ctx: RunContext, *, dry_run: bool) -> RunResult:
         resume=ctx.out_dir if ctx.resume_from is not None else None,
         title=f"lasercal {'dry run' if dry_run else 'calibration'} (job {ctx.job_id})",
     )
-    report = calibrate_cell(request, on_event=ctx.on_event, cancel=ctx.cancel, confirm=ctx.confirm)
+    on_event = live.watch_cell(request, ctx.on_event) if live else ctx.on_event
+    report = calibrate_cell(request, on_event=on_event, cancel=ctx.cancel, confirm=ctx.confirm)
     document = report.document()
     return RunResult(
         document=document,
@@ -81,6 +83,7 @@ def _run_cell(ctx: RunContext, *, dry_run: bool) -> RunResult:
 def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     """Check the active calibration (``lasercal_hw.verify``) with the job recorded with it;
     the result is filed in the verify history with the calibration it checked."""
+    from lasercal_hw.run.cell import events_of_scanner
     from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
     from lasercal_hw.verify.procedure import VerifyRequest, verify
 
@@ -98,7 +101,8 @@ def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     report = verify(
         VerifyRequest(out_dir=ctx.out_dir, robot_host=ctx.devices.robot_host, scanner_url=scanner_url),
         folder / RESULT_FILE,
-        on_event=ctx.on_event,
+        # a cell scanner's events name it, as its calibration's did
+        on_event=ctx.on_event if scanner_name is None else events_of_scanner(ctx.on_event, scanner_name),
         cancel=ctx.cancel,
         confirm=ctx.confirm,
     )

@@ -1,6 +1,7 @@
 """The trajectories the daemon can run: every named preset, and the designed waypoint file of
-its default job (``trajectory.waypoints_file``), each with the job fragment that selects it,
-so a client (the operator page) offers exactly what the daemon knows."""
+its default job (``trajectory.waypoints_file``; a cell job: each scanner's own), each with
+the job fragment that selects it, so a client (the operator page) offers exactly what the
+daemon knows."""
 
 from __future__ import annotations
 
@@ -13,25 +14,44 @@ from lasercal_hw.run.waypoints import job_waypoints
 from trajectories.presets import PRESETS, preset_names
 
 
-def known_trajectories(default_job: Path | None) -> list[dict[str, Any]]:
-    """``name``, ``kind`` (``waypoints_file`` or ``preset``), ``description``, ``waypoints``
-    (how many) and ``job`` (what to send as a job request's ``job`` to run it)."""
-    known: list[dict[str, Any]] = []
-    if default_job is not None:
-        try:
-            job = load_job(default_job)
-            designed = job.trajectory.waypoints_file
-            count = len(job_waypoints(job)) if designed is not None else 0
-        except ConfigError:
-            designed = None  # the status says what is wrong with the default job
-        if designed is not None:
-            known.append({
-                "name": designed.name,
-                "kind": "waypoints_file",
-                "description": f"designed waypoints of the daemon's job {default_job.name} ({designed})",
-                "waypoints": count,
+def _designed(default_job: Path) -> dict[str, Any] | None:
+    """The default job's own trajectory: its designed waypoint file, or a cell job's scanners'
+    trajectories together (each scanner's own); None when it has neither (or cannot be read:
+    the status says what is wrong with the default job)."""
+    try:
+        job = load_job(default_job)
+        if job.scanners:
+            counts = {name: len(job_waypoints(job.for_scanner(name))) for name in job.scanner_names()}
+            return {
+                "name": "each scanner's own",
+                "kind": "cell",
+                "description": f"the daemon's job {default_job.name}: "
+                + ", ".join(f"{name} {count} waypoints" for name, count in counts.items()),
+                "waypoints": sum(counts.values()),
                 "job": {},
-            })
+            }
+        designed = job.trajectory.waypoints_file
+        if designed is None:
+            return None
+        return {
+            "name": designed.name,
+            "kind": "waypoints_file",
+            "description": f"designed waypoints of the daemon's job {default_job.name} ({designed})",
+            "waypoints": len(job_waypoints(job)),
+            "job": {},
+        }
+    except ConfigError:
+        return None
+
+
+def known_trajectories(default_job: Path | None) -> list[dict[str, Any]]:
+    """``name``, ``kind`` (``waypoints_file``, ``cell``: each scanner's own, or ``preset``),
+    ``description``, ``waypoints`` (how many) and ``job`` (what to send as a job request's
+    ``job`` to run it)."""
+    known: list[dict[str, Any]] = []
+    designed = _designed(default_job) if default_job is not None else None
+    if designed is not None:
+        known.append(designed)
     for name in preset_names():
         preset = PRESETS[name]
         known.append({

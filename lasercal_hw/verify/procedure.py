@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 
-from lasercal_hw.calibration.model import range_error_m
 from lasercal_hw.calibration.result import RangeOffset, WaypointResidual
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import ConfigError
@@ -116,9 +115,9 @@ class VerifyPlan:
     waypoints: FloatArray
     reference: FloatArray
     selection: Selection
-    #: The scanner's range error the calibration estimated (``RangeOffset.coefficients_m``;
-    #: empty: none): taken out of the measured centres as the calibration's solve did.
-    range_curve_m: tuple[float, ...] = ()
+    #: The scanner's range error the calibration estimated (None: none): taken out of the
+    #: measured centres as the calibration's solve did.
+    range_error: RangeOffset | None = None
 
 
 def plan_verify(
@@ -130,7 +129,7 @@ def plan_verify(
     *,
     count: int | None = None,
     budget_s: float | None = None,
-    range_curve_m: Sequence[float] = (),
+    range_error: RangeOffset | None = None,
 ) -> VerifyPlan:
     """How to check the calibration ``T_base_laser`` (with its ``covariance``, and its
     ``residuals`` at ``recorded_waypoints``, None: not recorded) with ``job``: ``count``
@@ -147,7 +146,7 @@ def plan_verify(
         time_of=lambda indices: visit_time_s(checking, waypoints[indices]),
         budget_s=budget_s,
     )
-    return VerifyPlan(checking, model, waypoints, reference, selection, tuple(range_curve_m))
+    return VerifyPlan(checking, model, waypoints, reference, selection, range_error)
 
 
 def verify(
@@ -179,7 +178,7 @@ def verify(
         active.waypoints(),
         count=request.waypoints,
         budget_s=time_budget_s(active, chosen_job),
-        range_curve_m=range_curve_of(active.result.range_offset),
+        range_error=active.result.range_offset,
     )
     job, waypoints, selection = plan.job, plan.waypoints, plan.selection
     sink.emit(
@@ -256,20 +255,14 @@ def verify(
     return report
 
 
-def without_range_error(centres_uv_m: FloatArray, range_curve_m: Sequence[float]) -> FloatArray:
+def without_range_error(centres_uv_m: FloatArray, range_error: RangeOffset | None) -> FloatArray:
     """Centres (N, 2) moved back along their bearing by the range error (measured minus true)
-    the curve gives at their distance, as the calibration's solve modelled it."""
+    the calibration's curve gives at their distance, as the calibration's solve modelled it."""
     centres_uv_m = np.asarray(centres_uv_m, dtype=float)
-    if not len(range_curve_m) or not len(centres_uv_m):
+    if range_error is None or not len(centres_uv_m):
         return centres_uv_m
     distance_m = np.linalg.norm(centres_uv_m, axis=1)
-    error_m, _ = range_error_m(np.asarray(range_curve_m, dtype=float), distance_m)
-    return centres_uv_m * (1.0 - error_m / distance_m)[:, None]
-
-
-def range_curve_of(range_offset: RangeOffset | None) -> list[float]:
-    """A calibration's range error as ``VerifyPlan.range_curve_m`` (empty when it has none)."""
-    return [] if range_offset is None else range_offset.coefficients_m()
+    return centres_uv_m * (1.0 - range_error.error_m(distance_m) / distance_m)[:, None]
 
 
 def refit_and_test(
@@ -282,7 +275,7 @@ def refit_and_test(
     if len(refitted) < MIN_MEASURED:
         return None, kept
     job_index = [plan.selection.indices[m.index] for m in refitted]
-    centres_uv_m = without_range_error(np.array([m.centre.centre_uv_m for m in refitted]), plan.range_curve_m)
+    centres_uv_m = without_range_error(np.array([m.centre.centre_uv_m for m in refitted]), plan.range_error)
     test = run_drift_test(
         plan.model,
         job_index,

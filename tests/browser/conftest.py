@@ -45,14 +45,12 @@ def _default_job_toml() -> str:
     return "\n".join(lines) + "\n"
 
 
-@pytest.fixture(scope="module")
-def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
-    """``lasercal serve --dry-run`` on a free loopback port with a fresh data folder."""
+def _serve(folder: Path, daemon_toml: str) -> Iterator[DaemonProcess]:
+    """``lasercal serve --dry-run`` on a free loopback port, configured by ``daemon_toml`` in
+    ``folder``, with a fresh data folder there; stopped at the end."""
     _require_chromium()
-    folder = tmp_path_factory.mktemp("page-daemon")
-    (folder / "job.toml").write_text(_default_job_toml(), encoding="utf-8")
     config = folder / "daemon.toml"
-    config.write_text('default_job = "job.toml"\n', encoding="utf-8")
+    config.write_text(daemon_toml, encoding="utf-8")
     process = DaemonProcess(folder / "data", config=config)
     try:
         yield process.start()
@@ -61,8 +59,28 @@ def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
 
 
 @pytest.fixture(scope="module")
-def browser(daemon: DaemonProcess) -> Iterator[Any]:
+def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+    """The dry-run daemon of one scanner, its default job the quick job's settings."""
+    folder = tmp_path_factory.mktemp("page-daemon")
+    (folder / "job.toml").write_text(_default_job_toml(), encoding="utf-8")
+    yield from _serve(folder, 'default_job = "job.toml"\n')
+
+
+@pytest.fixture(scope="module")
+def cell_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+    """The dry-run daemon serving the two-scanner fake cell (fakes/scenes/two_scanners.toml), its
+    default job examples/cell.toml on the first waypoints of each scanner (tests/run/test_cell.py)."""
+    from tests.run.test_cell import SCENE, write_job
+
+    folder = tmp_path_factory.mktemp("cell-page-daemon")
+    job = write_job(folder)
+    yield from _serve(folder, f'default_job = "{job.name}"\ndry_run_scene = "{SCENE}"\n')
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[Any]:
     """Headless Chromium with a fresh profile, through the system chromedriver."""
+    _require_chromium()
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 

@@ -103,3 +103,20 @@ def test_a_followed_job_shows_each_waypoint_once() -> None:
         "[skip] waypoint 4 of 10: rod not seen",
         "[state] failed: scanner gone",
     ]
+
+
+def test_the_status_of_a_cell_is_a_line_per_scanner() -> None:
+    from lasercal_hw.cli.remote_text import status_lines
+
+    scanners = [
+        {"name": "front", "url": "scip+tcp://127.0.0.2:10940", "connected": True, "identity": None,
+         "error": None, "in_use_by_job": "job-1"},
+        {"name": "rear", "url": "scip+tcp://127.0.0.3:10940", "connected": False, "identity": None,
+         "error": "connection refused", "in_use_by_job": None},
+    ]
+    status = {"daemon": {"version": "0", "started_utc": "t", "data_dir": "d"}, "robot": {},
+              "scanner": scanners[0], "scanners": scanners, "active_calibration": None, "job": None}
+    lines = status_lines(status)
+    assert "scanner front: scip+tcp://127.0.0.2:10940, connected yes, in use by job-1" in lines
+    assert "scanner rear: scip+tcp://127.0.0.3:10940, connected no" in lines
+    assert "  scanner rear: connection refused" in lines

@@ -29,7 +29,8 @@ class _Opened:
         return ScannerIdentity("v", "p", "f", "SCIP 2.0", serial=self.address, model="UTM-30LX-EW")
 
 
-def _recording(log: list[str], name: str) -> Any:
+def recording_opener(log: list[str], name: str) -> Any:
+    """A driver that opens a stand-in device and logs ``"NAME ADDRESS"`` for each opening."""
     def open_device(address: str, **options: Any) -> _Opened:
         log.append(f"{name} {address}")
         return _Opened(address, options)
@@ -40,8 +41,8 @@ def _recording(log: list[str], name: str) -> Any:
 def test_drivers_are_chosen_by_the_scheme_of_the_address() -> None:
     log: list[str] = []
     access = DeviceAccess(
-        scanner_drivers={"scip+tcp": _recording(log, "tcp"), "mock": _recording(log, "mock")},
-        robot_drivers={"ur": _recording(log, "ur"), "sim": _recording(log, "sim")},
+        scanner_drivers={"scip+tcp": recording_opener(log, "tcp"), "mock": recording_opener(log, "mock")},
+        robot_drivers={"ur": recording_opener(log, "ur"), "sim": recording_opener(log, "sim")},
     )
     access.open_scanner("mock://a", timeout_s=1.0)
     access.open_scanner("scip+tcp://127.0.0.1:10940", timeout_s=1.0)
@@ -54,13 +55,33 @@ def test_drivers_are_chosen_by_the_scheme_of_the_address() -> None:
 
 def test_a_claimed_scanner_is_not_probed() -> None:
     log: list[str] = []
-    access = DeviceAccess(None, "mock://s", scanner_drivers={"mock": _recording(log, "mock")})
+    access = DeviceAccess(None, "mock://s", scanner_drivers={"mock": recording_opener(log, "mock")})
     access.claim("job-1")
     assert access.probe_scanner().in_use_by == "job-1" and log == []
     access.release("job-1")
     probe = access.probe_scanner()
     assert probe.in_use_by is None and probe.identity is not None and probe.identity["serial"] == "mock://s"
     assert DeviceAccess().probe_scanner().error == "no scanner configured"
+
+
+def test_each_scanner_of_a_cell_is_claimed_and_probed_on_its_own() -> None:
+    log: list[str] = []
+    urls = {"front": "mock://front", "rear": "mock://rear"}
+    drivers = {"mock": recording_opener(log, "mock")}
+    access = DeviceAccess(None, "mock://one", scanner_urls=urls, scanner_drivers=drivers)
+    assert access.scanners() == [("front", "mock://front"), ("rear", "mock://rear")]
+    access.claim("job-1", ["mock://rear"])
+    assert access.probe_scanner("mock://rear").in_use_by == "job-1"
+    assert access.probe_scanner("mock://front").identity["serial"] == "mock://front"  # type: ignore[index]
+    access.claim("job-2")  # every scanner the cell knows, scanner_url too; rear stays job-1's
+    assert {access.probe_scanner(url).in_use_by for url in ("mock://front", "mock://one")} == {"job-2"}
+    access.release("job-2")
+    assert access.probe_scanner("mock://rear").in_use_by == "job-1"
+    assert access.probe_scanner().in_use_by is None
+    access.release("job-1")
+    assert access.probe_scanner("mock://rear").in_use_by is None
+    assert log == ["mock mock://front", "mock mock://one", "mock mock://rear"]  # never a held one
+    assert DeviceAccess(None, "mock://one").scanners() == [("default", "mock://one")]
 
 
 def test_robot_status_comes_from_the_dashboard_server() -> None:

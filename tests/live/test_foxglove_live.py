@@ -20,6 +20,7 @@ pytest.importorskip("foxglove", reason="the foxglove extra is missing: pip insta
 websocket = pytest.importorskip("websocket", reason="websocket-client (comes with selenium) is missing")
 
 from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base  # noqa: E402
+from lasercal_hw.config import load_job  # noqa: E402
 from lasercal_hw.geometry import (  # noqa: E402
     euler_zyx_to_matrix,
     make_transform,
@@ -29,10 +30,14 @@ from lasercal_hw.geometry import (  # noqa: E402
 )
 from lasercal_hw.live.foxglove import MIN_CENTRES_FOR_ESTIMATE, FoxgloveLiveView, RunGeometry  # noqa: E402
 from lasercal_hw.models import RodLine  # noqa: E402
+from lasercal_hw.run.cell import CellRunRequest  # noqa: E402
+from lasercal_hw.run.events import RunEvent  # noqa: E402
+from lasercal_hw.run.waypoints import job_waypoints  # noqa: E402
 from tests.cli_helpers import assert_one_line_error, run_cli  # noqa: E402
 
 SUBPROTOCOL = "foxglove.sdk.v1"
-LAYOUT = Path(__file__).parents[2] / "docs" / "foxglove-layout.json"
+REPO = Path(__file__).parents[2]
+LAYOUT = REPO / "docs" / "foxglove-layout.json"
 MESSAGE_DATA = 0x01
 TIMEOUT_S = 10.0
 SUBSCRIBE_POLL_S = 0.2
@@ -48,11 +53,11 @@ def view() -> Iterator[FoxgloveLiveView]:
 class Client:
     """A minimal Foxglove websocket client: the channels advertised, subscribe, receive."""
 
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, topics: tuple[str, ...] = ("/lasercal/log",)) -> None:
         self._ws = websocket.create_connection(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL],
                                                timeout=TIMEOUT_S)
         self.channels: dict[str, dict[str, Any]] = {}
-        while "/lasercal/log" not in self.channels:
+        while not set(topics) <= set(self.channels):
             message = json.loads(self._ws.recv())
             if message["op"] == "advertise":
                 self.channels.update({c["topic"]: c for c in message["channels"]})
@@ -196,7 +201,51 @@ def test_frames_show_the_tcp_the_rod_and_the_scanner_estimate(view: FoxgloveLive
     np.testing.assert_allclose(solved[("base", "laser")][:3, 3], T[:3, 3] + 0.001, atol=1e-9)
 
 
-@pytest.mark.parametrize("command", [("run", "--dry-run", "--yes"), ("serve", "--dry-run")])
+def test_a_cell_shows_every_scanner_in_its_own_frame(view: FoxgloveLiveView, tmp_path: Path) -> None:
+    """A cell job (examples/cell.toml): each scanner's scans on its own topic in its frame
+    laser_NAME, and every scanner's frame in /tf from the start (its nominal mounting)."""
+    job = load_job(REPO / "examples" / "cell.toml")
+    events: list[Any] = []
+    watch = view.watch_cell(CellRunRequest(job=job, out_dir=tmp_path), events.append)
+    front_poses = job_waypoints(job.for_scanner("front"))
+    client = Client(view.port, topics=("/lasercal/log", "/scan/front", "/scan/rear"))
+    try:
+        assert "/scan" in client.channels  # a one-scanner run's topic stays
+        client.subscribe("/tf", 1)
+        client.subscribe("/scan/rear", 2)
+        client.subscribe("/scan/front", 3)
+        moving = RunEvent(1, "progress", "move", {"stage": "move", "waypoint": 2, "scanner": "front"})
+        frames = _transforms(client.first(1, lambda: watch(moving)))
+        scan = {"waypoint": 0, "angle_min_rad": -1.0, "angle_increment_rad": 0.5, "ranges_m": [1.0, 2.0],
+                "rod_beams": [], "circle": None}
+        def scan_of(name: str) -> Callable[[], None]:
+            return lambda: watch(RunEvent(2, "scan", "", scan | {"scanner": name}))
+
+        rear_scan = dict(_fields(client.first(2, scan_of("rear"))))
+        front_scan = dict(_fields(client.first(3, scan_of("front"))))
+        solved = make_transform(np.eye(3), [-0.45, -0.40, 0.30])
+        watch(RunEvent(4, "result", "", {"passed": True, "T_base_laser": solved.tolist(), "scanner": "rear"}))
+        after = _transforms(client.receive(1))
+    finally:
+        client.close()
+    assert {event.kind for event in events} == {"progress", "scan", "result"}, "the run's callback gets them"
+    assert (rear_scan[2], front_scan[2]) == (b"laser_rear", b"laser_front")
+    np.testing.assert_allclose(frames[("base", "tcp")][:3, 3], front_poses[2][:3], atol=1e-9)
+    for name in ("front", "rear"):
+        nominal = job.scanners[name].nominal
+        assert nominal is not None
+        np.testing.assert_allclose(frames[("base", f"laser_{name}")], nominal.matrix(), atol=1e-6)
+    np.testing.assert_allclose(after[("base", "laser_rear")], solved, atol=1e-9)
+    np.testing.assert_allclose(after[("base", "laser_front")], frames[("base", "laser_front")], atol=1e-9)
+    assert ("base", "laser") not in after
+
+
+@pytest.mark.parametrize("command", [
+    ("run", "--dry-run", "--yes"),
+    ("run", "--dry-run", "--yes", "--config", str(REPO / "examples" / "cell.toml"),
+     "--scene", str(REPO / "fakes" / "scenes" / "two_scanners.toml")),
+    ("serve", "--dry-run"),
+])
 def test_run_and_serve_say_when_the_foxglove_port_is_taken(command: tuple[str, ...]) -> None:
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))

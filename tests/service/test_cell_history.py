@@ -68,7 +68,9 @@ def client(tmp_path: Path) -> Iterator[TestClient]:
 
 
 def _run(client: TestClient, body: dict) -> dict:
-    return finish_job(client, client.post("/v1/jobs", json=body).json()["id"])
+    answer = client.post("/v1/jobs", json=body)
+    assert answer.status_code == 202, answer.text
+    return finish_job(client, answer.json()["id"])
 
 
 def test_a_cell_job_files_and_activates_each_scanner_on_its_own(client: TestClient) -> None:
@@ -172,3 +174,69 @@ def test_the_history_rebuilds_a_cell_jobs_calibrations_per_scanner(tmp_path: Pat
         assert stopped["request"]["resolved_job"]["scanners"] == {"front": {}, "rear": {}}
     finally:
         store.close()
+
+
+def test_a_job_holds_the_urls_of_the_scanners_it_uses_and_no_other(tmp_path: Path) -> None:
+    urls = {name: f"scip+tcp://127.0.0.{2 + i}:10940" for i, name in enumerate(("front", "rear", "side"))}
+    engine = FakeCellEngine()
+    held: list[dict[str, str | None]] = []
+
+    def holding(ctx: RunContext) -> RunResult:
+        probes = {name: daemon.devices.probe_scanner(url, timeout_s=0.2) for name, url in urls.items()}
+        held.append({name: probe.in_use_by for name, probe in probes.items()})
+        return engine(ctx)
+
+    settings = {"data_dir": tmp_path / "data", "robot_host": "127.0.0.9", "status_poll_s": 60.0,
+                "scanners": {name: {"url": url} for name, url in urls.items()}}
+    daemon = Daemon(load_daemon_config(None, settings), runners=lambda active: {
+        "calibrate": holding, "dry_run": holding, "verify": holding})
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
+        client.headers["Authorization"] = f"Bearer {daemon.token}"
+        placed = {name: {"nominal": {"translation_m": PLACES_M[name], "euler_zyx_deg": [0.0, 0.0, 0.0]}}
+                  for name in PLACES_M}
+        calibrate = {"kind": "calibrate", "activate_on_pass": True, "job": {"scanners": placed}}
+        job = _run(client, CELL_JOB | calibrate)
+        assert job["state"] == "succeeded", job
+        _run(client, {"kind": "verify", "confirm_motion": True, "scanner": "rear"})
+        _run(client, CELL_JOB)  # a dry run: its own fake cell, none of the daemon's scanners
+        status = client.get("/v1/status").json()
+    assert held[0] == {"front": job["id"], "rear": job["id"], "side": None}
+    assert held[1]["rear"] is not None and held[1]["front"] is None and held[1]["side"] is None
+    assert held[2] == {"front": None, "rear": None, "side": None}
+    assert daemon.devices.probe_scanner(urls["front"], timeout_s=0.2).in_use_by is None  # released at the end
+    assert [s["name"] for s in status["scanners"]] == ["front", "rear", "side"]
+    assert status["scanner"]["url"] == urls["front"]
+
+
+def test_a_cell_job_reaches_each_scanner_at_the_daemons_url(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The runner hands the cell run daemon.toml's URLs, never the job file's (a real address),
+    and shows it in the daemon's Foxglove view (``lasercal serve --foxglove``)."""
+    import lasercal_hw.run.cell as cell
+    from lasercal_hw.run.cancel import CancelToken
+    from lasercal_hw.service.runners import run_engine
+
+    asked: list[JobConfig] = []
+    watched: list[object] = []
+
+    class Live:
+        def watch_cell(self, request: cell.CellRunRequest, on_event: object) -> object:
+            watched.append(request)
+            return on_event
+
+    def calibrate_cell(request: cell.CellRunRequest, **_: object) -> None:
+        asked.append(request.job)
+        raise ConfigError("stop here")
+
+    monkeypatch.setattr(cell, "calibrate_cell", calibrate_cell)
+    example_url = "scip+tcp://192.168.0.10:10940"  # never reached: the test stops before any connection
+    job = JobConfig.model_validate({"scanners": {"front": {"url": example_url}, "rear": {}}})
+    devices = DeviceAddresses("127.0.0.9", None, (("front", "scip+tcp://127.0.0.2:10940"),))
+    ctx = RunContext("job-1", "calibrate", job, devices, tmp_path, None, None, lambda e: None, CancelToken(),
+                     lambda plan: None)
+    with pytest.raises(ConfigError, match="stop here"):
+        run_engine(ctx, dry_run=False, live=Live())  # type: ignore[arg-type]
+    assert asked[0].scanners["front"].url == "scip+tcp://127.0.0.2:10940"
+    assert asked[0].robot.host == "127.0.0.9"
+    assert len(watched) == 1

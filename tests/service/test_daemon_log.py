@@ -83,6 +83,12 @@ class _Devices:
         self.robot_host, self.scanner_url = "127.0.0.1", None
         self.answers, self.asked = answers, threading.Event()
 
+    def scanners(self) -> list[tuple[str, str | None]]:
+        return [("default", None)]
+
+    def holder(self, url: str | None) -> str | None:
+        return None
+
     def probe_robot(self) -> dict[str, Any]:
         if len(self.answers) == 1:
             self.asked.set()

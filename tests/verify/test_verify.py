@@ -239,17 +239,23 @@ def test_a_verify_over_its_time_share_says_so() -> None:
 
 
 def test_the_calibrations_range_error_is_taken_out_of_the_measured_centres() -> None:
-    """A scanner that reads 10 mm long at 1 m and 20 mm more per metre beyond (as the
-    calibration estimated) must not look moved to verify."""
+    """A scanner that reads 10 mm long at 1 m and 20 mm more per e-fold of distance beyond (as
+    the calibration estimated) must not look moved to verify; nor one whose calibration was
+    solved before, with the curve's terms in metres of distance."""
     from lasercal_hw.calibration.result import RangeOffset
-    from lasercal_hw.verify.procedure import range_curve_of, without_range_error
+    from lasercal_hw.verify.procedure import without_range_error
 
-    offset = RangeOffset(offset_mm=10.0, std_mm=1.0, scale_mm_per_m=20.0, scale_std_mm_per_m=1.0)
-    curve = range_curve_of(offset)
-    assert curve == pytest.approx([0.010, 0.020])
     measured = np.array([[0.0, 1.52], [0.606, 0.808]])  # read at 1.52 m and 1.01 m
-    corrected = without_range_error(measured, curve)  # moved in by 10 + 20 * (d - 1 m) mm
-    np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), [1.52 - 0.0204, 1.01 - 0.0102], atol=1e-9)
+    log_curve = RangeOffset(
+        offset_mm=10.0, std_mm=1.0, basis="log_distance", terms_mm=[10.0, 20.0], terms_std_mm=[1.0, 1.0]
+    )
+    corrected = without_range_error(measured, log_curve)  # moved in by 10 + 20 ln(d / 1 m) mm
+    distance_m = np.array([1.52, 1.01])
+    expected_m = distance_m - 0.010 - 0.020 * np.log(distance_m)
+    np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), expected_m)
     np.testing.assert_allclose(corrected[1] / np.linalg.norm(corrected[1]), [0.6, 0.8])  # same bearing
-    assert range_curve_of(None) == []
-    np.testing.assert_array_equal(without_range_error(measured, []), measured)
+    older = RangeOffset(offset_mm=10.0, std_mm=1.0, scale_mm_per_m=20.0, scale_std_mm_per_m=1.0)
+    assert older.coefficients_m() == pytest.approx([0.010, 0.020])
+    corrected = without_range_error(measured, older)  # moved in by 10 + 20 * (d - 1 m) mm
+    np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), [1.52 - 0.0204, 1.01 - 0.0102], atol=1e-9)
+    np.testing.assert_array_equal(without_range_error(measured, None), measured)

@@ -19,14 +19,43 @@ const state = {
   trajectories: [],       // GET /v1/trajectories: presets and designed waypoint files
   verifies: [],
   diffs: new Map(),       // "<id>:<active id>" -> diff document
+  selected: null,         // the scanner chosen on a cell's page (null: every scanner)
+  exports: null,          // GET /v1/calibration?scanner=<selected>: its active calibration's exports
   knownJobs: new Set(),   // jobs older than the latest one when the page opened
   live: freshLive(null),
 };
 
-/** What the run panel draws for one job. */
+/** What the run panel draws for one job: per scanner its scans and centres (a cell job's
+ *  events name their scanner; a one-scanner job's are of "default"). */
 function freshLive(jobId) {
-  return { jobId, progress: null, scan: null, scans: 0, centres: new Map(), predicted: new Map(),
-           skipped: [], result: null, log: [] };
+  return { jobId, progress: null, scans: 0, current: null, scanners: new Map(), results: new Map(),
+           skipped: [], log: [] };
+}
+
+function emptyScannerLive() { return { scan: null, scans: 0, centres: new Map(), predicted: new Map() }; }
+
+/** The live picture of scanner ``name`` (made on its first event). */
+function scannerLive(name) {
+  const live = state.live;
+  if (!live.scanners.has(name)) live.scanners.set(name, emptyScannerLive());
+  return live.scanners.get(name);
+}
+
+/** The scanner the picture shows: the chosen one, else the one the run is at. */
+function shownLive() {
+  const name = state.selected || state.live.current;
+  return { name, ...(state.live.scanners.get(name) || emptyScannerLive()) };
+}
+
+/** True when the daemon's cell names its scanners ([scanners.NAME]): the page shows them one by one. */
+function isCell() {
+  const scanners = (state.status && state.status.scanners) || [];
+  return scanners.some((s) => s.name !== "default");
+}
+
+/** A scanner's active calibration in the history (each scanner has its own). */
+function activeOf(scanner) {
+  return state.calibrations.find((c) => c.active && (c.scanner || "default") === scanner) || null;
 }
 
 // ---- event-to-paint record --------------------------------------------------------------
@@ -202,6 +231,12 @@ function stateKind(jobState) {
 function renderStatus() {
   const s = state.status;
   if (!s) return;
+  const cell = isCell();
+  document.body.classList.toggle("cell", cell);
+  if (cell) {
+    renderScannerCards();
+    renderScannerFilter();
+  }
   renderHealth();
   $("daemon-version").textContent = `daemon ${s.daemon.version}`;
   $("dry-run-badge").hidden = !s.daemon.dry_run;
@@ -256,22 +291,102 @@ function renderHealth() {
   if (!state.health) return;
   node.replaceChildren(...state.health.scanners.map((s) => {
     const row = el("div", { class: "health-row", "data-scanner": s.name }, el("span", { class: "mono", text: s.name }), " ");
-    if (!s.active_calibration) {
-      row.append(badge("no active calibration", "off"));
-      return row;
-    }
-    const verify = s.last_verify;
-    const robot = s.robot_calibration_matches;
-    row.append(
-      badge(`${s.passed ? "passed" : "failed"} · ${duration(s.age_s)} old`, s.passed ? "ok" : "bad"), " ",
-      verify ? badge(`verify ${verify.verdict} · ${duration(verify.age_s)} ago`, VERDICT_KIND[verify.verdict] || "off")
-        : badge("never verified", "warn"), " ",
-      el("span", { title: s.robot_calibration_note }, badge(
-        robot === true ? "robot calibration same" : robot === false ? "robot calibration changed" : "robot calibration unknown",
-        robot === true ? "ok" : robot === false ? "bad" : "off")));
-    if (robot === false) row.append(el("div", { class: "small bad-text", text: s.robot_calibration_note }));
+    row.append(...healthBadges(s));
     return row;
   }));
+}
+
+/** A scanner's health at a glance: its calibration (passed, age), its last verify (verdict,
+ *  when) and whether the robot's kinematics calibration still matches (why, on hover). */
+function healthBadges(s) {
+  if (!s.active_calibration) return [badge("no active calibration", "off")];
+  const verify = s.last_verify;
+  const robot = s.robot_calibration_matches;
+  const badges = [
+    badge(`${s.passed ? "passed" : "failed"} · ${duration(s.age_s)} old`, s.passed ? "ok" : "bad"), " ",
+    verify ? badge(`verify ${verify.verdict} · ${duration(verify.age_s)} ago`, VERDICT_KIND[verify.verdict] || "off")
+      : badge("never verified", "warn"), " ",
+    el("span", { title: s.robot_calibration_note }, badge(
+      robot === true ? "robot calibration same" : robot === false ? "robot calibration changed" : "robot calibration unknown",
+      robot === true ? "ok" : robot === false ? "bad" : "off"))];
+  if (robot === false) badges.push(el("div", { class: "small bad-text", text: s.robot_calibration_note }));
+  return badges;
+}
+
+/** A cell's scanners, one card each: connection, health, active calibration; a click chooses
+ *  the scanner the history, its exports and the scan picture show (again: every scanner). */
+function renderScannerCards() {
+  const health = new Map(((state.health && state.health.scanners) || []).map((h) => [h.name, h]));
+  $("scanner-cards").replaceChildren(...state.status.scanners.map((s) => {
+    const held = s.in_use_by_job;
+    const connection = held ? badge(`in use by ${held}`, "run")
+      : badge(s.connected ? "connected" : "not connected", s.connected ? "ok" : "bad");
+    const card = el("div", { class: "scanner-card" + (state.selected === s.name ? " selected" : ""),
+                             "data-scanner": s.name, role: "button", tabindex: "0",
+                             title: `show ${s.name}'s history, exports and scans` },
+      el("div", {}, el("span", { class: "mono name", text: s.name }), " ", connection, " ",
+        el("span", { class: "small muted", text: s.url || "" })));
+    if (s.error && !held) card.append(el("div", { class: "small", text: s.error }));
+    const h = health.get(s.name);
+    if (h) card.append(el("div", { class: "health-row" }, ...healthBadges(h)));
+    const active = activeOf(s.name);
+    if (active) {
+      card.append(
+        el("div", { class: "small" }, "active ", el("span", { class: "mono", text: active.id }),
+          active.dry_run ? " (dry run)" : "", ` · ${utc(active.created_utc)}`),
+        el("div", { class: "small pose", text: poseText(active.T_base_laser) }),
+        el("div", { class: "small", text: `std (largest axis) ${fmt(largest(active.std_translation_mm))} mm, ${
+          fmt(largest(active.std_rotation_deg), 3)} deg` }));
+    }
+    card.addEventListener("click", () => selectScanner(state.selected === s.name ? null : s.name));
+    card.addEventListener("keydown", (e) => { if (e.key === "Enter" || e.key === " ") card.click(); });
+    return card;
+  }));
+}
+
+/** The history's scanner chooser: every scanner, or one. */
+function renderScannerFilter() {
+  const names = [null, ...state.status.scanners.map((s) => s.name)];
+  $("scanner-filter").replaceChildren("Scanner: ", ...names.map((name) => {
+    const button = el("button", { type: "button", class: state.selected === name ? "selected" : "",
+                                  "data-scanner": name || "", text: name || "every scanner" });
+    button.addEventListener("click", () => selectScanner(name));
+    return button;
+  }));
+}
+
+/** Show scanner ``name`` (null: every scanner) in the history, its exports and the scan picture. */
+async function selectScanner(name) {
+  state.selected = name;
+  state.exports = null;
+  $("start-verify").textContent = name ? `Start verify (${name})` : "Start verify";
+  markDirty("status", "history", "scan");
+  if (!name) return;
+  try {
+    state.exports = await api("GET", `/v1/calibration?scanner=${encodeURIComponent(name)}`);
+  } catch (err) {
+    state.exports = { missing: err.status === 404 ? `${name} has no active calibration` : err.message };
+  }
+  if (state.selected === name) markDirty("history");
+}
+
+/** The chosen scanner's active calibration as a ROS static transform and a URDF joint. */
+function renderExports() {
+  const node = $("exports");
+  const exports = state.exports;
+  node.hidden = !state.selected || !exports;
+  if (node.hidden) return;
+  if (exports.missing) {
+    node.replaceChildren(el("span", { class: "muted", text: exports.missing }));
+    return;
+  }
+  const args = exports.exports.static_transform_publisher_args;
+  node.replaceChildren(
+    el("div", {}, `Exports of ${state.selected}'s active calibration `, el("span", { class: "mono", text: exports.id }),
+      ` (frame ${args[args.length - 1]}):`),
+    el("pre", { class: "mono", "data-export": "static_transform_publisher",
+                text: "ros2 run tf2_ros static_transform_publisher " + args.join(" ") }),
+    el("pre", { class: "mono", "data-export": "urdf_joint", text: exports.exports.urdf_joint }));
 }
 
 async function refreshStatus() {
@@ -315,7 +430,8 @@ function renderJob() {
   bar.setAttribute("aria-valuemax", String(total));
   bar.setAttribute("aria-valuenow", String(done));
   $("progress-fill").style.width = total ? `${(100 * done) / total}%` : "0";
-  $("progress-text").textContent = total ? `waypoint ${Math.min(done + (ACTIVE_STATES.has(job.state) && done < total ? 1 : 0), total)} of ${total} · ${done} done` : "–";
+  const of = isCell() && p.scanner ? `${p.scanner}: ` : "";  // a cell job's scanners run one after the other
+  $("progress-text").textContent = total ? `${of}waypoint ${Math.min(done + (ACTIVE_STATES.has(job.state) && done < total ? 1 : 0), total)} of ${total} · ${done} done` : "–";
   $("time-left").textContent = ACTIVE_STATES.has(job.state) && p.time_left_s !== null && p.time_left_s !== undefined
     ? `about ${Math.round(p.time_left_s)} s left` : "";
   $("job-message").textContent = (job.error && job.error.message) || p.message || "";
@@ -330,23 +446,37 @@ function renderSkipped() {
     list.replaceChildren(el("li", { class: "muted", text: "none" }));
     return;
   }
-  list.replaceChildren(...skipped.map((s) => el("li", { text: `waypoint ${s.waypoint}: ${s.reason}` })));
+  list.replaceChildren(...skipped.map((s) => el("li", {
+    text: `${isCell() && s.scanner ? s.scanner + " " : ""}waypoint ${s.waypoint}: ${s.reason}` })));
 }
 
+/** Each scanner's result of the run (a cell job's one after the other), and its calibration's files. */
 function renderResult() {
   const node = $("job-result");
-  const result = state.live.result;
   const job = state.job;
-  const parts = [];
-  if (result) {
-    parts.push(badge(result.passed ? "passed" : "failed the quality gates", result.passed ? "ok" : "bad"), " ",
-      `RMS residual ${fmt(result.rms_residual_mm)} mm · std (largest axis) ${
-        fmt(largest(result.std_translation_mm))} mm, ${fmt(largest(result.std_rotation_deg), 3)} deg`,
-      el("div", { class: "mono pose", id: "job-pose", text: poseText(result.T_base_laser) }));
-  }
-  const calibration = job && job.calibration_id && state.calibrations.find((c) => c.id === job.calibration_id);
-  if (calibration) parts.push(el("div", { class: "small files" }, "files: ", ...fileLinks(calibration.files)));
-  node.replaceChildren(...parts);
+  const ids = calibrationIds(job);
+  const cell = isCell();
+  const names = [...new Set([...state.live.results.keys(), ...Object.keys(ids)])];
+  node.replaceChildren(...names.map((name, i) => {
+    const result = state.live.results.get(name);
+    const part = el("div", { class: "scanner-result", "data-scanner": name });
+    if (cell) part.append(el("span", { class: "mono name", text: name }), " ");
+    if (result) {
+      part.append(badge(result.passed ? "passed" : "failed the quality gates", result.passed ? "ok" : "bad"), " ",
+        `RMS residual ${fmt(result.rms_residual_mm)} mm · std (largest axis) ${
+          fmt(largest(result.std_translation_mm))} mm, ${fmt(largest(result.std_rotation_deg), 3)} deg`,
+        el("div", { class: "mono pose", id: i === 0 ? "job-pose" : `job-pose-${name}`, text: poseText(result.T_base_laser) }));
+    }
+    const calibration = ids[name] && state.calibrations.find((c) => c.id === ids[name]);
+    if (calibration) part.append(el("div", { class: "small files" }, "files: ", ...fileLinks(calibration.files)));
+    return part;
+  }));
+}
+
+/** The calibrations a job filed, by scanner (a cell job's document lists them all). */
+function calibrationIds(job) {
+  if (!job || !job.calibration_id) return {};
+  return (job.document && job.document.calibration_ids) || { default: job.calibration_id };
 }
 
 function fileLinks(files) {
@@ -377,7 +507,7 @@ function renderScan() {
   const W = canvas.width;
   const H = canvas.height;
   ctx.clearRect(0, 0, W, H);
-  const live = state.live;
+  const live = shownLive();
   const scan = live.scan;
   const rodBeams = new Set(scan ? scan.rod_beams : []);
   const points = scan ? scanPoints(scan) : [];
@@ -400,7 +530,8 @@ function renderScan() {
   const px = (u, v) => [W / 2 + (u - midU) * scale, H / 2 - (v - midV) * scale];
 
   ctx.font = "11px system-ui, sans-serif";
-  const caption = scan ? `waypoint ${scan.waypoint}: ${rodBeams.size} beams on the rod` : "no scan yet";
+  const of = isCell() && live.name ? `${live.name}: ` : "";  // a cell's picture is of one scanner
+  const caption = of + (scan ? `waypoint ${scan.waypoint}: ${rodBeams.size} beams on the rod` : "no scan yet");
   const captionBox = textBox(ctx, caption, 8, H - 8);
   drawGrid(ctx, W, H, px, midU, midV, span, [captionBox]);
   drawScanner(ctx, px);
@@ -434,7 +565,9 @@ function renderScan() {
   ctx.fillStyle = cssVar("--muted");
   ctx.font = "11px system-ui, sans-serif";
   ctx.fillText(caption, 8, H - 8);
-  canvas.dataset.scans = String(live.scans);
+  canvas.dataset.scans = String(state.live.scans);
+  canvas.dataset.scanner = live.name || "";
+  canvas.dataset.scannerScans = String(live.scans);
   canvas.dataset.waypoint = scan ? String(scan.waypoint) : "";
 }
 
@@ -552,24 +685,26 @@ async function refreshHistory() {
     const [calibrations, verifies] = await Promise.all([api("GET", "/v1/calibrations"), api("GET", "/v1/verifies")]);
     state.calibrations = calibrations.calibrations || [];
     state.verifies = verifies.verifies || [];
-    const active = state.calibrations.find((c) => c.active);
-    if (active) {
-      await Promise.all(state.calibrations.filter((c) => c.id !== active.id && !state.diffs.has(`${c.id}:${active.id}`))
-        .map(async (c) => {
-          try { state.diffs.set(`${c.id}:${active.id}`, await api("GET", `/v1/calibrations/${c.id}/diff/${active.id}`)); }
-          catch (err) { state.diffs.set(`${c.id}:${active.id}`, null); }
-        }));
-    }
+    // each calibration against its own scanner's active one
+    await Promise.all(state.calibrations.map(async (c) => {
+      const active = activeOf(c.scanner || "default");
+      if (!active || c.id === active.id || state.diffs.has(`${c.id}:${active.id}`)) return;
+      try { state.diffs.set(`${c.id}:${active.id}`, await api("GET", `/v1/calibrations/${c.id}/diff/${active.id}`)); }
+      catch (err) { state.diffs.set(`${c.id}:${active.id}`, null); }
+    }));
+    if (state.selected) await selectScanner(state.selected);  // its active calibration may have changed
     markDirty("history", "status", "job");
   } catch (err) {
     showError(`cannot read the history: ${err.message}`);
   }
 }
 
-/** Rows of the history: calibrations and verifies, newest first, each with its change. */
+/** Rows of the history: calibrations and verifies (of the chosen scanner), newest first, each
+ *  with its change against its scanner's active calibration. */
 function historyRows() {
-  const active = state.calibrations.find((c) => c.active);
-  const rows = state.calibrations.map((c) => {
+  const shown = (item) => !state.selected || (item.scanner || "default") === state.selected;
+  const rows = state.calibrations.filter(shown).map((c) => {
+    const active = activeOf(c.scanner || "default");
     let change = null;
     if (active && c.id === active.id) change = { t: [0, 0, 0], r: [0, 0, 0], st: c.std_translation_mm, sr: c.std_rotation_deg };
     const diff = active && state.diffs.get(`${c.id}:${active.id}`);
@@ -579,7 +714,8 @@ function historyRows() {
              result: badge(c.passed ? "passed" : "failed", c.passed ? "ok" : "bad"),
              std: `${fmt(largest(c.std_translation_mm))} / ${fmt(largest(c.std_rotation_deg), 3)}` };
   });
-  state.verifies.forEach((v) => {
+  state.verifies.filter(shown).forEach((v) => {
+    const active = activeOf(v.scanner || "default");
     const against = v.calibration_id === (active && active.id) ? "" : ` (vs ${v.calibration_id})`;
     rows.push({ kind: "verify" + against, item: v, time: v.created_utc,
                 change: { t: v.shift_translation_mm, r: v.shift_rotation_deg, st: v.shift_std_translation_mm,
@@ -597,6 +733,8 @@ function changeCell(d, std, digits) {
 }
 
 function renderHistory() {
+  renderExports();
+  if (state.status && isCell()) renderScannerFilter();
   const rows = historyRows();
   const body = $("history-body");
   if (!rows.length) {
@@ -618,8 +756,11 @@ function renderHistory() {
       }
       const result = el("td", {}, row.result);
       if (row.reason) result.append(el("div", { class: "small muted", text: row.reason }));
-      const tr = el("tr", { "data-id": item.id, "data-kind": row.kind, class: item.active ? "active-row" : "" },
-        el("td", { text: utc(row.time) }), el("td", { text: row.kind }), el("td", { class: "mono", text: item.id }),
+      const tr = el("tr", { "data-id": item.id, "data-kind": row.kind, "data-scanner": item.scanner || "default",
+                            class: item.active ? "active-row" : "" },
+        el("td", { text: utc(row.time) }),
+        el("td", { text: isCell() ? `${row.kind} · ${item.scanner || "default"}` : row.kind }),
+        el("td", { class: "mono", text: item.id }),
         result, changeCell(row.change && row.change.t, row.change && row.change.st, 2),
         changeCell(row.change && row.change.r, row.change && row.change.sr, 3),
         el("td", { text: row.std }), el("td", { class: "files" }, ...fileLinks(item.files)), action);
@@ -737,11 +878,15 @@ function onEvent(kind, message) {
 function applyEvent(kind, data) {
   const live = state.live;
   const job = state.job;
+  const name = data.scanner || "default";  // a cell job's events name their scanner
+  const scanner = ["scan", "centre"].includes(kind) ? scannerLive(name) : null;
+  if (scanner || kind === "progress") live.current = name;
   const log = (text) => logLine(text, data.time_utc);
   switch (kind) {
     case "progress":
       live.progress = { waypoint: data.waypoint, completed: data.completed, waypoint_count: data.waypoint_count,
-                        time_left_s: data.time_left_s, message: data.message || progressMessage(data) };
+                        time_left_s: data.time_left_s, message: data.message || progressMessage(data),
+                        scanner: data.scanner || null };
       log(`progress ${data.stage} ${data.completed}/${data.waypoint_count}`);
       markDirty("job", "log");
       break;
@@ -767,18 +912,19 @@ function applyEvent(kind, data) {
       markDirty("log");
       break;
     case "scan":
-      live.scan = data;
+      scanner.scan = data;
+      scanner.scans += 1;
       live.scans += 1;
       markDirty("scan");
       break;
     case "centre":
-      live.centres.set(data.waypoint, data.centre_uv_m);
-      if (data.predicted_uv_m || data.expected_uv_m) live.predicted.set(data.waypoint, data.predicted_uv_m || data.expected_uv_m);
+      scanner.centres.set(data.waypoint, data.centre_uv_m);
+      if (data.predicted_uv_m || data.expected_uv_m) scanner.predicted.set(data.waypoint, data.predicted_uv_m || data.expected_uv_m);
       log(`centre ${data.waypoint}: (${fmt(data.centre_uv_m[0], 4)}, ${fmt(data.centre_uv_m[1], 4)}) m`);
       markDirty("scan", "log");
       break;
     case "skip":
-      live.skipped.push({ waypoint: data.waypoint, reason: data.reason });
+      live.skipped.push({ waypoint: data.waypoint, reason: data.reason, scanner: data.scanner || null });
       log(`skip ${data.waypoint}: ${data.reason}`);
       markDirty("job", "log");
       break;
@@ -788,7 +934,7 @@ function applyEvent(kind, data) {
       markDirty("log");
       break;
     case "result":
-      live.result = data;
+      live.results.set(name, data);
       log(`result: ${data.passed ? "passed" : "failed"}`);
       markDirty("job", "log");
       break;
@@ -835,20 +981,26 @@ async function finishJob(jobId) {
   await refreshJob(jobId);
   await Promise.all([refreshHistory(), refreshStatus()]);
   const job = state.job;
-  if (!job || job.id !== jobId || !job.calibration_id) return;
-  const calibration = state.calibrations.find((c) => c.id === job.calibration_id);
+  if (!job || job.id !== jobId) return;
+  await Promise.all(Object.entries(calibrationIds(job)).map(([name, id]) => showPredicted(name, id)));
+}
+
+/** The predicted centres of scanner ``name`` from its calibration's result. */
+async function showPredicted(name, calibrationId) {
+  const calibration = state.calibrations.find((c) => c.id === calibrationId);
   const resultUrl = calibration && calibration.files && calibration.files.result;
   if (!resultUrl) return;
   try {
     const result = await api("GET", resultUrl);
+    const live = scannerLive(name);
     // Predicted centre = measured centre - residual (result.json residuals, mm).
     (result.residuals || []).forEach((r) => {
-      const measured = state.live.centres.get(r.index);
-      if (measured) state.live.predicted.set(r.index, [measured[0] - r.du_mm / 1000, measured[1] - r.dv_mm / 1000]);
+      const measured = live.centres.get(r.index);
+      if (measured) live.predicted.set(r.index, [measured[0] - r.du_mm / 1000, measured[1] - r.dv_mm / 1000]);
     });
     markDirty("scan");
   } catch (err) {
-    showError(`cannot read the result of ${job.calibration_id}: ${err.message}`);
+    showError(`cannot read the result of ${calibrationId}: ${err.message}`);
   }
 }
 
@@ -862,13 +1014,16 @@ async function startJob(kind) {
   const where = kind === "dry_run" || status.daemon.dry_run
     ? "the fake cell (a dry run: no real arm moves)"
     : `the robot at ${status.robot.host || "the configured address"} — keep clear of the arm`;
-  const what = kind === "verify" ? "a verify run against the active calibration" : "a dry-run calibration";
+  const scanner = kind === "verify" && isCell() ? state.selected : null;  // none chosen: the newest activation's
+  const what = kind === "verify" ? `a verify run against the active calibration${scanner ? " of " + scanner : ""}`
+    : isCell() ? "a dry-run calibration of every scanner" : "a dry-run calibration";
   const ok = await confirmAction("Start motion?",
     `This starts ${what} on ${where}: the ${preset} trajectory, dwelling ${dwell} s at every waypoint.`, "Move the arm");
   if (!ok) return;
   const chosen = state.trajectories.find((t) => t.name === preset);
   const body = { kind, confirm_motion: true, job: chosen ? chosen.job : { trajectory: { preset } }, dwell_s: dwell,
                  activate_on_pass: kind !== "verify" && $("activate-on-pass").checked };
+  if (scanner) body.scanner = scanner;
   try {
     const job = await authorised("POST", "/v1/jobs", body);
     if (job) { takeSnapshot(job); markDirty("job"); }
@@ -895,7 +1050,8 @@ async function cancelJob() {
 
 async function activate(calibration) {
   const ok = await confirmAction("Activate calibration?",
-    `Make ${calibration.id} (${utc(calibration.created_utc)}${calibration.dry_run ? ", dry run" : ""}) the active calibration? Software reading the daemon's calibration picks it up.`,
+    `Make ${calibration.id} (${utc(calibration.created_utc)}${calibration.dry_run ? ", dry run" : ""}) the active calibration${
+      isCell() ? " of " + (calibration.scanner || "default") : ""}? Software reading the daemon's calibration picks it up.`,
     "Activate");
   if (!ok) return;
   try {
@@ -931,7 +1087,8 @@ async function loadTrajectories() {
   select.replaceChildren(...state.trajectories.map((t) => el("option", {
     value: t.name, title: t.description,
     text: `${t.name} (${t.waypoints} waypoints${t.kind === "waypoints_file" ? ", designed" : ""})` })));
-  if (state.trajectories.some((t) => t.name === current)) select.value = current;
+  if (state.trajectories.length && state.trajectories[0].kind === "cell") select.value = state.trajectories[0].name;
+  else if (state.trajectories.some((t) => t.name === current)) select.value = current;
 }
 
 function init() {
