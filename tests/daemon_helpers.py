@@ -75,6 +75,7 @@ class FakeEngine:
     def __init__(self, waypoints: int = 4, step_s: float = 0.01, fail: bool = False) -> None:
         self.waypoints, self.step_s, self.fail = waypoints, step_s, fail
         self.translation_m = [0.3, 0.5, 0.2]
+        self.range_offset: dict[str, Any] | None = None  # result.json's range-error curve, when set
         self.started = threading.Event()
         self.release = threading.Event()
         self.release.set()
@@ -106,7 +107,7 @@ class FakeEngine:
         if self.fail:
             raise DeviceError("the scanner went away")
         events.emit("progress", "solving", stage=Stage.SOLVE, completed=self.waypoints)
-        result = fake_result(self.translation_m)
+        result = fake_result(self.translation_m) | {"range_offset": self.range_offset}
         (ctx.out_dir / "result.json").write_text(json.dumps(result))
         return RunResult(
             document={"passed": True, "verdict": result["verdict"]},

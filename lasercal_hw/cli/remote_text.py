@@ -136,7 +136,8 @@ def health_lines(health: dict[str, Any]) -> list[str]:
         lines.append(
             f"{scanner['name']}: {scanner['calibration_id']} {'passed' if scanner['passed'] else 'FAILED'}, "
             f"{_age(scanner['age_s'])} old, {verified}; robot calibration matches: "
-            f"{matches if matches == 'unknown' else _yes_no(matches)} ({scanner['robot_calibration_note']})"
+            f"{matches if matches == 'unknown' else _yes_no(matches)} ({scanner['robot_calibration_note']}); "
+            f"range error: {scanner['range_error']['note']}"
         )
     return lines
 

@@ -28,6 +28,7 @@ _SUMMARY_FIELDS = (
     "crb_translation_mm",
     "crb_rotation_deg",
     "rms_residual_mm",
+    "range_offset",
 )
 
 

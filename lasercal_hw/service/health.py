@@ -14,6 +14,9 @@ from lasercal_hw.models import RobotCalibration
 DEFAULT_SCANNER = DEFAULT_SCANNER_NAME
 """The name of the one scanner a daemon configuration of today has."""
 
+DATA_SHEET_RANGE_ERROR_MM = 30.0
+"""UTM-30LX-EW data sheet: range accuracy +-30 mm from 0.1 to 10 m (the rod's distances)."""
+
 
 def _age_s(created_utc: str, now: datetime) -> float:
     return max(0.0, (now - datetime.fromisoformat(created_utc)).total_seconds())
@@ -36,6 +39,46 @@ def robot_calibration_match(recorded: dict[str, Any] | None, reading: dict[str, 
     return False, f"the robot's kinematics calibration changed since the calibration: {change}"
 
 
+def _worst_range_error_mm(summary: dict[str, Any]) -> float | None:
+    curve = summary.get("range_offset") or {}
+    worst = curve.get("worst_mm")
+    return None if worst is None else float(worst)
+
+
+def range_error_health(active: dict[str, Any], earlier: list[dict[str, Any]]) -> dict[str, Any]:
+    """The scanner's range error as a health figure: the largest |error| of the active
+    calibration's curve over the distances its crossings spanned, against the data sheet and
+    against the newest earlier calibration of the same scanner that estimated one (``earlier``:
+    that scanner's older summaries, newest first). A unit whose range error grows from one
+    calibration to the next is one to check or replace."""
+    worst_mm = _worst_range_error_mm(active)
+    if worst_mm is None:
+        return {
+            "state": "unknown", "worst_mm": None, "limit_mm": DATA_SHEET_RANGE_ERROR_MM,
+            "previous": None, "note": "the active calibration estimated no range-error curve",
+        }
+    state = "within_data_sheet" if worst_mm <= DATA_SHEET_RANGE_ERROR_MM else "beyond_data_sheet"
+    where = "within" if state == "within_data_sheet" else "BEYOND"
+    note = (
+        f"largest range error {worst_mm:.1f} mm over the crossings' distances, "
+        f"{where} the data sheet's {DATA_SHEET_RANGE_ERROR_MM:.0f} mm"
+    )
+    previous = next(
+        (
+            {"calibration_id": s["id"], "worst_mm": w, "change_mm": worst_mm - w}
+            for s in earlier
+            if (w := _worst_range_error_mm(s)) is not None
+        ),
+        None,
+    )
+    if previous is not None:
+        note += f"; {previous['change_mm']:+.1f} mm since {previous['calibration_id']}"
+    if state == "beyond_data_sheet":
+        note += ": check the scanner's window and mounting, or replace the unit"
+    return {"state": state, "worst_mm": worst_mm, "limit_mm": DATA_SHEET_RANGE_ERROR_MM,
+            "previous": previous, "note": note}
+
+
 def scanner_health(
     name: str,
     url: str | None,
@@ -43,15 +86,17 @@ def scanner_health(
     last_verify: dict[str, Any] | None,
     robot_reading: dict[str, Any],
     now: datetime,
+    earlier: list[dict[str, Any]],
 ) -> dict[str, Any]:
     """One scanner's health from its active calibration summary, that calibration's newest
-    verify and the monitor's robot calibration reading."""
+    verify, the monitor's robot calibration reading and the scanner's earlier calibrations
+    (newest first, for the range error's change)."""
     entry: dict[str, Any] = {"name": name, "url": url, "active_calibration": active is not None}
     if active is None:
         return entry | {
             "calibration_id": None, "passed": None, "age_s": None, "created_utc": None,
             "last_verify": None, "robot_calibration_matches": "unknown",
-            "robot_calibration_note": "no active calibration",
+            "robot_calibration_note": "no active calibration", "range_error": None,
         }
     recorded = (active.get("devices") or {}).get("robot_calibration")
     matches, note = robot_calibration_match(recorded, robot_reading)
@@ -65,4 +110,5 @@ def scanner_health(
         "created_utc": active["created_utc"], "age_s": _age_s(active["created_utc"], now),
         "last_verify": verify,
         "robot_calibration_matches": matches, "robot_calibration_note": note,
+        "range_error": range_error_health(active, earlier),
     }

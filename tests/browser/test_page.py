@@ -4,6 +4,7 @@ ending in the history; screenshots of each step and the page's event-to-paint fi
 from __future__ import annotations
 
 import json
+import re
 import statistics
 from pathlib import Path
 from typing import Any
@@ -151,6 +152,7 @@ def test_dry_run_from_the_page(daemon: DaemonProcess, browser: Any, artifacts: P
           "the verify's verdict in the health line")
     glance = browser.find_element("css selector", health).text
     assert "passed ·" in glance and " old" in glance and "robot calibration same" in glance, glance
+    assert re.search(r"range error (\d+\.\d mm|not estimated)", glance), glance
     _check_plot_labels(browser)
     _screenshot(browser, artifacts, "verify")
 

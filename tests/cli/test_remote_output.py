@@ -71,6 +71,7 @@ def test_every_remote_command_prints_text_and_json_only_when_asked(remote) -> No
     code, out, _ = remote("health")
     assert code == 0 and out.startswith(f"default: {newer} passed, ") and "never verified" in out, out
     assert "robot calibration matches: unknown" in out
+    assert "range error: the active calibration estimated no range-error curve" in out, out
     assert json.loads(remote("health", "--json")[1])["scanners"][0]["calibration_id"] == newer
 
     code, out, _ = remote("mark-bad", newer, "--by", "qa@cell-7", "--reason", "rod bent")

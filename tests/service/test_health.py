@@ -42,13 +42,19 @@ def _calibrate(client: httpx.Client) -> str:
 
 
 @pytest.fixture
-def cell(tmp_path: Path) -> Iterator[tuple[httpx.Client, Daemon, FakeRobot]]:
+def engine() -> FakeEngine:
+    """The daemon's calibration runner (a fake engine writing result.json)."""
+    return FakeEngine(waypoints=2)
+
+
+@pytest.fixture
+def cell(tmp_path: Path, engine: FakeEngine) -> Iterator[tuple[httpx.Client, Daemon, FakeRobot]]:
     """A client with the token, the daemon and the fake robot its monitor reads."""
     with in_process_robot() as robot:
         config = load_daemon_config(
             None, {"data_dir": tmp_path / "data", "robot_host": robot.address, "status_poll_s": 0.05}
         )
-        daemon = Daemon(config, runners=fake_runners(FakeEngine(waypoints=2)))
+        daemon = Daemon(config, runners=fake_runners(engine))
         with served_in_thread(daemon) as url, httpx.Client(base_url=url, timeout=10.0) as client:
             client.headers["Authorization"] = f"Bearer {daemon.token}"
             yield client, daemon, robot
@@ -88,6 +94,35 @@ def test_health_says_age_verdict_and_whether_the_robots_calibration_still_matche
         "the robot's kinematics calibration changed since the calibration: "
         f"checksum {recorded.checksum} -> {now}"
     )
+
+
+def _curve(worst_mm: float) -> dict[str, Any]:
+    """A result's range-error curve whose largest |error| over the crossings is ``worst_mm``."""
+    return {"offset_mm": worst_mm / 2, "std_mm": 1.0, "basis": "log_distance",
+            "terms_mm": [worst_mm / 2, 5.0], "terms_std_mm": [1.0, 2.0], "worst_mm": worst_mm}
+
+
+def test_health_gives_the_range_error_against_the_data_sheet_and_its_change(
+    cell: tuple[httpx.Client, Daemon, FakeRobot], engine: FakeEngine
+) -> None:
+    client, _daemon, _robot = cell
+    _calibrate(client)
+    (scanner,) = client.get("/v1/health").json()["scanners"]
+    assert scanner["range_error"]["state"] == "unknown" and scanner["range_error"]["worst_mm"] is None
+
+    engine.range_offset = _curve(12.0)
+    first = _calibrate(client)
+    health = client.get("/v1/health").json()["scanners"][0]["range_error"]
+    assert health["state"] == "within_data_sheet" and health["worst_mm"] == 12.0
+    assert health["limit_mm"] == 30.0
+    assert health["previous"] is None, "the earlier calibration estimated no curve"
+
+    engine.range_offset = _curve(34.5)
+    _calibrate(client)
+    health = client.get("/v1/health").json()["scanners"][0]["range_error"]
+    assert health["state"] == "beyond_data_sheet"
+    assert health["previous"] == {"calibration_id": first, "worst_mm": 12.0, "change_mm": 22.5}
+    assert "+22.5 mm since " + first in health["note"] and "replace the unit" in health["note"]
 
 
 def test_a_bad_calibration_is_never_active(

@@ -33,6 +33,27 @@ class VerifyHealth(BaseModel):
     age_s: float
 
 
+class PreviousRangeError(BaseModel):
+    """The newest earlier calibration of the scanner that estimated a range-error curve."""
+
+    calibration_id: str
+    worst_mm: float
+    change_mm: float
+    """The active calibration's figure minus this one's: a growing range error marks a unit to replace."""
+
+
+class RangeErrorHealth(BaseModel):
+    """The scanner's range error as a health figure (docs/daemon.md, Health)."""
+
+    state: Literal["within_data_sheet", "beyond_data_sheet", "unknown"]
+    worst_mm: float | None
+    """The largest |range error| of the active calibration's curve over its crossings' distances."""
+    limit_mm: float
+    """The data sheet's range accuracy (UTM-30LX-EW: 30 mm from 0.1 to 10 m)."""
+    previous: PreviousRangeError | None
+    note: str
+
+
 class ScannerHealth(BaseModel):
     """One scanner's calibration at a glance."""
 
@@ -47,6 +68,8 @@ class ScannerHealth(BaseModel):
     robot_calibration_matches: bool | Literal["unknown"]
     """Whether the robot's kinematics calibration is still the one the calibration was made with."""
     robot_calibration_note: str
+    range_error: RangeErrorHealth | None
+    """Null when no calibration is active."""
 
 
 class Health(BaseModel):

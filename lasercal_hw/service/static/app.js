@@ -297,7 +297,8 @@ function renderHealth() {
 }
 
 /** A scanner's health at a glance: its calibration (passed, age), its last verify (verdict,
- *  when) and whether the robot's kinematics calibration still matches (why, on hover). */
+ *  when), whether the robot's kinematics calibration still matches and the scanner's range
+ *  error against its data sheet (why, on hover). */
 function healthBadges(s) {
   if (!s.active_calibration) return [badge("no active calibration", "off")];
   const verify = s.last_verify;
@@ -308,9 +309,18 @@ function healthBadges(s) {
       : badge("never verified", "warn"), " ",
     el("span", { title: s.robot_calibration_note }, badge(
       robot === true ? "robot calibration same" : robot === false ? "robot calibration changed" : "robot calibration unknown",
-      robot === true ? "ok" : robot === false ? "bad" : "off"))];
+      robot === true ? "ok" : robot === false ? "bad" : "off")), " ",
+    rangeErrorBadge(s.range_error)];
   if (robot === false) badges.push(el("div", { class: "small bad-text", text: s.robot_calibration_note }));
   return badges;
+}
+
+/** The active calibration's largest range error against the data sheet (the note on hover). */
+function rangeErrorBadge(range) {
+  const text = range.worst_mm === null ? "range error not estimated"
+    : `range error ${range.worst_mm.toFixed(1)} mm`;
+  const kind = { within_data_sheet: "ok", beyond_data_sheet: "bad" }[range.state] || "off";
+  return el("span", { title: range.note, class: "range-error" }, badge(text, kind));
 }
 
 /** A cell's scanners, one card each: connection, health, active calibration; a click chooses
