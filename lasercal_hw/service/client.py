@@ -22,6 +22,10 @@ from lasercal_hw.errors import ExitCode, LasercalError
 DEFAULT_URL = "http://127.0.0.1:8766"
 TOKEN_ENV = "LASERCAL_TOKEN"
 _RECONNECT_TRIES = 5
+_FINISHED_STATES = frozenset({"succeeded", "failed", "cancelled", "interrupted"})
+_STORED_END_WAIT_S = 10.0
+"""How long ``wait`` reads the job again after its event stream ended: the daemon announces a
+job's end before it stores it (so that a job read as finished has all its events stored)."""
 
 
 class DaemonRequestError(LasercalError):
@@ -169,11 +173,17 @@ class DaemonClient:
     def wait(
         self, job_id: str, on_event: Callable[[str, dict[str, Any]], None] | None = None
     ) -> dict[str, Any]:
-        """Follow a job's events to its end; returns the finished job."""
+        """Follow a job's events to its end; returns the finished job (read again until the
+        daemon has stored the end its events announced)."""
         for _, kind, data in self.events(job_id):
             if on_event is not None:
                 on_event(kind, data)
-        return self.job(job_id)
+        deadline = time.monotonic() + _STORED_END_WAIT_S
+        job = self.job(job_id)
+        while job["state"] not in _FINISHED_STATES and time.monotonic() < deadline:
+            time.sleep(0.05)
+            job = self.job(job_id)
+        return job
 
 
 def _parse_sse(stream: Any) -> Iterator[tuple[int, str, dict[str, Any]]]:
