@@ -35,7 +35,8 @@ class _LaggingDaemon(BaseHTTPRequestHandler):
         if self.path == "/v1/jobs/J/events":
             events = [("state", {"state": "solving"}), ("state", {"state": "succeeded"})]
             body = "".join(
-                f"id: {n}\nevent: {kind}\ndata: {json.dumps(data)}\n\n" for n, (kind, data) in enumerate(events, 1)
+                f"id: {n}\nevent: {kind}\ndata: {json.dumps(data)}\n\n"
+                for n, (kind, data) in enumerate(events, 1)
             )
             self._send(body.encode(), "text/event-stream")
             return
@@ -59,6 +60,7 @@ def lagging_daemon() -> Iterator[str]:
 
 def test_wait_returns_the_end_its_events_announced_though_the_record_lags(lagging_daemon: str) -> None:
     seen: list[str] = []
-    final = DaemonClient(lagging_daemon, timeout_s=5.0).wait("J", on_event=lambda _k, d: seen.append(d["state"]))
+    client = DaemonClient(lagging_daemon, timeout_s=5.0)
+    final = client.wait("J", on_event=lambda _kind, data: seen.append(data["state"]))
     assert seen == ["solving", "succeeded"]
     assert final["state"] == "succeeded" and _LaggingDaemon.reads == _LaggingDaemon.lag_reads + 1
