@@ -20,9 +20,11 @@ from pathlib import Path
 
 import pytest
 
+from drivers.loopback import LOOPBACK_ONLY_ENV
 from fakes.scene import MODEL_ENV
 
 os.environ.setdefault(MODEL_ENV, "ideal")
+os.environ[LOOPBACK_ONLY_ENV] = "the test suite"  # the drivers refuse any address off 127.0.0.0/8
 
 REAL_TIME_GROUPS: dict[str, frozenset[str]] = {
     # the daemon over HTTP and the page in a browser

@@ -23,6 +23,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import serial
 
+from drivers.loopback import check_host
 from lasercal_hw.errors import ConfigError, DeviceTimeoutError, TransportError
 
 logger = logging.getLogger(__name__)
@@ -100,6 +101,7 @@ class TcpTransport:
 
     def __init__(self, address: TransportUrl, connect_timeout_s: float) -> None:
         self.url = str(address)
+        check_host(str(address.host), "the scanner")
         try:
             self._sock: socket.socket | None = socket.create_connection(
                 (address.host, address.port), timeout=connect_timeout_s

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.loopback import check_host
 from drivers.ur.calls import ur_call
 from drivers.ur.dashboard import DASHBOARD_PORT, after_colon
 from lasercal_hw.errors import (
@@ -94,6 +95,7 @@ def probe_controller(host: str, timeout_s: float) -> tuple[int, int, int, int]:
     protocol-version and a controller-version request. ur_rtde's constructors wait
     without a timeout (and hold the GIL), so this runs first.
     """
+    check_host(host, "the UR controller")
     try:
         with socket.create_connection((host, DASHBOARD_PORT), timeout=timeout_s) as dash:
             if not dash.recv(256):

@@ -12,6 +12,8 @@ import socket
 from collections.abc import Callable
 from typing import Any
 
+from drivers.loopback import check_host
+
 logger = logging.getLogger(__name__)
 
 DASHBOARD_PORT = 29999
@@ -22,6 +24,7 @@ class DashboardLink:
     """One short dashboard conversation: ``ask(command) -> reply line``."""
 
     def __init__(self, host: str, port: int = DASHBOARD_PORT, timeout_s: float = TIMEOUT_S) -> None:
+        check_host(host, "the robot's dashboard")
         self._sock = socket.create_connection((host, port), timeout=timeout_s)
         self._file = self._sock.makefile("rwb")
         self._file.readline()  # banner

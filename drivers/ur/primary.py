@@ -13,6 +13,7 @@ from __future__ import annotations
 import socket
 import time
 
+from drivers.loopback import check_host
 from drivers.ur.primary_codec import (
     MESSAGE_ROBOT_MESSAGE,
     MESSAGE_ROBOT_STATE,
@@ -41,6 +42,7 @@ def read_robot_calibration(
     """The robot's calibration as its controller reports it. TransportError when nothing
     answers, DeviceTimeoutError when the messages do not all come within ``timeout_s``,
     ProtocolError for a garbled stream."""
+    check_host(host, "the robot's primary interface")
     deadline = time.monotonic() + timeout_s
     try:
         sock = socket.create_connection((host, port), timeout=timeout_s)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
@@ -142,8 +143,12 @@ class Daemon:
             logger.warning("%s", exc.message)
 
     def _start_fake_cell(self) -> None:
-        """The dry-run daemon's fake cell, its devices the daemon's; started again if it dies."""
+        """The dry-run daemon's fake cell, its devices the daemon's; started again if it dies.
+        From now on this process (and its children) connects to loopback addresses only."""
+        from drivers.loopback import LOOPBACK_ONLY_ENV
         from fakes.cell_process import FakeCellProcess
+
+        os.environ.setdefault(LOOPBACK_ONLY_ENV, "a dry-run daemon talks only to its fake cell")
 
         self.fake_cell = FakeCellProcess(
             scene=self.config.dry_run_scene, on_death=self._fake_cell_died,
