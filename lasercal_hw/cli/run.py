@@ -221,8 +221,6 @@ def _run_cell(
     """``lasercal run`` of a job with ``[scanners.NAME]``: every scanner (or the one named) in
     turn, one folder each, the scanner-to-scanner transforms at the end (docs/cell.md); shown
     in the Foxglove view on ``live_port`` (every scanner in one scene) when given."""
-    if robot is None and job.robot.host is None and not dry_run and resume is None:
-        raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
     ui = err_console if as_json else console
     request = CellRunRequest(
         job=job,
@@ -315,6 +313,8 @@ def run_command(
     job = with_overrides(load_job(config), {"dwell_s": dwell, "output.dir": out} | flags)
     scanner_name = None if scanner is None or "://" in scanner else scanner
     live_port = foxglove_port if foxglove else None
+    if robot is None and job.robot.host is None and not dry_run and resume is None:
+        raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
     if job.scanners or (resume is not None and (resume.is_dir() or resume.name == CELL_FILE)):
         _run_cell(job, scanner_name, robot, dry_run, scene, resume, yes=yes, as_json=as_json,
                   live_port=live_port)
@@ -322,8 +322,6 @@ def run_command(
     if scanner_name is not None:  # a one-scanner job's scanner is named "default"
         job.for_scanner(scanner_name)
         scanner = None
-    if robot is None and job.robot.host is None and not dry_run and resume is None:
-        raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
     request = RunRequest(
         job=job,
         out_dir=job.output.dir or default_out_dir(),
