@@ -95,6 +95,14 @@ class CalibrationHistory:
         """Every summary (of ``scanner``, or of every scanner), newest first."""
         return [self._present(s, self._stored(s["id"])[1]) for s in self._store.calibrations(scanner)]
 
+    def earlier_than(self, summary: dict[str, Any]) -> list[dict[str, Any]]:
+        """The stored summaries of ``summary``'s scanner made before it and not marked bad,
+        newest first (no file listing: the health figure's history)."""
+        return [
+            s for s in self._store.calibrations(summary["scanner"])
+            if s["created_utc"] < summary["created_utc"] and not s.get("bad")
+        ]
+
     def active_summary(self, scanner: str | None = None) -> dict[str, Any] | None:
         """The active calibration's summary (of ``scanner``; None: the newest activation of
         any scanner, a one-scanner daemon's one), or None."""

@@ -197,10 +197,7 @@ class Daemon:
         for name, url in self.devices.scanners():
             active = self.history.active_summary(name)
             last_verify = None if active is None else self.history.latest_verify(active["id"])
-            earlier = [] if active is None else [
-                s for s in self.history.all(name)
-                if s["created_utc"] < active["created_utc"] and not s.get("bad")
-            ]
+            earlier = [] if active is None else self.history.earlier_than(active)
             scanners.append(scanner_health(name, url, active, last_verify, robot_reading, now, earlier))
         return {
             "ok": True, "version": __version__, "api_version": API_VERSION, "time_utc": now.isoformat(),
