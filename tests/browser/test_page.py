@@ -36,11 +36,15 @@ def _job_events(daemon: DaemonProcess, job_id: str) -> list[tuple[str, dict[str,
 
 
 def _wait(browser: Any, condition: Any, what: str, timeout_s: float = STEP_TIMEOUT_S) -> Any:
-    from selenium.common.exceptions import TimeoutException
+    from selenium.common.exceptions import StaleElementReferenceException, TimeoutException
     from selenium.webdriver.support.ui import WebDriverWait
 
+    # the page re-renders its cards on every event: an element found may be replaced before it is read
+    wait = WebDriverWait(
+        browser, timeout_s, poll_frequency=0.2, ignored_exceptions=(StaleElementReferenceException,)
+    )
     try:
-        return WebDriverWait(browser, timeout_s, poll_frequency=0.2).until(lambda d: condition(d))
+        return wait.until(lambda d: condition(d))
     except TimeoutException:
         seen = {name: _by_id(browser, name).text for name in ("error-line", "job-state", "job-message")}
         pytest.fail(f"timed out after {timeout_s:.0f} s waiting for {what}; the page shows {seen}")
