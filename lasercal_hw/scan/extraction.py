@@ -24,6 +24,13 @@ Steps (docs/extraction.md has the reasoning):
    trimmed off the ends of every segment before it is judged; after the fit, edge beams
    lying significantly behind the fitted surface are dropped and the fit repeated.
 5. Radius: a free-radius fit when enough beams over a wide enough arc hit the rod.
+6. The beam's spot (wider than a thin rod): a near rod looks up to a spot wider (allowed in
+   the size check; the silhouette's edge beams carry the spot as lateral uncertainty); a
+   background close behind merges into the echo, bounded per beam by its share of the spot
+   (and intensities) times the depth: a rod no beam reads alone is refused, one whose
+   cleanest beam is still partly background gets the bound in its covariance and a warning.
+   What the range-error curve leaves across the arc (range walk, near-range error) joins
+   the covariance too.
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import ndtr
 
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import FloatArray
@@ -66,6 +74,8 @@ class RodCentre:
     covariance_uv_m2: FloatArray
     quality: RodQuality
     beam_indices: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    #: Why this centre may be off by more than its covariance says (empty: no doubt).
+    warnings: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -111,6 +121,36 @@ class ExtractionSettings:
     #: a range error this large (issue 18's real data: +12 mm at 0.15 m, -13 mm at 0.75 m),
     #: joins the covariance.
     typical_range_error_m: float = 0.012
+    #: The beam's spot, ``width + divergence * range`` wide (1/e^2 of a gaussian): the UTM-30LX-EW
+    #: data sheet's "minimum detectable width 130 mm at 10 m" (docs/scanner-model.md). A beam whose
+    #: spot passes partly beside the rod also returns light from what lies behind it ...
+    spot_width_at_scanner_m: float = 0.020
+    spot_divergence_rad: float = 0.011
+    #: ... and when that surface is nearer behind the rod than about the laser pulse's length
+    #: (about 1 m: docs/scanner-model.md), the two merge into one echo whose peak lies between
+    #: them: a steady blend. A beam's blend is bounded by its share of the background (the
+    #: spot's part beside the rod; with intensities, weighted by the background's power
+    #: against the beam's) times the depth behind.
+    echo_merge_m: float = 0.85
+    #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
+    max_blend_share: float = 0.5
+    #: ... and one whose least blended beam still has this share of background may be a merged
+    #: echo that looks like an arc: its covariance takes every beam's whole bound (otherwise
+    #: what the residuals show of it) and the centre carries a warning when that is large.
+    doubtful_blend_share: float = 0.05
+    #: A centre whose blend allowance (std) exceeds this carries a warning.
+    warn_blend_std_m: float = 0.005
+    #: What the scanner's range-error curve (one value per distance) leaves across one rod's
+    #: beams joins the covariance: range walk with intensity (bright echoes read short; with
+    #: intensities: this much per e-fold of intensity against the rod's front beam) and the
+    #: steep near-range error (this much at 0.1 m, decaying over ``near_bias_decay_m``; a
+    #: UTM-30LX on a flat target: +18 to +22 mm at 0.10-0.115 m; docs/scanner-model.md).
+    range_walk_m_per_efold: float = 0.0025
+    near_bias_m: float = 0.020
+    near_bias_decay_m: float = 0.09
+    #: Without a background scan, what lies behind a beam is the farthest reading this many
+    #: beams either side (the background beside the rod).
+    behind_window_beams: int = 40
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -221,10 +261,12 @@ def find_rod_centre(
     sigma = _range_sigma(scan, settings)
     expected = None if expected_uv_m is None else np.asarray(expected_uv_m, dtype=float)
     candidates, notes = _candidate_segments(scan, sigma, section, background, settings)
+    behind = _behind(scan, background, settings)
     found, reasons = [], []
     for beams, ramp_beams in candidates:
         try:
-            found.append(_fit_segment(scan, sigma, beams, section, settings, ramp_beams=ramp_beams))
+            fit = _fit_segment(scan, sigma, beams, section, settings, ramp_beams=ramp_beams, behind=behind)
+            found.append(fit)
         except RodNotFoundError as exc:
             reasons.append(str(exc))
     found = _distinct(found, section)
@@ -363,7 +405,7 @@ def _candidate_segments(
             fit = _size_mismatch(scan, beams, section, settings)
             if fit is None:
                 continue
-            if background is None and not _in_front(scan, beams, sigma):
+            if not _in_front(scan, beams, sigma):
                 problem = "is partly hidden behind a nearer object; clear the line of sight"
                 _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
                 continue
@@ -458,7 +500,8 @@ def _rod_core(
     for _ in range(4):
         residuals, _ = _residuals(points, centre, section, section.radius_m)
         on_surface = np.abs(residuals) <= settings.edge_residual_sigmas * sigma[part] + tolerance
-        hits = on_surface & _rays_hit(points, centre, section, step, sigma[part])
+        spot_sigma_m = float(_spot_sigma_m(np.array([float(np.linalg.norm(centre))]), settings)[0])
+        hits = on_surface & _rays_hit(points, centre, section, step, sigma[part], spot_sigma_m)
         hits &= _bright(scan, part, run, settings)
         runs = [r for r in _runs(hits) if r.size]
         if not runs:
@@ -504,7 +547,12 @@ def _bright(
 
 
 def _rays_hit(
-    points: FloatArray, centre: FloatArray, section: _Section, step_rad: float, sigma: FloatArray
+    points: FloatArray,
+    centre: FloatArray,
+    section: _Section,
+    step_rad: float,
+    sigma: FloatArray,
+    spot_sigma_m: float,
 ) -> NDArray[np.bool_]:
     """Which beams' rays (through the points, from the scanner) pass through the rod's
     cross-section centred at ``centre`` (squeezed frame, where the ellipse is a circle of the
@@ -514,7 +562,7 @@ def _rays_hit(
     c = section.to_circle(centre[None, :])[0]
     directions = squeezed / np.linalg.norm(squeezed, axis=1)[:, None]
     miss = np.abs(directions[:, 0] * c[1] - directions[:, 1] * c[0])
-    grace = step_rad * float(np.linalg.norm(c)) + 3.0 * float(np.median(sigma))
+    grace = step_rad * float(np.linalg.norm(c)) + 3.0 * float(np.median(sigma)) + 2.0 * spot_sigma_m
     radius = section.radius_m / section.unknown_tilt_cos
     return (miss <= radius + grace) & (directions @ c > 0.0)
 
@@ -596,7 +644,9 @@ def _size_mismatch(
     # cover 3 steps, not the 2 between their centres).
     width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]])) + step
     low = 0.0 if partial else settings.min_visible_fraction * width_min - 2.0 * step
-    high = width_max + 3.0 * step
+    nearest_m = float(np.min(scan.ranges_m[beams]))
+    spot_rad = 4.0 * float(_spot_sigma_m(np.array([nearest_m]), settings)[0]) / max(nearest_m, 1e-3)
+    high = width_max + spot_rad + 3.0 * step  # a near rod's echo wins while its spot touches it
     if not low <= width <= high:
         return None
     return abs(width - 0.5 * (width_min + width_max)) / max(step, 1e-9)
@@ -663,6 +713,7 @@ class _Fit:
     covariance_uv_m2: FloatArray
     residuals_m: FloatArray
     whitened: FloatArray
+    blend_shift_m: float = 0.0
 
 
 def _residuals(
@@ -690,12 +741,14 @@ def _residual_sigma(
     beam = points / ranges[:, None]
     along = normals[:, 0] * beam[:, 0] + normals[:, 1] * beam[:, 1]
     across = -normals[:, 0] * beam[:, 1] + normals[:, 1] * beam[:, 0]
+    # A beam's echo comes from wherever its spot meets the rod: near the silhouette that is
+    # off the beam's centre line by up to half the spot (and a near rod's echo wins over a far
+    # background while any of the spot is on it).
     lateral = ranges * settings.beam_angle_sigma_rad
     # The first and last beam's spots straddle the silhouette: the return comes from anywhere
     # across the covered part of the spot.
-    lateral[[0, -1]] = ranges[[0, -1]] * float(
-        np.hypot(settings.beam_angle_sigma_rad, settings.beam_footprint_rad / np.sqrt(12.0))
-    )
+    edge_rad = float(np.hypot(settings.beam_angle_sigma_rad, settings.beam_footprint_rad / np.sqrt(12.0)))
+    lateral[[0, -1]] = np.hypot(ranges[[0, -1]] * edge_rad, _spot_sigma_m(ranges[[0, -1]], settings))
     curvature = sigma**2 / (np.sqrt(2.0) * radius_m)
     return np.sqrt((sigma * along) ** 2 + (lateral * across) ** 2 + curvature**2)
 
@@ -748,8 +801,14 @@ def _gauss_newton(
 
 
 def _fit_centre(
-    points: FloatArray, sigma: FloatArray, section: _Section, settings: ExtractionSettings
+    points: FloatArray,
+    sigma: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+    blend_m: FloatArray | None = None,
 ) -> _Fit:
+    """Fit the centre to the points; ``blend_m``: each beam's blend allowance (m, along the
+    beam, one-sided: shared by neighbouring beams), which joins the covariance whole."""
     seed = seed_centre_pi4(points, section.radius_m, section.axis)
     solved = _gauss_newton(points, sigma, seed, section, settings, free_radius=False)
     limit = 2.0 * section.semi_major_m + 0.01
@@ -772,7 +831,24 @@ def _fit_centre(
     )
     mismatch = _range_error_mismatch(points, centre, normals, residual_sigma, normal)
     covariance += np.outer(mismatch, mismatch) * settings.typical_range_error_m**2
-    return _Fit(centre, covariance, residuals, whitened)
+    blend_shift = np.zeros(2)
+    if blend_m is not None:
+        blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
+        covariance += np.outer(blend_shift, blend_shift)
+    return _Fit(centre, covariance, residuals, whitened, float(np.linalg.norm(blend_shift)))
+
+
+def _centre_shift(
+    points: FloatArray,
+    normals: FloatArray,
+    residual_sigma: FloatArray,
+    normal: FloatArray,
+    push_m: FloatArray,
+) -> FloatArray:
+    """How the fitted centre moves when every point is pushed ``push_m`` along its beam."""
+    beams = points / np.linalg.norm(points, axis=1)[:, None]
+    push = np.einsum("ij,ij->i", beams, normals[:, :2]) * push_m / residual_sigma
+    return np.linalg.solve(normal, (normals[:, :2] / residual_sigma[:, None]).T @ push)
 
 
 def _range_error_mismatch(
@@ -785,9 +861,7 @@ def _range_error_mismatch(
     """How the fitted centre moves for a range error of 1 (every point pushed 1 along its
     beam) minus how the solver's model moves it (1 along its bearing): zero for a far rod
     whose beams are parallel, a few per cent for a thick rod near the scanner."""
-    beams = points / np.linalg.norm(points, axis=1)[:, None]
-    push = np.einsum("ij,ij->i", beams, normals[:, :2]) / residual_sigma
-    moved = np.linalg.solve(normal, (normals[:, :2] / residual_sigma[:, None]).T @ push)
+    moved = _centre_shift(points, normals, residual_sigma, normal, np.ones(points.shape[0]))
     return moved - centre / np.linalg.norm(centre)
 
 
@@ -808,11 +882,15 @@ def _unknown_tilt_variance_m2(section: _Section, settings: ExtractionSettings) -
 
 
 def _drop_mixed_edges(
-    points: FloatArray, sigma: FloatArray, section: _Section, settings: ExtractionSettings
+    points: FloatArray,
+    sigma: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+    blend_m: FloatArray | None = None,
 ) -> tuple[NDArray[np.int64], _Fit]:
     """Fit, then drop edge beams lying significantly behind the fitted surface; refit."""
     keep = np.arange(points.shape[0])
-    fit = _fit_centre(points, sigma, section, settings)
+    fit = _fit_centre(points, sigma, section, settings, blend_m)
     dropped = {"first": 0, "last": 0}
     while keep.size > settings.min_beams:
         candidates = []
@@ -826,7 +904,8 @@ def _drop_mixed_edges(
         _, side, pos = max(candidates)
         dropped[side] += 1
         keep = np.delete(keep, pos)
-        fit = _fit_centre(points[keep], sigma[keep], section, settings)
+        kept_blend = None if blend_m is None else blend_m[keep]
+        fit = _fit_centre(points[keep], sigma[keep], section, settings, kept_blend)
     return keep, fit
 
 
@@ -848,8 +927,10 @@ def _fit_segment(
     settings: ExtractionSettings,
     *,
     ramp_beams: int = 0,
+    behind: _Behind | None = None,
 ) -> RodCentre:
-    """Fit one candidate; ``ramp_beams`` mixed pixels were already cut off its sides."""
+    """Fit one candidate; ``ramp_beams`` mixed pixels were already cut off its sides;
+    ``behind``: what lies behind each beam, for the blend of rod and background."""
     if beams.size < settings.min_beams:
         range_m = float(np.min(scan.ranges_m[beams]))
         raise RodNotFoundError(
@@ -859,9 +940,25 @@ def _fit_segment(
     points = scan.points_m()[beams]
     sigma = sigma_all[beams]
     keep, fit = _drop_mixed_edges(points, sigma, section, settings)
+    bound_m = np.zeros(beams.size)
+    if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
+        share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
+        # Where no beam reads the rod cleanly the echo may be merged and still look like an arc:
+        # the covariance takes every beam's whole bound. Where some do, the blended edge beams
+        # show as residuals (the misfit test below allows them their bound).
+        if float(np.min(share)) > settings.doubtful_blend_share:
+            keep, fit = _drop_mixed_edges(points, sigma, section, settings, bound_m)
+        if float(np.min(share[keep])) > settings.max_blend_share:
+            raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
     used = points[keep]
+    fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
-    if rms > settings.max_rms_radius_fraction * section.radius_m + 3.0 * float(np.median(sigma[keep])):
+    # A blended beam lies off the surface by up to its bound, and the arc's range error by up
+    # to its own: that part is no misfit.
+    allowed_m = bound_m[keep] + _arc_bias_m(scan, beams[keep], settings)
+    misfit = np.fmax(np.abs(fit.residuals_m) - allowed_m, 0.0)
+    misfit_rms = float(np.sqrt(np.mean(misfit**2)))
+    if misfit_rms > settings.max_rms_radius_fraction * section.radius_m + 3.0 * float(np.median(sigma[keep])):
         raise RodNotFoundError(
             f"segment of {keep.size} beams is not a rod of radius {section.radius_m * 1000:.1f} mm "
             f"(fit RMS {rms * 1000:.1f} mm)"
@@ -882,9 +979,17 @@ def _fit_segment(
         span,
         dropped,
     )
+    warnings = ()
+    if fit.blend_shift_m > settings.warn_blend_std_m:
+        warnings = (
+            f"the rod's beams blend it with the background behind it: centre uncertain by "
+            f"{fit.blend_shift_m * 1000:.0f} mm; a thicker or brighter rod, or a background farther "
+            "behind, helps",
+        )
     return RodCentre(
         centre_uv_m=fit.centre_uv_m,
         covariance_uv_m2=fit.covariance_uv_m2,
+        warnings=warnings,
         quality=RodQuality(
             beams_used=int(keep.size),
             fit_rms_m=rms,
@@ -894,3 +999,118 @@ def _fit_segment(
         ),
         beam_indices=beams[keep].astype(np.int64),
     )
+
+
+@dataclass(frozen=True)
+class _Behind:
+    """What lies behind each beam: its range (m; inf or NaN: nothing) and intensity (None:
+    unknown)."""
+
+    ranges_m: FloatArray
+    intensities: FloatArray | None
+
+
+def _behind(scan: AveragedScan, background: AveragedScan | None, settings: ExtractionSettings) -> _Behind:
+    """The background scan's view, or without one the farthest reading within
+    ``behind_window_beams`` of each beam (the background beside the rod)."""
+    if background is not None:
+        intensities = background.intensities if scan.intensities is not None else None
+        return _Behind(background.ranges_m, intensities)
+    ranges = np.where(np.isfinite(scan.ranges_m), scan.ranges_m, -np.inf)
+    reach = settings.behind_window_beams
+    padded = np.concatenate([np.full(reach, -np.inf), ranges, np.full(reach, -np.inf)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1)
+    farthest = windows.max(axis=1)
+    return _Behind(np.where(np.isfinite(farthest), farthest, np.nan), None)
+
+
+def _spot_sigma_m(range_m: FloatArray, settings: ExtractionSettings) -> FloatArray:
+    """Gaussian sigma across the beam's spot at these ranges (a quarter of its 1/e^2 width)."""
+    return 0.25 * (settings.spot_width_at_scanner_m + settings.spot_divergence_rad * range_m)
+
+
+def _blend(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    centre: FloatArray,
+    section: _Section,
+    behind: _Behind,
+    settings: ExtractionSettings,
+) -> tuple[FloatArray, FloatArray]:
+    """Per beam, the background's share of the returned echo and the blend allowance (m).
+
+    The share is the part of the spot passing beside the rod (a gaussian spot across the
+    rod's silhouette); with intensities it is weighted by the background's power against
+    the beam's (the UTM's intensity grows like the square root of the power).  The
+    allowance is the share times the depth behind, where that depth merges into one echo."""
+    ranges = scan.ranges_m[beams]
+    angles = scan.angles_rad[beams]
+    offset = np.sin(angles) * centre[0] - np.cos(angles) * centre[1]
+    spot = np.fmax(_spot_sigma_m(ranges, settings), 1e-9)  # a thin ray: all or nothing
+    half = section.radius_m
+    share = 1.0 - (ndtr((half - offset) / spot) - ndtr((-half - offset) / spot))
+    if behind.intensities is not None and scan.intensities is not None:
+        own = np.fmax(scan.intensities[beams], 1.0)
+        ratio = np.where(np.isfinite(behind.intensities[beams]), behind.intensities[beams] / own, 1.0)
+        share = np.fmin(share * ratio**2, 1.0)
+    with np.errstate(invalid="ignore"):
+        depth = behind.ranges_m[beams] - ranges
+        merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
+    return share, np.where(merged, share * np.where(merged, depth, 0.0), 0.0)
+
+
+def _blend_refusal(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    section: _Section,
+    behind: _Behind,
+    settings: ExtractionSettings,
+) -> str:
+    """Why a rod whose every beam is mostly background is refused."""
+    range_m = float(np.min(scan.ranges_m[beams]))
+    depth_m = float(np.nanmedian(behind.ranges_m[beams])) - range_m
+    spot_mm = 4000.0 * float(_spot_sigma_m(np.array([range_m]), settings)[0])
+    return (
+        f"every beam on the rod at {range_m:.2f} m blends it with the surface {depth_m:.2f} m behind it "
+        f"(a {2000 * section.radius_m:.0f} mm rod against the beam's {spot_mm:.0f} mm spot): no reading is "
+        f"the rod's own; use a thicker or retro-reflective rod, or clear the background to more than "
+        f"{settings.echo_merge_m:g} m behind the rod"
+    )
+
+
+def _arc_bias_m(scan: AveragedScan, beams: NDArray[np.int64], settings: ExtractionSettings) -> FloatArray:
+    """Per beam, how far its range error may differ from the front beam's: the range walk
+    between their intensities and the near-range error's change between their ranges."""
+    ranges = scan.ranges_m[beams]
+    front = int(np.argmin(ranges))
+    near = settings.near_bias_m * np.exp(-(np.fmax(ranges, 0.1) - 0.1) / settings.near_bias_decay_m)
+    bias = np.abs(near - near[front])
+    if scan.intensities is not None:
+        intensity = np.fmax(scan.intensities[beams], 1.0)
+        bias = bias + settings.range_walk_m_per_efold * np.abs(np.log(intensity / intensity[front]))
+    return bias
+
+
+def _with_arc_bias(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    points: FloatArray,
+    sigma: FloatArray,
+    blend_m: FloatArray,
+    fit: _Fit,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> _Fit:
+    """The fit with the arc's range-error variation (``_arc_bias_m``) in its covariance: the
+    centre's move were every beam's range off by it (shared by neighbours, so taken whole)."""
+    push_m = _arc_bias_m(scan, beams, settings)
+    if not np.any(push_m > 0.0):
+        return fit
+    _, normals = _residuals(points, fit.centre_uv_m, section, section.radius_m)
+    residual_sigma = _residual_sigma(points, np.hypot(sigma, blend_m), normals, section.radius_m, settings)
+    jac = -normals[:, :2] / residual_sigma[:, None]
+    try:
+        shift = _centre_shift(points, normals, residual_sigma, jac.T @ jac, push_m)
+    except np.linalg.LinAlgError:
+        return fit
+    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))

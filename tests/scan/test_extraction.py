@@ -22,7 +22,7 @@ from tests.synthetic_scans import ANGLES, averaged, rod_ranges, scans
 # One beam averaged over a 3 s dwell (120 scans) of the UTM-30LX-EW's sigma of 10 mm.
 SIGMA_MEAN_M = 0.010 / np.sqrt(120)
 # The synthetic scans cast each beam as one exact ray: no spot straddles the silhouette.
-THIN_BEAMS = ExtractionSettings(beam_footprint_rad=0.0)
+THIN_BEAMS = ExtractionSettings(beam_footprint_rad=0.0, spot_width_at_scanner_m=0.0, spot_divergence_rad=0.0)
 Z_AXIS = np.array([0.0, 0.0, 1.0])
 
 
@@ -88,10 +88,12 @@ def test_noise_free_arc_gives_the_exact_centre(range_m: float, bearing_rad: floa
 
 def test_radius_is_estimated_only_over_a_wide_arc() -> None:
     rng = np.random.default_rng(21)
-    near = find_rod_centre(averaged(rod_ranges([0.3, 0.05], 0.02), SIGMA_MEAN_M, rng), radius_m=0.02)
+    near_scan = averaged(rod_ranges([0.3, 0.05], 0.02), SIGMA_MEAN_M, rng)
+    near = find_rod_centre(near_scan, radius_m=0.02, settings=THIN_BEAMS)
     assert near.quality.arc_span_deg > 120
     assert near.quality.estimated_radius_m == pytest.approx(0.02, abs=0.0005)
-    far = find_rod_centre(averaged(rod_ranges([2.0, 0.1], 0.02), SIGMA_MEAN_M, rng), radius_m=0.02)
+    far_scan = averaged(rod_ranges([2.0, 0.1], 0.02), SIGMA_MEAN_M, rng)
+    far = find_rod_centre(far_scan, radius_m=0.02, settings=THIN_BEAMS)
     assert far.quality.beams_used < 8
     assert far.quality.estimated_radius_m is None
 
@@ -150,8 +152,8 @@ def test_tilted_rod_axis_removes_the_ellipse_bias(azimuth_deg: float) -> None:
     axis = np.array([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), np.cos(tilt)])
     centre = np.array([0.6, 0.2])
     scan = averaged(rod_ranges(centre, 0.02, axis=axis, wall_behind_m=0.5), SIGMA_MEAN_M, rng)
-    as_circle = find_rod_centre(scan, radius_m=0.02)
-    as_ellipse = find_rod_centre(scan, radius_m=0.02, axis_in_scanner=axis)
+    as_circle = find_rod_centre(scan, radius_m=0.02, settings=THIN_BEAMS)
+    as_ellipse = find_rod_centre(scan, radius_m=0.02, axis_in_scanner=axis, settings=THIN_BEAMS)
     assert np.linalg.norm(as_circle.centre_uv_m - centre) > 1.5e-3
     assert np.linalg.norm(as_ellipse.centre_uv_m - centre) < 0.6e-3
     assert as_ellipse.quality.fit_rms_m < as_circle.quality.fit_rms_m
@@ -171,7 +173,7 @@ def test_end_to_end_from_quantised_scans() -> None:
     rng = np.random.default_rng(26)
     centre = np.array([1.2, 0.5])
     dwell = scans(rod_ranges(centre, 0.02, wall_behind_m=0.8), 0.010, 120, rng)
-    result = find_rod_centre(average_scans(dwell), radius_m=0.02, axis_in_scanner=Z_AXIS)
+    result = find_rod_centre(average_scans(dwell), radius_m=0.02, axis_in_scanner=Z_AXIS, settings=THIN_BEAMS)
     assert np.linalg.norm(result.centre_uv_m - centre) < 1e-3
     assert np.all(np.sqrt(np.linalg.eigvalsh(result.covariance_uv_m2)) < 1.5e-3)
 
@@ -222,7 +224,7 @@ def test_a_segment_that_is_no_clean_arc_is_refused() -> None:
     junk = truth.copy()
     junk[on_rod[1:-1]] += rng.uniform(-0.012, 0.012, on_rod.size - 2)  # clutter, not a surface
     with pytest.raises(RodNotFoundError, match="not a rod"):
-        find_rod_centre(averaged(junk, SIGMA_MEAN_M, rng), radius_m=0.02)
+        find_rod_centre(averaged(junk, SIGMA_MEAN_M, rng), radius_m=0.02, settings=THIN_BEAMS)
 
 
 def test_bad_inputs_are_clear_errors() -> None:

@@ -1,0 +1,114 @@
+"""The physical scanner model's hard cases (issue 18), each a short dwell from
+``fakes/scanner_model``: a found rod whose reported covariance covers its error, or a clear
+skip; never a silent wrong centre.  The error is taken after the model's range error at the
+rod (``front_range_error_m``, along the bearing), as the solver's range-error curve takes it;
+what it leaves across the rod's beams must be in the covariance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fakes.scanner_model.dwell import simulate_dwell
+from lasercal_hw.scan.average import average_scans
+from lasercal_hw.scan.extraction import RodCentre, RodNotFoundError, find_rod_centre
+
+Z_AXIS = np.array([0.0, 0.0, 1.0])
+CHI2_2DOF_999 = 13.8  # 99.9 % of an honest covariance's squared Mahalanobis distances
+
+
+def _extract(
+    range_m: float, bearing_deg: float, radius_m: float, material: str, background_m: float, **kwargs
+) -> tuple[RodCentre | RodNotFoundError, np.ndarray]:
+    """The rod's centre from a 10-scan dwell with a 10-scan background, or the refusal, and
+    where the scanner sees the rod's centre (the truth moved by the model's range error)."""
+    bearing = np.radians(bearing_deg)
+    centre = range_m * np.array([np.cos(bearing), np.sin(bearing)])
+    dwell = simulate_dwell(
+        centre, radius_m, material=material, background_m=background_m, scan_count=10,  # type: ignore[arg-type]
+        background_count=10, seed=3, **kwargs,
+    )
+    seen = centre * (1.0 + dwell.front_range_error_m() / range_m)
+    try:
+        found = find_rod_centre(
+            average_scans(dwell.scans),
+            radius_m=radius_m,
+            background=average_scans(dwell.background),
+            axis_in_scanner=Z_AXIS,
+        )
+    except RodNotFoundError as refused:
+        return refused, seen
+    return found, seen
+
+
+def _mahalanobis2(found: RodCentre, truth: np.ndarray) -> float:
+    error = found.centre_uv_m - truth
+    return float(error @ np.linalg.solve(found.covariance_uv_m2, error))
+
+
+@pytest.mark.parametrize(
+    ("range_m", "radius_m", "material"),
+    [(0.2, 0.004, "painted"), (0.2, 0.004, "matte"), (0.1, 0.010, "matte"), (0.5, 0.010, "steel_drill")],
+)
+def test_a_thin_rod_with_a_wall_close_behind_is_refused_or_warned_never_silently_wrong(
+    range_m: float, radius_m: float, material: str
+) -> None:
+    # Every beam's spot is wider than the rod (or the rod so near that the receiver barely
+    # sees it): the wall 0.3 m behind merges into each echo. These returned centres 0.03 to
+    # 0.25 m off as successes.
+    outcome, truth = _extract(range_m, 23.0, radius_m, material, 0.3)
+    if isinstance(outcome, RodNotFoundError):  # a clear skip, with its reason
+        return
+    assert _mahalanobis2(outcome, truth) < CHI2_2DOF_999 or outcome.warnings
+
+
+@pytest.mark.parametrize(
+    ("range_m", "material", "must_find"),
+    [(0.2, "matte", False), (0.2, "painted", True), (0.5, "painted", True)],
+)
+def test_a_20_mm_rod_with_ramps_into_a_near_wall_is_found_with_an_honest_covariance(
+    range_m: float, material: str, must_find: bool
+) -> None:
+    # Its edge beams ramp into the wall 0.3 m behind; these were "not a rod (fit RMS 5-15 mm)".
+    # At 0.2 m the matte rod's ramps are still sometimes too much for the fit: then a clear skip.
+    found, truth = _extract(range_m, -31.0, 0.020, material, 0.3)
+    if isinstance(found, RodNotFoundError) and not must_find:
+        assert "is not a rod" in str(found)
+        return
+    assert isinstance(found, RodCentre)
+    assert _mahalanobis2(found, truth) < CHI2_2DOF_999
+
+
+@pytest.mark.parametrize(("range_m", "radius_m"), [(0.2, 0.010), (0.2, 0.004)])
+def test_a_near_thin_rod_before_a_far_wall_looks_a_spot_wider_and_is_found(
+    range_m: float, radius_m: float
+) -> None:
+    # Its echo wins over the wall 2.5 m behind while any of the spot touches it, so the rod
+    # spans the spot's width more beams than its own: this was "no segment matching a rod".
+    found, truth = _extract(range_m, 12.0, radius_m, "matte", 2.5)
+    assert isinstance(found, RodCentre)
+    assert _mahalanobis2(found, truth) < CHI2_2DOF_999
+
+
+def test_a_far_rod_of_few_beams_is_found() -> None:
+    found, truth = _extract(3.0, -8.0, 0.045, "painted", 2.5)
+    assert isinstance(found, RodCentre)
+    assert found.quality.beams_used >= 3
+    assert _mahalanobis2(found, truth) < CHI2_2DOF_999
+
+
+def test_a_rod_sized_post_elsewhere_without_an_expected_position_is_never_taken_for_the_rod() -> None:
+    # No background scan: the post stays in view. Both are named, or the rod is returned.
+    bearing = np.radians(14.0)
+    truth = 0.8 * np.array([np.cos(bearing), np.sin(bearing)])
+    post = 0.8 * np.array([np.cos(np.radians(-58.0)), np.sin(np.radians(-58.0))])
+    dwell = simulate_dwell(
+        truth, 0.045, background_m=1.5, posts=[(post[0], post[1], 0.045)], scan_count=10, seed=4
+    )
+    try:
+        found = find_rod_centre(average_scans(dwell.scans), radius_m=0.045, axis_in_scanner=Z_AXIS)
+    except RodNotFoundError as refused:
+        assert "2 rod-like objects in view" in str(refused)
+        assert "-58 deg" in str(refused)
+        return
+    assert np.linalg.norm(found.centre_uv_m - truth) < 0.03  # within the model's range bias
