@@ -14,7 +14,7 @@ a rod narrower than the beam's spot in front of a near wall gives only blends of
 and a dark rod far away no echo at all; such positions are *skipped*, with the reason, and
 any centre returned there is still checked.  Each centre is judged after the scanner's
 range-error curve is removed, as a calibration removes it: the model's own curve for this
-rod (``SimulatedDwell.front_range_error_m``: its front beam's true range and noise-free
+rod (``front_range_error_m``: its front beam's true range and noise-free
 intensity through the model's bias), moved along the bearing as the solver's curve moves
 it; the solver's estimated curve (one to three terms) leaves some of it, not judged here.
 
@@ -41,6 +41,7 @@ from fakes.scanner_model.dwell import SimulatedDwell, simulate_dwell
 from lasercal_hw.errors import CalibrationError
 from lasercal_hw.scan.average import average_scans
 from lasercal_hw.scan.extraction import find_rod_centre
+from tests.physical_truth import front_range_error_m
 
 RANGES_M = (0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0)
 BACKGROUNDS_M = {"near": 0.3, "far": 2.5}
@@ -137,7 +138,7 @@ def own_echo_beams(dwell: SimulatedDwell) -> int:
     surface_m = along - np.sqrt(np.fmax(dwell.radius_m**2 - miss**2, 0.0))
     raw_mm, _ = dwell.world.scan_mm(dwell.T_base_tcp)
     reading_m = np.where(raw_mm > 20, raw_mm / 1000.0, np.inf)
-    bias_m = dwell.front_range_error_m()
+    bias_m = front_range_error_m(dwell)
     tolerance = max(0.5 * dwell.radius_m, MIN_OWN_TOLERANCE_M)
     own = hits & (np.abs(reading_m - surface_m - bias_m) <= tolerance)
     return int(own.sum())
@@ -175,7 +176,7 @@ def measure(
         model=model,  # type: ignore[arg-type]
         spindle_deg=float(np.degrees(bearing_rad) * 7.0),
     )
-    own, bias_m = own_echo_beams(dwell), dwell.front_range_error_m()
+    own, bias_m = own_echo_beams(dwell), front_range_error_m(dwell)
     try:
         result = find_rod_centre(
             average_scans(dwell.scans),

@@ -6,7 +6,6 @@
     dwell.background       # the same view without the rod
     dwell.centre_uv_m      # the truth: where the rod's axis pierces the scan plane
     dwell.world.scan_ranges_m(dwell.T_base_tcp)   # the same view without random parts
-    dwell.front_range_error_m()   # the model's range error at the rod (what a calibration removes)
 
 The scanner is level, the rod crosses the scan plane at ``centre_uv_m`` (scanner frame)
 along ``axis``; an optional wall faces the scanner ``background_m`` behind the rod.
@@ -21,7 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fakes.scanner_model.range_error import range_bias_m
 from fakes.scene import Material, ModelName, PhysicsSettings, Scene
 from fakes.world import World
 from lasercal_hw.geometry import make_transform
@@ -43,20 +41,6 @@ class SimulatedDwell:
     radius_m: float
     world: World
     T_base_tcp: FloatArray
-
-    def front_range_error_m(self) -> float:
-        """The model's range error (measured minus true) at the rod's front beam: its true
-        range and noise-free intensity through the physical model's bias (ideal model: its
-        ``[noise]`` bias settings, zero by default, are not applied here)."""
-        if self.world.physical is None:
-            return 0.0
-        angles = self.world.angles_rad
-        bearing = float(np.arctan2(self.centre_uv_m[1], self.centre_uv_m[0]))
-        front = int(np.argmin(np.abs(np.angle(np.exp(1j * (angles - bearing))))))
-        _, intensity = self.world.scan_mm(self.T_base_tcp)
-        range_m = float(np.linalg.norm(self.centre_uv_m)) - self.radius_m
-        bias = range_bias_m(np.array([range_m]), intensity[[front]].astype(float), self.world.scene.physics)
-        return float(bias[0])
 
 
 def simulate_dwell(

@@ -741,14 +741,13 @@ def _residual_sigma(
     beam = points / ranges[:, None]
     along = normals[:, 0] * beam[:, 0] + normals[:, 1] * beam[:, 1]
     across = -normals[:, 0] * beam[:, 1] + normals[:, 1] * beam[:, 0]
-    # A beam's echo comes from wherever its spot meets the rod: near the silhouette that is
-    # off the beam's centre line by up to half the spot (and a near rod's echo wins over a far
-    # background while any of the spot is on it).
     lateral = ranges * settings.beam_angle_sigma_rad
     # The first and last beam's spots straddle the silhouette: the return comes from anywhere
-    # across the covered part of the spot.
+    # across the covered part of one beam step. (Not the whole spot: that sigma, 5-8 mm, took
+    # the silhouette's bearing out of the fit and, in the residuals' mean sigma, cancelled the
+    # covariance's systematic term; docs/extraction.md.)
     edge_rad = float(np.hypot(settings.beam_angle_sigma_rad, settings.beam_footprint_rad / np.sqrt(12.0)))
-    lateral[[0, -1]] = np.hypot(ranges[[0, -1]] * edge_rad, _spot_sigma_m(ranges[[0, -1]], settings))
+    lateral[[0, -1]] = ranges[[0, -1]] * edge_rad
     curvature = sigma**2 / (np.sqrt(2.0) * radius_m)
     return np.sqrt((sigma * along) ** 2 + (lateral * across) ** 2 + curvature**2)
 

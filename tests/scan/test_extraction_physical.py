@@ -12,6 +12,7 @@ import pytest
 from fakes.scanner_model.dwell import simulate_dwell
 from lasercal_hw.scan.average import average_scans
 from lasercal_hw.scan.extraction import RodCentre, RodNotFoundError, find_rod_centre
+from tests.physical_truth import front_range_error_m
 
 Z_AXIS = np.array([0.0, 0.0, 1.0])
 CHI2_2DOF_999 = 13.8  # 99.9 % of an honest covariance's squared Mahalanobis distances
@@ -28,7 +29,7 @@ def _extract(
         centre, radius_m, material=material, background_m=background_m, scan_count=10,  # type: ignore[arg-type]
         background_count=10, seed=3, **kwargs,
     )
-    seen = centre * (1.0 + dwell.front_range_error_m() / range_m)
+    seen = centre * (1.0 + front_range_error_m(dwell) / range_m)
     try:
         found = find_rod_centre(
             average_scans(dwell.scans),
