@@ -97,7 +97,7 @@ class ExtractionSettings:
     min_beams_for_radius: int = 8
     min_arc_span_for_radius_deg: float = 100.0
     edge_residual_sigmas: float = 4.0
-    max_edge_drops_per_side: int = 1
+    max_edge_drops_per_side: int = 16
     #: A beam of an averaged scan is *unstable* (it flipped between surfaces during the dwell:
     #: a mixed pixel at a depth edge) when fewer than this fraction of the scans agreed on it ...
     min_stable_fraction: float = 0.8
@@ -444,7 +444,7 @@ def _fronts(
     ramps_rad = 2 * (settings.max_ramp_beams + 1) * step
     width = abs(float(scan.angles_rad[part[-1]] - scan.angles_rad[part[0]]))
     if width <= _widest_rad(float(ranges[nearest]), section, settings) + ramps_rad:
-        return [nearest]
+        return [_middle_of_front(scan, part, nearest, section, settings)]
     half_beams = np.ceil(0.5 * _widest_rad_array(ranges, section, settings) / max(step, 1e-9)).astype(int) + 1
     reach = half_beams + settings.max_ramp_beams
     positions = np.arange(part.size)
@@ -458,7 +458,28 @@ def _fronts(
         nearest_around = ranges[max(0, position - half) : position + half + 1].min()
         if ranges[position] <= nearest_around and not (fronts and position - fronts[-1] <= half):
             fronts.append(int(position))
-    return fronts
+    return [_middle_of_front(scan, part, front, section, settings) for front in fronts]
+
+
+def _middle_of_front(
+    scan: AveragedScan,
+    part: NDArray[np.int64],
+    position: int,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> int:
+    """The middle of the run of beams around ``position`` (a nearest beam) that lie as near
+    as it, within their noise and the rod's shape tolerance: a rod's front is flat over a few
+    beams, and its single nearest beam is off to one side by noise (the rod-core search then
+    placed its circle off-centre and kept one flank's ramp: 20 mm off sideways for a 45 mm rod
+    at 0.1 m)."""
+    ranges = scan.ranges_m[part]
+    sigma = _range_sigma(scan, settings)[part]
+    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
+    with np.errstate(invalid="ignore"):
+        level = ranges <= ranges[position] + 3.0 * np.hypot(sigma, sigma[position]) + tolerance
+    run = next(r for r in _runs(level) if r[0] <= position <= r[-1])
+    return int(run[run.size // 2])
 
 
 def _widest_rad(range_m: float, section: _Section, settings: ExtractionSettings) -> float:
