@@ -97,7 +97,7 @@ class ExtractionSettings:
     min_beams_for_radius: int = 8
     min_arc_span_for_radius_deg: float = 100.0
     edge_residual_sigmas: float = 4.0
-    max_edge_drops_per_side: int = 16
+    max_edge_drops_per_side: int = 1
     #: A beam of an averaged scan is *unstable* (it flipped between surfaces during the dwell:
     #: a mixed pixel at a depth edge) when fewer than this fraction of the scans agreed on it ...
     min_stable_fraction: float = 0.8
