@@ -426,9 +426,32 @@ def _rod_cores(
     that may join it to its background (``_rod_core`` from each of the segment's fronts)."""
     if part.size < settings.min_beams:
         return []
-    return [core for front in _fronts(scan, part, section, settings) if (core := _rod_core(
-        scan, sigma, part, front, section, settings
-    )).size]
+    fronts = _fronts(scan, part, section, settings)
+    cores = (_rod_core(scan, sigma, part, front, section, settings) for front in fronts)
+    return [_centred_in_halo(scan, part, core, section) for core in cores if core.size]
+
+
+def _centred_in_halo(
+    scan: AveragedScan, part: NDArray[np.int64], core: NDArray[np.int64], section: _Section
+) -> NDArray[np.int64]:
+    """The core moved to the middle of the rod's halo when that is wider than it by two beams
+    or more on a side: the beam's spot is wider than a thin rod, so the beams whose spot only
+    touches the rod still read about its range (a bright rod before a far wall: a 10 mm rod
+    at 0.5 m spans 19 beams where its silhouette has 9), on both sides alike; a known-radius
+    fit of that flat top sits anywhere along it, and the core search picked one end (4-7 mm
+    off sideways). The halo: the beams of the segment around the core within a radius of its
+    nearest range."""
+    ranges = scan.ranges_m[part]
+    first, last = int(np.searchsorted(part, core[0])), int(np.searchsorted(part, core[-1]))
+    nearest = int(np.searchsorted(part, core[int(np.argmin(scan.ranges_m[core]))]))
+    with np.errstate(invalid="ignore"):
+        near = ranges <= ranges[nearest] + section.semi_major_m
+    halo = next(r for r in _runs(near) if r[0] <= nearest <= r[-1])
+    left, right = first - int(halo[0]), int(halo[-1]) - last
+    if max(left, right) < 2 or halo.size < core.size:
+        return core
+    start = int(halo[0]) + (halo.size - core.size) // 2
+    return part[start : start + core.size]
 
 
 def _fronts(
