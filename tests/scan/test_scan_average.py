@@ -90,17 +90,38 @@ def test_intensities_and_valid_counts_are_averaged_over_the_kept_readings() -> N
     rng = np.random.default_rng(3)
     ranges = np.full(UTM_GEOMETRY.angles_rad().size, 2.0)
     dwell = scans(ranges, 0.005, 40, rng)
-    intensity = np.full(ranges.size, 1000, dtype=np.int64)
+    # Real intensities differ from beam to beam: equal neighbours would be a repeated step.
+    intensity = 1000 + np.arange(ranges.size, dtype=np.int64)
     dwell = [_replace(s, intensities=intensity + 100 * (k % 2)) for k, s in enumerate(dwell)]
     spiked = dwell[0].ranges_m.copy()
     spiked[7] = 5.0  # an outlier reading: its intensity is left out with it
-    bright = np.where(np.arange(ranges.size) == 7, 9999, 1000)
+    bright = np.where(np.arange(ranges.size) == 7, 9999, intensity)
     dwell[0] = _replace(dwell[0], ranges_m=spiked, intensities=bright)
     lost = dwell[1].ranges_m.copy()
     lost[9] = np.nan
     dwell[1] = _replace(dwell[1], ranges_m=lost)
     result = average_scans(dwell)
     assert result.intensities is not None
-    assert result.intensities[7] == pytest.approx((19 * 1000 + 20 * 1100) / 39)
+    assert result.intensities[7] == pytest.approx((19 * 1007 + 20 * 1107) / 39)
     assert result.valid_count[9] == 39 and result.valid_count[7] == 40 and result.count[7] == 39
     assert average_scans([_replace(s, intensities=None) for s in dwell]).intensities is None
+
+
+def test_a_step_repeating_its_neighbours_reading_and_intensity_is_left_out() -> None:
+    # A UTM-30LX-EW sometimes sends the previous step's reading again; averaged in, it drags
+    # the beam towards its neighbour's direction. Told by its equal intensity, it is left out
+    # and the beam counts only the scans that measured it.
+    rng = np.random.default_rng(5)
+    ranges = np.linspace(1.0, 1.2, UTM_GEOMETRY.angles_rad().size)
+    dwell = scans(ranges, 0.002, 10, rng)
+    intensity = 1000 + np.arange(ranges.size, dtype=np.int64)
+    dwell = [dataclasses.replace(s, intensities=intensity) for s in dwell]
+    for k in range(6):  # beam 101 repeats beam 100 in 6 of 10 scans
+        copied, bright = dwell[k].ranges_m.copy(), dwell[k].intensities.copy()
+        copied[101], bright[101] = copied[100], bright[100]
+        dwell[k] = dataclasses.replace(dwell[k], ranges_m=copied, intensities=bright)
+    result = average_scans(dwell)
+    assert result.valid_count[101] == 4 and result.count[101] == 4
+    assert result.ranges_m[101] == pytest.approx(ranges[101], abs=0.003)
+    without = average_scans([dataclasses.replace(s, intensities=None) for s in dwell])
+    assert without.valid_count[101] == 10  # no intensities: a repeat is not told from a chance equal range
