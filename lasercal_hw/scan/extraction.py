@@ -151,6 +151,11 @@ class ExtractionSettings:
     #: Without a background scan, what lies behind a beam is the farthest reading this many
     #: beams either side (the background beside the rod).
     behind_window_beams: int = 40
+    #: A fit of this many beams or fewer gets its sideways position from the two or three
+    #: beams at its edges, which a blend with the background moves: it is checked against the
+    #: symmetry of the range profile (``_with_symmetry_doubt``). More beams' arc pins the
+    #: centre better than that symmetry, which a background differing left and right bends.
+    symmetry_check_max_beams: int = 8
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -996,7 +1001,8 @@ def _fit_segment(
     used = points[keep]
     fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
     fit = _with_edge_doubt(used, sigma[keep], fit, section, settings)
-    fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
+    if keep.size <= settings.symmetry_check_max_beams:
+        fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies off the surface by up to its bound, and the arc's range error by up
     # to its own: that part is no misfit.
