@@ -3,7 +3,8 @@ axis, a scanner range offset. Offline, through the fake cell's world; not collec
 
 Run from the repository root::
 
-    .venv/bin/python -m benchmarks.accuracy_conditions [--seeds 20] [--cases default-3s,drill-estimated]
+    .venv/bin/python -m benchmarks.accuracy_conditions [--seeds 20] [--first-seed 0]
+        [--cases default-3s,drill-estimated]
         [--model physical|ideal]
 
 Each case runs the sequencer's measurement chain (``benchmarks.dry_run_accuracy.simulate``:
@@ -142,16 +143,16 @@ def axis_truth(case: Case) -> np.ndarray:
     return axis_deviation(case.job.rod.rod_line(), case.true_rod)
 
 
-def run_case(case: Case, seeds: int, model: str) -> None:
-    """Run one case over ``seeds`` seeds on the default scene with its scanner ``model``
-    and print its distributions."""
+def run_case(case: Case, seeds: int, model: str, first_seed: int = 0) -> None:
+    """Run one case over ``seeds`` seeds from ``first_seed`` on the default scene with its
+    scanner ``model`` and print its distributions."""
     scene = load_scene(None).model_copy(update={"model": model})
     waypoints = designed_waypoints(case.job, scene) if case.designed else job_waypoints(case.job)
     scans = round(case.dwell_s / scene.scanner.scan_period_s)
     trials: list[Trial] = []
     failures = 0
     started = time.perf_counter()
-    for seed in range(seeds):
+    for seed in range(first_seed, first_seed + seeds):
         bias = case.bias or {"bias_offset_m": case.range_offset_m}
         world = world_with(scene, case.true_rod, ROBOT_ERROR_SEED_BASE + seed, **bias)
         try:
@@ -270,6 +271,7 @@ def main() -> None:
     parser.add_argument(
         "--seeds", type=int, default=5, help="seeds per case (the issue's figures: 20 or more)"
     )
+    parser.add_argument("--first-seed", type=int, default=0, help="seed of the first run (default 0)")
     parser.add_argument("--cases", default=None, help="comma-separated case names (default: all)")
     parser.add_argument(
         "--model", choices=("physical", "ideal"), default="physical", help="the scene's scanner model"
@@ -285,7 +287,7 @@ def main() -> None:
             )
         chosen = [c for c in chosen if c.name in names]
     for case in chosen:
-        run_case(case, args.seeds, args.model)
+        run_case(case, args.seeds, args.model, args.first_seed)
 
 
 if __name__ == "__main__":
