@@ -25,12 +25,13 @@ Steps (docs/extraction.md has the reasoning):
    lying significantly behind the fitted surface are dropped and the fit repeated.
 5. Radius: a free-radius fit when enough beams over a wide enough arc hit the rod.
 6. The beam's spot (wider than a thin rod): a near rod looks up to a spot wider (allowed in
-   the size check; the silhouette's edge beams carry the spot as lateral uncertainty); a
-   background close behind merges into the echo, bounded per beam by its share of the spot
+   the size check; the core is centred in that halo, and a flat bright blot's middle is its
+   front); a background close behind merges into the echo, bounded per beam by its share of the spot
    (and intensities) times the depth: a rod no beam reads alone is refused, one whose
    cleanest beam is still partly background gets the bound in its covariance and a warning.
    What the range-error curve leaves across the arc (range walk, near-range error) joins
-   the covariance too.
+   the covariance too, and so does what two sideways checks find (the arc without its edge
+   beams; for a fit of few beams, the range profile's symmetry).
 """
 
 from __future__ import annotations
