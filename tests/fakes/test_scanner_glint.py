@@ -47,7 +47,8 @@ def test_the_lobe_averaged_over_a_strip_keeps_the_lobes_power() -> None:
     # A strip that turns through the whole lobe returns the lobe's integral, wherever it sits.
     half_turn = np.full(5, 0.5)
     angles = np.array([0.0, 0.05, 0.1, 0.15, 0.2])
-    lobe = backscatter("steel_drill", np.cos(angles), np.cos(angles), half_turn) - steel.diffuse * np.cos(angles)
+    cos = np.cos(angles)
+    lobe = backscatter("steel_drill", cos, cos, half_turn) - steel.diffuse * cos
     np.testing.assert_allclose(lobe * 2 * half_turn, steel.specular * width * np.sqrt(np.pi), rtol=1e-3)
     # A strip that hardly turns gives the lobe where it is; a tilted bar (incidence out of
     # the section) dims the whole lobe.
