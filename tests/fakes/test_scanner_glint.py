@@ -4,7 +4,7 @@ A 10 mm steel bit's specular lobe (0.06 rad) covers 0.6 mm of its surface, narro
 the 1-2 mm between a beam's sub-rays; the model averages the lobe over each sub-ray's
 strip of the spot, so where the bit sits between the beams must not change where the
 scan says it is.  ``centre_across_mm`` is the model's own centre: the power-weighted
-bearing of the beams that return the bit (intensity^2 is power), no extraction involved.
+bearing of the beams that return the bit, no extraction involved.
 """
 
 from __future__ import annotations
@@ -26,11 +26,7 @@ def centre_across_mm(material: str, shift_beams: float) -> float:
     bearing = BEARING_RAD + shift_beams * STEP_RAD
     centre = RANGE_M * np.array([np.cos(bearing), np.sin(bearing)])
     dwell = simulate_dwell(centre, 0.005, material=material, background_m=None, scan_count=0)
-    raw_mm, intensity = dwell.world.scan_mm(dwell.T_base_tcp, None)
-    seen = raw_mm >= 23
-    power = intensity[seen].astype(float) ** 2
-    mean_bearing = float(np.sum(power * dwell.world.angles_rad[seen]) / power.sum())
-    return (mean_bearing - bearing) * RANGE_M * 1e3
+    return (dwell.returned_power_bearing_rad() - bearing) * RANGE_M * 1e3
 
 
 @pytest.mark.parametrize("material", ["steel_drill", "bare_metal"])
