@@ -172,6 +172,9 @@ def test_a_polished_bit_is_leaned_across_the_beam_never_along_it() -> None:
     )
     assert len(polished) > 200
     assert _lean_along_beam_deg(polished.T_base_tcp, job).max() < 2.0 + 1e-6  # 3 deg less 1 deg of doubt
+    # ... and never just before the robot's base, whose echo a faint bit's would merge into.
+    assert polished.removed["a polished rod right before the robot's base"] > 0
+    assert "a polished rod right before the robot's base" not in rough.removed
     assert np.median(_lean_along_beam_deg(rough.T_base_tcp, job)) > 8.0
     shipped = load_waypoints(Path(__file__).parents[2] / "examples" / "drill-waypoints.csv")
     assert _lean_along_beam_deg(waypoint_matrices(shipped), job).max() < 2.0 + 1e-6
