@@ -132,7 +132,8 @@ class RodConfig(_Strict):
     polished: bool = Field(
         False,
         description="the rod's surface is polished or ground metal (a steel drill bit): it returns the beam "
-        "only where it faces the scanner square, so trajectory design leans it across the beam, not along",
+        "only where it faces the scanner square, so trajectory design leans it across the beam, not along, "
+        "and keeps the robot's base from right behind it",
     )
 
     @field_validator("direction")
