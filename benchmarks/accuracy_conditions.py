@@ -5,7 +5,7 @@ Run from the repository root::
 
     .venv/bin/python -m benchmarks.accuracy_conditions [--seeds 20] [--first-seed 0]
         [--cases default-3s,drill-estimated]
-        [--model physical|ideal]
+        [--model physical|ideal] [--design-seed 0] [--design-range-terms K]
 
 Each case runs the sequencer's measurement chain (``benchmarks.dry_run_accuracy.simulate``:
 noisy scans of the world at every waypoint, averaging, extraction with the background,
@@ -21,7 +21,11 @@ absolute-accuracy error field. Cases:
   estimated (the reference);
 * ``drill-fixed``, ``drill-estimated``: the same job whose real bit is 2 mm off and tilted
   1 degree from the job file's axis, solved with the job's axis (the bias it causes) and
-  with ``rod.estimate_axis = true`` (the job as shipped);
+  with ``rod.estimate_axis = true``; the bit is the default scene's rod of the bit's radius
+  (a painted cylinder);
+* ``drill-fluted``: the drill job as shipped: ``drill-estimated`` on the scene that holds
+  the bit as it is (``fakes/scenes/drill.toml``: a fluted 10 mm twist drill of ground steel
+  in a collet chuck, turned with the tool);
 * ``drill-preset-estimated``: the same bit and estimation on the ``drill`` preset's
   semicircles, which keep the tool's turn about the bit nearly constant (why the drill job
   uses designed waypoints);
@@ -38,15 +42,17 @@ Printed per case: waypoints found, the translation (mm) and rotation (deg) error
 the truth (median, 95th percentile, max), the share of error components within 2.5
 reported std, and the estimated axis / range offset against the truth in reported std.
 The default (5 seeds) is a quick look; the figures in docs/solver.md use ``--seeds 20``.
-``--model``: the default scene's scanner model (``physical``, its default: a real
-UTM-30LX-EW's footprint, echoes and range error; or ``ideal``, the reference).
+``--model``: the scene's scanner model (``physical``, its default: a real UTM-30LX-EW's
+footprint, echoes and range error; or ``ideal``, the reference). ``--design-seed`` and
+``--design-range-terms``: another design of the ``designed-*`` cases (one design is one
+draw: docs/trajectory-design.md compares several).
 """
 
 from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -64,7 +70,9 @@ from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.ur_kinematics import UR5
 from trajectories.design import design, request_for_job
 
-DRILL_JOB = Path(__file__).resolve().parent.parent / "examples" / "drill.toml"
+ROOT = Path(__file__).resolve().parent.parent
+DRILL_JOB = ROOT / "examples" / "drill.toml"
+DRILL_SCENE = ROOT / "fakes" / "scenes" / "drill.toml"
 #: The real bit against the job file's axis: 2 mm across it and 1 degree of tilt, both at 45 deg.
 BIT_OFFSET_M = 0.002
 BIT_TILT_DEG = 1.0
@@ -87,6 +95,8 @@ class Case:
     bias: dict[str, float] | None = None
     #: Waypoints from ``lasercal trajectory design`` for the scene instead of the job's.
     designed: bool = False
+    #: The scene (None: the packaged default); its rod's material and shape are kept.
+    scene_path: Path | None = None
 
 
 def real_bit(nominal: RodLine) -> RodLine:
@@ -117,6 +127,7 @@ def cases() -> list[Case]:
         Case("drill-known", drill_fixed, drill.rod.rod_line(), drill.dwell_s),
         Case("drill-fixed", drill_fixed, bit, drill.dwell_s),
         Case("drill-estimated", drill, bit, drill.dwell_s),
+        Case("drill-fluted", drill, bit, drill.dwell_s, scene_path=DRILL_SCENE),
         Case("drill-preset-estimated", drill_preset, bit, drill.dwell_s),
         Case("offset-off", offset_off, default.rod.rod_line(), 3.0, RANGE_OFFSET_M),
         Case("offset-default", default, default.rod.rod_line(), 3.0, RANGE_OFFSET_M),
@@ -126,14 +137,26 @@ def cases() -> list[Case]:
     ]
 
 
-def designed_waypoints(job: JobConfig, scene: Scene) -> np.ndarray:
-    """What ``lasercal trajectory design`` lays out for the scene's scanner (seed 0, the
-    default 5 cm / 5 deg uncertainty, 20 waypoints, a UR5)."""
+@dataclass(frozen=True)
+class DesignChoice:
+    """How the ``designed-*`` cases' waypoints are laid out: the design's seed and, when
+    given, how many range curve terms it plans for (None: ``request_for_job``'s own)."""
+
+    seed: int = 0
+    range_terms: int | None = None
+
+
+def designed_waypoints(job: JobConfig, scene: Scene, choice: DesignChoice = DesignChoice()) -> np.ndarray:
+    """What ``lasercal trajectory design`` lays out for the scene's scanner (the default 5 cm /
+    5 deg uncertainty, 20 waypoints, a UR5; seed 0 unless ``choice`` says otherwise)."""
     mounting = scene.scanner
     T_base_laser = make_transform(
         euler_zyx_to_matrix(*np.radians(mounting.euler_zyx_deg)), mounting.translation_m
     )
-    result = design(request_for_job(job, T_base_laser, UR5), extended_fisher_information)
+    request = request_for_job(job, T_base_laser, UR5, seed=choice.seed)
+    if choice.range_terms is not None:
+        request = replace(request, range_terms=choice.range_terms)
+    result = design(request, extended_fisher_information)
     return np.array([w.tcp_pose for w in result.waypoints])
 
 
@@ -143,11 +166,13 @@ def axis_truth(case: Case) -> np.ndarray:
     return axis_deviation(case.job.rod.rod_line(), case.true_rod)
 
 
-def run_case(case: Case, seeds: int, model: str, first_seed: int = 0) -> None:
-    """Run one case over ``seeds`` seeds from ``first_seed`` on the default scene with its
-    scanner ``model`` and print its distributions."""
-    scene = load_scene(None).model_copy(update={"model": model})
-    waypoints = designed_waypoints(case.job, scene) if case.designed else job_waypoints(case.job)
+def run_case(
+    case: Case, seeds: int, model: str, first_seed: int = 0, choice: DesignChoice = DesignChoice()
+) -> None:
+    """Run one case over ``seeds`` seeds from ``first_seed`` on its scene with the scanner
+    ``model`` and print its distributions."""
+    scene = load_scene(case.scene_path).model_copy(update={"model": model})
+    waypoints = designed_waypoints(case.job, scene, choice) if case.designed else job_waypoints(case.job)
     scans = round(case.dwell_s / scene.scanner.scan_period_s)
     trials: list[Trial] = []
     failures = 0
@@ -276,7 +301,16 @@ def main() -> None:
     parser.add_argument(
         "--model", choices=("physical", "ideal"), default="physical", help="the scene's scanner model"
     )
+    parser.add_argument("--design-seed", type=int, default=0, help="the designed-* cases' design seed")
+    parser.add_argument(
+        "--design-range-terms",
+        type=int,
+        choices=range(6),
+        default=None,
+        help="range curve terms the designed-* cases' design plans for (default: the design's own)",
+    )
     args = parser.parse_args()
+    choice = DesignChoice(args.design_seed, args.design_range_terms)
     chosen = cases()
     if args.cases:
         names = set(args.cases.split(","))
@@ -287,7 +321,7 @@ def main() -> None:
             )
         chosen = [c for c in chosen if c.name in names]
     for case in chosen:
-        run_case(case, args.seeds, args.model, args.first_seed)
+        run_case(case, args.seeds, args.model, args.first_seed, choice)
 
 
 if __name__ == "__main__":

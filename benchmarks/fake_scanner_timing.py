@@ -5,6 +5,10 @@ Run: ``.venv/bin/python benchmarks/fake_scanner_timing.py [--seconds 3]``
 Prints, as ratios against references measured in the same run:
 * the cost of building one ME scan message (full 1081 steps with intensities) relative
   to the 25 ms scan period and to the cost of decoding it with the codec;
+* the physical scanner model's cost per scan (``fakes.world.World.scan_mm``, the fake
+  cell's scanner; docs/scanner-model.md) while the rod moves (a new pose every scan: its
+  beams are cast again) and at rest, on the default scene and on the drill scene (a fluted
+  steel bit and its chuck), against the 25 ms period;
 * the stream rhythm seen by a TCP client: sensor-timestamp period, host arrival period,
   arrival jitter and the drift of the last arrival against the absolute 25 ms schedule.
 """
@@ -16,11 +20,19 @@ import itertools
 import socket
 import statistics
 import time
+from pathlib import Path
+
+import numpy as np
 
 from drivers.hokuyo import codec
 from fakes.scan_scene import RoomScene
+from fakes.scene import load_scene
 from fakes.scip_device import SCAN_PERIOD_S, ScipDevice
 from fakes.scip_server import FakeScannerServer
+from fakes.world import World
+from lasercal_hw.geometry import make_transform
+
+DRILL_SCENE = Path(__file__).resolve().parent.parent / "fakes" / "scenes" / "drill.toml"
 
 
 def build_cost_s(repeats: int) -> tuple[float, float]:
@@ -39,6 +51,27 @@ def build_cost_s(repeats: int) -> tuple[float, float]:
         codec.decode_scan_lines(lines[2:], request)
         decode.append(time.perf_counter() - started)
     return statistics.median(build), statistics.median(decode)
+
+
+def physical_scan_costs_s(scene_path: Path | None, scans: int) -> tuple[list[float], list[float]]:
+    """Seconds per ``World.scan_mm`` of the physical model with the rod moving along a path
+    through the scan plane (0.25-0.95 m ahead, a new pose every scan), then at rest."""
+    world = World(load_scene(scene_path))
+    rng = np.random.default_rng(0)
+    moving, still = [], []
+    T = world.ground_truth_T_base_laser
+    for k in range(scans):
+        T = world.ground_truth_T_base_laser @ make_transform(
+            np.eye(3), [0.25 + 0.7 * k / scans, 0.1 + 0.0003 * k, -0.15]
+        )
+        started = time.perf_counter()
+        world.scan_mm(T, rng)
+        moving.append(time.perf_counter() - started)
+    for _ in range(scans):
+        started = time.perf_counter()
+        world.scan_mm(T, rng)
+        still.append(time.perf_counter() - started)
+    return moving, still
 
 
 def stream_rhythm(seconds: float) -> dict[str, float]:
@@ -76,6 +109,12 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--repeats", type=int, default=200)
     args = parser.parse_args()
+    for name, path in (("default scene", None), ("drill scene", DRILL_SCENE)):
+        moving, still = physical_scan_costs_s(path, args.repeats)
+        p50, p99 = np.percentile(moving, [50, 99])
+        print(f"physical model, {name}: rod moving {1e3 * p50:.2f} ms median ({p50 / SCAN_PERIOD_S:.3f} of "
+              f"the period), p99 {1e3 * p99:.2f} ms ({p99 / SCAN_PERIOD_S:.3f}); at rest "
+              f"{1e3 * statistics.median(still):.2f} ms ({statistics.median(still) / SCAN_PERIOD_S:.3f})")
     build_s, decode_s = build_cost_s(args.repeats)
     print(f"ME scan build: {1e3 * build_s:.3f} ms = {build_s / SCAN_PERIOD_S:.3f} of the 25 ms period, "
           f"{build_s / decode_s:.2f}x the codec's decode time ({1e3 * decode_s:.3f} ms)")

@@ -129,6 +129,12 @@ class RodConfig(_Strict):
     axis_std_deg: float = Field(
         3.0, gt=0.0, le=45.0, description="how far the real axis may be tilted from direction (one std, deg)"
     )
+    polished: bool = Field(
+        False,
+        description="the rod's surface is polished or ground metal (a steel drill bit): it returns the beam "
+        "only where it faces the scanner square, so trajectory design leans it across the beam, not along, "
+        "and keeps the robot's base from right behind it",
+    )
 
     @field_validator("direction")
     @classmethod

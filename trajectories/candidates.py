@@ -5,7 +5,12 @@ uncertainty.
 A candidate is drawn as a crossing point in the scan plane (range and bearing from the
 scanner), a rod direction tilted from the plane normal, where along the rod the crossing
 falls, and a turn of the tool about the rod (small, or wide when the rod's axis is
-estimated). Each is then kept only if:
+estimated). A polished rod (``rod.polished``: a steel drill bit) is tilted across the beam,
+leaning along it by at most ``POLISHED_MAX_BEAM_LEAN_DEG``: its surface sends the beam back
+only where it faces the scanner square, so a rod leaning toward or away from the scanner
+returns little more than its faint diffuse part (docs/scanner-model.md); and even square its
+echo is faint, so it merges with a surface close behind it: the beam must also pass the
+robot's base ``POLISHED_BACKDROP_M`` beyond the crossing. Each is then kept only if:
 
 - the crossing lies 0.30 m (clear of the scanner) to ``max_range_m`` from the scanner, where
   the rod still covers enough beams, and inside the field of view with a margin;
@@ -50,6 +55,12 @@ COLUMN_CLEARANCE_M = 0.13
 #: Tilt of the rod from the plane normal (deg): enough to see the plane's height, little
 #: enough for the extraction's round cross-section.
 TILT_RANGE_DEG = (10.0, 30.0)
+#: Largest lean of a polished rod along the beam (deg), the pose uncertainty's rotation
+#: included: ground steel's specular lobe is about 3.4 deg wide (docs/scanner-model.md).
+POLISHED_MAX_BEAM_LEAN_DEG = 3.0
+#: A polished rod's faint echo merges with a surface this close behind it (m): the beam must
+#: pass the robot's base by the line-of-sight clearance this far beyond the crossing too.
+POLISHED_BACKDROP_M = 0.5
 #: Turn of the tool about the rod around its reference heading (deg): keeps joint 6 calm.
 TOOL_TURN_SPREAD_DEG = 30.0
 #: The same when the rod's axis is estimated: turning the tool about the rod moves an axis
@@ -93,6 +104,8 @@ class CellRules:
     box_max_m: tuple[float, float, float]
     model: URModel = UR5
     branch: int = 2
+    #: The rod's surface is polished: tilt it across the beam only.
+    polished: bool = False
 
     def max_range_m(self) -> float:
         """The farthest crossing at which the rod still covers ``MIN_BEAMS_ACROSS`` beams."""
@@ -172,6 +185,20 @@ def _gap_to_other_branches(solutions: FloatArray, branch: int) -> FloatArray:
     return np.nan_to_num(distance, nan=np.inf).min(axis=1)
 
 
+def _across_the_beam(
+    bearing_rad: FloatArray, tilt_rad: FloatArray, drawn_rad: FloatArray, uncertainty: PoseUncertainty
+) -> FloatArray:
+    """Tilt directions (in the scan plane) that lean a rod tilted by ``tilt_rad`` along the
+    beam at ``bearing_rad`` by at most ``POLISHED_MAX_BEAM_LEAN_DEG`` less the rotation
+    uncertainty, to either side of the beam (the drawn directions pick the side and the
+    spread): the lean along the beam is ``asin(sin tilt cos(direction - bearing))``."""
+    lean_rad = np.deg2rad(max(POLISHED_MAX_BEAM_LEAN_DEG - uncertainty.rotation_deg, 0.0))
+    spread = np.arcsin(np.clip(np.sin(lean_rad) / np.sin(tilt_rad), 0.0, 1.0))
+    side = np.where(np.sin(drawn_rad) >= 0.0, 1.0, -1.0)
+    offset = spread * np.cos(drawn_rad)  # within the allowed spread, as drawn
+    return bearing_rad + side * (0.5 * np.pi - offset)
+
+
 def _column_distance_m(scanner_xy: FloatArray, points_xy: FloatArray) -> FloatArray:
     """Distance of the base axis (x = y = 0) from each beam segment, in the base xy plane."""
     beam = points_xy - scanner_xy
@@ -202,6 +229,8 @@ def draw_candidates(
     bearing_rad = np.deg2rad(rng.uniform(-HALF_FIELD_OF_VIEW_DEG, HALF_FIELD_OF_VIEW_DEG, count))
     tilt_rad = np.deg2rad(rng.uniform(*TILT_RANGE_DEG, count))
     tilt_direction_rad = rng.uniform(0.0, 2.0 * np.pi, count)
+    if rules.polished:
+        tilt_direction_rad = _across_the_beam(bearing_rad, tilt_rad, tilt_direction_rad, uncertainty)
     side = rng.choice([-1.0, 1.0], count)
     turn_rad = np.deg2rad(rng.uniform(-turn_spread_deg, turn_spread_deg, count))
     along_fraction = rng.uniform(0.0, 1.0, count)
@@ -214,9 +243,15 @@ def draw_candidates(
     crossing = scanner + range_m[:, None] * (
         np.cos(bearing_rad)[:, None] * e1 + np.sin(bearing_rad)[:, None] * e2
     )
-    clear = _column_distance_m(scanner[:2], crossing[:, :2]) >= COLUMN_CLEARANCE_M + uncertainty.translation_m
+    clearance_m = COLUMN_CLEARANCE_M + uncertainty.translation_m
+    clear = _column_distance_m(scanner[:2], crossing[:, :2]) >= clearance_m
     keep(clear | ~ok, "beam passes the robot's base")
     ok &= clear
+    if rules.polished:
+        beyond = crossing + POLISHED_BACKDROP_M * (crossing - scanner) / range_m[:, None]
+        backdrop = _column_distance_m(scanner[:2], beyond[:, :2]) >= clearance_m
+        keep(backdrop | ~ok, "a polished rod right before the robot's base")
+        ok &= backdrop
     low, high = crossing_window_m(rod, range_m, np.cos(tilt_rad), uncertainty)
     window = low <= high
     keep(window | ~ok, "rod too short for the pose uncertainty at that range")

@@ -184,6 +184,7 @@ def request_for_job(
         box_max_m=tuple(job.workspace.max_m),
         model=model,
         branch=home_branch(model),
+        polished=job.rod.polished,
     )
     noise = NoiseModel(
         robot_sigma_m=job.robot.position_accuracy_mm / 1000.0,

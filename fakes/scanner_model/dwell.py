@@ -42,6 +42,14 @@ class SimulatedDwell:
     world: World
     T_base_tcp: FloatArray
 
+    def returned_power_bearing_rad(self) -> float:
+        """Where a noise-free scan says a lone rod is, no extraction involved: the bearing of
+        the beams that return it, weighted by their power (the square of the intensity)."""
+        raw_mm, intensity = self.world.scan_mm(self.T_base_tcp, None)
+        seen = raw_mm >= round(self.world.geometry.min_range_m * 1000.0)
+        power = intensity[seen].astype(float) ** 2
+        return float(np.sum(power * self.world.angles_rad[seen]) / power.sum())
+
 
 def simulate_dwell(
     centre_uv_m: Sequence[float],

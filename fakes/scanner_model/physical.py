@@ -21,7 +21,7 @@ from fakes.scanner_model.echo import Echoes, detect_echo
 from fakes.scanner_model.materials import backscatter
 from fakes.scanner_model.range_error import range_bias_m, range_sigma_m, warmup_drift_m
 from fakes.scene import PhysicsSettings
-from fakes.shapes import Shape
+from fakes.shapes import Shape, SurfaceHit
 from lasercal_hw.models import FloatArray
 
 MovingShape = tuple[Shape, FloatArray, float]
@@ -34,12 +34,13 @@ class PhysicalScanner:
     def __init__(self, physics: PhysicsSettings, angles_rad: FloatArray, static: Sequence[Shape]) -> None:
         self.physics = physics
         self.angles_rad = np.asarray(angles_rad, dtype=float)
-        self._u, self._weights = beam_profile(physics)
+        self._u, self._du, self._weights = beam_profile(physics)
         angles = self.angles_rad[:, None] + 0.5 * physics.divergence_rad * self._u[None, :]
         self._dirs = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], -1)
         beam = self.angles_rad
-        across = np.stack([-np.sin(beam), np.cos(beam), np.zeros_like(beam)], -1)
-        self._origins = 0.5 * physics.spot_width_at_scanner_m * self._u[None, :, None] * across[:, None, :]
+        self._across = np.stack([-np.sin(beam), np.cos(beam), np.zeros_like(beam)], -1)
+        offsets_m = 0.5 * physics.spot_width_at_scanner_m * self._u
+        self._origins = offsets_m[None, :, None] * self._across[:, None, :]
         self._static_count = len(static)
         every_beam = np.arange(self.angles_rad.size)
         self._static_t, self._static_power, self._static_id = self._cast(list(static), every_beam)
@@ -65,25 +66,30 @@ class PhysicalScanner:
         k = self._u.size
         dirs = self._dirs[beams].reshape(-1, 3)
         origins = self._origins[beams].reshape(-1, 3)
+        lateral = np.repeat(self._across[beams], k, axis=0)
+        du = np.tile(self._du, beams.size)
         best_t = np.full(dirs.shape[0], np.inf)
         best_power = np.zeros(dirs.shape[0])
         best_id = np.full(dirs.shape[0], -1, dtype=np.int64)
         for index, shape in enumerate(shapes):
-            t, cos = shape.hit(dirs, origins)
-            nearer = t < best_t
+            hit = shape.surface_hit(dirs, origins, lateral)
+            nearer = hit.t < best_t
             if nearer.any():
-                best_t = np.where(nearer, t, best_t)
-                best_power = np.where(nearer, self._power(t, cos, shape.material), best_power)
+                best_t = np.where(nearer, hit.t, best_t)
+                best_power = np.where(nearer, self._power(hit, du, shape.material), best_power)
                 best_id = np.where(nearer, index, best_id)
         power = best_power.reshape(-1, k) * self._weights[None, :]
         return best_t.reshape(-1, k), power, best_id.reshape(-1, k)
 
-    def _power(self, t: FloatArray, cos: FloatArray, material: str) -> FloatArray:
-        """Received power relative to white Kent sheet at 1 m: back-scatter, 1/r^2, and the
-        receiver's overlap with the beam, which starves the nearest range."""
+    def _power(self, hit: SurfaceHit, du: FloatArray, material: str) -> FloatArray:
+        """Received power relative to white Kent sheet at 1 m: back-scatter over each
+        sub-ray's strip of the spot (``du`` wide in spot units, ``beam_profile``), 1/r^2,
+        and the receiver's overlap with the beam, which starves the nearest range."""
         p = self.physics
-        r = np.fmax(np.where(np.isfinite(t), t, 1.0), 1e-3)
-        return backscatter(material, cos) * receiver_overlap(r, p) / r**2
+        r = np.fmax(np.where(np.isfinite(hit.t), hit.t, 1.0), 1e-3)
+        half_strip_m = 0.25 * du * (p.spot_width_at_scanner_m + p.divergence_rad * r)
+        scatter = backscatter(material, hit.cos, hit.section_cos, hit.turn_rad_per_m * half_strip_m)
+        return scatter * receiver_overlap(r, p) / r**2
 
     def _pose_cache(self, moving: Sequence[MovingShape], threshold: float) -> _PoseCache:
         """Cast the moving shapes once per pose (a dwell scans one pose many times) and find
@@ -163,27 +169,31 @@ class PhysicalScanner:
         return ranges, np.where(np.isfinite(ranges), np.fmax(intensity, 0.0), 0.0)
 
 
-def beam_profile(physics: PhysicsSettings) -> tuple[FloatArray, FloatArray]:
-    """Sub-ray positions across the spot (1 = the core's 1/e^2 edge) and their weights.
+def beam_profile(physics: PhysicsSettings) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Sub-ray positions across the spot (1 = the core's 1/e^2 edge), the width of the
+    strip of the spot each stands for (same unit) and their weights (the strip's power).
 
     The profile is a gaussian core plus a wider, faint halo (``halo_fraction`` of the
     power, ``halo_scale`` times wider): a real laser spot's skirt, which a bright surface
-    (retro-reflective tape) lights up far beyond the core.  Sub-rays are denser in the
-    core (sinh spacing) and span the halo.
+    (retro-reflective tape) lights up far beyond the core.  The spot is cut into strips
+    that tile it, narrower in the core (sinh spacing) and spanning the halo; each sub-ray
+    runs through the middle of its strip (the midpoint rule: a glint anywhere on the spot
+    falls in exactly one strip, ``materials.backscatter``).
     """
     k = physics.sub_rays
     if k == 1:
-        return np.zeros(1), np.ones(1)
+        return np.zeros(1), np.full(1, 2.0), np.ones(1)
     span = physics.halo_scale if physics.halo_fraction > 0.0 else 1.0
-    x = np.linspace(-1.0, 1.0, k)
+    x = np.linspace(-1.0, 1.0, k + 1)
     stretch = 2.0 if span > 1.0 else 1e-6
-    u = span * np.sinh(stretch * x) / np.sinh(stretch)
-    du = np.gradient(u)
+    edges = span * np.sinh(stretch * x) / np.sinh(stretch)
+    u = 0.5 * (edges[1:] + edges[:-1])
+    du = np.diff(edges)
     core = np.exp(-2.0 * u**2)
     halo = np.exp(-2.0 * (u / physics.halo_scale) ** 2) / physics.halo_scale
     profile = (1.0 - physics.halo_fraction) * core + physics.halo_fraction * halo
     weights = profile * du
-    return u, weights / weights.sum()
+    return u, du, weights / weights.sum()
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, pose_to_matrix, rotvec_to_matrix
 from lasercal_hw.ur_kinematics import UR5, UR5E, URModel, inverse_kinematics_pose
-from trajectories.candidates import END_MARGIN_M, PoseUncertainty
+from trajectories.candidates import END_MARGIN_M, PoseUncertainty, draw_candidates
 from trajectories.checks import check_waypoints
 from trajectories.design import (
     DESIGN_RANGE_TERMS,
@@ -145,6 +145,39 @@ def test_a_design_for_a_job_that_estimates_the_range_error_pins_its_curve_down(r
     # estimated (here 1.79 mm / 0.243 deg against 1.51 mm / 0.189 deg).
     aware_std, blind_std = pose_std(right_low.waypoints), pose_std(blind.waypoints)
     assert aware_std[0] < 0.95 * blind_std[0] and aware_std[1] < 0.9 * blind_std[1]
+
+
+def _lean_along_beam_deg(T_base_tcp: np.ndarray, job: JobConfig) -> np.ndarray:
+    """How far the rod leans toward or away from the scanner along the beam that meets it."""
+    T_base_laser = job.scanner.nominal.matrix()
+    rod = job.rod.rod_line()
+    crossings = rod_plane_crossings(T_base_tcp, rod, T_base_laser)
+    direction = T_base_laser[:3, :3].T @ (T_base_tcp[:, :3, :3] @ rod.unit_direction()).T
+    beam = np.stack([np.cos(crossings.bearing_rad), np.sin(crossings.bearing_rad)])
+    return np.degrees(np.arcsin(np.abs(np.sum(direction[:2] * beam, axis=0))))
+
+
+def test_a_polished_bit_is_leaned_across_the_beam_never_along_it() -> None:
+    # Ground steel sends the beam back only near square (docs/scanner-model.md): the drill
+    # job's bit is polished, so its candidates and its shipped waypoints tilt it across the beam.
+    job = load_job(Path(__file__).parents[2] / "examples" / "drill.toml")
+    assert job.rod.polished
+    request = request_for_job(job, job.scanner.nominal.matrix(), UR5, uncertainty=PoseUncertainty(0.01, 1.0))
+    polished = draw_candidates(
+        request.T_base_laser, request.uncertainty, request.rules, 3000, np.random.default_rng(0)
+    )
+    rough = draw_candidates(
+        request.T_base_laser, request.uncertainty, dataclasses.replace(request.rules, polished=False), 3000,
+        np.random.default_rng(0),
+    )
+    assert len(polished) > 200
+    assert _lean_along_beam_deg(polished.T_base_tcp, job).max() < 2.0 + 1e-6  # 3 deg less 1 deg of doubt
+    # ... and never just before the robot's base, whose echo a faint bit's would merge into.
+    assert polished.removed["a polished rod right before the robot's base"] > 0
+    assert "a polished rod right before the robot's base" not in rough.removed
+    assert np.median(_lean_along_beam_deg(rough.T_base_tcp, job)) > 8.0
+    shipped = load_waypoints(Path(__file__).parents[2] / "examples" / "drill-waypoints.csv")
+    assert _lean_along_beam_deg(waypoint_matrices(shipped), job).max() < 2.0 + 1e-6
 
 
 def _pose_std_with_axis(request: DesignRequest, poses: list) -> np.ndarray:
