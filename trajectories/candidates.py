@@ -172,7 +172,7 @@ def _gap_to_other_branches(solutions: FloatArray, branch: int) -> FloatArray:
     return np.nan_to_num(distance, nan=np.inf).min(axis=1)
 
 
-def _column_distance_m(scanner_xy: FloatArray, points_xy: FloatArray) -> FloatArray:
+def column_distance_m(scanner_xy: FloatArray, points_xy: FloatArray) -> FloatArray:
     """Distance of the base axis (x = y = 0) from each beam segment, in the base xy plane."""
     beam = points_xy - scanner_xy
     along = np.clip((-scanner_xy @ beam.T) / np.maximum(np.sum(beam * beam, axis=1), 1e-12), 0.0, 1.0)
@@ -214,7 +214,7 @@ def draw_candidates(
     crossing = scanner + range_m[:, None] * (
         np.cos(bearing_rad)[:, None] * e1 + np.sin(bearing_rad)[:, None] * e2
     )
-    clear = _column_distance_m(scanner[:2], crossing[:, :2]) >= COLUMN_CLEARANCE_M + uncertainty.translation_m
+    clear = column_distance_m(scanner[:2], crossing[:, :2]) >= COLUMN_CLEARANCE_M + uncertainty.translation_m
     keep(clear | ~ok, "beam passes the robot's base")
     ok &= clear
     low, high = crossing_window_m(rod, range_m, np.cos(tilt_rad), uncertainty)

@@ -315,7 +315,7 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
                 "std_translation_mm": (1000.0 * std[:3]).tolist(),
                 "std_rotation_deg": np.degrees(std[3:]).tolist(),
                 "passed": first.passed and second.passed,
-                "agreement": _agreement(a, b, outcomes, centres, job),
+                "agreement": pair_agreement(a, b, outcomes, centres, job),
             }
             if first.ground_truth is not None and second.ground_truth is not None:
                 truth = np.linalg.inv(np.asarray(first.ground_truth)) @ np.asarray(second.ground_truth)
@@ -347,7 +347,7 @@ def _recorded_centres(folder: Path) -> RecordedCentres:
     return centres
 
 
-def _agreement(
+def pair_agreement(
     a: str, b: str, outcomes: dict[str, ScannerOutcome], centres: dict[str, RecordedCentres], job: JobConfig
 ) -> dict[str, Any]:
     """The agreement test of ``a`` and ``b`` (``calibration/agreement``) over the waypoints of
