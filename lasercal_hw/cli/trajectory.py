@@ -181,7 +181,10 @@ OutOption = Annotated[Path, typer.Option("--out", help="Waypoint file to write (
 SeedOption = Annotated[int, typer.Option("--seed", help="Seed of the search (same seed, same waypoints).")]
 ScannerNameOption = Annotated[
     str | None,
-    typer.Option("--scanner", help="A cell job's scanner to design for (its [scanners.NAME] table)."),
+    typer.Option(
+        "--scanner",
+        help="A cell job's scanner to design for (its scanners.NAME table: nominal pose, rod, gates).",
+    ),
 ]
 SharedWithOption = Annotated[
     str | None,
