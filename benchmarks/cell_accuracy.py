@@ -22,15 +22,17 @@ base z (a scanner knocked after its calibration: the test should say ``disagree`
 Printed: per seed each scanner's error against the truth, the front-to-rear (each pair's)
 error in its combined std and the agreement verdicts (solved, moved); then the
 distributions: each scanner's translation and rotation error (median, 95th percentile, max,
-share within 2 mm and 0.3 deg), each pair's largest axis error in its own std and its
-Mahalanobis distance (6 dof; share within 2.5 std), and how often each verdict came.
+share within 2 mm and 0.3 deg), each pair's largest std, its largest axis error in its own
+std and its Mahalanobis distance (6 dof; share within 2.5 std), the same for ``joint`` (the
+pair's transform with the shared centres used jointly, where the two agree: ``cell.json``'s
+``joint``, ``run/cell.pair_document``), and how often each verdict came.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
-from collections import Counter
+from collections import Counter, defaultdict
 from dataclasses import replace
 from pathlib import Path
 
@@ -39,11 +41,10 @@ import numpy as np
 from benchmarks.dry_run_accuracy import dwell, errors, measure_waypoints, world_with
 from fakes.scene import load_scene, with_model_override
 from fakes.world import World
-from lasercal_hw.calibration.pairs import error_in_std, relative_pose
 from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
-from lasercal_hw.run.cell import RecordedCentres, ScannerOutcome, pair_agreement
+from lasercal_hw.run.cell import RecordedCentres, ScannerOutcome, pair_agreement, pair_document
 from lasercal_hw.run.two_pass import solve_two_pass
 from lasercal_hw.run.watchers import Watcher, expected_crossing, watcher_centre
 from lasercal_hw.run.waypoints import job_waypoints
@@ -120,6 +121,7 @@ def main() -> None:
     errors_of: dict[str, list[tuple[float, float]]] = {name: [] for name in names}
     pairs: dict[tuple[str, str], list[dict[str, float]]] = {}
     verdicts: dict[tuple[str, str], list[tuple[str, str, int]]] = {}
+    joint: dict[tuple[str, str], list[dict[str, float]]] = defaultdict(list)
     started = time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         robot_error_seed = args.robot_error_seed_base + seed
@@ -141,7 +143,8 @@ def main() -> None:
             result = solution.result
             results[name], truths[name] = result, world.ground_truth_T_base_laser
             outcomes[name] = ScannerOutcome(
-                name, Path(), True, result.T_base_laser, result.covariance, None, None,
+                name, Path(), True, result.T_base_laser, result.covariance,
+                world.ground_truth_T_base_laser.tolist(), None,
                 range_offset=result.range_offset, rms_residual_mm=result.rms_residual_mm,
             )
             centres[name] = {None: {o.index: (o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2)
@@ -158,17 +161,21 @@ def main() -> None:
             for b in names[i + 1:]:
                 if a not in results or b not in results:
                     continue
-                T_ab, covariance = relative_pose(
-                    results[a].matrix(), np.asarray(results[a].covariance),
-                    results[b].matrix(), np.asarray(results[b].covariance),
-                )
-                truth = np.linalg.inv(truths[a]) @ truths[b]
-                pair = error_in_std(T_ab, covariance, truth)
+                document = pair_document(a, b, outcomes, centres, job)
+                pair = document["ground_truth_error"] | {
+                    "std_mm": max(document["std_translation_mm"]),
+                    "std_deg": max(document["std_rotation_deg"]),
+                }
                 pairs.setdefault((a, b), []).append(pair)
-                solved = pair_agreement(a, b, outcomes, centres, job)
+                if "joint" in document:
+                    joint[(a, b)].append(document["joint"]["ground_truth_error"] | {
+                        "std_mm": max(document["joint"]["std_translation_mm"]),
+                        "std_deg": max(document["joint"]["std_rotation_deg"]),
+                    })
+                solved = document["agreement"]
                 knocked = outcomes | {b: replace(outcomes[b], T_base_laser=_moved(
                     outcomes[b].T_base_laser, args.moved_mm, args.moved_deg))}
-                moved = pair_agreement(a, b, knocked, centres, job)
+                _, moved = pair_agreement(a, b, knocked, centres, job)
                 verdicts.setdefault((a, b), []).append(
                     (solved["verdict"], moved["verdict"], solved["shared_waypoints"])
                 )
@@ -191,13 +198,15 @@ def main() -> None:
             f"  {name} ({len(values)} runs): {_summary('translation', values[:, 0], 'mm')}; "
             f"{_summary('rotation', values[:, 1], 'deg')}; within 2 mm and 0.3 deg {within:.0%}"
         )
-    for (a, b), values in pairs.items():
+    for (a, b), values in [*pairs.items(), *((("joint " + a, b), v) for (a, b), v in joint.items())]:
         largest = np.array([v["max_axis_in_std"] for v in values])
         mahalanobis = np.array([v["mahalanobis"] for v in values])
         translation = np.array([v["translation_mm"] for v in values])
         rotation = np.array([v["rotation_deg"] for v in values])
+        std_mm, std_deg = np.array([v["std_mm"] for v in values]), np.array([v["std_deg"] for v in values])
         print(
-            f"  {a}->{b} ({len(values)} runs): {_summary('translation', translation, 'mm')}; "
+            f"  {a}->{b} ({len(values)} runs): largest std median {np.median(std_mm):.2f} mm, "
+            f"{np.median(std_deg):.3f} deg; {_summary('translation', translation, 'mm')}; "
             f"{_summary('rotation', rotation, 'deg')}; largest axis error in its std: median "
             f"{np.median(largest):.2f}, max {largest.max():.2f}, "
             f"within 2.5 std {np.mean(largest <= 2.5):.0%}; "
