@@ -39,6 +39,7 @@ import numpy as np
 
 from fakes.scene import RobotKinematicsSettings, load_scene, with_model_override
 from fakes.scip_faults import ScipFaults
+from fakes.scip_identity import identity_of_scanner
 from fakes.scip_server import DEFAULT_PORT, FakeScannerServer
 from fakes.serving import serve_until_signal
 from fakes.ur_controller.controller import ControllerConfig, FaultPlan
@@ -83,6 +84,7 @@ class FakeCell:
             name: FakeScannerServer(
                 address, DEFAULT_PORT + index,
                 source=WorldRangeSource(world, self._tcp_pose_at, seed + index),
+                identity=identity_of_scanner(name),
                 faults=ScipFaults(
                     corrupt_every_scans=faults.corrupt_checksum_every_scans,
                     stale_field=faults.scanner_stale_field,

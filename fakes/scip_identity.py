@@ -9,8 +9,11 @@ a test can compare bytes). Every string is a field, so other identities are one
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import zlib
+from dataclasses import dataclass, replace
 from enum import Enum
+
+from fakes.scene import DEFAULT_SCANNER_NAME
 
 
 class SensorState(Enum):
@@ -136,3 +139,12 @@ UTM_30LX_CAPTURED = ScipIdentity(
 
 IDENTITIES: dict[str, ScipIdentity] = {"utm-30lx-ew": UTM_30LX_EW, "utm-30lx": UTM_30LX_CAPTURED}
 """Presets by name (the CLI's ``--identity``)."""
+
+
+def identity_of_scanner(name: str) -> ScipIdentity:
+    """``UTM_30LX_EW`` with a serial of its own for the scene scanner ``name``: ``default``
+    keeps ``H0123456``; any other name gets ``H`` and 7 digits from its CRC-32, the same in
+    every fake cell that serves it (a scanner's calibration and its verify see one serial)."""
+    if name == DEFAULT_SCANNER_NAME:
+        return UTM_30LX_EW
+    return replace(UTM_30LX_EW, serial=f"H{zlib.crc32(name.encode()) % 10_000_000:07d}")

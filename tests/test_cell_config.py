@@ -7,9 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drivers.hokuyo.client import HokuyoScanner
 from fakes.cell import FakeCell
 from fakes.cell_process import free_loopback_address
 from fakes.scene import ScannerSettings, load_scene, parse_scene
+from fakes.scip_identity import UTM_30LX_EW, identity_of_scanner
 from fakes.world import World
 from lasercal_hw.calibration.pairs import error_in_std, relative_pose
 from lasercal_hw.config import DEFAULT_SCANNER_NAME, load_job, with_overrides
@@ -83,13 +85,20 @@ def test_a_scene_places_several_scanners_in_one_world() -> None:
     )
 
 
-def test_the_fake_cell_serves_each_scanner_on_its_own_port() -> None:
+def test_the_fake_cell_serves_each_scanner_on_its_own_port_with_its_own_serial() -> None:
     cell = FakeCell(free_loopback_address(), REPO / "fakes" / "scenes" / "two_scanners.toml")
     try:
         cell.start()
         document = cell.ready_document()
+        serials = {}
+        for name, entry in document["scanners"].items():
+            with HokuyoScanner.open(entry["scanner_url"]) as scanner:
+                serials[name] = scanner.identity().serial
     finally:
         cell.close()
+    assert serials == {name: identity_of_scanner(name).serial for name in ("front", "rear")}
+    assert len(set(serials.values())) == 2 and UTM_30LX_EW.serial not in serials.values()
+    assert identity_of_scanner(DEFAULT_SCANNER_NAME) is UTM_30LX_EW  # a one-scanner cell's, as before
     scanners = document["scanners"]
     assert list(scanners) == ["front", "rear"]
     assert scanners["front"]["scanner_url"].endswith(":10940")

@@ -199,7 +199,7 @@ def _across_the_beam(
     return bearing_rad + side * (0.5 * np.pi - offset)
 
 
-def _column_distance_m(scanner_xy: FloatArray, points_xy: FloatArray) -> FloatArray:
+def column_distance_m(scanner_xy: FloatArray, points_xy: FloatArray) -> FloatArray:
     """Distance of the base axis (x = y = 0) from each beam segment, in the base xy plane."""
     beam = points_xy - scanner_xy
     along = np.clip((-scanner_xy @ beam.T) / np.maximum(np.sum(beam * beam, axis=1), 1e-12), 0.0, 1.0)
@@ -244,12 +244,12 @@ def draw_candidates(
         np.cos(bearing_rad)[:, None] * e1 + np.sin(bearing_rad)[:, None] * e2
     )
     clearance_m = COLUMN_CLEARANCE_M + uncertainty.translation_m
-    clear = _column_distance_m(scanner[:2], crossing[:, :2]) >= clearance_m
+    clear = column_distance_m(scanner[:2], crossing[:, :2]) >= clearance_m
     keep(clear | ~ok, "beam passes the robot's base")
     ok &= clear
     if rules.polished:
         beyond = crossing + POLISHED_BACKDROP_M * (crossing - scanner) / range_m[:, None]
-        backdrop = _column_distance_m(scanner[:2], beyond[:, :2]) >= clearance_m
+        backdrop = column_distance_m(scanner[:2], beyond[:, :2]) >= clearance_m
         keep(backdrop | ~ok, "a polished rod right before the robot's base")
         ok &= backdrop
     low, high = crossing_window_m(rod, range_m, np.cos(tilt_rad), uncertainty)

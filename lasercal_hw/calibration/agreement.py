@@ -65,6 +65,30 @@ def _in_base(T: FloatArray, centre_uv_m: FloatArray, covariance_uv_m2: FloatArra
     return lever + translation, in_plane @ np.asarray(covariance_uv_m2, dtype=float) @ in_plane.T, jacobian
 
 
+def shared_residuals(
+    T_base_a: FloatArray, T_base_b: FloatArray, shared: list[SharedCentre]
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """At each shared waypoint the two components across the rod of ``p_a - p_b`` (2k), their
+    noise covariance from the two centres' (2k x 2k), and their Jacobians in a left
+    perturbation of each pose (2k x 6 each)."""
+    k = len(shared)
+    T_a, T_b = np.asarray(T_base_a, dtype=float), np.asarray(T_base_b, dtype=float)
+    residual = np.zeros(2 * k)
+    noise = np.zeros((2 * k, 2 * k))
+    jacobian_a = np.zeros((2 * k, 6))
+    jacobian_b = np.zeros((2 * k, 6))
+    for i, centre in enumerate(shared):
+        across = _across(centre.rod_direction)
+        p_a, cov_a, j_a = _in_base(T_a, centre.centre_a_uv_m, centre.covariance_a_uv_m2)
+        p_b, cov_b, j_b = _in_base(T_b, centre.centre_b_uv_m, centre.covariance_b_uv_m2)
+        rows = slice(2 * i, 2 * i + 2)
+        residual[rows] = across @ (p_a - p_b)
+        noise[rows, rows] = across @ (cov_a + cov_b) @ across.T
+        jacobian_a[rows] = across @ j_a
+        jacobian_b[rows] = -across @ j_b
+    return residual, noise, jacobian_a, jacobian_b
+
+
 def agreement_test(
     T_base_a: FloatArray, covariance_a: FloatArray, T_base_b: FloatArray, covariance_b: FloatArray,
     shared: list[SharedCentre],
@@ -83,20 +107,7 @@ def agreement_test(
             "rms_across_rod_mm": None,
             "reason": f"{k} waypoints seen by both scanners; the test needs {MIN_SHARED_WAYPOINTS}",
         }
-    T_a, T_b = np.asarray(T_base_a, dtype=float), np.asarray(T_base_b, dtype=float)
-    residual = np.zeros(2 * k)
-    noise = np.zeros((2 * k, 2 * k))
-    jacobian_a = np.zeros((2 * k, 6))
-    jacobian_b = np.zeros((2 * k, 6))
-    for i, centre in enumerate(shared):
-        across = _across(centre.rod_direction)
-        p_a, cov_a, j_a = _in_base(T_a, centre.centre_a_uv_m, centre.covariance_a_uv_m2)
-        p_b, cov_b, j_b = _in_base(T_b, centre.centre_b_uv_m, centre.covariance_b_uv_m2)
-        rows = slice(2 * i, 2 * i + 2)
-        residual[rows] = across @ (p_a - p_b)
-        noise[rows, rows] = across @ (cov_a + cov_b) @ across.T
-        jacobian_a[rows] = across @ j_a
-        jacobian_b[rows] = -across @ j_b
+    residual, noise, jacobian_a, jacobian_b = shared_residuals(T_base_a, T_base_b, shared)
     covariance = (
         noise
         + jacobian_a @ np.asarray(covariance_a, dtype=float) @ jacobian_a.T

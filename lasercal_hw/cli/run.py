@@ -268,6 +268,11 @@ def _print_cell_summary(report: CellReport) -> None:
                 f"largest axis {truth['max_axis_in_std']:.2f} std"
             )
         console.print(escape(line))
+        agreement = pair["agreement"]
+        console.print(escape(f"  agreement: {agreement['verdict']} ({agreement['reason']})"))
+        if "joint" in pair:
+            joint_mm = ", ".join(f"{v:.2f}" for v in pair["joint"]["std_translation_mm"])
+            console.print(escape(f"  with the shared centres used jointly: std {joint_mm} mm (its joint)"))
     console.print(f"cell: {escape(str(report.out_dir / CELL_FILE))}")
     verdict = "[bold green]PASSED[/]" if report.passed else "[bold red]QUALITY GATE FAILED[/]"
     console.print(f"verdict: {verdict}")

@@ -179,6 +179,33 @@ DesignModelOption = Annotated[
 ]
 OutOption = Annotated[Path, typer.Option("--out", help="Waypoint file to write (CSV).")]
 SeedOption = Annotated[int, typer.Option("--seed", help="Seed of the search (same seed, same waypoints).")]
+ScannerNameOption = Annotated[
+    str | None,
+    typer.Option(
+        "--scanner",
+        help="A cell job's scanner to design for (its scanners.NAME table: nominal pose, rod, gates).",
+    ),
+]
+SharedWithOption = Annotated[
+    str | None,
+    typer.Option(
+        "--shared-with",
+        help="Another scanner of the cell job: add --shared waypoints whose rod crosses its plane too, at "
+        "the distances its own waypoints span (docs/cell.md: shared waypoints).",
+    ),
+]
+SharedCountOption = Annotated[
+    int, typer.Option("--shared", min=1, max=20, help="How many shared waypoints --shared-with adds.")
+]
+SharedUncertaintyOption = Annotated[
+    tuple[float, float],
+    typer.Option(
+        "--shared-pose-uncertainty",
+        metavar="METRES DEGREES",
+        help="How far off both rough poses may be at the shared waypoints (the scanner's own keep "
+        "--pose-uncertainty): shared crossings are rare, a tape measure's 0.05 m 5 deg leaves few.",
+    ),
+]
 UncertaintyOption = Annotated[
     tuple[float, float] | None,
     typer.Option(
@@ -203,10 +230,38 @@ def _rough_pose(job: JobConfig, scanner_pose: tuple[float, ...] | None) -> np.nd
     )
 
 
+def _shared_request(job: JobConfig, name: str, count: int, uncertainty: tuple[float, float]) -> Any:
+    """What ``--shared-with NAME`` asks of the design: the cell job's scanner ``name``, its rough
+    pose and the distances its own waypoints cross its plane at."""
+    from lasercal_hw.run.waypoints import job_waypoint_list
+    from trajectories.candidates import PoseUncertainty
+    from trajectories.plane_crossing import rod_plane_crossings
+    from trajectories.shared import SharedRequest
+    from trajectories.waypoint import waypoint_matrices
+
+    watcher = job.for_scanner(name)
+    if watcher.scanner.nominal is None:
+        raise ConfigError(f"--shared-with {name}: the job gives no [scanners.{name}.nominal] pose to "
+                          "design for")
+    T_base_laser = watcher.scanner.nominal.matrix()
+    own = job_waypoint_list(watcher)
+    ranges_m = rod_plane_crossings(waypoint_matrices(own), watcher.rod.rod_line(), T_base_laser).range_m
+    ranges_m = ranges_m[np.isfinite(ranges_m)]
+    if not len(ranges_m):
+        raise ConfigError(f"--shared-with {name}: none of its waypoints crosses its plane; design "
+                          "those first")
+    span_m = (float(ranges_m.min()), float(ranges_m.max()))
+    return SharedRequest(name, T_base_laser, span_m, count, PoseUncertainty(*uncertainty))
+
+
 def design(
     scanner_pose: ScannerPoseOption = None,
     pose_uncertainty: UncertaintyOption = None,
     config: ConfigOption = None,
+    scanner_name: ScannerNameOption = None,
+    shared_with: SharedWithOption = None,
+    shared_count: SharedCountOption = 4,
+    shared_uncertainty: SharedUncertaintyOption = (0.03, 3.0),
     waypoints: WaypointCountOption = 20,
     robot_model_name: DesignModelOption = None,
     robot: str | None = _ROBOT_OPT,
@@ -223,6 +278,8 @@ def design(
     waypoint file for `lasercal run` (trajectory.waypoints_file) and `trajectory check`.
     With rod.estimate_axis in the job, the std are those of the pose with the rod's axis
     estimated alongside, and the tool turns widely about the rod to make that possible.
+    In a cell job, --scanner NAME designs for that scanner, and --shared-with OTHER adds
+    waypoints where OTHER sees the rod too, inside the distances OTHER is calibrated at.
     """
     from rich.progress import BarColumn, Progress, TextColumn
 
@@ -232,12 +289,18 @@ def design(
     from trajectories.design import request_for_job
     from trajectories.waypoint_file import waypoints_to_csv
 
-    job = load_job(config)
+    cell = load_job(config)
+    job = cell.for_scanner(scanner_name) if scanner_name is not None else cell
+    if shared_with is not None and shared_with == scanner_name:
+        raise ConfigError(f"--shared-with {shared_with}: name another scanner of the job than --scanner")
     translation_m, rotation_deg = pose_uncertainty or job.trajectory.pose_uncertainty
-    if not (0.0 <= translation_m <= 0.5 and 0.0 <= rotation_deg <= 45.0):
-        raise ConfigError(
-            f"--pose-uncertainty {translation_m:g} {rotation_deg:g}: give 0-0.5 m and 0-45 deg"
-        )
+    for option, (metres, degrees) in (("--pose-uncertainty", (translation_m, rotation_deg)),
+                                      ("--shared-pose-uncertainty", shared_uncertainty)):
+        if not (0.0 <= metres <= 0.5 and 0.0 <= degrees <= 45.0):
+            raise ConfigError(f"{option} {metres:g} {degrees:g}: give 0-0.5 m and 0-45 deg")
+    shared = None
+    if shared_with is not None:
+        shared = _shared_request(cell, shared_with, shared_count, shared_uncertainty)
     model = _kinematics(robot, robot_model_name or job.robot.model)
     request = request_for_job(
         job,
@@ -249,11 +312,17 @@ def design(
     )
     with Progress(TextColumn("{task.description}"), BarColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task("designing", total=1.0)
-        result = design_waypoints(
-            request,
-            extended_fisher_information,
-            lambda stage, f: bar.update(task, description=stage, completed=f),
-        )
+        if shared is None:
+            result = design_waypoints(
+                request,
+                extended_fisher_information,
+                lambda stage, f: bar.update(task, description=stage, completed=f),
+            )
+        else:
+            from trajectories.shared import design_with_shared
+
+            bar.update(task, description="shared crossings, then the scanner's own")
+            result = design_with_shared(request, shared, extended_fisher_information)
     if not result.waypoints:
         raise ConfigError(f"no waypoint keeps every rule for this scanner pose: {result.weak_direction}")
     report = check_waypoints(

@@ -24,7 +24,7 @@ import numpy as np
 from lasercal_hw.calibration.agreement import SharedCentre, agreement_test
 from lasercal_hw.calibration.model import range_error_m, rod_lines_in_base
 from lasercal_hw.calibration.observations import read_observations_csv
-from lasercal_hw.calibration.pairs import error_in_std, relative_pose
+from lasercal_hw.calibration.pairs import error_in_std, joint_relative_pose, relative_pose
 from lasercal_hw.calibration.result import RangeOffset
 from lasercal_hw.config import JobConfig, ScannerConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
@@ -297,31 +297,49 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
     (``calibration/agreement``), and against the truth when both have one (a dry run)."""
     centres = {name: _recorded_centres(folder / name) for name in outcomes}
     names = list(outcomes)
-    pairs = []
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            first, second = outcomes[a], outcomes[b]
-            T_ab, covariance = relative_pose(
-                np.asarray(first.T_base_laser), np.asarray(first.covariance),
-                np.asarray(second.T_base_laser), np.asarray(second.covariance),
-            )
-            std = np.sqrt(np.diag(covariance))
-            pair: dict[str, Any] = {
-                "from": a,
-                "to": b,
-                "T_from_to": T_ab.tolist(),
-                "covariance": covariance.tolist(),
-                "covariance_note": "first order from the two poses' covariances, taken as independent",
-                "std_translation_mm": (1000.0 * std[:3]).tolist(),
-                "std_rotation_deg": np.degrees(std[3:]).tolist(),
-                "passed": first.passed and second.passed,
-                "agreement": _agreement(a, b, outcomes, centres, job),
-            }
-            if first.ground_truth is not None and second.ground_truth is not None:
-                truth = np.linalg.inv(np.asarray(first.ground_truth)) @ np.asarray(second.ground_truth)
-                pair["ground_truth_error"] = error_in_std(T_ab, covariance, truth)
-            pairs.append(pair)
-    return pairs
+    return [pair_document(a, b, outcomes, centres, job) for i, a in enumerate(names) for b in names[i + 1:]]
+
+
+def _transform_document(T_ab: FloatArray, covariance: FloatArray, note: str) -> dict[str, Any]:
+    std = np.sqrt(np.diag(covariance))
+    return {
+        "T_from_to": T_ab.tolist(),
+        "covariance": covariance.tolist(),
+        "covariance_note": note,
+        "std_translation_mm": (1000.0 * std[:3]).tolist(),
+        "std_rotation_deg": np.degrees(std[3:]).tolist(),
+    }
+
+
+def pair_document(
+    a: str, b: str, outcomes: dict[str, ScannerOutcome], centres: dict[str, RecordedCentres], job: JobConfig
+) -> dict[str, Any]:
+    """``cell.json``'s pair ``a``, ``b``: ``T_a_b`` with its covariance from the two poses, the
+    agreement at the shared waypoints and, when they agree there, ``joint``: ``T_a_b`` with the
+    shared centres used jointly (``calibration/pairs.joint_relative_pose``; not yet the pair's
+    transform: on the physical scanner model its std are not honest, docs/cell.md); each
+    against the truth when both scanners have one (a dry run)."""
+    first, second = outcomes[a], outcomes[b]
+    poses = (np.asarray(first.T_base_laser), np.asarray(first.covariance),
+             np.asarray(second.T_base_laser), np.asarray(second.covariance))
+    shared, agreement = pair_agreement(a, b, outcomes, centres, job)
+    pair: dict[str, Any] = {"from": a, "to": b} | _transform_document(
+        *relative_pose(*poses), "first order from the two poses' covariances, taken as independent"
+    )
+    pair |= {"passed": first.passed and second.passed, "agreement": agreement}
+    if agreement["verdict"] == "agree":
+        pair["joint"] = _transform_document(
+            *joint_relative_pose(*poses, shared),
+            f"the two poses' covariances and the {len(shared)} shared waypoints' centres used jointly",
+        )
+    if first.ground_truth is not None and second.ground_truth is not None:
+        truth = np.linalg.inv(np.asarray(first.ground_truth)) @ np.asarray(second.ground_truth)
+        for document in (pair, pair.get("joint")):
+            if document is not None:
+                document["ground_truth_error"] = error_in_std(
+                    np.asarray(document["T_from_to"]), np.asarray(document["covariance"]), truth
+                )
+    return pair
 
 
 #: A scanner's centres by waypoint index: its own (``None``) and its watchers' (by name),
@@ -347,26 +365,27 @@ def _recorded_centres(folder: Path) -> RecordedCentres:
     return centres
 
 
-def _agreement(
+def pair_agreement(
     a: str, b: str, outcomes: dict[str, ScannerOutcome], centres: dict[str, RecordedCentres], job: JobConfig
-) -> dict[str, Any]:
-    """The agreement test of ``a`` and ``b`` (``calibration/agreement``) over the waypoints of
-    either run where the other saw the rod too; a watcher's centre corrected by its scanner's
-    range error curve, and left out beyond the distances that curve spans."""
+) -> tuple[list[SharedCentre], dict[str, Any]]:
+    """The waypoints of either run where the other scanner saw the rod too (a watcher's centre
+    corrected by its scanner's range error curve, and left out beyond the distances that curve
+    spans), and the agreement test of ``a`` and ``b`` over them (``calibration/agreement``)."""
     forward, left_out_ab = _shared(a, b, outcomes, centres, job)
     backward, left_out_ba = _shared(b, a, outcomes, centres, job)
     first, second = outcomes[a], outcomes[b]
+    shared = forward + _swapped(backward)
     result = agreement_test(
         np.asarray(first.T_base_laser), np.asarray(first.covariance),
         np.asarray(second.T_base_laser), np.asarray(second.covariance),
-        forward + _swapped(backward),
+        shared,
     )
     left_out = left_out_ab + left_out_ba
     if left_out:
         result["left_out"] = left_out
         result["reason"] += (f"; {len(left_out)} more left out: a scanner saw the rod there beyond the "
                              "distances its range error was calibrated at")
-    return result
+    return shared, result
 
 
 def _shared(

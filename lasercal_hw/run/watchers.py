@@ -25,8 +25,8 @@ from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.devices import Scanner
 from lasercal_hw.run.dwell import collect_window
 from lasercal_hw.run.two_pass import predict_rod
-from lasercal_hw.scan.average import average_scans
-from lasercal_hw.scan.extraction import find_rod_centre
+from lasercal_hw.scan.average import AveragedScan, average_scans
+from lasercal_hw.scan.extraction import RodCentre, find_rod_centre
 
 logger = logging.getLogger(__name__)
 
@@ -63,6 +63,15 @@ def expected_crossing(
     return uv, np.asarray(predicted.axis_in_scanner, dtype=float)
 
 
+def watcher_centre(
+    averaged: AveragedScan, expected: tuple[FloatArray, FloatArray], rod: RodLine
+) -> RodCentre:
+    """The rod's centre in a watcher's averaged scan: no background, the rod picked and its
+    cross-section cut where ``expected_crossing`` puts it (a RodNotFoundError when it is not there)."""
+    expected_uv_m, axis = expected
+    return find_rod_centre(averaged, radius_m=rod.radius_m, axis_in_scanner=axis, expected_uv_m=expected_uv_m)
+
+
 def watch_waypoint(
     watcher: Watcher,
     index: int,
@@ -81,7 +90,6 @@ def watch_waypoint(
     expected = expected_crossing(watcher, tcp_pose, rod)
     if expected is None:
         return
-    expected_uv_m, axis = expected
     scanner = watcher.scanner
     try:
         scanner.start_streaming()
@@ -92,10 +100,7 @@ def watch_waypoint(
             )
         finally:
             scanner.stop_streaming()
-        averaged = average_scans(capture.scans)
-        centre = find_rod_centre(
-            averaged, radius_m=rod.radius_m, axis_in_scanner=axis, expected_uv_m=expected_uv_m
-        )
+        centre = watcher_centre(average_scans(capture.scans), expected, rod)
     except InterruptedRunError:
         raise
     except LasercalError as exc:  # a failed stream or no rod found (RodNotFoundError)
@@ -110,5 +115,5 @@ def watch_waypoint(
         covariance_uv_m2=centre.covariance_uv_m2,
         quality=centre.quality,
         scans=len(capture.scans),
-        expected_uv_m=[float(c) for c in expected_uv_m],
+        expected_uv_m=[float(c) for c in expected[0]],
     )

@@ -38,6 +38,7 @@ from tests.cli_helpers import assert_one_line_error, run_cli  # noqa: E402
 SUBPROTOCOL = "foxglove.sdk.v1"
 REPO = Path(__file__).parents[2]
 LAYOUT = REPO / "docs" / "foxglove-layout.json"
+CELL_LAYOUT = REPO / "docs" / "foxglove-layout-cell.json"
 MESSAGE_DATA = 0x01
 TIMEOUT_S = 10.0
 SUBSCRIBE_POLL_S = 0.2
@@ -238,6 +239,11 @@ def test_a_cell_shows_every_scanner_in_its_own_frame(view: FoxgloveLiveView, tmp
     np.testing.assert_allclose(after[("base", "laser_rear")], solved, atol=1e-9)
     np.testing.assert_allclose(after[("base", "laser_front")], frames[("base", "laser_front")], atol=1e-9)
     assert ("base", "laser") not in after
+    layout = json.loads(CELL_LAYOUT.read_text(encoding="utf-8"))["configById"]
+    shown = {t for panel in layout.values() for t in panel.get("topics", {})}
+    assert {"/scan/front", "/scan/rear"} <= shown <= set(client.channels), "the cell layout's topics"
+    followed = {panel["followTf"] for panel in layout.values() if panel.get("followMode") == "follow-pose"}
+    assert followed == {"laser_front", "laser_rear"} and followed <= {child for _, child in after}
 
 
 @pytest.mark.parametrize("command", [
