@@ -23,6 +23,7 @@ from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, Field, TypeAdapter
+from scipy import special
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -781,22 +782,52 @@ def _significant_terms(
     opts: SolverOptions,
     extras: _Extras,
 ) -> tuple[bool, _Extras]:
-    """Keep the range error curve's highest term only when the data show it (at least
-    ``auto_range_offset_min_sigmas`` std from zero); estimating a parameter that is not there
-    costs the pose precision. The offset itself is kept when asked for (not ``auto``).
-    Returns whether the curve stays as it is, and the extras to go on with (one term fewer)."""
+    """Keep the range error curve's highest term only when the data show it: a t-test of its
+    coefficient against the std the fit's own residuals give it (the Cramér-Rao std times the
+    residuals' scale, ``sqrt(reduced chi-square)``), at the two-sided level of
+    ``auto_range_offset_min_sigmas`` normal std, on the fit's degrees of freedom. This is the
+    F-test of the chi-square the term removes: it does not depend on the stated noise's level,
+    so conservative centre covariances do not drop a term the residuals need (the fit without
+    it then gates good waypoints out). Estimating a parameter that is not there costs the pose
+    precision. The offset itself is kept when asked for (not ``auto``). Returns whether the
+    curve stays as it is, and the extras to go on with (one term fewer)."""
     terms = extras.range_terms
     if terms == 1 and opts.estimate_range_offset is True:
         return True, extras
     std = float(_crb_std(_extended_fisher(rotation, translation, data, used, opts, extras))[-1])
+    std *= _residual_scale(rotation, translation, data, used, opts, extras)
     value = float(data.range_curve_m[terms - 1])
-    if abs(value) >= opts.auto_range_offset_min_sigmas * std:
+    dof = 2 * int(used.sum()) - 6 - extras.count
+    if abs(value) >= _t_quantile(opts.auto_range_offset_min_sigmas, dof) * std:
         return True, extras
     name, unit, scale = _TERM_UNITS[terms - 1]
     note = f"scanner range {name} {value * scale:+.3g} ± {std * scale:.2g} {unit} is not significant (auto): "
     note += "left out"
     notes = "; ".join(n for n in (extras.offset_note, note) if n)
     return False, replace(extras, range_terms=terms - 1, offset_note=notes)
+
+
+def _residual_scale(
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    used: np.ndarray,
+    opts: SolverOptions,
+    extras: _Extras,
+) -> float:
+    """The fit's residuals in units of the stated noise: ``sqrt(reduced chi-square)`` over the
+    used waypoints (1 when there are no degrees of freedom left to measure it)."""
+    m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
+    dof = 2 * int(used.sum()) - 6 - extras.count
+    return float(np.sqrt(m2[used].sum() / dof)) if dof > 0 else 1.0
+
+
+def _t_quantile(normal_sigmas: float, dof: int) -> float:
+    """The Student-t quantile on ``dof`` degrees of freedom with the two-sided tail of
+    ``normal_sigmas`` normal std (the normal quantile itself when ``dof`` is not positive)."""
+    if dof <= 0:
+        return normal_sigmas
+    return float(special.stdtrit(dof, special.ndtr(normal_sigmas)))
 
 
 #: Name, unit and scale from SI of each range-curve term in messages (``x = ln(d / 1 m)``).
