@@ -187,6 +187,26 @@ def test_a_range_error_curve_is_estimated_with_as_many_terms_as_the_data_show() 
     assert any("range slope" in note and "left out" in note for note in constant.observability.notes)
 
 
+def test_a_curve_term_is_judged_by_the_residuals_scale_not_the_stated_noise() -> None:
+    """Centre covariances six times the real noise (the physical scanner's are conservative):
+    a 2 mm/x^2 bend is 1.2 stated std from zero but many residual std, and the F-test keeps it
+    (the old Wald test on the stated noise left it out and the pose took the bend); a curve
+    without a bend still leaves the curvature out."""
+    auto = OPTIONS.model_copy(update={"estimate_range_offset": "auto"})
+
+    def conservative(curve: tuple[float, ...]) -> list[Observation]:
+        obs = _observations(NOMINAL, range_curve_m=curve, noise_m=0.0003, radius_m=0.9)
+        return [Observation(o.index, o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2 * 36.0) for o in obs]
+
+    bent = solve(conservative((0.008, -0.012, 0.002)), NOMINAL, options=auto)
+    assert bent.range_offset is not None and len(bent.range_offset.terms_mm) == 3
+    assert abs(bent.range_offset.terms_mm[2] - 2.0) < 3.0 * bent.range_offset.terms_std_mm[2]
+    assert translation_error_mm(bent.matrix()) < 0.3
+    straight = solve(conservative((0.008, -0.012)), NOMINAL, options=auto)
+    assert straight.range_offset is not None and len(straight.range_offset.terms_mm) == 2
+    assert any("range curvature" in note and "left out" in note for note in straight.observability.notes)
+
+
 def test_a_range_error_smooth_over_log_range_is_followed_and_kept_out_of_the_pose() -> None:
     """A unit's range error is smooth over decades of range, not a polynomial in metres (the
     physical scanner model's: two sinusoids over ln d, +-10 mm): the curve's terms in ln d
