@@ -236,6 +236,9 @@ def solve(
     else:
         agreeing = usable & initial.agreeing
         start = agreeing if robust and agreeing.sum() >= MIN_WAYPOINTS else usable
+        if robust and 0 < extras.range_terms < opts.max_range_terms:
+            scale = _fullest_fit_scale(rotation, translation, data, usable, start, opts, extras)
+            extras = _extras(rotation, translation, data, usable, opts, scale)
         rotation, translation, data, used, evaluations = _fit(
             rotation, translation, data, usable, start, robust, opts, extras
         )
@@ -735,7 +738,12 @@ def _extended_fisher(
 
 
 def _extras(
-    rotation: FloatArray, translation: FloatArray, data: _Data, usable: np.ndarray, opts: SolverOptions
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    usable: np.ndarray,
+    opts: SolverOptions,
+    noise_scale: float = 1.0,
 ) -> _Extras:
     """Which extra parameters to estimate: refuses a requested one the waypoints cannot
     determine; with ``estimate_axis="auto"`` leaves the axis out (with a note) unless the
@@ -747,7 +755,7 @@ def _extras(
         raise ConfigError("the paper formulation cannot estimate the rod axis or the range offset; use ours")
     if opts.formulation == "paper":
         return _Extras()
-    terms, offset_note = _range_terms_wanted(rotation, translation, data, usable, opts)
+    terms, offset_note = _range_terms_wanted(rotation, translation, data, usable, opts, noise_scale)
     if not wanted_axis:
         return _Extras(range_terms=terms, offset_note=offset_note)
     extras = _Extras(axis=True, range_terms=terms, offset_note=offset_note)
@@ -822,6 +830,29 @@ def _residual_scale(
     return float(np.sqrt(m2[used].sum() / dof)) if dof > 0 else 1.0
 
 
+def _fullest_fit_scale(
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    usable: np.ndarray,
+    start: np.ndarray,
+    opts: SolverOptions,
+    extras: _Extras,
+) -> float:
+    """The residuals' scale against the stated noise (``_residual_scale``) of the robust fit
+    with every term of the range error curve: the fullest model gives the noise's level
+    without the bias of a term left out, so the precision gate judges each term by the std
+    the data give it, not by the stated (often conservative) noise. 1 when that fit fails."""
+    fullest = replace(extras, range_terms=opts.max_range_terms)
+    try:
+        rotation, translation, fitted, used, _ = _fit(
+            rotation, translation, data, usable, start, True, opts, fullest
+        )
+    except CalibrationError:
+        return 1.0
+    return _residual_scale(rotation, translation, fitted, used, opts, fullest)
+
+
 def _t_quantile(normal_sigmas: float, dof: int) -> float:
     """The Student-t quantile on ``dof`` degrees of freedom with the two-sided tail of
     ``normal_sigmas`` normal std (the normal quantile itself when ``dof`` is not positive)."""
@@ -838,7 +869,12 @@ _TERM_UNITS = tuple(
 
 
 def _range_terms_wanted(
-    rotation: FloatArray, translation: FloatArray, data: _Data, usable: np.ndarray, opts: SolverOptions
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    usable: np.ndarray,
+    opts: SolverOptions,
+    noise_scale: float = 1.0,
 ) -> tuple[int, str]:
     """How many terms of the range error curve to estimate, and the note when one is left
     out: a term is taken when the Cramér-Rao std of what it adds to the error over the
@@ -846,7 +882,9 @@ def _range_terms_wanted(
     ``DegenerateDataError`` otherwise). What it adds is its coefficient's std times half the
     crossings' span in ln d to its power: the highest term's coefficient does not depend on
     where the curve's reference lies (the lower terms take the rest), so a trajectory whose
-    crossings all lie on one side of 1 m is judged by its own span, not by an extrapolation."""
+    crossings all lie on one side of 1 m is judged by its own span, not by an extrapolation.
+    ``noise_scale``: the residuals' scale against the stated noise (``_fullest_fit_scale``),
+    which the std is multiplied by."""
     if opts.estimate_range_offset is False:
         return 0, ""
     crossing, _ = data.predicted(rotation, translation)
@@ -858,7 +896,7 @@ def _range_terms_wanted(
         fisher = _extended_fisher(rotation, translation, data, usable, opts, trial)
         if wanted == 1 and opts.estimate_range_offset is True:
             _require_observable(fisher, opts, trial)
-        effect_std_m = float(_crb_std(fisher)[-1]) * reach ** (wanted - 1)
+        effect_std_m = float(_crb_std(fisher)[-1]) * reach ** (wanted - 1) * noise_scale
         if not effect_std_m <= opts.auto_range_offset_max_std_m:
             if wanted == 1 and opts.estimate_range_offset is True:
                 terms = 1
