@@ -187,6 +187,13 @@ def test_a_range_error_curve_is_estimated_with_as_many_terms_as_the_data_show() 
     assert any("range slope" in note and "left out" in note for note in constant.observability.notes)
 
 
+def _overstated(observations: list[Observation], factor: float) -> list[Observation]:
+    """The same observations with their centre std stated ``factor`` times too large."""
+    return [
+        Observation(o.index, o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2 * factor**2) for o in observations
+    ]
+
+
 def test_a_curve_term_is_judged_by_the_residuals_scale_not_the_stated_noise() -> None:
     """Centre covariances six times the real noise (the physical scanner's are conservative):
     a 2 mm/x^2 bend is 1.2 stated std from zero but many residual std, and the F-test keeps it
@@ -195,8 +202,7 @@ def test_a_curve_term_is_judged_by_the_residuals_scale_not_the_stated_noise() ->
     auto = OPTIONS.model_copy(update={"estimate_range_offset": "auto"})
 
     def conservative(curve: tuple[float, ...]) -> list[Observation]:
-        obs = _observations(NOMINAL, range_curve_m=curve, noise_m=0.0003, radius_m=0.9)
-        return [Observation(o.index, o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2 * 36.0) for o in obs]
+        return _overstated(_observations(NOMINAL, range_curve_m=curve, noise_m=0.0003, radius_m=0.9), 6.0)
 
     bent = solve(conservative((0.008, -0.012, 0.002)), NOMINAL, options=auto)
     assert bent.range_offset is not None and len(bent.range_offset.terms_mm) == 3
@@ -226,6 +232,25 @@ def test_a_range_error_smooth_over_log_range_is_followed_and_kept_out_of_the_pos
         assert abs(point.error_mm - true_mm) < 3.0 * point.std_mm + 1.0
     two_terms = solve(obs, NOMINAL, robust=False, options=auto.model_copy(update={"max_range_terms": 2}))
     assert translation_error_mm(result.matrix()) < 0.5 * translation_error_mm(two_terms.matrix())
+
+
+def test_the_precision_gate_judges_a_term_by_the_residuals_scale_not_the_stated_noise() -> None:
+    """The log-range unit error above with its centre std stated five times too large: on the
+    stated noise the quartic term's effect has a 3.2 mm Cramér-Rao std (limit 2 mm) and is not
+    tried, and 4 terms leave 1.4 mm in the pose; on the residuals' scale of the fit with every
+    term it is tried and kept."""
+
+    def unit_error_m(distance_m: np.ndarray) -> np.ndarray:
+        x = np.log(distance_m / 0.1)
+        return 0.0075 * np.sin(2.0 * np.pi * 0.32 * x + 1.0) - 0.0045 * np.sin(2.0 * np.pi * 0.75 * x + 2.5)
+
+    obs = _observations(NOMINAL, range_error=unit_error_m, noise_m=0.0003, radius_m=0.9)
+    result = solve(
+        _overstated(obs, 5.0), NOMINAL, options=OPTIONS.model_copy(update={"estimate_range_offset": "auto"})
+    )
+    assert result.range_offset is not None and len(result.range_offset.terms_mm) == 5
+    assert not any("not estimated" in note for note in result.observability.notes)
+    assert translation_error_mm(result.matrix()) < 0.6
 
 
 def test_auto_leaves_an_unobservable_axis_out_and_says_which_motion_is_missing() -> None:
