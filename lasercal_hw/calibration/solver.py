@@ -628,8 +628,7 @@ def _result(
     crb_full = np.linalg.inv(information)
     crb = crb_full[:6, :6]
     m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
-    dof = 2 * int(used.sum()) - 6 - extras.count
-    reduced = float(m2[used].sum() / dof) if dof > 0 else 1.0
+    reduced = _reduced_chi_square(m2, used, extras)
     # The stated noise model is a floor: residuals smaller than it (a chi-square below 1 by
     # chance, or robot errors that are smooth over the waypoints and partly absorbed by the
     # fit) must not shrink the std below the bound.
@@ -805,7 +804,7 @@ def _significant_terms(
     std = float(_crb_std(_extended_fisher(rotation, translation, data, used, opts, extras))[-1])
     std *= _residual_scale(rotation, translation, data, used, opts, extras)
     value = float(data.range_curve_m[terms - 1])
-    dof = 2 * int(used.sum()) - 6 - extras.count
+    dof = _degrees_of_freedom(used, extras)
     if abs(value) >= _t_quantile(opts.auto_range_offset_min_sigmas, dof) * std:
         return True, extras
     name, unit, scale = _TERM_UNITS[terms - 1]
@@ -813,6 +812,18 @@ def _significant_terms(
     note += "left out"
     notes = "; ".join(n for n in (extras.offset_note, note) if n)
     return False, replace(extras, range_terms=terms - 1, offset_note=notes)
+
+
+def _degrees_of_freedom(used: np.ndarray, extras: _Extras) -> int:
+    """Two residuals per used waypoint less the pose's 6 and the extras' parameters."""
+    return 2 * int(used.sum()) - 6 - extras.count
+
+
+def _reduced_chi_square(m2: FloatArray, used: np.ndarray, extras: _Extras) -> float:
+    """The chi-square of the waypoints' squared whitened residuals ``m2`` over the used ones,
+    per degree of freedom (1 when there are none left to measure it)."""
+    dof = _degrees_of_freedom(used, extras)
+    return float(m2[used].sum() / dof) if dof > 0 else 1.0
 
 
 def _residual_scale(
@@ -823,11 +834,9 @@ def _residual_scale(
     opts: SolverOptions,
     extras: _Extras,
 ) -> float:
-    """The fit's residuals in units of the stated noise: ``sqrt(reduced chi-square)`` over the
-    used waypoints (1 when there are no degrees of freedom left to measure it)."""
+    """The fit's residuals in units of the stated noise: ``sqrt(reduced chi-square)``."""
     m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
-    dof = 2 * int(used.sum()) - 6 - extras.count
-    return float(np.sqrt(m2[used].sum() / dof)) if dof > 0 else 1.0
+    return float(np.sqrt(_reduced_chi_square(m2, used, extras)))
 
 
 def _fullest_fit_scale(
