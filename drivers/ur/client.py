@@ -410,6 +410,9 @@ class URRobot:
                            false_is_error=False) < 0:
                     break
                 if not self._program_running():
+                    # A stop ends the program in the same package that sets its bit; the bits
+                    # read at the top of this pass may be one package older.
+                    self._raise_if_stopped()
                     self._broken = ("the control program stopped", RobotError)
                     raise RobotError(f"{what}: the control program stopped during the move (a runtime error "
                                      "on the controller, e.g. a singularity); see the robot's log")

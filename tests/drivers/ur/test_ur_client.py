@@ -148,6 +148,37 @@ def test_protective_stop_mid_move_raises_at_once_and_never_resumes(start_fake: S
         assert recorder.motion_calls == sent == ["moveL", "moveL"]
 
 
+class _SafetyBitsLateReceive:
+    """Wraps the receive interface so the safety bits read clear until the runtime state has
+    been seen stopped: the interleaving of a loaded machine, where the bits read at the top
+    of a polling pass are one RTDE package older than the runtime state read after them."""
+
+    def __init__(self, receive: Any) -> None:
+        self._receive = receive
+        self._stopped_seen = False
+
+    def getRuntimeState(self) -> int:
+        state = self._receive.getRuntimeState()
+        self._stopped_seen = self._stopped_seen or state != 2
+        return state
+
+    def getSafetyStatusBits(self) -> int:
+        return self._receive.getSafetyStatusBits() if self._stopped_seen else 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._receive, name)
+
+
+def test_a_stop_seen_first_as_the_program_ending_is_reported_as_the_stop(start_fake: StartFake) -> None:
+    fake = start_fake("--protective-stop-at-move", "1")
+    with URRobot.connect(fake.address) as robot:
+        robot._receive = _SafetyBitsLateReceive(robot._receive)
+        target = START_POSE.copy()
+        target[0] += 0.2
+        with pytest.raises(ProtectiveStopError, match="protective stop"):
+            robot.move_linear(target, 0.25, 1.2)
+
+
 def test_connect_to_silent_address_fails_fast() -> None:
     started = time.monotonic()
     with pytest.raises(TransportError, match="cannot reach"):
