@@ -487,24 +487,32 @@ def _fronts(
         nearest_around = ranges[max(0, position - half) : position + half + 1].min()
         if ranges[position] <= nearest_around and not (fronts and position - fronts[-1] <= half):
             fronts.append(int(position))
-    if not fronts and _flat_halo(ranges, width, section, settings, step):
+    if not fronts and _flat_halo(ranges, _range_sigma(scan, settings)[part], width, section, settings, step):
         fronts = [nearest]
     return [_middle_of_front(scan, part, front, section, settings) for front in fronts]
 
 
 def _flat_halo(
-    ranges: FloatArray, width_rad: float, section: _Section, settings: ExtractionSettings, step_rad: float
+    ranges: FloatArray,
+    sigma: FloatArray,
+    width_rad: float,
+    section: _Section,
+    settings: ExtractionSettings,
+    step_rad: float,
 ) -> bool:
     """True for a segment that is one flat bright blot: every beam within a semi-major axis
-    (and the shape tolerance) of the nearest range and no wider than a rod with twice its
-    ramps. A retro-reflective rod lights up the spot's faint skirt far beside it, so every
-    beam whose skirt touches it reads the rod's range (a 4 mm taped rod at 0.15 m: 13 deg of
-    beams at 152-157 mm); no beam stands in front of the rest, so the search for fronts found
-    none. Its middle is then the front."""
+    (the shape tolerance, and the noise of the nearest and farthest of its averaged ranges)
+    of the nearest range and no wider than a rod with twice its ramps. A retro-reflective
+    rod lights up the spot's faint skirt far beside it, so every beam whose skirt touches it
+    reads the rod's range (a 4 mm taped rod at 0.15 m: 13 deg of beams at 152-157 mm; at
+    0.1 m 19 deg at 113-119 mm, its extremes 6.4 mm apart where a 4 mm rod and its shape
+    tolerance allow 6, which left it "no segment matching a rod"); no beam stands in front of
+    the rest, so the search for fronts found none. Its middle is then the front."""
     nearest = float(np.nanmin(ranges))
     reach_rad = 4 * (settings.max_ramp_beams + 1) * step_rad
     tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
-    flat = float(np.nanmax(ranges)) - nearest <= section.semi_major_m + tolerance
+    extremes_sigma = 2.0 * settings.edge_residual_sigmas * float(np.nanmedian(sigma))
+    flat = float(np.nanmax(ranges)) - nearest <= section.semi_major_m + tolerance + extremes_sigma
     return flat and width_rad <= _widest_rad(nearest, section, settings) + reach_rad
 
 
@@ -1111,8 +1119,12 @@ def _blend(
 
     The share is the part of the spot passing beside the rod (a gaussian spot across the
     rod's silhouette); with intensities it is weighted by the background's power against
-    the beam's (the UTM's intensity grows like the square root of the power).  The
-    allowance is the share times the depth behind, where that depth merges into one echo."""
+    the beam's (the UTM's intensity grows like the square root of the power).  It counts
+    only where the background merges into the rod's echo (less than ``echo_merge_m``
+    behind): a surface farther behind returns its own echo, and a beam that reads the rod
+    reads the rod alone (a 4 mm rod at 0.1 m before a wall 2.5 m behind was refused as
+    "every beam blends it" though each of its 18 beams read the rod's range).  The
+    allowance is the share times the depth behind."""
     ranges = scan.ranges_m[beams]
     angles = scan.angles_rad[beams]
     offset = np.sin(angles) * centre[0] - np.cos(angles) * centre[1]
@@ -1126,7 +1138,8 @@ def _blend(
     with np.errstate(invalid="ignore"):
         depth = behind.ranges_m[beams] - ranges
         merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
-    return share, np.where(merged, share * np.where(merged, depth, 0.0), 0.0)
+    share = np.where(merged, share, 0.0)
+    return share, share * np.where(merged, depth, 0.0)
 
 
 def _blend_refusal(

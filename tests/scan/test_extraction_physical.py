@@ -64,6 +64,30 @@ def test_a_thin_rod_with_a_wall_close_behind_is_refused_or_warned_never_silently
 
 
 @pytest.mark.parametrize(
+    ("range_m", "bearing_deg", "material"), [(0.1, 20.0, "matte"), (0.15, 17.0, "steel_drill")]
+)
+def test_a_thin_rod_before_a_far_wall_is_found_its_beams_read_the_rod_alone(
+    range_m: float, bearing_deg: float, material: str
+) -> None:
+    # The beam's spot is wider than the 4 mm rod, but the wall 2.5 m behind returns an echo of
+    # its own (it does not merge with the rod's): every beam on the rod reads the rod. These
+    # were refused as "every beam on the rod blends it with the surface 2.49 m behind it".
+    found, truth = _extract(range_m, bearing_deg, 0.004, material, 2.5)
+    assert isinstance(found, RodCentre)
+    assert _mahalanobis2(found, truth) < CHI2_2DOF_999
+
+
+@pytest.mark.parametrize("bearing_deg", [-66.0, 10.0])
+def test_a_thin_taped_rod_at_a_tenth_of_a_metre_lighting_a_wide_blot_is_found(bearing_deg: float) -> None:
+    # A 4 mm taped rod at 0.1 m lights the spot's faint skirt over about 19 deg of beams, all
+    # within the rod's radius of one range but for the noise of the blot's nearest and
+    # farthest beams: it was "no segment matching a rod".
+    found, truth = _extract(0.1, bearing_deg, 0.004, "retro_tape", 2.5)
+    assert isinstance(found, RodCentre)
+    assert _mahalanobis2(found, truth) < CHI2_2DOF_999
+
+
+@pytest.mark.parametrize(
     ("range_m", "material", "must_find"),
     [(0.2, "matte", False), (0.2, "painted", True), (0.5, "painted", True)],
 )
