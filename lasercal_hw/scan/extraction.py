@@ -93,7 +93,18 @@ class ExtractionSettings:
     #: beams' lateral position has an extra ``footprint / sqrt(12)`` of uncertainty.
     beam_footprint_rad: float = float(np.radians(0.25))
     min_jump_m: float = 0.01
+    #: A candidate must span at least this fraction of the angle the rod covers at its range ...
     min_visible_fraction: float = 0.6
+    #: ... or this fraction when a background scan shows a surface more than ``echo_merge_m``
+    #: behind it: a rod darker than that surface shows only its middle, where its own echo is
+    #: the stronger (the scanner reports the strongest; a dark 10 mm rod at 0.15 m before a
+    #: wall 2.5 m behind: 12 of its 27 beams), and those beams read the rod alone. (With a
+    #: surface close behind, a narrow core is a rod whose flanks merged with it, and its
+    #: front beams are blends too: 20 mm rods at 0.1-1 m before a wall 0.3 m behind came out
+    #: 3-40 mm off with too small a std; they keep the fraction above.) Such a core's
+    #: sideways position, from a nearly flat arc, is checked against the range profile's
+    #: symmetry (``_with_symmetry_doubt``), as a fit of few beams is.
+    min_visible_fraction_far_background: float = 0.25
     min_beams: int = 3
     min_beams_for_radius: int = 8
     min_arc_span_for_radius_deg: float = 100.0
@@ -396,10 +407,12 @@ def _candidate_segments(
     for part in segments:
         if part.size == 0:
             continue
+        visible = _visible_fraction(scan, part, background, settings)
         cores = [
             core
             for core in _rod_cores(scan, sigma, part, section, settings)
-            if core.size >= settings.min_beams and _size_mismatch(scan, core, section, settings) is not None
+            if core.size >= settings.min_beams
+            and _size_mismatch(scan, core, section, settings, visible) is not None
         ]
         # Without a rod-sized core the segment is judged whole, so that its fit says why.
         for beams in cores or [part]:
@@ -408,7 +421,7 @@ def _candidate_segments(
                     problem = "is cut by the edge of the field of view; move the rod inward"
                     _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
                 continue
-            fit = _size_mismatch(scan, beams, section, settings)
+            fit = _size_mismatch(scan, beams, section, settings, visible)
             if fit is None:
                 continue
             if not _in_front(scan, beams, sigma):
@@ -419,6 +432,23 @@ def _candidate_segments(
             scored.append((fit, beams, ramps))
     scored.sort(key=lambda item: item[0])
     return [(beams, ramp) for _, beams, ramp in scored], notes
+
+
+def _visible_fraction(
+    scan: AveragedScan, part: NDArray[np.int64], background: AveragedScan | None, settings: ExtractionSettings
+) -> float:
+    """The least fraction of the rod's angle a candidate in ``part`` must span: lower where the
+    background scan shows a surface behind it too far to merge into the rod's echo."""
+    if background is None:
+        return settings.min_visible_fraction
+    behind_m = background.ranges_m[part]
+    behind_m = behind_m[np.isfinite(behind_m)]
+    if behind_m.size == 0:
+        return settings.min_visible_fraction
+    depth_m = float(np.median(behind_m)) - float(np.nanmin(scan.ranges_m[part]))
+    if depth_m > settings.echo_merge_m:
+        return settings.min_visible_fraction_far_background
+    return settings.min_visible_fraction
 
 
 def _rod_cores(
@@ -704,12 +734,14 @@ def _size_mismatch(
     beams: NDArray[np.int64],
     section: _Section,
     settings: ExtractionSettings,
+    visible_fraction: float | None = None,
     *,
     partial: bool = False,
 ) -> float | None:
     """How far the segment's angular width is from the rod's (in beams); None if implausible.
 
-    ``partial`` accepts any width up to the rod's (a rod cut by the field of view)."""
+    It must span ``visible_fraction`` (default ``settings.min_visible_fraction``) of the rod's
+    angle; ``partial`` accepts any width up to the rod's (a rod cut by the field of view)."""
     step = _beam_step_rad(scan)
     centre_range = float(np.min(scan.ranges_m[beams])) + section.radius_m
     if centre_range <= section.widest_semi_axis_m:
@@ -719,7 +751,9 @@ def _size_mismatch(
     # Each beam stands for one step of angle: n beams cover n steps (a far rod's 3 beams
     # cover 3 steps, not the 2 between their centres).
     width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]])) + step
-    low = 0.0 if partial else settings.min_visible_fraction * width_min - 2.0 * step
+    if visible_fraction is None:
+        visible_fraction = settings.min_visible_fraction
+    low = 0.0 if partial else visible_fraction * width_min - 2.0 * step
     nearest_m = float(np.min(scan.ranges_m[beams]))
     spot_rad = 4.0 * float(_spot_sigma_m(np.array([nearest_m]), settings)[0]) / max(nearest_m, 1e-3)
     high = width_max + spot_rad + 3.0 * step  # a near rod's echo wins while its spot touches it
@@ -1030,7 +1064,10 @@ def _fit_segment(
     used = points[keep]
     fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
     fit = _with_edge_doubt(used, sigma[keep], fit, section, settings)
-    if keep.size <= settings.symmetry_check_max_beams:
+    # A core narrower than the rod (a dark rod before a far wall shows only its middle) takes
+    # its sideways position from a flat arc too: the profile's symmetry checks it likewise.
+    narrow = _size_mismatch(scan, beams, section, settings) is None
+    if keep.size <= settings.symmetry_check_max_beams or narrow:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies off the surface by up to its bound, and the arc's range error by up

@@ -107,6 +107,17 @@ def test_a_20_mm_rod_before_a_near_wall_with_a_blended_edge_beam_is_found(bearin
     assert _mahalanobis2(found, truth) < CHI2_2DOF_999
 
 
+@pytest.mark.parametrize("bearing_deg", [-20.0, 28.0, 60.0])
+def test_a_dark_rod_before_a_far_wall_showing_only_its_middle_is_found(bearing_deg: float) -> None:
+    # A dark 10 mm rod at 0.15 m: the wall 2.5 m behind outshines its grazing flanks, so only
+    # the middle 11-12 of its 27 beams read it, under the 60 % of its width a candidate had to
+    # span: "no segment matching a rod". Its nearly flat arc's sideways position is checked
+    # against the profile's symmetry (60 deg: 6 mm sideways against 1.5 mm std without it).
+    found, truth = _extract(0.15, bearing_deg, 0.010, "dark", 2.5)
+    assert isinstance(found, RodCentre)
+    assert _mahalanobis2(found, truth) < CHI2_2DOF_999
+
+
 @pytest.mark.parametrize(
     ("range_m", "material", "must_find"),
     [(0.2, "matte", False), (0.2, "painted", True), (0.5, "painted", True)],
