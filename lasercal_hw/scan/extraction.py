@@ -1064,9 +1064,10 @@ def _fit_segment(
     used = points[keep]
     fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
     fit = _with_edge_doubt(used, sigma[keep], fit, section, settings)
-    # A core narrower than the rod (a dark rod before a far wall shows only its middle) takes
-    # its sideways position from a flat arc too: the profile's symmetry checks it likewise.
-    narrow = _size_mismatch(scan, beams, section, settings) is None
+    # Beams narrower than the rod (a dark rod before a far wall shows only its middle; a core
+    # whose blended flanks were dropped) give their sideways position from a flat arc too: the
+    # profile's symmetry checks it likewise.
+    narrow = _size_mismatch(scan, beams[keep], section, settings) is None
     if keep.size <= settings.symmetry_check_max_beams or narrow:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
@@ -1076,10 +1077,20 @@ def _fit_segment(
     misfit = np.fmax(np.abs(fit.residuals_m) - allowed_m, 0.0)
     misfit_rms = float(np.sqrt(np.mean(misfit**2)))
     if misfit_rms > settings.max_rms_radius_fraction * section.radius_m + 3.0 * float(np.median(sigma[keep])):
-        raise RodNotFoundError(
+        refusal = RodNotFoundError(
             f"segment of {keep.size} beams is not a rod of radius {section.radius_m * 1000:.1f} mm "
             f"(fit RMS {rms * 1000:.1f} mm)"
         )
+        inner = _without_blended_flanks(beams[keep], bound_m[keep], sigma[keep], section, settings)
+        if inner.size == keep.size:
+            raise refusal
+        try:
+            return _fit_segment(
+                scan, sigma_all, inner, section, settings,
+                ramp_beams=ramp_beams + beams.size - inner.size, behind=behind,
+            )
+        except RodNotFoundError:
+            raise refusal from None
     span = _arc_span_deg(used, fit.centre_uv_m, section)
     estimated_radius = None
     if keep.size >= settings.min_beams_for_radius and span >= settings.min_arc_span_for_radius_deg:
@@ -1215,6 +1226,25 @@ def _drop_blended_edges(
             return keep, fit, share, bound_m
         inner, fit = _drop_mixed_edges(points[kept], sigma[kept], section, settings)
         keep = kept[inner]
+
+
+def _without_blended_flanks(
+    beams: NDArray[np.int64],
+    bound_m: FloatArray,
+    sigma: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> NDArray[np.int64]:
+    """The beams without the runs at either end whose blend bound exceeds what a beam of the
+    rod may lie off its surface (its noise and the shape tolerance, as in ``_rod_core``): a
+    segment whose flanks merged with a wall close behind on both sides, which the fit could
+    not take as a rod (20 mm painted rods at 0.2-0.3 m before a wall 0.3 m behind: "not a
+    rod, fit RMS 7-8 mm"), is tried again on its middle (fewer than ``min_beams``: unchanged)."""
+    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
+    clean = np.flatnonzero(bound_m <= settings.edge_residual_sigmas * sigma + tolerance)
+    if clean.size < settings.min_beams:
+        return beams
+    return beams[clean[0] : clean[-1] + 1]
 
 
 def _blend_refusal(

@@ -107,6 +107,17 @@ def test_a_20_mm_rod_before_a_near_wall_with_a_blended_edge_beam_is_found(bearin
     assert _mahalanobis2(found, truth) < CHI2_2DOF_999
 
 
+def test_a_20_mm_rod_whose_flanks_merged_with_a_near_wall_is_fitted_on_its_middle() -> None:
+    # Blended ramps on both sides (20-50 mm behind the surface) stayed in the segment and the
+    # fit was "not a rod (fit RMS 7-8 mm)"; without the beams whose blend bound exceeds what a
+    # rod beam may lie off its surface, its middle is a rod (the benchmark's 40-scan dwells).
+    found, truth = _extract(
+        0.3, 32.4, 0.020, "painted", 0.3, scan_count=40, background_count=40, seed=0, spindle_deg=7.0 * 32.4
+    )
+    assert isinstance(found, RodCentre)
+    assert _mahalanobis2(found, truth) < THREE_STD_M2
+
+
 @pytest.mark.parametrize("bearing_deg", [-20.0, 28.0, 60.0])
 def test_a_dark_rod_before_a_far_wall_showing_only_its_middle_is_found(bearing_deg: float) -> None:
     # A dark 10 mm rod at 0.15 m: the wall 2.5 m behind outshines its grazing flanks, so only
