@@ -6,7 +6,8 @@ Kinds and their ``data``:
 - ``stage``: ``stage`` (fake_cell, connect, outputs; verify's select) and what goes with it;
 - ``progress``: every sequencer step: ``stage``, ``waypoint``, ``waypoint_count``,
   ``completed``, ``scans_averaged``, ``time_left_s``;
-- ``centre``: ``waypoint``, ``centre_uv_m``, ``covariance_uv_m2``, ``scans``;
+- ``centre``: ``waypoint``, ``centre_uv_m``, ``covariance_uv_m2``, ``warnings`` (why the centre
+  may be off by more than its covariance; empty: no doubt), ``scans``;
 - ``skip``: ``waypoint``, ``reason``;
 - ``scan``: the averaged scan of a waypoint for a live picture: ``waypoint``,
   ``angle_min_rad``, ``angle_increment_rad``, ``ranges_m`` (null where no return),
@@ -182,6 +183,7 @@ class EventSink:
                     waypoint=step.waypoint,
                     centre_uv_m=step.centre.centre_uv_m,
                     covariance_uv_m2=step.centre.covariance_uv_m2,
+                    warnings=list(step.centre.warnings),
                     scans=step.scans_averaged,
                     **({} if step.expected_uv_m is None else {"expected_uv_m": step.expected_uv_m}),
                 )

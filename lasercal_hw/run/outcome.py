@@ -70,8 +70,12 @@ def solve_run(
     second = _summary(solution.result)
     record_event(recorder, clock(), "solve", pass_number=2, result=second, refinement=solution.refinement)
     verdict = evaluate_gates(solution.result, job.quality, waypoint_count)
+    for index, warning in solution.centre_warnings:
+        record_event(recorder, clock(), "centre_warning", index=index, warning=warning)
     record_event(recorder, clock(), "verdict", **verdict.as_dict())
-    progress("done", "passed" if verdict.passed else "quality gate failed")
+    warned = len({index for index, _ in solution.centre_warnings})
+    doubt = f" ({warned} centres carry a warning: result.json run.centre_warnings)" if warned else ""
+    progress("done", ("passed" if verdict.passed else "quality gate failed") + doubt)
     timings = measured.timings
     timings.wall_s += clock() - started_s
     record_event(
@@ -95,6 +99,7 @@ def solve_run(
         resumed_from=measured.resumed_from,
         background=measured.background,
         solve_settings=solution.settings,
+        centre_warnings=solution.centre_warnings,
     )
 
 

@@ -62,6 +62,7 @@ def result_document(
         "waypoints_planned": len(outcome.measurements) + len(outcome.skipped),
         "observations": len(outcome.observations),
         "skipped": [{"index": s.index, "reason": s.reason} for s in outcome.skipped],
+        "centre_warnings": [{"index": i, "warning": warning} for i, warning in outcome.centre_warnings],
         "refinement": outcome.refinement,
         "first_pass": {
             "T_base_laser": outcome.first_pass.T_base_laser,

@@ -135,6 +135,8 @@ class RunOutcome:
     background: AveragedScan | None
     #: How ``observations`` solve to ``result`` (the rod, solver settings and gates).
     solve_settings: SolveSettings
+    #: (waypoint, warning) for each solved centre that may be off by more than its covariance.
+    centre_warnings: list[tuple[int, str]]
 
 
 @dataclass(frozen=True)

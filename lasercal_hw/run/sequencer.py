@@ -312,13 +312,15 @@ class Sequencer:
             centre_uv_m=[u, v],
             covariance_uv_m2=centre.covariance_uv_m2,
             quality=centre.quality,
+            warnings=list(centre.warnings),
             scans=len(capture.scans),
             window_start_s=capture.window_start_host_s,
             window_end_s=capture.window_end_host_s,
         )
         self._progress(
             "centre",
-            f"waypoint {name}: rod at ({u:+.4f}, {v:+.4f}) m from {len(capture.scans)} scans",
+            f"waypoint {name}: rod at ({u:+.4f}, {v:+.4f}) m from {len(capture.scans)} scans"
+            + "".join(f"; warning: {warning}" for warning in centre.warnings),
             waypoint=index,
             scans_averaged=len(capture.scans),
             centre_uv_m=(u, v),

@@ -89,6 +89,8 @@ class TwoPassSolution:
     #: The second pass's rod, solver settings and gates: ``observations`` solved with them
     #: give ``result`` again (``observations.csv`` carries them).
     settings: SolveSettings
+    #: (waypoint, warning) for each solved centre that may be off by more than its covariance.
+    centre_warnings: list[tuple[int, str]]
 
 
 def solve_two_pass(
@@ -132,7 +134,8 @@ def solve_two_pass(
         "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
     )
     settings = SolveSettings(rod, applied, job.quality)
-    return TwoPassSolution(first, result, observations, refinement, kept, settings)
+    warnings = [(m.index, warning) for m in refitted for warning in m.centre.warnings]
+    return TwoPassSolution(first, result, observations, refinement, kept, settings, warnings)
 
 
 def refit_centres(

@@ -430,3 +430,41 @@ def test_preflight_solves_each_pose_nearest_the_one_before() -> None:
     for (previous_pose, _), (_, near) in itertools.pairwise(chain):
         assert near is not None and np.allclose(near, solve(previous_pose))
     assert [pose.tolist() for pose, _ in chain[1:]] == waypoints.tolist()
+
+
+def test_centre_warnings_reach_the_progress_the_recording_and_the_result(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from dataclasses import replace
+
+    import lasercal_hw.run.sequencer as sequencer_module
+    import lasercal_hw.run.two_pass as two_pass_module
+    from lasercal_hw.run.outputs import result_document
+
+    doubt = "the rod's beams blend it with the background behind it"
+    real = sequencer_module.find_rod_centre
+
+    def doubtful(*args: object, **kwargs: object) -> object:
+        centre = real(*args, **kwargs)  # type: ignore[arg-type]
+        return replace(centre, warnings=(doubt,)) if centre.centre_uv_m[0] > 0.0 else centre
+
+    monkeypatch.setattr(sequencer_module, "find_rod_centre", doubtful)
+    monkeypatch.setattr(two_pass_module, "find_rod_centre", doubtful)
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    recorder = MemoryRecorder()
+    progress: list[Progress] = []
+    outcome = run_calibration(robot, scanner, recorder, job, semicircle_waypoints(12),
+                              on_progress=progress.append, clock=clock)
+
+    events = recorder.events
+    observed = {fields["index"]: fields["warnings"] for _, kind, fields in events if kind == "observation"}
+    warned = sorted(index for index, warnings in observed.items() if warnings)
+    assert 0 < len(warned) < 12, [f["centre_uv_m"] for _, k, f in events if k == "observation"]
+    lines = [p.message for p in progress if p.stage == "centre"]
+    assert sum(f"warning: {doubt}" in line for line in lines) == len(warned)
+    solved = sorted(index for index, _ in outcome.centre_warnings)
+    assert solved and set(solved) <= set(observed)
+    assert [e[2]["index"] for e in recorder.events if e[1] == "centre_warning"] == solved
+    assert f"{len(solved)} centres carry a warning" in progress[-1].message
+    document = result_document(outcome, job)
+    assert document["run"]["centre_warnings"] == [{"index": i, "warning": doubt} for i in solved]
