@@ -239,7 +239,7 @@ def solve(
         if robust and 0 < extras.range_terms < opts.max_range_terms:
             scale = _fullest_fit_scale(rotation, translation, data, usable, start, opts, extras)
             extras = _extras(rotation, translation, data, usable, opts, scale)
-        rotation, translation, data, used, evaluations = _fit(
+        rotation, translation, data, used, evaluations = _fit_from_consensus(
             rotation, translation, data, usable, start, robust, opts, extras
         )
         while extras.offset:
@@ -409,6 +409,31 @@ def _fit(
         rotation, translation, data, used, "linear", knee, opts, extras
     )
     return rotation, translation, data, used, evaluations + nfev
+
+
+def _fit_from_consensus(
+    rotation: FloatArray,
+    translation: FloatArray,
+    data: _Data,
+    usable: np.ndarray,
+    start: np.ndarray,
+    robust: bool,
+    opts: SolverOptions,
+    extras: _Extras,
+) -> tuple[FloatArray, FloatArray, _Data, np.ndarray, int]:
+    """``_fit`` from the consensus rows ``start`` and, when too many fail the outlier test from
+    there, again from every usable row: the consensus judged the rows by the linear start, which
+    has no range error curve and the nominal rod axis, so a range error that varies by tens of
+    millimetres over the crossings' distances sets apart rows the curve explains, and a curve
+    fitted to the rest does not reach back to them (the robust loss still keeps a gross outlier
+    out, and the outlier test still refuses what no start explains)."""
+    try:
+        return _fit(rotation, translation, data, usable, start, robust, opts, extras)
+    except CalibrationError as exc:
+        if not robust or np.array_equal(start, usable):
+            raise
+        logger.info("%s from the consensus start; fitting again from every usable waypoint", exc)
+        return _fit(rotation, translation, data, usable, usable, robust, opts, extras)
 
 
 def _refine(
@@ -854,7 +879,7 @@ def _fullest_fit_scale(
     the data give it, not by the stated (often conservative) noise. 1 when that fit fails."""
     fullest = replace(extras, range_terms=opts.max_range_terms)
     try:
-        rotation, translation, fitted, used, _ = _fit(
+        rotation, translation, fitted, used, _ = _fit_from_consensus(
             rotation, translation, data, usable, start, True, opts, fullest
         )
     except CalibrationError:
