@@ -394,7 +394,8 @@ def pair_agreement(
 
 #: Why a waypoint both scanners saw is left out of the agreement test.
 _BEYOND_CURVE = "where a scanner saw the rod beyond the distances its range error was calibrated at"
-_OFF_THE_ROD = "where by the solved poses the rod ends short of a plane or its end cuts the cross-section"
+_NOT_THE_ROD = ("where by the solved poses the rod ends short of a plane or a centre lies off the rod "
+                "by more than its radius")
 
 
 def _shared(
@@ -403,7 +404,7 @@ def _shared(
 ) -> tuple[list[SharedCentre], list[tuple[str, str]]]:
     """The waypoints of ``owner``'s run where ``other`` saw the rod too (owner's centre first),
     and those left out with why (the other's centre beyond its range error curve's reach; a
-    plane that does not cut the rod wholly between its ends by the solved poses: ``_cut_within_rod``).
+    centre that by its scanner's solved pose is not the rod's: ``_on_the_rod``).
     Each centre's covariance has its scanner's RMS residual added: the model error its solve showed."""
     own, seen = centres[owner].get(None, {}), centres[owner].get(other, {})
     rod = job.for_scanner(owner).rod.rod_line()
@@ -417,9 +418,10 @@ def _shared(
         if corrected is None:
             left_out.append((f"{owner} {index}", _BEYOND_CURVE))
             continue
-        poses = (np.asarray(outcomes[name].T_base_laser, dtype=float) for name in (owner, other))
-        if not all(_cut_within_rod(T, origins, directions, rod) for T in poses):
-            left_out.append((f"{owner} {index}", _OFF_THE_ROD))
+        found = ((outcomes[owner], np.asarray(centre, dtype=float)), (outcomes[other], corrected))
+        if not all(_on_the_rod(np.asarray(o.T_base_laser, dtype=float), origins, directions, uv, rod)
+                   for o, uv in found):
+            left_out.append((f"{owner} {index}", _NOT_THE_ROD))
             continue
         shared.append(SharedCentre(
             f"{owner} {index}", np.asarray(centre, dtype=float),
@@ -429,17 +431,21 @@ def _shared(
     return shared, left_out
 
 
-def _cut_within_rod(
-    T_base_laser: FloatArray, origins: FloatArray, directions: FloatArray, rod: RodLine
+def _on_the_rod(
+    T_base_laser: FloatArray, origins: FloatArray, directions: FloatArray, centre_uv_m: FloatArray,
+    rod: RodLine,
 ) -> bool:
-    """Whether the scan plane of a scanner at ``T_base_laser`` cuts the rod (one line of
-    ``origins``, ``directions``) wholly between its ends: the ellipse it cuts reaches
-    ``radius * tan(tilt)`` along the rod either side of the axis's crossing. Where it does not,
-    a watcher's nominal pose said the rod crosses but it ends short of the plane (or its end
-    cuts the cross-section), and what the watcher found there is not the rod's centre."""
-    _, slope, along_m = plane_crossing(T_base_laser[:3, :3], T_base_laser[:3, 3], origins, directions)
+    """Whether ``centre_uv_m`` can be the rod's centre by the solved pose ``T_base_laser``: its
+    scan plane cuts the rod (one line of ``origins``, ``directions``) wholly between its ends
+    (the ellipse it cuts reaches ``radius * tan(tilt)`` along the rod either side of the axis's
+    crossing), and the centre lies within the rod's radius of that crossing. A watcher's nominal
+    pose may say the rod crosses where it ends short of the plane, and its rod search then finds
+    something else (another object, or the rod's end)."""
+    rotation, translation_m = T_base_laser[:3, :3], T_base_laser[:3, 3]
+    crossing_uv_m, slope, along_m = plane_crossing(rotation, translation_m, origins, directions)
     reach_m = rod.radius_m * float(np.linalg.norm(slope[0]))
-    return reach_m <= float(along_m[0]) <= rod.length_m - reach_m
+    within = reach_m <= float(along_m[0]) <= rod.length_m - reach_m
+    return within and float(np.linalg.norm(crossing_uv_m[0] - centre_uv_m)) <= rod.radius_m
 
 
 def _without_range_error(centre_uv_m: FloatArray, range_offset: RangeOffset | None) -> FloatArray | None:

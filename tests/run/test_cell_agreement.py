@@ -1,6 +1,7 @@
 """The cell's agreement test over the centres two scanners saw at one waypoint
 (``run/cell.pair_agreement``): a watcher's centre where, by the solved poses, the rod ends short
-of its plane is not the rod's and is left out, saying why; the rest still decide."""
+of its plane, or farther from the rod than its radius, is not the rod's and is left out, saying
+why; the rest still decide."""
 
 from __future__ import annotations
 
@@ -43,19 +44,35 @@ def _outcome(name: str, T_base_laser: np.ndarray) -> ScannerOutcome:
                           rms_residual_mm=0.3)
 
 
-def test_a_centre_where_the_rod_ends_short_of_the_watchers_plane_is_left_out() -> None:
+def _agreement_with_the_front_finding(index: int, off_m: float) -> tuple[list[str], dict]:
+    """The rear's waypoints, each seen by both scanners; at ``index`` the front scanner found
+    something ``off_m`` along its u axis from where the rod's line crosses its plane."""
     poses = [_tcp_pose(p) for p in TCP_POINTS_M]
     own = {i: (pose, _crossing_uv_m(T_REAR, pose), COVARIANCE_UV_M2) for i, pose in enumerate(poses)}
     watched = {i: (pose, _crossing_uv_m(T_FRONT, pose), COVARIANCE_UV_M2) for i, pose in enumerate(poses)}
-    # What the front scanner found where its nominal pose put the rod: not the rod, 12 mm off.
-    last = len(poses) - 1
-    watched[last] = (poses[last], watched[last][1] + [0.012, 0.0], COVARIANCE_UV_M2)
+    watched[index] = (poses[index], watched[index][1] + [off_m, 0.0], COVARIANCE_UV_M2)
     centres: dict[str, RecordedCentres] = {"front": {}, "rear": {None: own, "front": watched}}
     outcomes = {"front": _outcome("front", T_FRONT), "rear": _outcome("rear", T_REAR)}
-
     shared, agreement = pair_agreement("front", "rear", outcomes, centres, JOB)
+    return [s.waypoint for s in shared], agreement
 
-    assert [s.waypoint for s in shared] == [f"rear {i}" for i in range(last)]
+
+def test_a_centre_where_the_rod_ends_short_of_the_watchers_plane_is_left_out() -> None:
+    last = len(TCP_POINTS_M) - 1  # what the front found where its nominal pose put the rod: 12 mm off
+
+    shared, agreement = _agreement_with_the_front_finding(last, 0.012)
+
+    assert shared == [f"rear {i}" for i in range(last)]
     assert agreement["left_out"] == [f"rear {last}"]
-    assert "the rod ends short of a plane" in agreement["reason"]
+    assert "the rod ends short of a plane" in agreement["reason"], agreement["reason"]
     assert agreement["verdict"] == "agree", agreement
+
+
+def test_a_centre_farther_from_the_rod_than_its_radius_is_left_out_and_a_nearer_one_kept() -> None:
+    shared, agreement = _agreement_with_the_front_finding(1, 0.05)  # the rod crosses, something else found
+    assert "rear 1" not in shared and agreement["left_out"] == ["rear 1", "rear 4"]
+    assert agreement["verdict"] == "agree", agreement
+
+    shared, agreement = _agreement_with_the_front_finding(1, 0.012)  # off, but it could be the rod: tested
+    assert "rear 1" in shared
+    assert agreement["verdict"] == "disagree", agreement
