@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -22,13 +23,13 @@ from typing import Any
 import numpy as np
 
 from lasercal_hw.calibration.agreement import SharedCentre, agreement_test
-from lasercal_hw.calibration.model import range_error_m, rod_lines_in_base
+from lasercal_hw.calibration.model import plane_crossing, range_error_m, rod_lines_in_base
 from lasercal_hw.calibration.observations import read_observations_csv
 from lasercal_hw.calibration.pairs import error_in_std, joint_relative_pose, relative_pose
 from lasercal_hw.calibration.result import RangeOffset
 from lasercal_hw.config import JobConfig, ScannerConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.models import FloatArray
+from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.dry_run_cell import DryRunCell, start_fake_cell
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate
@@ -369,8 +370,9 @@ def pair_agreement(
     a: str, b: str, outcomes: dict[str, ScannerOutcome], centres: dict[str, RecordedCentres], job: JobConfig
 ) -> tuple[list[SharedCentre], dict[str, Any]]:
     """The waypoints of either run where the other scanner saw the rod too (a watcher's centre
-    corrected by its scanner's range error curve, and left out beyond the distances that curve
-    spans), and the agreement test of ``a`` and ``b`` over them (``calibration/agreement``)."""
+    corrected by its scanner's range error curve; left out beyond the distances that curve
+    spans, and where by the solved poses a plane does not cut the rod between its ends), and
+    the agreement test of ``a`` and ``b`` over them (``calibration/agreement``)."""
     forward, left_out_ab = _shared(a, b, outcomes, centres, job)
     backward, left_out_ba = _shared(b, a, outcomes, centres, job)
     first, second = outcomes[a], outcomes[b]
@@ -382,19 +384,28 @@ def pair_agreement(
     )
     left_out = left_out_ab + left_out_ba
     if left_out:
-        result["left_out"] = left_out
-        result["reason"] += (f"; {len(left_out)} more left out: a scanner saw the rod there beyond the "
-                             "distances its range error was calibrated at")
+        result["left_out"] = [waypoint for waypoint, _ in left_out]
+        causes = Counter(cause for _, cause in left_out)
+        result["reason"] += f"; {len(left_out)} more left out: " + ", ".join(
+            f"{count} {cause}" for cause, count in causes.items()
+        )
     return shared, result
+
+
+#: Why a waypoint both scanners saw is left out of the agreement test.
+_BEYOND_CURVE = "where a scanner saw the rod beyond the distances its range error was calibrated at"
+_NOT_THE_ROD = ("where by the solved poses the rod ends short of a plane or a centre lies off the rod "
+                "by more than its radius")
 
 
 def _shared(
     owner: str, other: str, outcomes: dict[str, ScannerOutcome], centres: dict[str, RecordedCentres],
     job: JobConfig,
-) -> tuple[list[SharedCentre], list[str]]:
+) -> tuple[list[SharedCentre], list[tuple[str, str]]]:
     """The waypoints of ``owner``'s run where ``other`` saw the rod too (owner's centre first),
-    and those left out (the other's centre beyond its range error curve's reach). Each centre's
-    covariance has its scanner's RMS residual added: the model error its solve showed."""
+    and those left out with why (the other's centre beyond its range error curve's reach; a
+    centre that by its scanner's solved pose is not the rod's: ``_on_the_rod``).
+    Each centre's covariance has its scanner's RMS residual added: the model error its solve showed."""
     own, seen = centres[owner].get(None, {}), centres[owner].get(other, {})
     rod = job.for_scanner(owner).rod.rod_line()
     floor = {name: np.eye(2) * (outcomes[name].rms_residual_mm / 1000.0) ** 2 for name in (owner, other)}
@@ -403,16 +414,38 @@ def _shared(
         tcp_pose, centre, covariance = own[index]
         _, other_centre, other_covariance = seen[index]
         corrected = _without_range_error(np.asarray(other_centre, dtype=float), outcomes[other].range_offset)
+        origins, directions = rod_lines_in_base(np.asarray(tcp_pose, dtype=float)[None, :], rod)
         if corrected is None:
-            left_out.append(f"{owner} {index}")
+            left_out.append((f"{owner} {index}", _BEYOND_CURVE))
             continue
-        _, directions = rod_lines_in_base(np.asarray(tcp_pose, dtype=float)[None, :], rod)
+        found = ((outcomes[owner], np.asarray(centre, dtype=float)), (outcomes[other], corrected))
+        if not all(_on_the_rod(np.asarray(o.T_base_laser, dtype=float), origins, directions, uv, rod)
+                   for o, uv in found):
+            left_out.append((f"{owner} {index}", _NOT_THE_ROD))
+            continue
         shared.append(SharedCentre(
             f"{owner} {index}", np.asarray(centre, dtype=float),
             np.asarray(covariance, dtype=float) + floor[owner],
             corrected, np.asarray(other_covariance, dtype=float) + floor[other], directions[0],
         ))
     return shared, left_out
+
+
+def _on_the_rod(
+    T_base_laser: FloatArray, origins: FloatArray, directions: FloatArray, centre_uv_m: FloatArray,
+    rod: RodLine,
+) -> bool:
+    """Whether ``centre_uv_m`` can be the rod's centre by the solved pose ``T_base_laser``: its
+    scan plane cuts the rod (one line of ``origins``, ``directions``) wholly between its ends
+    (the ellipse it cuts reaches ``radius * tan(tilt)`` along the rod either side of the axis's
+    crossing), and the centre lies within the rod's radius of that crossing. A watcher's nominal
+    pose may say the rod crosses where it ends short of the plane, and its rod search then finds
+    something else (another object, or the rod's end)."""
+    rotation, translation_m = T_base_laser[:3, :3], T_base_laser[:3, 3]
+    crossing_uv_m, slope, along_m = plane_crossing(rotation, translation_m, origins, directions)
+    reach_m = rod.radius_m * float(np.linalg.norm(slope[0]))
+    within = reach_m <= float(along_m[0]) <= rod.length_m - reach_m
+    return within and float(np.linalg.norm(crossing_uv_m[0] - centre_uv_m)) <= rod.radius_m
 
 
 def _without_range_error(centre_uv_m: FloatArray, range_offset: RangeOffset | None) -> FloatArray | None:

@@ -1,5 +1,6 @@
 """``solve`` survives gross outliers (issue 14 item 4): a consensus start, impossible
-values refused naming the row, and the quality gates of ``run`` (exit 1)."""
+values refused naming the row, and the quality gates of ``run`` (exit 1); rows the consensus
+sets apart but the range error curve explains are fitted again from every row."""
 
 from __future__ import annotations
 
@@ -12,8 +13,8 @@ import pytest
 
 from lasercal_hw.calibration.initial import consensus_inliers
 from lasercal_hw.calibration.model import rod_lines_in_base
-from lasercal_hw.calibration.observations import write_observations_csv
-from lasercal_hw.calibration.solver import solve
+from lasercal_hw.calibration.observations import read_observations_csv, write_observations_csv
+from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import Observation, RodLine
 from tests.calibration.test_solver_helpers import TRUTH, observations, translation_error_mm
@@ -94,3 +95,18 @@ def test_solve_command_flags_the_outlier_refuses_the_impossible_and_gates(tmp_pa
     failure = " ".join(gated.stderr.split())
     assert failure.startswith("quality gate failed:") and "observations used (of 7 waypoints): 7" in failure
     assert "FAILED" in gated.stdout
+
+
+#: The first-pass centres of ``benchmarks/cell_accuracy.py``'s front scanner, seed 14 (physical
+#: model: a range error of -12 mm at 0.4 m to +10 mm at 1.15 m): the consensus start, which has no
+#: range error curve, set the five nearest rows apart and a curve fitted to the rest refused them.
+CURVED_RANGE_ERROR = Path(__file__).parents[1] / "data" / "observations" / "cell-front-seed14-first-pass.csv"
+
+
+def test_rows_the_consensus_sets_apart_but_the_range_curve_explains_are_fitted_again() -> None:
+    options = SolverOptions(robot_sigma_m=0.001, estimate_range_offset="auto", max_range_terms=5)
+    result = solve(read_observations_csv(CURVED_RANGE_ERROR), RodLine(radius_m=0.02, length_m=0.3),
+                   options=options)
+    assert result.outliers == []
+    assert result.waypoints_used == 16
+    assert result.range_offset is not None

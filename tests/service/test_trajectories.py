@@ -61,4 +61,4 @@ def test_a_cell_jobs_own_trajectories_are_listed_first(tmp_path: Path) -> None:
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         own, *presets = client.get("/v1/trajectories").json()["trajectories"]
     assert (own["kind"], own["job"]) == ("cell", {}) and [p["name"] for p in presets] == preset_names()
-    assert "front 16 waypoints, rear 12 waypoints" in own["description"] and own["waypoints"] == 28
+    assert "front 16 waypoints, rear 20 waypoints" in own["description"] and own["waypoints"] == 36

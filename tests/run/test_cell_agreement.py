@@ -1,0 +1,78 @@
+"""The cell's agreement test over the centres two scanners saw at one waypoint
+(``run/cell.pair_agreement``): a watcher's centre where, by the solved poses, the rod ends short
+of its plane, or farther from the rod than its radius, is not the rod's and is left out, saying
+why; the rest still decide."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from lasercal_hw.config import load_job
+from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, matrix_to_pose
+from lasercal_hw.run.cell import RecordedCentres, ScannerOutcome, pair_agreement
+
+REPO = Path(__file__).resolve().parents[2]
+JOB = load_job(REPO / "examples" / "cell.toml")  # a 0.30 m rod along the TCP's z axis
+T_FRONT = make_transform(euler_zyx_to_matrix(*np.radians([5.0, 7.0, 3.0])), np.array([0.30, 0.50, 0.20]))
+T_REAR = make_transform(euler_zyx_to_matrix(*np.radians([45.0, -6.0, 5.0])), np.array([-0.45, -0.40, 0.30]))
+COVARIANCE_UV_M2 = np.eye(2) * 0.0003**2
+POSE_COVARIANCE = np.diag([1e-8] * 3 + [np.radians(0.01) ** 2] * 3)
+#: A rod pointing down, tilted 10 deg: the TCP at these heights puts both planes across it,
+#: the last one ends above the front's plane.
+TCP_POINTS_M = [(-0.10, -0.05, 0.45), (0.05, -0.15, 0.46), (-0.20, 0.05, 0.44), (0.0, 0.10, 0.45),
+                (-0.05, -0.10, 0.55)]
+
+
+def _tcp_pose(point_m: tuple[float, float, float]) -> np.ndarray:
+    down = euler_zyx_to_matrix(0.0, np.radians(10.0), np.pi)
+    return matrix_to_pose(make_transform(down, np.asarray(point_m)))
+
+
+def _crossing_uv_m(T_base_laser: np.ndarray, tcp_pose: np.ndarray) -> np.ndarray:
+    """Where the rod's line (extended past its ends) crosses the scanner's plane."""
+    tcp = make_transform(euler_zyx_to_matrix(0.0, np.radians(10.0), np.pi), tcp_pose[:3])
+    origin, direction = tcp[:3, 3], tcp[:3, 2]
+    normal, point = T_base_laser[:3, 2], T_base_laser[:3, 3]
+    along_m = normal @ (point - origin) / (normal @ direction)
+    return (T_base_laser[:3, :3].T @ (origin + along_m * direction - point))[:2]
+
+
+def _outcome(name: str, T_base_laser: np.ndarray) -> ScannerOutcome:
+    return ScannerOutcome(name, Path(), True, T_base_laser.tolist(), POSE_COVARIANCE.tolist(), None, None,
+                          rms_residual_mm=0.3)
+
+
+def _agreement_with_the_front_finding(index: int, off_m: float) -> tuple[list[str], dict]:
+    """The rear's waypoints, each seen by both scanners; at ``index`` the front scanner found
+    something ``off_m`` along its u axis from where the rod's line crosses its plane."""
+    poses = [_tcp_pose(p) for p in TCP_POINTS_M]
+    own = {i: (pose, _crossing_uv_m(T_REAR, pose), COVARIANCE_UV_M2) for i, pose in enumerate(poses)}
+    watched = {i: (pose, _crossing_uv_m(T_FRONT, pose), COVARIANCE_UV_M2) for i, pose in enumerate(poses)}
+    watched[index] = (poses[index], watched[index][1] + [off_m, 0.0], COVARIANCE_UV_M2)
+    centres: dict[str, RecordedCentres] = {"front": {}, "rear": {None: own, "front": watched}}
+    outcomes = {"front": _outcome("front", T_FRONT), "rear": _outcome("rear", T_REAR)}
+    shared, agreement = pair_agreement("front", "rear", outcomes, centres, JOB)
+    return [s.waypoint for s in shared], agreement
+
+
+def test_a_centre_where_the_rod_ends_short_of_the_watchers_plane_is_left_out() -> None:
+    last = len(TCP_POINTS_M) - 1  # what the front found where its nominal pose put the rod: 12 mm off
+
+    shared, agreement = _agreement_with_the_front_finding(last, 0.012)
+
+    assert shared == [f"rear {i}" for i in range(last)]
+    assert agreement["left_out"] == [f"rear {last}"]
+    assert "the rod ends short of a plane" in agreement["reason"], agreement["reason"]
+    assert agreement["verdict"] == "agree", agreement
+
+
+def test_a_centre_farther_from_the_rod_than_its_radius_is_left_out_and_a_nearer_one_kept() -> None:
+    shared, agreement = _agreement_with_the_front_finding(1, 0.05)  # the rod crosses, something else found
+    assert "rear 1" not in shared and agreement["left_out"] == ["rear 1", "rear 4"]
+    assert agreement["verdict"] == "agree", agreement
+
+    shared, agreement = _agreement_with_the_front_finding(1, 0.012)  # off, but it could be the rod: tested
+    assert "rear 1" in shared
+    assert agreement["verdict"] == "disagree", agreement
