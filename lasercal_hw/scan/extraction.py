@@ -893,8 +893,10 @@ def _fit_centre(
     dof = max(points.shape[0] - 2, 1)
     variance_factor = max(1.0, float(whitened @ whitened) / dof)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
-    covariance = np.linalg.inv(normal) * variance_factor + np.eye(2) * (
-        _unknown_tilt_variance_m2(section, settings) + _systematic_variance_m2(residuals, residual_sigma)
+    covariance = (
+        np.linalg.inv(normal) * variance_factor
+        + np.eye(2) * _unknown_tilt_variance_m2(section, settings)
+        + _systematic_covariance_m2(residuals, residual_sigma, normals, normal)
     )
     mismatch = _range_error_mismatch(points, centre, normals, residual_sigma, normal)
     covariance += np.outer(mismatch, mismatch) * settings.typical_range_error_m**2
@@ -932,12 +934,36 @@ def _range_error_mismatch(
     return moved - centre / np.linalg.norm(centre)
 
 
-def _systematic_variance_m2(residuals: FloatArray, residual_sigma: FloatArray) -> float:
-    """Variance per axis of what the dwell does not average away: the part of the fit's
-    mean squared residual the noise does not explain (the rod's shape, edge effects, a range
-    error that changes across the arc). Such residuals are shared by neighbouring beams, so
-    they move the centre by about their own size, not by their size over sqrt(beams)."""
-    return max(0.0, float(np.mean(residuals**2) - np.mean(residual_sigma**2)))
+def _systematic_covariance_m2(
+    residuals: FloatArray, residual_sigma: FloatArray, normals: FloatArray, normal: FloatArray
+) -> FloatArray:
+    """Covariance (2, 2) of what the dwell does not average away: the part of the fit's mean
+    squared residual the noise does not explain (the rod's shape, edge effects, a range error
+    that changes across the arc), carried through the fit's gain as an error shared by
+    neighbouring beams.
+
+    Its parts symmetric and antisymmetric about the arc's middle are sized apart (a symmetric
+    error, such as one that grows with the incidence angle, moves the centre along its bearing,
+    an antisymmetric one across it), each by its own excess over the noise, with the
+    correlation between neighbours the residuals show (their lag-1 covariance over the
+    excess; the noise is independent beam to beam)."""
+    count = residuals.size
+    excess_m2 = float(np.mean(residuals**2) - np.mean(residual_sigma**2))
+    if excess_m2 <= 0.0 or count < 3:
+        return np.zeros((2, 2))
+    correlation = float(np.clip(np.mean(residuals[:-1] * residuals[1:]) / excess_m2, 0.0, 1.0))
+    shared = correlation ** np.abs(np.subtract.outer(np.arange(count), np.arange(count)))
+    mirror = np.eye(count)[::-1]
+    gain = np.linalg.solve(normal, (normals[:, :2] / residual_sigma[:, None] ** 2).T)
+    covariance = np.zeros((2, 2))
+    for sign in (1.0, -1.0):
+        part = 0.5 * (np.eye(count) + sign * mirror)
+        part_excess_m2 = float(np.mean((part @ residuals) ** 2) - 0.5 * np.mean(residual_sigma**2))
+        pattern = part @ shared @ part
+        scale = float(np.mean(np.diag(pattern)))
+        if part_excess_m2 > 0.0 and scale > 0.0:
+            covariance += part_excess_m2 / scale * gain @ pattern @ gain.T
+    return covariance
 
 
 def _unknown_tilt_variance_m2(section: _Section, settings: ExtractionSettings) -> float:

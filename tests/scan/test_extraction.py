@@ -298,3 +298,30 @@ def test_edge_beams_flipping_during_a_short_dwell_are_trimmed() -> None:
     untrimmed = ExtractionSettings(min_stable_fraction=0.0, max_spread_ratio=np.inf)
     with pytest.raises(RodNotFoundError):
         find_rod_centre(averaged_scan, radius_m=0.02, background=background, settings=untrimmed)
+
+
+def test_an_error_symmetric_across_the_arc_widens_the_covariance_along_the_bearing_only() -> None:
+    """Every beam on a 20 mm rod at 0.5 m reads long by up to 4 mm, growing towards the grazing
+    edges alike on both sides (as a range error that grows with the incidence angle does):
+    the centre moves along its bearing, not across it. The covariance must cover the move
+    along the bearing without claiming as much across it (the residuals' excess over the
+    noise was added whole to both axes: sideways std 0.7-0.9 mm for a 0.1 mm error)."""
+    rng = np.random.default_rng(3)
+    radius_m, sigma_m, range_m = 0.020, 0.0003, 0.5
+    ratios = []
+    for _ in range(8):
+        bearing = rng.uniform(-1.0, 1.0)
+        centre = _centre(range_m, bearing)
+        lateral_m = range_m * np.sin(ANGLES - bearing)
+        bias_m = np.where(np.abs(lateral_m) < radius_m, 0.004 * (lateral_m / radius_m) ** 2, 0.0)
+        noise_m = rng.normal(0.0, sigma_m, ANGLES.shape)
+        noisy = rod_ranges(centre, radius_m, wall_behind_m=0.5) + bias_m + noise_m
+        scan = AveragedScan.from_ranges(noisy, ANGLES, np.full_like(noisy, sigma_m))
+        found = find_rod_centre(scan, radius_m=radius_m, axis_in_scanner=Z_AXIS, settings=THIN_BEAMS)
+        along = centre / np.linalg.norm(centre)
+        across = np.array([-along[1], along[0]])
+        std_along = float(np.sqrt(along @ found.covariance_uv_m2 @ along))
+        std_across = float(np.sqrt(across @ found.covariance_uv_m2 @ across))
+        assert abs(float(along @ (found.centre_uv_m - centre))) < 2.5 * std_along
+        ratios.append(std_across / std_along)
+    assert float(np.median(ratios)) < 0.6
