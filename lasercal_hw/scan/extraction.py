@@ -77,6 +77,10 @@ class RodCentre:
     beam_indices: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     #: Why this centre may be off by more than its covariance says (empty: no doubt).
     warnings: tuple[str, ...] = ()
+    #: The part of ``covariance_uv_m2`` another dwell at the same pose draws anew: the dwell's
+    #: noise through the fit. The rest (the rod's shape, edges, blends, the range error across
+    #: the arc) repeats at the same pose and view. None: unknown, take the whole covariance.
+    noise_covariance_uv_m2: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -782,6 +786,7 @@ class _Fit:
     residuals_m: FloatArray
     whitened: FloatArray
     blend_shift_m: float = 0.0
+    noise_covariance_uv_m2: FloatArray | None = None
 
 
 def _residuals(
@@ -893,8 +898,9 @@ def _fit_centre(
     dof = max(points.shape[0] - 2, 1)
     variance_factor = max(1.0, float(whitened @ whitened) / dof)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
+    noise_covariance = np.linalg.inv(normal) * variance_factor
     covariance = (
-        np.linalg.inv(normal) * variance_factor
+        noise_covariance
         + np.eye(2) * _unknown_tilt_variance_m2(section, settings)
         + _systematic_covariance_m2(residuals, residual_sigma, normals, normal)
     )
@@ -904,7 +910,7 @@ def _fit_centre(
     if blend_m is not None:
         blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
         covariance += np.outer(blend_shift, blend_shift)
-    return _Fit(centre, covariance, residuals, whitened, float(np.linalg.norm(blend_shift)))
+    return _Fit(centre, covariance, residuals, whitened, float(np.linalg.norm(blend_shift)), noise_covariance)
 
 
 def _centre_shift(
@@ -1086,6 +1092,7 @@ def _fit_segment(
         centre_uv_m=fit.centre_uv_m,
         covariance_uv_m2=fit.covariance_uv_m2,
         warnings=warnings,
+        noise_covariance_uv_m2=fit.noise_covariance_uv_m2,
         quality=RodQuality(
             beams_used=int(keep.size),
             fit_rms_m=rms,

@@ -325,3 +325,34 @@ def test_an_error_symmetric_across_the_arc_widens_the_covariance_along_the_beari
         assert abs(float(along @ (found.centre_uv_m - centre))) < 2.5 * std_along
         ratios.append(std_across / std_along)
     assert float(np.median(ratios)) < 0.6
+
+
+def test_the_noise_covariance_is_what_another_dwell_at_the_same_pose_draws_anew() -> None:
+    """Two dwells of the same rod, whose beams carry the same 4 mm symmetric range error and
+    new noise: the centres differ by the noise alone, which ``noise_covariance_uv_m2`` covers
+    (twice it, for two dwells), while the repeatable error (in the whole covariance, along the
+    bearing) is left out of it (verify compares a centre with the one measured there before)."""
+    rng = np.random.default_rng(5)
+    radius_m, sigma_m, range_m = 0.020, 0.0003, 0.5
+    difference_m2, std_ratio = [], []
+    for _ in range(12):
+        bearing = rng.uniform(-1.0, 1.0)
+        centre = _centre(range_m, bearing)
+        lateral_m = range_m * np.sin(ANGLES - bearing)
+        bias_m = np.where(np.abs(lateral_m) < radius_m, 0.004 * (lateral_m / radius_m) ** 2, 0.0)
+        found = []
+        for _ in range(2):
+            noise_m = rng.normal(0.0, sigma_m, ANGLES.shape)
+            noisy = rod_ranges(centre, radius_m, wall_behind_m=0.5) + bias_m + noise_m
+            scan = AveragedScan.from_ranges(noisy, ANGLES, np.full_like(noisy, sigma_m))
+            found.append(
+                find_rod_centre(scan, radius_m=radius_m, axis_in_scanner=Z_AXIS, settings=THIN_BEAMS)
+            )
+        noise = found[0].noise_covariance_uv_m2
+        assert noise is not None
+        difference = found[0].centre_uv_m - found[1].centre_uv_m
+        difference_m2.append(float(difference @ np.linalg.solve(2.0 * noise, difference)))
+        along = centre / np.linalg.norm(centre)
+        std_ratio.append(np.sqrt((along @ noise @ along) / (along @ found[0].covariance_uv_m2 @ along)))
+    assert float(np.mean(difference_m2)) < 6.0  # 2 when exact
+    assert float(np.max(std_ratio)) < 0.5
