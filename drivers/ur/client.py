@@ -299,6 +299,16 @@ class URRobot:
             emergency_stop=bool(bits & EMERGENCY_STOP_BITS),
         )
 
+    def _program_stops_within(self, timeout_s: float) -> bool:
+        """Whether the receive stream shows the program stopped within ``timeout_s``: after a
+        refused command, the stream (a connection of its own) may not show it yet."""
+        deadline = time.monotonic() + timeout_s
+        while self._program_running():
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(POLL_S)
+        return True
+
     def _program_running(self) -> bool:
         """``runtime_state == 2`` (PLAYING) in the receive stream, ur_rtde's own test."""
         return int(self._read("getRuntimeState", self._receive.getRuntimeState)) == 2
@@ -382,7 +392,8 @@ class URRobot:
             self._command(what, start)
         except RobotError as exc:
             self._raise_if_stopped()
-            if not self._program_running():
+            if self._program_stops_within(STREAM_STALL_S):
+                self._raise_if_stopped()
                 self._broken = ("the control program stopped", RobotError)
                 raise RobotError(f"{what} failed: the control program on the robot has stopped (for example "
                                  "the target is out of reach or a runtime error occurred); check the robot's "

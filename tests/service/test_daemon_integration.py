@@ -120,8 +120,9 @@ def test_dry_run_to_the_end_with_every_event_and_file(daemon: DaemonProcess) -> 
         finished = client.get(f"/v1/jobs/{job_id}").json()
         # The verdict is the calibration's business (a loaded machine can fail a gate), not the daemon's.
         assert finished["state"] == "succeeded" and isinstance(finished["verdict"]["passed"], bool)
-        cell = next(data for _, kind, data in everything if kind == "stage" and "scanner_url" in data)
-        resolved = finished["request"]["resolved_job"]  # the fake cell's devices, not the defaults
+        # The last fake cell's devices, not the defaults (a resume after a stall starts a new cell).
+        cell = [data for _, kind, data in everything if kind == "stage" and "scanner_url" in data][-1]
+        resolved = finished["request"]["resolved_job"]
         assert resolved["robot"]["host"] == cell["robot_host"]
         assert resolved["scanner"]["url"] == cell["scanner_url"]
         assert cell["scanner_url"].startswith("scip+tcp://127.")

@@ -100,6 +100,35 @@ def test_reachability_and_safety_checks(start_fake: StartFake) -> None:
             robot.move_joint(np.array(DEFAULT_START_Q_RAD), 1.0, 1.0)
 
 
+class _LaggingRuntimeState:
+    """Wraps the receive interface so the runtime state read is the one of ``lag_s`` ago (the
+    playing state before the first read): a receive stream behind the control connection."""
+
+    def __init__(self, receive: Any, lag_s: float) -> None:
+        self._receive = receive
+        self._lag_s = lag_s
+        self._seen: list[tuple[float, int]] = []
+
+    def getRuntimeState(self) -> int:
+        now = time.monotonic()
+        self._seen.append((now, self._receive.getRuntimeState()))
+        old = [state for at, state in self._seen if at <= now - self._lag_s]
+        return old[-1] if old else 2
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._receive, name)
+
+
+def test_a_refused_move_waits_for_a_lagging_stream_to_show_the_program_stopped(
+        start_fake: StartFake) -> None:
+    fake = start_fake()
+    with URRobot.connect(fake.address) as robot:
+        robot._receive = _LaggingRuntimeState(robot._receive, lag_s=0.05)
+        unreachable = np.array([2.0, 0.0, 0.3, 0.0, 3.14, 0.0])
+        with pytest.raises(RobotError, match="control program on the robot has stopped"):
+            robot.move_linear(unreachable, 0.25, 1.2)
+
+
 class _RecordingControl:
     """Wraps the real RTDEControlInterface and records the motion commands sent."""
 
