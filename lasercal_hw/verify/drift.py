@@ -10,9 +10,11 @@ pose and what the fit left over), so it is the centre measured back then.  The r
     S = blockdiag(C_i + R_i) + J_u Sigma_cal J_u^T
 
 with ``C_i`` the centre noise of the measurement and ``R_i`` the robot's share: for a
-waypoint the calibration visited, the centre noise it had then (the same dwell gives the
-same ``C_i``) plus the robot's repeatability ``sigma_rep^2 A A^T``; for any other, the
-robot's absolute accuracy ``sigma_robot^2 A A^T``, and the calibration's own 6x6
+waypoint the calibration visited, ``C_i`` is only what a dwell draws anew (the rest of the
+centre's covariance repeats at the same pose and cancels in ``d``), ``R_i`` the same again
+for the calibration's dwell plus the robot's repeatability ``sigma_rep^2 A A^T``; for any
+other, ``C_i`` whole and the robot's absolute accuracy ``sigma_robot^2 A A^T``, and the
+calibration's own 6x6
 covariance propagated with the Jacobian ``J_u`` of those predictions (rows of visited
 waypoints are zero there: their prediction does not depend on the solved transform).
 The last term correlates the waypoints, so S is whitened as a whole. ``d^T S^-1 d`` is
