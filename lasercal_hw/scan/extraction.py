@@ -1219,6 +1219,19 @@ def _with_arc_bias(
     return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))
 
 
+def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray) -> _Fit:
+    """The fit with a sideways check's variance in its covariance and in its noise: which
+    beams are the silhouette's edges changes from dwell to dwell (a far rod's 3-7 beams: its
+    centre moved 5-7 mm sideways between two dwells at one pose), so another dwell draws that
+    part anew too."""
+    noise = fit.noise_covariance_uv_m2
+    return replace(
+        fit,
+        covariance_uv_m2=fit.covariance_uv_m2 + doubt_m2,
+        noise_covariance_uv_m2=None if noise is None else noise + doubt_m2,
+    )
+
+
 def _with_edge_doubt(
     points: FloatArray, sigma: FloatArray, fit: _Fit, section: _Section, settings: ExtractionSettings
 ) -> _Fit:
@@ -1248,7 +1261,7 @@ def _with_edge_doubt(
     excess_m2 = sideways_m**2 - max(float(across @ difference_m2 @ across), 0.0)
     if excess_m2 <= 0.0:
         return fit
-    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + excess_m2 * np.outer(across, across))
+    return _with_sideways_doubt(fit, excess_m2 * np.outer(across, across))
 
 
 def _symmetry_bearing_rad(scan: AveragedScan, beams: NDArray[np.int64], section: _Section) -> float | None:
@@ -1299,5 +1312,5 @@ def _with_symmetry_doubt(
     excess_m2 = sideways_m**2 - fitted_m2 - quantisation_m2
     if excess_m2 <= 0.0:
         return fit
-    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + excess_m2 * np.outer(across, across))
+    return _with_sideways_doubt(fit, excess_m2 * np.outer(across, across))
 

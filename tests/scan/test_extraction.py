@@ -356,3 +356,26 @@ def test_the_noise_covariance_is_what_another_dwell_at_the_same_pose_draws_anew(
         std_ratio.append(np.sqrt((along @ noise @ along) / (along @ found[0].covariance_uv_m2 @ along)))
     assert float(np.mean(difference_m2)) < 6.0  # 2 when exact
     assert float(np.max(std_ratio)) < 0.5
+
+
+def test_what_the_sideways_checks_add_is_drawn_anew_by_another_dwell() -> None:
+    """A 20 mm rod at 1 m whose first edge beam reads 6 mm long (a spot's blend on one side):
+    the arc without its edges disagrees sideways, and that doubt joins the covariance. Which
+    beams are the edges changes from dwell to dwell (a far rod's centre moved 5-7 mm sideways
+    between two dwells at one pose on the physical model, and verify flagged the unmoved
+    scanner), so the doubt belongs to the noise covariance too, not to the repeatable part."""
+    rng = np.random.default_rng(9)
+    for _ in range(5):
+        centre = _centre(1.0, rng.uniform(-1.0, 1.0))
+        truth = rod_ranges(centre, 0.02, wall_behind_m=1.0)
+        on_rod = np.flatnonzero(np.isfinite(truth) & (truth < np.nanmin(truth) + 0.03))
+        blended = truth.copy()
+        blended[on_rod[0]] += 0.006
+        noisy = blended + rng.normal(0.0, 0.0001, truth.shape)
+        scan = AveragedScan.from_ranges(noisy, ANGLES, np.full_like(noisy, 0.0001))
+        found = find_rod_centre(scan, radius_m=0.02, axis_in_scanner=Z_AXIS, settings=THIN_BEAMS)
+        along = centre / np.linalg.norm(centre)
+        across = np.array([-along[1], along[0]])
+        noise = found.noise_covariance_uv_m2
+        assert noise is not None
+        assert across @ noise @ across > 0.8**2 * (across @ found.covariance_uv_m2 @ across)
