@@ -209,8 +209,8 @@ def noise_blocks(
     ``noise_covariance_uv_m2`` (N, 2, 2): the part of each centre's covariance a new dwell
     draws anew (None: all of it). At a visited waypoint the prediction is the centre the
     calibration measured there from the same pose and view: the rest of the covariance (the
-    rod's shape, edges, blends, the range error across the arc) is in both centres and
-    cancels; what a dwell draws anew is counted for both dwells."""
+    rod's shape, blends, the range error across the arc) is in both centres and cancels;
+    what a dwell draws anew is counted for both dwells."""
     centre = np.asarray(covariance_uv_m2, dtype=float)
     noise = centre if noise_covariance_uv_m2 is None else np.asarray(noise_covariance_uv_m2, dtype=float)
     revisit = 2.0 * noise
