@@ -97,7 +97,18 @@ class ExtractionSettings:
     #: beams' lateral position has an extra ``footprint / sqrt(12)`` of uncertainty.
     beam_footprint_rad: float = float(np.radians(0.25))
     min_jump_m: float = 0.01
+    #: A candidate must span at least this fraction of the angle the rod covers at its range ...
     min_visible_fraction: float = 0.6
+    #: ... or this fraction when a background scan shows a surface more than ``echo_merge_m``
+    #: behind it: a rod darker than that surface shows only its middle, where its own echo is
+    #: the stronger (the scanner reports the strongest; a dark 10 mm rod at 0.15 m before a
+    #: wall 2.5 m behind: 12 of its 27 beams), and those beams read the rod alone. (With a
+    #: surface close behind, a narrow core is a rod whose flanks merged with it, and its
+    #: front beams are blends too: 20 mm rods at 0.1-1 m before a wall 0.3 m behind came out
+    #: 3-40 mm off with too small a std; they keep the fraction above.) Such a core's
+    #: sideways position, from a nearly flat arc, is checked against the range profile's
+    #: symmetry (``_with_symmetry_doubt``), as a fit of few beams is.
+    min_visible_fraction_far_background: float = 0.25
     min_beams: int = 3
     min_beams_for_radius: int = 8
     min_arc_span_for_radius_deg: float = 100.0
@@ -400,10 +411,12 @@ def _candidate_segments(
     for part in segments:
         if part.size == 0:
             continue
+        visible = _visible_fraction(scan, part, background, settings)
         cores = [
             core
             for core in _rod_cores(scan, sigma, part, section, settings)
-            if core.size >= settings.min_beams and _size_mismatch(scan, core, section, settings) is not None
+            if core.size >= settings.min_beams
+            and _size_mismatch(scan, core, section, settings, visible) is not None
         ]
         # Without a rod-sized core the segment is judged whole, so that its fit says why.
         for beams in cores or [part]:
@@ -412,7 +425,7 @@ def _candidate_segments(
                     problem = "is cut by the edge of the field of view; move the rod inward"
                     _note_if_rod(scan, sigma, beams, section, settings, notes, problem)
                 continue
-            fit = _size_mismatch(scan, beams, section, settings)
+            fit = _size_mismatch(scan, beams, section, settings, visible)
             if fit is None:
                 continue
             if not _in_front(scan, beams, sigma):
@@ -423,6 +436,23 @@ def _candidate_segments(
             scored.append((fit, beams, ramps))
     scored.sort(key=lambda item: item[0])
     return [(beams, ramp) for _, beams, ramp in scored], notes
+
+
+def _visible_fraction(
+    scan: AveragedScan, part: NDArray[np.int64], background: AveragedScan | None, settings: ExtractionSettings
+) -> float:
+    """The least fraction of the rod's angle a candidate in ``part`` must span: lower where the
+    background scan shows a surface behind it too far to merge into the rod's echo."""
+    if background is None:
+        return settings.min_visible_fraction
+    behind_m = background.ranges_m[part]
+    behind_m = behind_m[np.isfinite(behind_m)]
+    if behind_m.size == 0:
+        return settings.min_visible_fraction
+    depth_m = float(np.median(behind_m)) - float(np.nanmin(scan.ranges_m[part]))
+    if depth_m > settings.echo_merge_m:
+        return settings.min_visible_fraction_far_background
+    return settings.min_visible_fraction
 
 
 def _rod_cores(
@@ -491,24 +521,32 @@ def _fronts(
         nearest_around = ranges[max(0, position - half) : position + half + 1].min()
         if ranges[position] <= nearest_around and not (fronts and position - fronts[-1] <= half):
             fronts.append(int(position))
-    if not fronts and _flat_halo(ranges, width, section, settings, step):
+    if not fronts and _flat_halo(ranges, _range_sigma(scan, settings)[part], width, section, settings, step):
         fronts = [nearest]
     return [_middle_of_front(scan, part, front, section, settings) for front in fronts]
 
 
 def _flat_halo(
-    ranges: FloatArray, width_rad: float, section: _Section, settings: ExtractionSettings, step_rad: float
+    ranges: FloatArray,
+    sigma: FloatArray,
+    width_rad: float,
+    section: _Section,
+    settings: ExtractionSettings,
+    step_rad: float,
 ) -> bool:
     """True for a segment that is one flat bright blot: every beam within a semi-major axis
-    (and the shape tolerance) of the nearest range and no wider than a rod with twice its
-    ramps. A retro-reflective rod lights up the spot's faint skirt far beside it, so every
-    beam whose skirt touches it reads the rod's range (a 4 mm taped rod at 0.15 m: 13 deg of
-    beams at 152-157 mm); no beam stands in front of the rest, so the search for fronts found
-    none. Its middle is then the front."""
+    (the shape tolerance, and the noise of the nearest and farthest of its averaged ranges)
+    of the nearest range and no wider than a rod with twice its ramps. A retro-reflective
+    rod lights up the spot's faint skirt far beside it, so every beam whose skirt touches it
+    reads the rod's range (a 4 mm taped rod at 0.15 m: 13 deg of beams at 152-157 mm; at
+    0.1 m 19 deg at 113-119 mm, its extremes 6.4 mm apart where a 4 mm rod and its shape
+    tolerance allow 6, which left it "no segment matching a rod"); no beam stands in front of
+    the rest, so the search for fronts found none. Its middle is then the front."""
     nearest = float(np.nanmin(ranges))
     reach_rad = 4 * (settings.max_ramp_beams + 1) * step_rad
     tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
-    flat = float(np.nanmax(ranges)) - nearest <= section.semi_major_m + tolerance
+    extremes_sigma = 2.0 * settings.edge_residual_sigmas * float(np.nanmedian(sigma))
+    flat = float(np.nanmax(ranges)) - nearest <= section.semi_major_m + tolerance + extremes_sigma
     return flat and width_rad <= _widest_rad(nearest, section, settings) + reach_rad
 
 
@@ -700,12 +738,14 @@ def _size_mismatch(
     beams: NDArray[np.int64],
     section: _Section,
     settings: ExtractionSettings,
+    visible_fraction: float | None = None,
     *,
     partial: bool = False,
 ) -> float | None:
     """How far the segment's angular width is from the rod's (in beams); None if implausible.
 
-    ``partial`` accepts any width up to the rod's (a rod cut by the field of view)."""
+    It must span ``visible_fraction`` (default ``settings.min_visible_fraction``) of the rod's
+    angle; ``partial`` accepts any width up to the rod's (a rod cut by the field of view)."""
     step = _beam_step_rad(scan)
     centre_range = float(np.min(scan.ranges_m[beams])) + section.radius_m
     if centre_range <= section.widest_semi_axis_m:
@@ -715,7 +755,9 @@ def _size_mismatch(
     # Each beam stands for one step of angle: n beams cover n steps (a far rod's 3 beams
     # cover 3 steps, not the 2 between their centres).
     width = abs(float(scan.angles_rad[beams[-1]] - scan.angles_rad[beams[0]])) + step
-    low = 0.0 if partial else settings.min_visible_fraction * width_min - 2.0 * step
+    if visible_fraction is None:
+        visible_fraction = settings.min_visible_fraction
+    low = 0.0 if partial else visible_fraction * width_min - 2.0 * step
     nearest_m = float(np.min(scan.ranges_m[beams]))
     spot_rad = 4.0 * float(_spot_sigma_m(np.array([nearest_m]), settings)[0]) / max(nearest_m, 1e-3)
     high = width_max + spot_rad + 3.0 * step  # a near rod's echo wins while its spot touches it
@@ -1041,7 +1083,9 @@ def _fit_segment(
     keep, fit = _drop_mixed_edges(points, sigma, section, settings)
     bound_m = np.zeros(beams.size)
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
-        share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
+        keep, fit, share, bound_m = _drop_blended_edges(
+            scan, beams, points, sigma, keep, fit, section, behind, settings
+        )
         # Where no beam reads the rod cleanly the echo may be merged and still look like an arc:
         # the covariance takes every beam's whole bound. Where some do, the blended edge beams
         # show as residuals (the misfit test below allows them their bound).
@@ -1052,7 +1096,11 @@ def _fit_segment(
     used = points[keep]
     fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
     fit = _with_edge_doubt(used, sigma[keep], fit, section, settings)
-    if keep.size <= settings.symmetry_check_max_beams:
+    # Beams narrower than the rod (a dark rod before a far wall shows only its middle; a core
+    # whose blended flanks were dropped) give their sideways position from a flat arc too: the
+    # profile's symmetry checks it likewise.
+    narrow = _size_mismatch(scan, beams[keep], section, settings) is None
+    if keep.size <= settings.symmetry_check_max_beams or narrow:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies off the surface by up to its bound, and the arc's range error by up
@@ -1061,10 +1109,20 @@ def _fit_segment(
     misfit = np.fmax(np.abs(fit.residuals_m) - allowed_m, 0.0)
     misfit_rms = float(np.sqrt(np.mean(misfit**2)))
     if misfit_rms > settings.max_rms_radius_fraction * section.radius_m + 3.0 * float(np.median(sigma[keep])):
-        raise RodNotFoundError(
+        refusal = RodNotFoundError(
             f"segment of {keep.size} beams is not a rod of radius {section.radius_m * 1000:.1f} mm "
             f"(fit RMS {rms * 1000:.1f} mm)"
         )
+        inner = _without_blended_flanks(beams[keep], bound_m[keep], sigma[keep], section, settings)
+        if inner.size == keep.size:
+            raise refusal
+        try:
+            return _fit_segment(
+                scan, sigma_all, inner, section, settings,
+                ramp_beams=ramp_beams + beams.size - inner.size, behind=behind,
+            )
+        except RodNotFoundError:
+            raise refusal from None
     span = _arc_span_deg(used, fit.centre_uv_m, section)
     estimated_radius = None
     if keep.size >= settings.min_beams_for_radius and span >= settings.min_arc_span_for_radius_deg:
@@ -1144,8 +1202,12 @@ def _blend(
 
     The share is the part of the spot passing beside the rod (a gaussian spot across the
     rod's silhouette); with intensities it is weighted by the background's power against
-    the beam's (the UTM's intensity grows like the square root of the power).  The
-    allowance is the share times the depth behind, where that depth merges into one echo."""
+    the beam's (the UTM's intensity grows like the square root of the power).  It counts
+    only where the background merges into the rod's echo (less than ``echo_merge_m``
+    behind): a surface farther behind returns its own echo, and a beam that reads the rod
+    reads the rod alone (a 4 mm rod at 0.1 m before a wall 2.5 m behind was refused as
+    "every beam blends it" though each of its 18 beams read the rod's range).  The
+    allowance is the share times the depth behind."""
     ranges = scan.ranges_m[beams]
     angles = scan.angles_rad[beams]
     offset = np.sin(angles) * centre[0] - np.cos(angles) * centre[1]
@@ -1159,7 +1221,63 @@ def _blend(
     with np.errstate(invalid="ignore"):
         depth = behind.ranges_m[beams] - ranges
         merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
-    return share, np.where(merged, share * np.where(merged, depth, 0.0), 0.0)
+    share = np.where(merged, share, 0.0)
+    return share, share * np.where(merged, depth, 0.0)
+
+
+def _drop_blended_edges(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    points: FloatArray,
+    sigma: FloatArray,
+    keep: NDArray[np.int64],
+    fit: _Fit,
+    section: _Section,
+    behind: _Behind,
+    settings: ExtractionSettings,
+) -> tuple[NDArray[np.int64], _Fit, FloatArray, FloatArray]:
+    """The fit without an edge beam that is more background than rod by its centre (its spot
+    passes mostly beside the rod and the surface behind merges into its echo) while the other
+    edge beam reads the rod cleanly, refitted until the two edges agree; with every beam's
+    blend share and bound by the last centre.
+
+    Such a beam reads well behind the rod's surface, and a known-radius fit bends towards it:
+    a dark 45 mm rod at 1 m before a wall 0.3 m behind kept two blends (+14 and +49 mm) on one
+    side of its core and none on the other, and its centre sat 13.6 mm sideways (3.1 std);
+    a 20 mm rod at 0.3 m was "not a rod" for the same reason. Edges blended alike on both
+    sides are left to the blend bounds (the ideal scanner's silhouette edges, which read the
+    rod's own surface: dropping them cost its median error 0.40 -> 0.47 mm)."""
+    while True:
+        share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
+        if keep.size <= settings.min_beams:
+            return keep, fit, share, bound_m
+        first, last = share[keep[0]], share[keep[-1]]
+        if max(first, last) <= settings.max_blend_share or min(first, last) > settings.doubtful_blend_share:
+            return keep, fit, share, bound_m
+        kept = keep[1:] if first > last else keep[:-1]
+        if kept.size < settings.min_beams:
+            return keep, fit, share, bound_m
+        inner, fit = _drop_mixed_edges(points[kept], sigma[kept], section, settings)
+        keep = kept[inner]
+
+
+def _without_blended_flanks(
+    beams: NDArray[np.int64],
+    bound_m: FloatArray,
+    sigma: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> NDArray[np.int64]:
+    """The beams without the runs at either end whose blend bound exceeds what a beam of the
+    rod may lie off its surface (its noise and the shape tolerance, as in ``_rod_core``): a
+    segment whose flanks merged with a wall close behind on both sides, which the fit could
+    not take as a rod (20 mm painted rods at 0.2-0.3 m before a wall 0.3 m behind: "not a
+    rod, fit RMS 7-8 mm"), is tried again on its middle (fewer than ``min_beams``: unchanged)."""
+    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
+    clean = np.flatnonzero(bound_m <= settings.edge_residual_sigmas * sigma + tolerance)
+    if clean.size < settings.min_beams:
+        return beams
+    return beams[clean[0] : clean[-1] + 1]
 
 
 def _blend_refusal(
