@@ -251,7 +251,7 @@ def solve(
             kept, extras = _significant_terms(rotation, translation, data, used, opts, extras)
             if kept:
                 break
-            curve = data.range_curve_m[: extras.range_terms]
+            curve = _lower_curve(rotation, translation, data, used, extras.range_terms)
             rotation, translation, data, used, more = _fit(
                 rotation, translation, data.with_line(data.rod, curve), usable, used, robust, opts, extras
             )
@@ -817,6 +817,24 @@ def _significant_terms(
     note += "left out"
     notes = "; ".join(n for n in (extras.offset_note, note) if n)
     return False, replace(extras, range_terms=terms - 1, offset_note=notes)
+
+
+def _lower_curve(
+    rotation: FloatArray, translation: FloatArray, data: _Data, used: np.ndarray, terms: int
+) -> FloatArray:
+    """The start of the fit with ``terms`` terms when a higher one is left out: the curve of
+    that many terms closest (least squares) to the fitted one at the used crossings'
+    distances. Not the fitted curve cut short: its terms are powers of ``ln(d / 1 m)``, and
+    crossings all on one side of 1 m make them large and cancelling (a 7-waypoint job at
+    0.3-0.55 m fitted -203, -1092, -2112, -1736, -517 mm), so the cut curve is hundreds of
+    mm off where the rod was seen and the robust fit from there rejects good waypoints."""
+    if not terms:
+        return np.zeros(0)
+    crossing, _, _ = plane_crossing(rotation, translation, data.origins[used], data.directions[used])
+    distances_m = np.linalg.norm(crossing, axis=1)
+    fitted, _ = range_error_m(data.range_curve_m, distances_m)
+    lower, *_ = np.linalg.lstsq(range_error_basis(distances_m, terms), fitted, rcond=None)
+    return lower
 
 
 def _degrees_of_freedom(used: np.ndarray, extras: _Extras) -> int:
