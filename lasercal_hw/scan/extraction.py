@@ -155,10 +155,15 @@ class ExtractionSettings:
     #: surface close behind, a bright rod's halo). A 4 mm taped rod at 0.1-0.15 m before a wall
     #: 0.3 m behind lights 13-19 deg of beams and reads the wall in every beam at 2-4 % of its
     #: echo (the tape outshines it): every beam 3 mm long, the centre 3-7 mm long against
-    #: 0.8-1.5 mm std. Without that sign (the ideal scanner: exact rays, no ramps) the spot
-    #: model's share is no evidence of a blend.
+    #: 0.8-1.5 mm std. Without that sign (the ideal scanner: exact rays, no steady ramps; its
+    #: flipping edge beams are trimmed as unstable) the spot model's share is no evidence of a
+    #: blend. Where the spot shows, a fit of ``symmetry_check_max_beams`` or fewer also takes
+    #: its beams' blend bounds into its covariance (``_with_shared_push``): its edge beams'
+    #: spots reach the surface behind and read long, which its one or two spare beams cannot
+    #: show (a 45 mm rod at 2-3 m before a wall 0.3 m behind, 3-5 beams: 1.6-3.1 mm long
+    #: against 0.45-0.7 mm std).
     doubtful_blend_share_spot_shown: float = 0.01
-    spot_shown_ramp_beams: int = 4
+    spot_shown_ramp_beams: int = 2
     #: A centre whose blend allowance (std) exceeds this carries a warning.
     warn_blend_std_m: float = 0.005
     #: What the scanner's range-error curve (one value per distance) leaves across one rod's
@@ -1059,6 +1064,8 @@ def _fit_segment(
     sigma = sigma_all[beams]
     keep, fit = _drop_mixed_edges(points, sigma, section, settings)
     bound_m = np.zeros(beams.size)
+    spot_shown = ramp_beams >= settings.spot_shown_ramp_beams
+    bound_in_fit = False
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         keep, fit, share, bound_m = _drop_blended_edges(
             scan, beams, points, sigma, keep, fit, section, behind, settings
@@ -1066,15 +1073,21 @@ def _fit_segment(
         # Where no beam reads the rod cleanly the echo may be merged and still look like an arc:
         # the covariance takes every beam's whole bound. Where some do, the blended edge beams
         # show as residuals (the misfit test below allows them their bound).
-        spot_shown = ramp_beams >= settings.spot_shown_ramp_beams
         doubtful = settings.doubtful_blend_share_spot_shown if spot_shown else settings.doubtful_blend_share
-        if float(np.min(share[keep])) > doubtful:
+        bound_in_fit = float(np.min(share[keep])) > doubtful
+        if bound_in_fit:
             inner, fit = _drop_mixed_edges(points[keep], sigma[keep], section, settings, bound_m[keep])
             keep = keep[inner]
         if float(np.min(share[keep])) > settings.max_blend_share:
             raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
     used = points[keep]
     fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
+    if spot_shown and not bound_in_fit and keep.size <= settings.symmetry_check_max_beams:
+        # A fit of few beams takes its range from its edge beams too, whose spots reach past
+        # the rod onto the surface close behind: the blend pushes them long, and the fit's one
+        # or two spare beams cannot show it (a 45 mm rod at 2-3 m before a wall 0.3 m behind,
+        # 3-5 beams: 1.6-3.1 mm long against 0.45-0.7 mm std).
+        fit = _with_shared_push(used, sigma[keep], np.zeros(keep.size), bound_m[keep], fit, section, settings)
     fit = _with_edge_doubt(used, sigma[keep], fit, section, settings)
     # Beams narrower than the rod (a dark rod before a far wall shows only its middle; a core
     # whose blended flanks were dropped) give their sideways position from a flat arc too: the
@@ -1301,9 +1314,23 @@ def _with_arc_bias(
     section: _Section,
     settings: ExtractionSettings,
 ) -> _Fit:
-    """The fit with the arc's range-error variation (``_arc_bias_m``) in its covariance: the
-    centre's move were every beam's range off by it (shared by neighbours, so taken whole)."""
+    """The fit with the arc's range-error variation (``_arc_bias_m``) in its covariance."""
     push_m = _arc_bias_m(scan, beams, settings)
+    return _with_shared_push(points, sigma, blend_m, push_m, fit, section, settings)
+
+
+def _with_shared_push(
+    points: FloatArray,
+    sigma: FloatArray,
+    blend_m: FloatArray,
+    push_m: FloatArray,
+    fit: _Fit,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> _Fit:
+    """The fit with the centre's move were every beam's range off by ``push_m`` in its
+    covariance (shared by neighbours, so taken whole); ``blend_m``: blend allowances already
+    in the beams' sigmas."""
     if not np.any(push_m > 0.0):
         return fit
     _, normals = _residuals(points, fit.centre_uv_m, section, section.radius_m)
