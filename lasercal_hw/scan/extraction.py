@@ -157,13 +157,15 @@ class ExtractionSettings:
     #: echo (the tape outshines it): every beam 3 mm long, the centre 3-7 mm long against
     #: 0.8-1.5 mm std. Without that sign (the ideal scanner: exact rays, no steady ramps; its
     #: flipping edge beams are trimmed as unstable) the spot model's share is no evidence of a
-    #: blend. Where the spot shows, a fit of ``symmetry_check_max_beams`` or fewer also takes
-    #: its beams' blend bounds into its covariance (``_with_shared_push``): its edge beams'
-    #: spots reach the surface behind and read long, which its one or two spare beams cannot
-    #: show (a 45 mm rod at 2-3 m before a wall 0.3 m behind, 3-5 beams: 1.6-3.1 mm long
-    #: against 0.45-0.7 mm std).
+    #: blend. Steady beams beside the rod between its edge and the surface behind (a far rod's
+    #: ramps, split off its segment by their range jumps: ``_steady_beams_beside``) show the
+    #: spot too (3 or more: an exact ray grazing the rod reads one such beam a side). Where it
+    #: shows, a fit of ``symmetry_check_max_beams`` or fewer also takes its beams' blend bounds
+    #: into its covariance (``_with_shared_push``): its edge beams' spots reach the surface
+    #: behind and read long, which its one or two spare beams cannot show (a 45 mm rod at 2-3
+    #: m before a wall 0.3 m behind, 3-5 beams: 1.6-3.1 mm long against 0.45-0.7 mm std).
     doubtful_blend_share_spot_shown: float = 0.01
-    spot_shown_ramp_beams: int = 2
+    spot_shown_ramp_beams: int = 3
     #: A centre whose blend allowance (std) exceeds this carries a warning.
     warn_blend_std_m: float = 0.005
     #: What the scanner's range-error curve (one value per distance) leaves across one rod's
@@ -1064,7 +1066,10 @@ def _fit_segment(
     sigma = sigma_all[beams]
     keep, fit = _drop_mixed_edges(points, sigma, section, settings)
     bound_m = np.zeros(beams.size)
-    spot_shown = ramp_beams >= settings.spot_shown_ramp_beams
+    spot_shown = behind is not None and (
+        max(ramp_beams, _steady_beams_beside(scan, sigma_all, beams, behind, settings))
+        >= settings.spot_shown_ramp_beams
+    )
     bound_in_fit = False
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         keep, fit, share, bound_m = _drop_blended_edges(
@@ -1251,6 +1256,31 @@ def _drop_blended_edges(
             return keep, fit, share, bound_m
         inner, fit = _drop_mixed_edges(points[kept], sigma[kept], section, settings)
         keep = kept[inner]
+
+
+def _steady_beams_beside(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    beams: NDArray[np.int64],
+    behind: _Behind,
+    settings: ExtractionSettings,
+) -> int:
+    """How many beams beside the rod (both sides, up to ``max_ramp_beams`` each) read
+    steadily between its edge and the surface behind: the beam's spot straddling the two
+    (a far rod's ramps, split off its segment by their range jumps). An exact ray reads one
+    surface or flips between them (unstable: ``_unstable_beams``), so it counts none."""
+    ranges = scan.ranges_m
+    unstable = _unstable_beams(scan, settings)
+    count = 0
+    for edge, step in ((int(beams[0]), -1), (int(beams[-1]), 1)):
+        i = edge + step
+        while 0 <= i < ranges.size and abs(i - edge) <= settings.max_ramp_beams and not unstable[i]:
+            margin = max(settings.min_depth_below_background_m, settings.background_sigmas * float(sigma[i]))
+            if not ranges[edge] < ranges[i] < behind.ranges_m[i] - margin:  # NaN: False
+                break
+            count += 1
+            i += step
+    return count
 
 
 def _without_blended_flanks(
