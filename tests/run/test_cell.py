@@ -14,11 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lasercal_hw.config import load_job
+from lasercal_hw.config import job_from_mapping, load_job
 from lasercal_hw.errors import DeviceError, InterruptedRunError
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell
 from lasercal_hw.run.engine import RunEvent
+from lasercal_hw.run.replay import replay_shared_centres
 from lasercal_hw.session.reader import read_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(400)]
@@ -152,11 +153,29 @@ def test_both_scanners_calibrated_and_their_transform_within_its_std(
 
 
 def test_the_other_scanner_measures_the_rod_where_it_sees_it(stopped_and_resumed: StoppedAndResumed) -> None:
-    shared = read_session(stopped_and_resumed.out / "rear" / "session.mcap").events_of("shared_observation")
+    recording = read_session(stopped_and_resumed.out / "rear" / "session.mcap")
+    shared = recording.events_of("shared_observation")
     assert shared and {event["scanner"] for event in shared} == {"front"}
     for event in shared:  # the centre near where front's nominal pose put it
         offset_m = np.subtract(event["centre_uv_m"], event["expected_uv_m"])
         assert np.linalg.norm(offset_m) < 0.15 and event["scans"] >= 10, event
+    # front's scans are in rear's recording (its own topic), those of a window kept from before the
+    # resume too, and a replay computes every centre again from them as the live watcher did
+    watched = recording.scans_by_scanner["front"]
+    for event in shared:
+        start_s, end_s = event["window_start_s"], event["window_end_s"]
+        assert len([s for s in watched if start_s <= s.device_time_s < end_s]) == event["scans"], event
+    job = job_from_mapping(json.loads((stopped_and_resumed.out / CELL_FILE).read_text())["job"])
+    nominals = {name: job.for_scanner(name).scanner.nominal for name in job.scanner_names()}
+    replayed = replay_shared_centres(recording, job.for_scanner("rear").rod.rod_line(), nominals)
+    assert replayed.notes == {}
+    for event in shared:
+        _, centre_uv_m, _ = replayed.centres["front"][event["index"]]
+        np.testing.assert_allclose(centre_uv_m, event["centre_uv_m"], rtol=0, atol=1e-12)
+    recordings = [read_session(stopped_and_resumed.out / name / "session.mcap") for name in ("front", "rear")]
+    latest = {(e["scanner"], e["index"]) for r in recordings for e in r.events_of("shared_observation")}
+    (pair,) = json.loads((stopped_and_resumed.out / CELL_FILE).read_text())["pairs"]
+    assert pair["agreement"]["watcher_centres"] == {"recomputed": len(latest), "notes": []}
 
 
 def test_a_stopped_cell_job_resumes_at_the_scanner_and_waypoint_where_it_stopped(
