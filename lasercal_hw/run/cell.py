@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import logging
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -44,8 +43,6 @@ CELL_FILE = "cell.json"
 #: before a resume): ``scanner``, ``folder``, ``passed``, ``kept``. A daemon files the scanner's
 #: calibration on it, so a job killed later keeps it in the history.
 SCANNER_RESULT = "scanner_result"
-
-logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -300,7 +297,7 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
     covariance, the two poses' agreement where both scanners saw the rod at one waypoint
     (``calibration/agreement``), and against the truth when both have one (a dry run)."""
     replayed = {name: _recorded_centres(folder / name, name, job) for name in outcomes}
-    centres = {name: centres for name, (centres, _) in replayed.items()}
+    centres = {name: found for name, (found, _) in replayed.items()}
     names = list(outcomes)
     pairs = []
     for i, a in enumerate(names):
@@ -379,8 +376,6 @@ def _recorded_centres(
     nominals = {other: job.for_scanner(other).scanner.nominal for other in job.scanner_names()}
     recording = read_session(folder / SESSION_FILE)
     replayed = replay_shared_centres(recording, job.for_scanner(name).rod.rod_line(), nominals)
-    for note in (note for notes in replayed.notes.values() for note in notes):
-        logger.warning("%s", note)
     return {None: own} | dict(replayed.centres), replayed
 
 
