@@ -7,13 +7,16 @@ from __future__ import annotations
 
 import itertools
 import json
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from lasercal_hw.cli.main import app
 from lasercal_hw.config import job_from_mapping, load_job
 from lasercal_hw.errors import DeviceError, InterruptedRunError
 from lasercal_hw.run.cancel import CancelToken
@@ -21,6 +24,8 @@ from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrat
 from lasercal_hw.run.engine import RunEvent
 from lasercal_hw.run.replay import replay_shared_centres
 from lasercal_hw.session.reader import read_session
+from tests.run.test_cell_watcher_replay import as_before_watchers_scans
+from tests.run.test_replay import _copy
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(400)]
 
@@ -176,6 +181,29 @@ def test_the_other_scanner_measures_the_rod_where_it_sees_it(stopped_and_resumed
     latest = {(e["scanner"], e["index"]) for r in recordings for e in r.events_of("shared_observation")}
     (pair,) = json.loads((stopped_and_resumed.out / CELL_FILE).read_text())["pairs"]
     assert pair["agreement"]["watcher_centres"] == {"recomputed": len(latest), "notes": []}
+
+
+def test_a_cell_recording_from_before_the_watchers_scans_reuses_their_centres_and_says_so(
+    stopped_and_resumed: StoppedAndResumed, tmp_path: Path,
+) -> None:
+    """``lasercal run --resume`` on the finished job's folder writes its pairs again from the
+    recordings (no device needed); rear's recording made as an older version wrote it."""
+    out = tmp_path / "out"
+    shutil.copytree(stopped_and_resumed.out, out)
+    rear = out / "rear" / "session.mcap"
+    _copy(rear, tmp_path / "old.mcap", as_before_watchers_scans("front")).replace(rear)
+    indices = ", ".join(str(e["index"]) for e in read_session(rear).events_of("shared_observation"))
+
+    result = CliRunner().invoke(app, ["run", "--resume", str(out)], env={"COLUMNS": "2000"})
+
+    assert result.exit_code == 0, result.output
+    note = (f"{rear}: front's centres at waypoints {indices} are reused as recorded: the recording holds "
+            "no scans of them (written before a watcher's scans were recorded), so they cannot be computed "
+            "again")
+    assert f"watcher centre: {note}" in " ".join(result.output.split())
+    (pair,) = json.loads((out / CELL_FILE).read_text())["pairs"]
+    recomputed = len(read_session(out / "front" / "session.mcap").events_of("shared_observation"))
+    assert pair["agreement"]["watcher_centres"] == {"recomputed": recomputed, "notes": [note]}
 
 
 def test_a_stopped_cell_job_resumes_at_the_scanner_and_waypoint_where_it_stopped(

@@ -6,6 +6,7 @@ recording without them says which centres it reused and why. Simulated devices, 
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -90,21 +91,27 @@ def test_a_replay_computes_every_watcher_centre_again_as_the_live_watcher_did(re
         np.testing.assert_allclose(covariance_uv_m2, event["covariance_uv_m2"], rtol=1e-9, atol=1e-18)
 
 
-def _old(topic: str, data: bytes) -> bytes | None:
-    """A recording as written before the watchers' scans were: none of them, no window."""
-    if topic in WATCH_TOPICS:
-        return None
-    if topic == TOPIC_EVENT:
-        event = json.loads(data)
-        if event["kind"] == SHARED_OBSERVATION:
-            event.pop("window_start_s")
-            event.pop("window_end_s")
-        return json.dumps(event).encode()
-    return data
+def as_before_watchers_scans(name: str) -> Callable[[str, bytes], bytes | None]:
+    """A recording's messages as written before the watcher ``name``'s scans were recorded:
+    none of its scans, no window in its events (for ``tests/run/test_replay._copy``)."""
+    dropped = scan_topics(name)[:2]
+
+    def change(topic: str, data: bytes) -> bytes | None:
+        if topic in dropped:
+            return None
+        if topic == TOPIC_EVENT:
+            event = json.loads(data)
+            if event["kind"] == SHARED_OBSERVATION and event["scanner"] == name:
+                event.pop("window_start_s")
+                event.pop("window_end_s")
+            return json.dumps(event).encode()
+        return data
+
+    return change
 
 
 def test_an_older_recording_reuses_the_recorded_centres_and_says_so(recorded: Path, tmp_path: Path) -> None:
-    recording = read_session(_copy(recorded, tmp_path / "old.mcap", _old))
+    recording = read_session(_copy(recorded, tmp_path / "old.mcap", as_before_watchers_scans("rear")))
     replayed = _replay(recording)
     shared = recording.events_of(SHARED_OBSERVATION)
     assert replayed.recomputed == {}
