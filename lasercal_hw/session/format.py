@@ -57,6 +57,7 @@ def scanner_of_topic(topic: str, family: str) -> tuple[bool, str | None]:
         return True, topic[len(family) + 1 :]
     return False, None
 
+
 UR_JOINT_NAMES = (
     "shoulder_pan_joint",
     "shoulder_lift_joint",
