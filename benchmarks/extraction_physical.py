@@ -1,6 +1,7 @@
 """Rod extraction on the physical scanner model, beside the ideal model in the same run.
 
-    .venv/bin/python -m benchmarks.extraction_physical [--seeds 1] [--scans 40] [--quick] [--misses]
+    .venv/bin/python -m benchmarks.extraction_physical [--seeds 1] [--first-seed 0] [--scans 40]
+        [--quick] [--misses]
 
 Rods of radius 4 mm (a twist drill and cylinders), 10, 20 and 45 mm, of every material,
 0.1 to 3 m from the scanner at random bearings, with a wall 0.3 m (near) or 2.5 m (far)
@@ -21,10 +22,13 @@ it; the solver's estimated curve (one to three terms) leaves some of it, not jud
 Per rod and material, and per range: the positions judged, how many were found, the
 fraction of error components within 2.5 reported std (90-99 % when the covariance is
 honest), how many centres lie more than 3 reported std from the truth without a warning
-(``RodCentre.warnings``; skipped positions included), the median error, and the skipped
-positions.  The ideal model's figures for the same positions are the reference (issue 18
-asks for >= 99 % found, no silent > 3 std centre, 90-99 % within 2.5 std).  ``--misses``
+(``RodCentre.warnings``; skipped positions included), how many centres carry a warning and
+how many of those are more than 3 std off (a warning must be earned: one on every good centre
+teaches users to ignore it), the median error, and the skipped positions.  The ideal
+model's figures for the same positions are the reference (issue 18 asks for >= 99 % found,
+no silent > 3 std centre, 90-99 % within 2.5 std).  ``--misses``
 prints every judged position not found and every silent > 3 std centre, with the reason.
+``--first-seed`` picks other seeds and bearings: tune on those, report the default.
 """
 
 from __future__ import annotations
@@ -81,6 +85,8 @@ class Tally:
     skipped: int = 0
     components: list[float] = field(default_factory=list)
     silent_off: int = 0
+    warned: int = 0
+    warned_off: int = 0
     errors_mm: list[float] = field(default_factory=list)
 
     def add(self, outcome: Outcome) -> bool:
@@ -94,8 +100,11 @@ class Tally:
             whitened = np.linalg.solve(np.linalg.cholesky(outcome.covariance), outcome.error_m)
         except np.linalg.LinAlgError:
             whitened = np.full(2, np.inf)
-        silent = float(np.linalg.norm(whitened)) > OFF_STD and not outcome.warned
+        off = float(np.linalg.norm(whitened)) > OFF_STD
+        silent = off and not outcome.warned
         self.silent_off += silent
+        self.warned += outcome.warned
+        self.warned_off += off and outcome.warned
         if judged:
             self.found += 1
             self.errors_mm.append(1000.0 * float(np.linalg.norm(outcome.error_m)))
@@ -108,6 +117,8 @@ class Tally:
         self.skipped += other.skipped
         self.components += other.components
         self.silent_off += other.silent_off
+        self.warned += other.warned
+        self.warned_off += other.warned_off
         self.errors_mm += other.errors_mm
 
     def row(self) -> str:
@@ -118,7 +129,8 @@ class Tally:
         median = np.median(self.errors_mm) if self.errors_mm else float("nan")
         return (
             f"{self.found:4d}/{self.positions:<4d} {found:5.1f} %  {100 * within:5.1f} %  "
-            f"{self.silent_off:4d}  {median:7.2f} mm  {self.skipped:3d}"
+            f"{self.silent_off:4d}  {self.warned:3d} ({self.warned_off:3d})  "
+            f"{median:7.2f} mm  {self.skipped:3d}"
         )
 
 
@@ -194,6 +206,10 @@ def measure(
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=1, help="random bearings per position (default 1)")
+    parser.add_argument(
+        "--first-seed", type=int, default=0,
+        help="first seed and bearing set (default 0; tune on others, e.g. 100, and report 0)",
+    )
     parser.add_argument("--scans", type=int, default=40, help="scans per dwell (default 40, 1 s)")
     parser.add_argument("--quick", action="store_true", help="every other range, near background only")
     parser.add_argument("--misses", action="store_true", help="print every miss and silent wrong centre")
@@ -203,14 +219,14 @@ def main(argv: list[str] | None = None) -> int:
     by_rod: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
     by_range: dict[tuple[str, float], Tally] = defaultdict(Tally)
     skip_reasons: dict[str, int] = defaultdict(int)
-    rng = np.random.default_rng(18)
+    rng = np.random.default_rng(18 + args.first_seed)
     for label, radius_m, shape, materials in RODS:
         for material in materials:
             for range_m in ranges:
                 if beams_on_rod(range_m, radius_m) < MIN_BEAMS:
                     continue
                 for background_name, background_m in backgrounds.items():
-                    for seed in range(args.seeds):
+                    for seed in range(args.first_seed, args.first_seed + args.seeds):
                         bearing = float(rng.uniform(-1.2, 1.2))
                         for model in ("physical", "ideal"):
                             outcome = measure(
@@ -228,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
                                     f"bearing {bearing:+.3f} rad, seed {seed}, "
                                     f"{outcome.own_beams} own beams: {what}"
                                 )
-    header = "  found            within 2.5 std  >3 std silent  median error  skipped"
+    header = "  found            within 2.5 std  >3 std silent  warned (off)  median error  skipped"
     print(
         f"positions with >= {MIN_BEAMS} beams on the rod; {args.scans} scans per dwell; "
         f"backgrounds {', '.join(f'{k} {v} m' for k, v in backgrounds.items())}; {args.seeds} seed(s); "

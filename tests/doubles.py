@@ -250,12 +250,16 @@ class MemoryRecorder:
     """Keeps what the sequencer records, in order."""
 
     scans: list[LaserScan] = field(default_factory=list)
+    watcher_scans: dict[str, list[LaserScan]] = field(default_factory=dict)
     poses: list[tuple[float, FloatArray]] = field(default_factory=list)
     joints: list[tuple[float, FloatArray]] = field(default_factory=list)
     events: list[tuple[float, str, dict]] = field(default_factory=list)
 
-    def write_scan(self, scan: LaserScan) -> None:
-        self.scans.append(scan)
+    def write_scan(self, scan: LaserScan, scanner: str | None = None) -> None:
+        if scanner is None:
+            self.scans.append(scan)
+        else:
+            self.watcher_scans.setdefault(scanner, []).append(scan)
 
     def write_tcp_pose(self, host_time_s: float, pose: FloatArray) -> None:
         self.poses.append((host_time_s, pose))

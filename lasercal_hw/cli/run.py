@@ -270,6 +270,8 @@ def _print_cell_summary(report: CellReport) -> None:
         console.print(escape(line))
         agreement = pair["agreement"]
         console.print(escape(f"  agreement: {agreement['verdict']} ({agreement['reason']})"))
+        for note in agreement.get("watcher_centres", {}).get("notes", []):  # reused or left out, and why
+            console.print(f"  [yellow]watcher centre:[/] {escape(note)}")
         if "joint" in pair:
             joint_mm = ", ".join(f"{v:.2f}" for v in pair["joint"]["std_translation_mm"])
             console.print(escape(f"  with the shared centres used jointly: std {joint_mm} mm (its joint)"))

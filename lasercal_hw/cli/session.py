@@ -34,6 +34,7 @@ def _summary(recording: SessionRecording) -> dict[str, Any]:
         "truncated": recording.truncated,
         "truncation_reason": recording.truncation_reason,
         "scans": len(recording.scans),
+        "watcher_scans": {name: len(scans) for name, scans in recording.scans_by_scanner.items()},
         "scan_time_span_s": (max(times) - min(times)) if times else 0.0,
         "tcp_poses": len(recording.tcp_poses),
         "joint_states": len(recording.joint_states),
@@ -61,6 +62,8 @@ def info(
         f"scans {summary['scans']} over {summary['scan_time_span_s']:.1f} s, "
         f"TCP poses {summary['tcp_poses']}, joint states {summary['joint_states']}"
     )
+    for name, count in summary["watcher_scans"].items():  # a cell's other scanners (docs/cell.md)
+        console.print(f"scans of {escape(name)}, watching: {count}")
     console.print("events: " + (", ".join(f"{k} {n}" for k, n in summary["events"].items()) or "none"))
     console.print("meta: " + (", ".join(summary["meta_keys"]) or "none"))
     for window in summary["dwell_windows"]:

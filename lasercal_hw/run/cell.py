@@ -35,7 +35,7 @@ from lasercal_hw.run.dry_run_cell import DryRunCell, start_fake_cell
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate
 from lasercal_hw.run.events import EventSink
 from lasercal_hw.run.outputs import OBSERVATIONS_FILE, RESULT_FILE, SESSION_FILE, read_result_file, write_text
-from lasercal_hw.run.watchers import SHARED_OBSERVATION
+from lasercal_hw.run.replay import ReplayedSharedCentres, replay_shared_centres
 from lasercal_hw.session.reader import read_session
 
 CELL_FILE = "cell.json"
@@ -299,7 +299,8 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
     """Every scanner-to-scanner transform ``T_a_b`` (a before b in the job's order) with its
     covariance, the two poses' agreement where both scanners saw the rod at one waypoint
     (``calibration/agreement``), and against the truth when both have one (a dry run)."""
-    centres = {name: _recorded_centres(folder / name) for name in outcomes}
+    replayed = {name: _recorded_centres(folder / name, name, job) for name in outcomes}
+    centres = {name: found for name, (found, _) in replayed.items()}
     outcomes = {
         name: replace(outcome, first_pass_scatter_uv_m2=first_pass_scatter_uv_m2(
             _first_pass_centres(folder / name),
@@ -309,7 +310,17 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
         for name, outcome in outcomes.items()
     }
     names = list(outcomes)
-    return [pair_document(a, b, outcomes, centres, job) for i, a in enumerate(names) for b in names[i + 1:]]
+    pairs = []
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            pair = pair_document(a, b, outcomes, centres, job)
+            watched = (replayed[a][1], b), (replayed[b][1], a)  # b at a's waypoints, a at b's
+            pair["agreement"]["watcher_centres"] = {
+                "recomputed": sum(run.recomputed.get(other, 0) for run, other in watched),
+                "notes": [note for run, other in watched for note in run.notes.get(other, [])],
+            }
+            pairs.append(pair)
+    return pairs
 
 
 def _transform_document(T_ab: FloatArray, covariance: FloatArray, note: str) -> dict[str, Any]:
@@ -362,19 +373,21 @@ RecordedCentres = dict[str | None, dict[int, tuple[Any, Any, Any]]]
 CURVE_REACH_M = 0.1
 
 
-def _recorded_centres(folder: Path) -> RecordedCentres:
-    """A scanner's centres: its own as its solve used them (``observations.csv``: second pass,
-    range offset removed) and those its run's watchers measured (``shared_observation`` events,
-    run/watchers); empty without a recording."""
+def _recorded_centres(
+    folder: Path, name: str, job: JobConfig
+) -> tuple[RecordedCentres, ReplayedSharedCentres]:
+    """Scanner ``name``'s centres: its own as its solve used them (``observations.csv``: second
+    pass, range offset removed) and those its run's watchers measured, each computed again from
+    the watcher's recorded scans (``run/replay.replay_shared_centres``, with what it could not);
+    empty without a recording."""
     if not (folder / SESSION_FILE).is_file() or not (folder / OBSERVATIONS_FILE).is_file():
-        return {}
+        return {}, ReplayedSharedCentres()
     own = {o.index: (o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2)
            for o in read_observations_csv(folder / OBSERVATIONS_FILE)}
-    centres: RecordedCentres = {None: own}
-    for event in read_session(folder / SESSION_FILE).events_of(SHARED_OBSERVATION):
-        entry = (event["tcp_pose"], event["centre_uv_m"], event["covariance_uv_m2"])
-        centres.setdefault(event["scanner"], {})[int(event["index"])] = entry  # measured again: the last
-    return centres
+    nominals = {other: job.for_scanner(other).scanner.nominal for other in job.scanner_names()}
+    recording = read_session(folder / SESSION_FILE)
+    replayed = replay_shared_centres(recording, job.for_scanner(name).rod.rod_line(), nominals)
+    return {None: own} | dict(replayed.centres), replayed
 
 
 def _first_pass_centres(folder: Path) -> dict[int, FloatArray]:

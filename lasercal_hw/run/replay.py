@@ -8,12 +8,17 @@ same two-pass function (``solve_two_pass``), so the replay reproduces the live r
 Where a centre cannot be re-extracted (its scans are missing, no rod is found, or the rod
 found is not where the live run saw it) the replay says so per waypoint and drops the
 waypoint, unless ``use_recorded_centres`` keeps the centre the live run recorded.
+
+A cell job's recording also holds its watchers' scans and centres (``run/watchers``):
+``replay_shared_centres`` computes those centres again from their scans with the live
+watcher's own function, and says which it could not and why (docs/cell.md).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +27,7 @@ import numpy as np
 from lasercal_hw.calibration.consensus import CONSENSUS_WAYPOINTS, provisional_pose
 from lasercal_hw.config import JobConfig, NominalPose, with_overrides
 from lasercal_hw.errors import CalibrationError, ConfigError
-from lasercal_hw.models import FloatArray, RodLine
+from lasercal_hw.models import FloatArray, LaserScan, RodLine
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.resume import (
     check_observation_events,
@@ -32,8 +37,9 @@ from lasercal_hw.run.resume import (
     window_average,
 )
 from lasercal_hw.run.two_pass import TwoPassSolution, predict_rod, solve_two_pass
+from lasercal_hw.run.watchers import SHARED_OBSERVATION, predicted_crossing, watcher_centre
 from lasercal_hw.scan.average import AveragedScan
-from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
+from lasercal_hw.scan.extraction import RodCentre, RodNotFoundError, find_rod_centre
 from lasercal_hw.session.reader import SessionRecording, read_session
 
 logger = logging.getLogger(__name__)
@@ -201,3 +207,78 @@ def _disagreement(found: np.ndarray, recorded: np.ndarray, covariance: np.ndarra
         f"({sigmas:.0f} sigma) from the recorded centre ({recorded[0]:.4f}, {recorded[1]:.4f}) m: the scans "
         "do not show what the live run saw"
     )
+
+
+#: A watcher's centre at one waypoint: ``(tcp_pose, centre_uv_m, covariance_uv_m2)``.
+SharedEntry = tuple[FloatArray, FloatArray, FloatArray]
+
+
+@dataclass
+class ReplayedSharedCentres:
+    """The centres a run's watchers measured, by watcher and waypoint, each computed again from
+    its recorded scans (``recomputed``) or, in a recording written before the watchers' scans
+    were, the recorded one; ``notes``: by watcher, every centre reused or left out, and why."""
+
+    centres: dict[str, dict[int, SharedEntry]] = field(default_factory=dict)
+    recomputed: dict[str, int] = field(default_factory=dict)
+    notes: dict[str, list[str]] = field(default_factory=dict)
+
+
+def replay_shared_centres(
+    recording: SessionRecording, rod: RodLine, nominals: Mapping[str, NominalPose | None]
+) -> ReplayedSharedCentres:
+    """Every ``shared_observation`` of ``recording`` (the last at a waypoint wins) computed again
+    as the live watcher did (``run/watchers.watcher_centre``): the scans of its window averaged,
+    the rod picked where the watcher's nominal pose (``nominals``, the cell job's) puts it. A
+    centre whose scans are incomplete, where no rod is found, or where the rod found is not the
+    recorded one is left out; a recording whose events carry no scan window (written before
+    watchers' scans were recorded) has its recorded centres reused. Each is named in ``notes``."""
+    latest = {(str(e["scanner"]), int(e["index"])): e for e in recording.events_of(SHARED_OBSERVATION)}
+    replayed = ReplayedSharedCentres()
+    reused: dict[str, list[int]] = {}
+    for (name, index), event in sorted(latest.items()):
+        tcp_pose = np.asarray(event["tcp_pose"], dtype=float)
+        recorded = recorded_centre(event)
+        if "window_start_s" not in event or "window_end_s" not in event:
+            reused.setdefault(name, []).append(index)
+            replayed.centres.setdefault(name, {})[index] = (
+                tcp_pose, recorded.centre_uv_m, recorded.covariance_uv_m2
+            )
+            continue
+        scans = recording.scans_by_scanner.get(name, [])
+        centre = _shared_centre_again(event, scans, nominals.get(name), rod)
+        if isinstance(centre, str):
+            replayed.notes.setdefault(name, []).append(
+                f"{recording.path}: {name}'s centre at waypoint {index}: {centre}; left out"
+            )
+            continue
+        replayed.centres.setdefault(name, {})[index] = (tcp_pose, centre.centre_uv_m, centre.covariance_uv_m2)
+        replayed.recomputed[name] = replayed.recomputed.get(name, 0) + 1
+    for name, indices in reused.items():
+        replayed.notes.setdefault(name, []).append(
+            f"{recording.path}: {name}'s centres at waypoints {', '.join(map(str, indices))} are reused as "
+            "recorded: the recording holds no scans of them (written before a watcher's scans were "
+            "recorded), so they cannot be computed again"
+        )
+    return replayed
+
+
+def _shared_centre_again(
+    event: dict[str, Any], scans: list[LaserScan], nominal: NominalPose | None, rod: RodLine
+) -> RodCentre | str:
+    """A watcher's centre computed again from its recorded scans, or why it cannot be."""
+    if nominal is None:
+        return "the job gives its scanner no nominal pose to pick the rod with"
+    averaged = window_average(event, scans)
+    if isinstance(averaged, str):
+        return averaged
+    expected = predicted_crossing(nominal.matrix(), np.asarray(event["tcp_pose"], dtype=float), rod)
+    if expected is None:
+        return "its nominal pose puts the rod off its plane"
+    try:
+        centre = watcher_centre(averaged, expected, rod)
+    except RodNotFoundError as exc:
+        return f"no rod found in its scans ({exc})"
+    recorded = recorded_centre(event)
+    problem = _disagreement(centre.centre_uv_m, recorded.centre_uv_m, recorded.covariance_uv_m2)
+    return centre if problem is None else problem

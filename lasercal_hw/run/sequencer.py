@@ -339,7 +339,7 @@ class Sequencer:
                 scan_timeout_s=self._job.acquisition.scan_timeout_s,
                 clock=self._clock,
                 record=self._event,
-                on_scan=lambda _scan: self._cancel.raise_if_cancelled(),
+                on_scan=lambda scan, name=watcher.name: self._on_scan(scan, name),
             )
 
     def _check_capture(self, capture: DwellCapture, drift_mm: float) -> None:
@@ -445,9 +445,10 @@ class Sequencer:
         message = f"waypoint {self._name(index)} skipped: {reason}"
         self._progress("skip", message, waypoint=index, reason=reason, averaged=averaged)
 
-    def _on_scan(self, scan: LaserScan) -> None:
-        """Record every scan; a cancel takes effect between two scans of a dwell."""
-        self._recorder.write_scan(scan)
+    def _on_scan(self, scan: LaserScan, watcher: str | None = None) -> None:
+        """Record every scan (a watcher's on its own topic); a cancel takes effect between two
+        scans of a dwell."""
+        self._recorder.write_scan(scan, watcher)
         self._cancel.raise_if_cancelled()
 
     def _stop_arm(self) -> None:

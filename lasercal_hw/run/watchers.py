@@ -5,10 +5,12 @@ pose is a *watcher*: at a waypoint where that pose says the rod crosses the watc
 inside its field of view, the watcher measures the rod at the same standstill, right after
 A's dwell, and its centre goes on record in A's recording as a ``shared_observation`` event
 (``scanner``, ``index``, ``tcp_pose``, ``centre_uv_m``, ``covariance_uv_m2``, ``quality``,
-``scans``). Where two scan planes see the rod at one waypoint both centres are then on record,
-and the cell tests whether the two poses agree (``calibration/agreement.py``). A watcher's raw
-scans are not recorded (the recording holds the calibrated scanner's); no background is taken
-for it: its nominal pose picks the rod among the scan's objects.
+``scans``, ``window_start_s``, ``window_end_s``). Every scan it reads goes into A's recording
+too, on its own topic (``/scan/NAME``), so a replay computes its centre again from them with
+``watcher_centre`` (``run/replay.replay_shared_centres``). Where two scan planes see the rod at
+one waypoint both centres are then on record, and the cell tests whether the two poses agree
+(``calibration/agreement.py``). No background is taken for a watcher: its nominal pose picks
+the rod among the scan's objects.
 """
 
 from __future__ import annotations
@@ -50,16 +52,28 @@ def expected_crossing(
 ) -> tuple[FloatArray, FloatArray] | None:
     """Where the watcher's nominal pose puts the rod's crossing (u, v) in its plane and the rod's
     axis in its frame, or None when the rod misses its plane or its field of view."""
-    predicted = predict_rod(watcher.nominal, tcp_pose, rod)
-    if predicted.expected_uv_m is None:
+    predicted = predicted_crossing(watcher.nominal, tcp_pose, rod)
+    if predicted is None:
         return None
     geometry = watcher.scanner.geometry()
-    uv = np.asarray(predicted.expected_uv_m, dtype=float)
+    uv = predicted[0]
     angle_rad = float(np.arctan2(uv[1], uv[0]))
     angle_max_rad = geometry.angle_min_rad + (geometry.beam_count - 1) * geometry.angle_increment_rad
     inside = geometry.angle_min_rad + _EDGE_MARGIN_RAD <= angle_rad <= angle_max_rad - _EDGE_MARGIN_RAD
     if not inside or not geometry.min_range_m < float(np.linalg.norm(uv)) < geometry.max_range_m:
         return None
+    return predicted
+
+
+def predicted_crossing(
+    nominal: FloatArray, tcp_pose: FloatArray, rod: RodLine
+) -> tuple[FloatArray, FloatArray] | None:
+    """Where the pose ``nominal`` puts the rod's crossing (u, v) and the rod's axis in its
+    frame, or None when the rod misses its plane: what picks the rod in a watcher's scans."""
+    predicted = predict_rod(nominal, tcp_pose, rod)
+    if predicted.expected_uv_m is None:
+        return None
+    uv = np.asarray(predicted.expected_uv_m, dtype=float)
     return uv, np.asarray(predicted.axis_in_scanner, dtype=float)
 
 
@@ -85,7 +99,8 @@ def watch_waypoint(
     on_scan: Callable[[Any], None],
 ) -> None:
     """Measure the rod with ``watcher`` at the waypoint the arm stands at, when its nominal pose
-    says it sees the rod; the centre is recorded (``record(SHARED_OBSERVATION, **fields)``).
+    says it sees the rod; every scan read goes to ``on_scan`` (the recording) and the centre is
+    recorded (``record(SHARED_OBSERVATION, **fields)``) with the window whose scans it averaged.
     A watcher that fails or finds no rod is logged and left out: it never stops the run."""
     expected = expected_crossing(watcher, tcp_pose, rod)
     if expected is None:
@@ -116,4 +131,6 @@ def watch_waypoint(
         quality=centre.quality,
         scans=len(capture.scans),
         expected_uv_m=[float(c) for c in expected[0]],
+        window_start_s=capture.window_start_host_s,
+        window_end_s=capture.window_end_host_s,
     )

@@ -154,6 +154,22 @@ class ExtractionSettings:
     #: echo that looks like an arc: its covariance takes every beam's whole bound (otherwise
     #: what the residuals show of it) and the centre carries a warning when that is large.
     doubtful_blend_share: float = 0.05
+    #: ... or this share, where the scan shows the spot wider than the rod: at least
+    #: ``spot_shown_ramp_beams`` beams were cut off the rod's segment (steady ramps into a
+    #: surface close behind, a bright rod's halo). A 4 mm taped rod at 0.1-0.15 m before a wall
+    #: 0.3 m behind lights 13-19 deg of beams and reads the wall in every beam at 2-4 % of its
+    #: echo (the tape outshines it): every beam 3 mm long, the centre 3-7 mm long against
+    #: 0.8-1.5 mm std. Without that sign (the ideal scanner: exact rays, no steady ramps; its
+    #: flipping edge beams are trimmed as unstable) the spot model's share is no evidence of a
+    #: blend. Steady beams beside the rod between its edge and the surface behind (a far rod's
+    #: ramps, split off its segment by their range jumps: ``_steady_beams_beside``) show the
+    #: spot too (3 or more: an exact ray grazing the rod reads one such beam a side). Where it
+    #: shows, a fit of ``symmetry_check_max_beams`` or fewer also takes its beams' blend bounds
+    #: into its covariance (``_with_shared_push``): its edge beams' spots reach the surface
+    #: behind and read long, which its one or two spare beams cannot show (a 45 mm rod at 2-3
+    #: m before a wall 0.3 m behind, 3-5 beams: 1.6-3.1 mm long against 0.45-0.7 mm std).
+    doubtful_blend_share_spot_shown: float = 0.01
+    spot_shown_ramp_beams: int = 3
     #: A centre whose blend allowance (std) exceeds this carries a warning.
     warn_blend_std_m: float = 0.005
     #: What the scanner's range-error curve (one value per distance) leaves across one rod's
@@ -1082,6 +1098,11 @@ def _fit_segment(
     sigma = sigma_all[beams]
     keep, fit = _drop_mixed_edges(points, sigma, section, settings)
     bound_m = np.zeros(beams.size)
+    spot_shown = behind is not None and (
+        max(ramp_beams, _steady_beams_beside(scan, sigma_all, beams, behind, settings))
+        >= settings.spot_shown_ramp_beams
+    )
+    bound_in_fit = False
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         keep, fit, share, bound_m = _drop_blended_edges(
             scan, beams, points, sigma, keep, fit, section, behind, settings
@@ -1089,8 +1110,11 @@ def _fit_segment(
         # Where no beam reads the rod cleanly the echo may be merged and still look like an arc:
         # the covariance takes every beam's whole bound. Where some do, the blended edge beams
         # show as residuals (the misfit test below allows them their bound).
-        if float(np.min(share)) > settings.doubtful_blend_share:
-            keep, fit = _drop_mixed_edges(points, sigma, section, settings, bound_m)
+        doubtful = settings.doubtful_blend_share_spot_shown if spot_shown else settings.doubtful_blend_share
+        bound_in_fit = float(np.min(share[keep])) > doubtful
+        if bound_in_fit:
+            inner, fit = _drop_mixed_edges(points[keep], sigma[keep], section, settings, bound_m[keep])
+            keep = keep[inner]
         if float(np.min(share[keep])) > settings.max_blend_share:
             raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
     used = points[keep]
@@ -1102,6 +1126,14 @@ def _fit_segment(
     narrow = _size_mismatch(scan, beams[keep], section, settings) is None
     if keep.size <= settings.symmetry_check_max_beams or narrow:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
+    if spot_shown and not bound_in_fit and keep.size <= settings.symmetry_check_max_beams:
+        # A fit of few beams takes its range from its edge beams too, whose spots reach past
+        # the rod onto the surface close behind: the blend pushes them long, and the fit's one
+        # or two spare beams cannot show it (a 45 mm rod at 2-3 m before a wall 0.3 m behind,
+        # 3-5 beams: 1.6-3.1 mm long against 0.45-0.7 mm std). Added after the sideways checks,
+        # which measure their excess against the covariance before it: added before, it took
+        # their share away across and left a 20 mm rod at 0.75 m 5.9 std off, 1.1 before.
+        fit = _with_shared_push(used, sigma[keep], np.zeros(keep.size), bound_m[keep], fit, section, settings)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies off the surface by up to its bound, and the arc's range error by up
     # to its own: that part is no misfit.
@@ -1261,6 +1293,31 @@ def _drop_blended_edges(
         keep = kept[inner]
 
 
+def _steady_beams_beside(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    beams: NDArray[np.int64],
+    behind: _Behind,
+    settings: ExtractionSettings,
+) -> int:
+    """How many beams beside the rod (both sides, up to ``max_ramp_beams`` each) read
+    steadily between its edge and the surface behind: the beam's spot straddling the two
+    (a far rod's ramps, split off its segment by their range jumps). An exact ray reads one
+    surface or flips between them (unstable: ``_unstable_beams``), so it counts none."""
+    ranges = scan.ranges_m
+    unstable = _unstable_beams(scan, settings)
+    count = 0
+    for edge, step in ((int(beams[0]), -1), (int(beams[-1]), 1)):
+        i = edge + step
+        while 0 <= i < ranges.size and abs(i - edge) <= settings.max_ramp_beams and not unstable[i]:
+            margin = max(settings.min_depth_below_background_m, settings.background_sigmas * float(sigma[i]))
+            if not ranges[edge] < ranges[i] < behind.ranges_m[i] - margin:  # NaN: False
+                break
+            count += 1
+            i += step
+    return count
+
+
 def _without_blended_flanks(
     beams: NDArray[np.int64],
     bound_m: FloatArray,
@@ -1322,9 +1379,23 @@ def _with_arc_bias(
     section: _Section,
     settings: ExtractionSettings,
 ) -> _Fit:
-    """The fit with the arc's range-error variation (``_arc_bias_m``) in its covariance: the
-    centre's move were every beam's range off by it (shared by neighbours, so taken whole)."""
+    """The fit with the arc's range-error variation (``_arc_bias_m``) in its covariance."""
     push_m = _arc_bias_m(scan, beams, settings)
+    return _with_shared_push(points, sigma, blend_m, push_m, fit, section, settings)
+
+
+def _with_shared_push(
+    points: FloatArray,
+    sigma: FloatArray,
+    blend_m: FloatArray,
+    push_m: FloatArray,
+    fit: _Fit,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> _Fit:
+    """The fit with the centre's move were every beam's range off by ``push_m`` in its
+    covariance (shared by neighbours, so taken whole); ``blend_m``: blend allowances already
+    in the beams' sigmas."""
     if not np.any(push_m > 0.0):
         return fit
     _, normals = _residuals(points, fit.centre_uv_m, section, section.radius_m)

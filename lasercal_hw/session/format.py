@@ -37,6 +37,27 @@ TOPIC_JOINT_STATES_EXACT = "/lasercal/joint_states"
 FRAME_LASER = "laser"
 FRAME_BASE = "base"
 
+
+def scan_topics(scanner: str | None = None) -> tuple[str, str, str]:
+    """A scanner's ``LaserScan`` topic, its ``scan_info`` companion and its frame: the run's
+    own scanner (``None``) on ``/scan`` in ``laser``; a cell's other scanner NAME, watching
+    the run's waypoints (docs/cell.md), on ``/scan/NAME`` and ``/lasercal/scan_info/NAME``
+    in ``laser_NAME``."""
+    if scanner is None:
+        return TOPIC_SCAN, TOPIC_SCAN_INFO, FRAME_LASER
+    return f"{TOPIC_SCAN}/{scanner}", f"{TOPIC_SCAN_INFO}/{scanner}", f"{FRAME_LASER}_{scanner}"
+
+
+def scanner_of_topic(topic: str, family: str) -> tuple[bool, str | None]:
+    """Whether ``topic`` is of the ``family`` (``TOPIC_SCAN`` or ``TOPIC_SCAN_INFO``) and whose
+    (``None``: the run's own scanner; else the watching scanner's name): ``scan_topics``'s inverse."""
+    if topic == family:
+        return True, None
+    if topic.startswith(family + "/") and len(topic) > len(family) + 1:
+        return True, topic[len(family) + 1 :]
+    return False, None
+
+
 UR_JOINT_NAMES = (
     "shoulder_pan_joint",
     "shoulder_lift_joint",

@@ -40,6 +40,7 @@ from lasercal_hw.session.format import (
     geometry_from_dict,
     ranges_m_from_raw_mm,
     ros_ranges_to_raw_mm,
+    scanner_of_topic,
 )
 
 logger = logging.getLogger(__name__)
@@ -184,6 +185,9 @@ class SessionRecording:
     path: Path
     metas: list[dict[str, Any]] = field(default_factory=list)
     scans: list[LaserScan] = field(default_factory=list)
+    #: The scans of a cell's other scanners, by name, recorded while they watched this run's
+    #: waypoints (``/scan/NAME``; docs/cell.md); ``scans`` holds the run's own scanner's.
+    scans_by_scanner: dict[str, list[LaserScan]] = field(default_factory=dict)
     tcp_poses: list[TimedPose] = field(default_factory=list)
     joint_states: list[TimedJoints] = field(default_factory=list)
     events: list[dict[str, Any]] = field(default_factory=list)
@@ -278,11 +282,13 @@ def read_session(path: str | Path, *, include_scans: bool = True) -> SessionReco
         for record in every
         if isinstance(record, Channel)
     }
-    pending_scan: tuple[int, Any] | None = None
+    pending_scans: dict[str | None, tuple[int, Any]] = {}  # by scanner (None: the run's own)
     for record in every:
         if isinstance(record, Message) and record.channel_id in channels:
             topic, schema = channels[record.channel_id]
-            if topic == TOPIC_SCAN and include_scans:
+            is_scan, scanner = scanner_of_topic(topic, TOPIC_SCAN)
+            is_info, info_scanner = scanner_of_topic(topic, TOPIC_SCAN_INFO)
+            if is_scan and include_scans:
                 arrays = _laser_scan_arrays(record.data)
                 if arrays is None:
                     decoder = decoders.decoder_for("cdr", schema)
@@ -295,13 +301,17 @@ def read_session(path: str | Path, *, include_scans: bool = True) -> SessionReco
                         )
                     )
                 if arrays is not None:
-                    pending_scan = (record.sequence, arrays)
-            elif topic == TOPIC_SCAN_INFO and include_scans:
+                    pending_scans[scanner] = (record.sequence, arrays)
+            elif is_info and include_scans:
+                pending_scan = pending_scans.pop(info_scanner, None)
                 if pending_scan is not None and pending_scan[0] == record.sequence:
-                    recording.scans.append(_scan_from(_json(record), pending_scan[1], Path(path)))
+                    scan = _scan_from(_json(record), pending_scan[1], Path(path))
+                    if info_scanner is None:
+                        recording.scans.append(scan)
+                    else:
+                        recording.scans_by_scanner.setdefault(info_scanner, []).append(scan)
                 else:
                     logger.warning("%s: scan %d has no LaserScan message; skipped", path, record.sequence)
-                pending_scan = None
             elif topic == TOPIC_TCP_POSE_EXACT:
                 document = _json(record)
                 recording.tcp_poses.append(

@@ -41,7 +41,6 @@ from lasercal_hw.session.format import (
     FORMAT_NAME,
     FORMAT_VERSION,
     FRAME_BASE,
-    FRAME_LASER,
     JOINT_STATE_DEF,
     JOINT_STATE_TYPE,
     JSON_SCHEMAS,
@@ -66,6 +65,7 @@ from lasercal_hw.session.format import (
     raw_mm_to_ros_ranges,
     ros_ranges_to_raw_mm,
     ros_stamp,
+    scan_topics,
     time_ns,
 )
 from lasercal_hw.session.reader import McapRecords, SessionRecording, read_session
@@ -164,8 +164,10 @@ class SessionRecorder:
         ``host_time_s``, default now); ``SessionRecording.meta`` merges them in order."""
         self._write_json(TOPIC_META, time.time() if host_time_s is None else host_time_s, meta, sync=True)
 
-    def write_scan(self, scan: LaserScan) -> None:
-        """Record one scan: ``/scan`` (LaserScan) plus ``/lasercal/scan_info``."""
+    def write_scan(self, scan: LaserScan, scanner: str | None = None) -> None:
+        """Record one scan: ``/scan`` (LaserScan) plus ``/lasercal/scan_info``; a cell's other
+        scanner ``scanner`` (watching this run's waypoints) on its own topics (``scan_topics``)."""
+        scan_topic, info_topic, frame = scan_topics(scanner)
         geometry = scan.geometry
         raw_mm = np.asarray(scan.raw_ranges_mm, dtype=np.int64)
         ros_ranges = raw_mm_to_ros_ranges(raw_mm)
@@ -191,7 +193,7 @@ class SessionRecorder:
         angles = geometry.angles_rad()
         cluster = max(geometry.cluster, 1)
         message = {
-            "header": {"stamp": ros_stamp(scan.host_time_s), "frame_id": FRAME_LASER},
+            "header": {"stamp": ros_stamp(scan.host_time_s), "frame_id": frame},
             "angle_min": float(angles[0]) if angles.size else 0.0,
             "angle_max": float(angles[-1]) if angles.size else 0.0,
             "angle_increment": geometry.angle_increment_rad,
@@ -204,8 +206,8 @@ class SessionRecorder:
         }
         sequence = int(scan.sequence) & 0xFFFFFFFF
         with self._lock:
-            self._add_ros(TOPIC_SCAN, scan.host_time_s, message, sequence)
-            self._add_json(TOPIC_SCAN_INFO, scan.host_time_s, info, sequence)
+            self._add_ros(scan_topic, scan.host_time_s, message, sequence, kind=TOPIC_SCAN)
+            self._add_json(info_topic, scan.host_time_s, info, sequence, kind=TOPIC_SCAN_INFO)
             self._sync()
 
     def write_tcp_pose(self, host_time_s: float, pose: ArrayLike) -> None:
@@ -324,9 +326,11 @@ class SessionRecorder:
             self._sync(durable=sync)
 
     def _add_ros(
-        self, topic: str, host_time_s: float, message: dict[str, Any], sequence: int | None = None
+        self, topic: str, host_time_s: float, message: dict[str, Any], sequence: int | None = None,
+        *, kind: str | None = None,
     ) -> None:
-        datatype, definition = _ROS_TOPICS[topic]
+        """``kind``: the topic whose message type ``topic`` carries (default: ``topic``'s own)."""
+        datatype, definition = _ROS_TOPICS[kind or topic]
         schema_data = definition.encode()
         channel_id = self._channel(topic, MessageEncoding.CDR, datatype, SchemaEncoding.ROS2, schema_data)
         encoder = self._encoders.get(datatype)
@@ -335,8 +339,11 @@ class SessionRecorder:
             self._encoders[datatype] = encoder
         self._add(topic, channel_id, host_time_s, encoder(message), sequence)
 
-    def _add_json(self, topic: str, host_time_s: float, document: Any, sequence: int | None = None) -> None:
-        schema_name, schema = JSON_SCHEMAS[topic]
+    def _add_json(
+        self, topic: str, host_time_s: float, document: Any, sequence: int | None = None,
+        *, kind: str | None = None,
+    ) -> None:
+        schema_name, schema = JSON_SCHEMAS[kind or topic]
         channel_id = self._channel(
             topic, MessageEncoding.JSON, schema_name, SchemaEncoding.JSONSchema, json.dumps(schema).encode()
         )

@@ -7,19 +7,25 @@ from __future__ import annotations
 
 import itertools
 import json
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
-from lasercal_hw.config import load_job
+from lasercal_hw.cli.main import app
+from lasercal_hw.config import job_from_mapping, load_job
 from lasercal_hw.errors import DeviceError, InterruptedRunError
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell
 from lasercal_hw.run.engine import RunEvent
+from lasercal_hw.run.replay import replay_shared_centres
 from lasercal_hw.session.reader import read_session
+from tests.run.test_cell_watcher_replay import as_before_watchers_scans
+from tests.run.test_replay import _copy
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(400)]
 
@@ -152,11 +158,52 @@ def test_both_scanners_calibrated_and_their_transform_within_its_std(
 
 
 def test_the_other_scanner_measures_the_rod_where_it_sees_it(stopped_and_resumed: StoppedAndResumed) -> None:
-    shared = read_session(stopped_and_resumed.out / "rear" / "session.mcap").events_of("shared_observation")
+    recording = read_session(stopped_and_resumed.out / "rear" / "session.mcap")
+    shared = recording.events_of("shared_observation")
     assert shared and {event["scanner"] for event in shared} == {"front"}
     for event in shared:  # the centre near where front's nominal pose put it
         offset_m = np.subtract(event["centre_uv_m"], event["expected_uv_m"])
         assert np.linalg.norm(offset_m) < 0.15 and event["scans"] >= 10, event
+    # front's scans are in rear's recording (its own topic), those of a window kept from before the
+    # resume too, and a replay computes every centre again from them as the live watcher did
+    watched = recording.scans_by_scanner["front"]
+    for event in shared:
+        start_s, end_s = event["window_start_s"], event["window_end_s"]
+        assert len([s for s in watched if start_s <= s.device_time_s < end_s]) == event["scans"], event
+    job = job_from_mapping(json.loads((stopped_and_resumed.out / CELL_FILE).read_text())["job"])
+    nominals = {name: job.for_scanner(name).scanner.nominal for name in job.scanner_names()}
+    replayed = replay_shared_centres(recording, job.for_scanner("rear").rod.rod_line(), nominals)
+    assert replayed.notes == {}
+    for event in shared:
+        _, centre_uv_m, _ = replayed.centres["front"][event["index"]]
+        np.testing.assert_allclose(centre_uv_m, event["centre_uv_m"], rtol=0, atol=1e-12)
+    recordings = [read_session(stopped_and_resumed.out / name / "session.mcap") for name in ("front", "rear")]
+    latest = {(e["scanner"], e["index"]) for r in recordings for e in r.events_of("shared_observation")}
+    (pair,) = json.loads((stopped_and_resumed.out / CELL_FILE).read_text())["pairs"]
+    assert pair["agreement"]["watcher_centres"] == {"recomputed": len(latest), "notes": []}
+
+
+def test_a_cell_recording_from_before_the_watchers_scans_reuses_their_centres_and_says_so(
+    stopped_and_resumed: StoppedAndResumed, tmp_path: Path,
+) -> None:
+    """``lasercal run --resume`` on the finished job's folder writes its pairs again from the
+    recordings (no device needed); rear's recording made as an older version wrote it."""
+    out = tmp_path / "out"
+    shutil.copytree(stopped_and_resumed.out, out)
+    rear = out / "rear" / "session.mcap"
+    _copy(rear, tmp_path / "old.mcap", as_before_watchers_scans("front")).replace(rear)
+    indices = ", ".join(str(e["index"]) for e in read_session(rear).events_of("shared_observation"))
+
+    result = CliRunner().invoke(app, ["run", "--resume", str(out)], env={"COLUMNS": "2000"})
+
+    assert result.exit_code == 0, result.output
+    note = (f"{rear}: front's centres at waypoints {indices} are reused as recorded: the recording holds "
+            "no scans of them (written before a watcher's scans were recorded), so they cannot be computed "
+            "again")
+    assert f"watcher centre: {note}" in " ".join(result.output.split())
+    (pair,) = json.loads((out / CELL_FILE).read_text())["pairs"]
+    recomputed = len(read_session(out / "front" / "session.mcap").events_of("shared_observation"))
+    assert pair["agreement"]["watcher_centres"] == {"recomputed": recomputed, "notes": [note]}
 
 
 def test_a_stopped_cell_job_resumes_at_the_scanner_and_waypoint_where_it_stopped(

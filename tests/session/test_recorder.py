@@ -265,6 +265,32 @@ def test_fast_scan_decoder_matches_the_reference_decoder(tmp_path):
         assert _laser_scan_arrays(b"\x00\x03" + message.data[2:]) is None  # not plain CDR
 
 
+def test_a_watching_scanners_scans_go_on_its_own_topic_and_frame(tmp_path):
+    """A cell's other scanner (docs/cell.md) records on ``/scan/NAME`` in ``laser_NAME``: read
+    back exactly and apart from the run's own scans, which stay on ``/scan``; a resume keeps both."""
+    own = [make_scan(i) for i in range(4)]
+    watched = [dataclasses.replace(make_scan(10 + i), host_time_s=START_TIME_S + 10 + i) for i in range(3)]
+    path = tmp_path / "session.mcap"
+    with SessionRecorder(path, META) as recorder:
+        for scan, other in zip(own, [*watched, None], strict=True):  # interleaved
+            recorder.write_scan(scan)
+            if other is not None:
+                recorder.write_scan(other, "rear")
+    SessionRecorder.resume(path).close()
+
+    recording = read_session(path)
+    assert len(recording.scans) == len(own) and list(recording.scans_by_scanner) == ["rear"]
+    for actual, expected in zip(recording.scans, own, strict=True):
+        assert_scans_equal(actual, expected)
+    for actual, expected in zip(recording.scans_by_scanner["rear"], watched, strict=True):
+        assert_scans_equal(actual, expected)
+    with open(path, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        frames = {channel.topic: message.header.frame_id for _, channel, _, message in
+                  reader.iter_decoded_messages(topics=[TOPIC_SCAN, f"{TOPIC_SCAN}/rear"])}
+    assert frames == {TOPIC_SCAN: "laser", "/scan/rear": "laser_rear"}
+
+
 def test_dwell_scans_are_the_ones_the_live_run_listed(tmp_path):
     """With scan_sequences in dwell_end a replay averages exactly the live run's scans, even
     when the scanner restarted its sequence numbers; without them, the time window rules."""
