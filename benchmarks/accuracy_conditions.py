@@ -215,6 +215,11 @@ def run_case(
         f"  error components within 2.5 reported std: {np.mean(coverage < 2.5):.1%} "
         f"(worst {coverage.max():.2f})"
     )
+    chi_square = np.array([t.result.reduced_chi_square for t in trials])
+    print(
+        f"  solver reduced chi-square (1 when the centres' stated noise is honest): median "
+        f"{np.median(chi_square):.2f}, range {chi_square.min():.2f}-{chi_square.max():.2f}"
+    )
     axes = [
         t.result.rod_axis for t in trials if t.result.rod_axis is not None and t.result.rod_axis.estimated
     ]

@@ -44,7 +44,13 @@ from fakes.world import World
 from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
-from lasercal_hw.run.cell import RecordedCentres, ScannerOutcome, pair_agreement, pair_document
+from lasercal_hw.run.cell import (
+    RecordedCentres,
+    ScannerOutcome,
+    first_pass_scatter_uv_m2,
+    pair_agreement,
+    pair_document,
+)
 from lasercal_hw.run.two_pass import solve_two_pass
 from lasercal_hw.run.watchers import Watcher, expected_crossing, watcher_centre
 from lasercal_hw.run.waypoints import job_waypoints
@@ -146,6 +152,9 @@ def main() -> None:
                 name, Path(), True, result.T_base_laser, result.covariance,
                 world.ground_truth_T_base_laser.tolist(), None,
                 range_offset=result.range_offset, rms_residual_mm=result.rms_residual_mm,
+                first_pass_scatter_uv_m2=first_pass_scatter_uv_m2(
+                    {m.index: m.centre.centre_uv_m for m in measurements},
+                    {o.index: o.centre_uv_m for o in solution.observations}, result.range_offset),
             )
             centres[name] = {None: {o.index: (o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2)
                                     for o in solution.observations}}

@@ -76,6 +76,9 @@ class ScannerOutcome:
     #: The range error curve it estimated (None: none) and its solve's RMS residual.
     range_offset: RangeOffset | None = None
     rms_residual_mm: float = 0.0
+    #: How far its first-pass centres (a watcher's kind) sit from its solved ones: the mean
+    #: outer product of their differences over its own waypoints [m^2] (None: unknown).
+    first_pass_scatter_uv_m2: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -298,6 +301,14 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
     (``calibration/agreement``), and against the truth when both have one (a dry run)."""
     replayed = {name: _recorded_centres(folder / name, name, job) for name in outcomes}
     centres = {name: found for name, (found, _) in replayed.items()}
+    outcomes = {
+        name: replace(outcome, first_pass_scatter_uv_m2=first_pass_scatter_uv_m2(
+            _first_pass_centres(folder / name),
+            {index: centre for index, (_, centre, _) in centres[name].get(None, {}).items()},
+            outcome.range_offset,
+        ))
+        for name, outcome in outcomes.items()
+    }
     names = list(outcomes)
     pairs = []
     for i, a in enumerate(names):
@@ -379,6 +390,15 @@ def _recorded_centres(
     return {None: own} | dict(replayed.centres), replayed
 
 
+def _first_pass_centres(folder: Path) -> dict[int, FloatArray]:
+    """A scanner's own centres as its run found them (``observation`` events: the first pass,
+    as a watcher finds its centres); empty without a recording."""
+    if not (folder / SESSION_FILE).is_file():
+        return {}
+    return {int(event["index"]): np.asarray(event["centre_uv_m"], dtype=float)
+            for event in read_session(folder / SESSION_FILE).events_of("observation")}
+
+
 def pair_agreement(
     a: str, b: str, outcomes: dict[str, ScannerOutcome], centres: dict[str, RecordedCentres], job: JobConfig
 ) -> tuple[list[SharedCentre], dict[str, Any]]:
@@ -418,10 +438,15 @@ def _shared(
     """The waypoints of ``owner``'s run where ``other`` saw the rod too (owner's centre first),
     and those left out with why (the other's centre beyond its range error curve's reach; a
     centre that by its scanner's solved pose is not the rod's: ``_on_the_rod``).
-    Each centre's covariance has its scanner's RMS residual added: the model error its solve showed."""
+    Each centre's covariance has its scanner's RMS residual added: the model error its solve
+    showed; a watcher's centre also its scanner's first-pass scatter: it is a first-pass centre
+    (a circle on the ellipse a tilted rod cuts, no second pass), whose error its covariance
+    does not carry."""
     own, seen = centres[owner].get(None, {}), centres[owner].get(other, {})
     rod = job.for_scanner(owner).rod.rod_line()
     floor = {name: np.eye(2) * (outcomes[name].rms_residual_mm / 1000.0) ** 2 for name in (owner, other)}
+    first_pass = {name: np.zeros((2, 2)) if outcomes[name].first_pass_scatter_uv_m2 is None
+                  else np.asarray(outcomes[name].first_pass_scatter_uv_m2) for name in (owner, other)}
     shared, left_out = [], []
     for index in sorted(set(own) & set(seen)):
         tcp_pose, centre, covariance = own[index]
@@ -439,7 +464,8 @@ def _shared(
         shared.append(SharedCentre(
             f"{owner} {index}", np.asarray(centre, dtype=float),
             np.asarray(covariance, dtype=float) + floor[owner],
-            corrected, np.asarray(other_covariance, dtype=float) + floor[other], directions[0],
+            corrected, np.asarray(other_covariance, dtype=float) + floor[other] + first_pass[other],
+            directions[0],
         ))
     return shared, left_out
 
@@ -459,6 +485,22 @@ def _on_the_rod(
     reach_m = rod.radius_m * float(np.linalg.norm(slope[0]))
     within = reach_m <= float(along_m[0]) <= rod.length_m - reach_m
     return within and float(np.linalg.norm(crossing_uv_m[0] - centre_uv_m)) <= rod.radius_m
+
+
+def first_pass_scatter_uv_m2(
+    first_pass: dict[int, FloatArray], solved: dict[int, FloatArray], range_offset: RangeOffset | None
+) -> FloatArray | None:
+    """The mean outer product of (solved - first-pass) centre differences by waypoint, the
+    first-pass centres corrected as a watcher's are; None with fewer than 3 waypoints."""
+    differences = []
+    for index in sorted(set(first_pass) & set(solved)):
+        corrected = _without_range_error(np.asarray(first_pass[index], dtype=float), range_offset)
+        if corrected is not None:
+            differences.append(np.asarray(solved[index], dtype=float) - corrected)
+    if len(differences) < 3:
+        return None
+    d = np.asarray(differences)
+    return d.T @ d / len(d)
 
 
 def _without_range_error(centre_uv_m: FloatArray, range_offset: RangeOffset | None) -> FloatArray | None:

@@ -77,6 +77,10 @@ class RodCentre:
     beam_indices: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     #: Why this centre may be off by more than its covariance says (empty: no doubt).
     warnings: tuple[str, ...] = ()
+    #: The part of ``covariance_uv_m2`` another dwell at the same pose draws anew: the dwell's
+    #: noise through the fit. The rest (the rod's shape, edges, blends, the range error across
+    #: the arc) repeats at the same pose and view. None: unknown, take the whole covariance.
+    noise_covariance_uv_m2: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -840,6 +844,7 @@ class _Fit:
     residuals_m: FloatArray
     whitened: FloatArray
     blend_shift_m: float = 0.0
+    noise_covariance_uv_m2: FloatArray | None = None
 
 
 def _residuals(
@@ -951,8 +956,11 @@ def _fit_centre(
     dof = max(points.shape[0] - 2, 1)
     variance_factor = max(1.0, float(whitened @ whitened) / dof)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
-    covariance = np.linalg.inv(normal) * variance_factor + np.eye(2) * (
-        _unknown_tilt_variance_m2(section, settings) + _systematic_variance_m2(residuals, residual_sigma)
+    noise_covariance = np.linalg.inv(normal) * variance_factor
+    covariance = (
+        noise_covariance
+        + np.eye(2) * _unknown_tilt_variance_m2(section, settings)
+        + _systematic_covariance_m2(residuals, residual_sigma, normals, normal)
     )
     mismatch = _range_error_mismatch(points, centre, normals, residual_sigma, normal)
     covariance += np.outer(mismatch, mismatch) * settings.typical_range_error_m**2
@@ -960,7 +968,7 @@ def _fit_centre(
     if blend_m is not None:
         blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
         covariance += np.outer(blend_shift, blend_shift)
-    return _Fit(centre, covariance, residuals, whitened, float(np.linalg.norm(blend_shift)))
+    return _Fit(centre, covariance, residuals, whitened, float(np.linalg.norm(blend_shift)), noise_covariance)
 
 
 def _centre_shift(
@@ -990,12 +998,36 @@ def _range_error_mismatch(
     return moved - centre / np.linalg.norm(centre)
 
 
-def _systematic_variance_m2(residuals: FloatArray, residual_sigma: FloatArray) -> float:
-    """Variance per axis of what the dwell does not average away: the part of the fit's
-    mean squared residual the noise does not explain (the rod's shape, edge effects, a range
-    error that changes across the arc). Such residuals are shared by neighbouring beams, so
-    they move the centre by about their own size, not by their size over sqrt(beams)."""
-    return max(0.0, float(np.mean(residuals**2) - np.mean(residual_sigma**2)))
+def _systematic_covariance_m2(
+    residuals: FloatArray, residual_sigma: FloatArray, normals: FloatArray, normal: FloatArray
+) -> FloatArray:
+    """Covariance (2, 2) of what the dwell does not average away: the part of the fit's mean
+    squared residual the noise does not explain (the rod's shape, edge effects, a range error
+    that changes across the arc), carried through the fit's gain as an error shared by
+    neighbouring beams.
+
+    Its parts symmetric and antisymmetric about the arc's middle are sized apart (a symmetric
+    error, such as one that grows with the incidence angle, moves the centre along its bearing,
+    an antisymmetric one across it), each by its own excess over the noise, with the
+    correlation between neighbours the residuals show (their lag-1 covariance over the
+    excess; the noise is independent beam to beam)."""
+    count = residuals.size
+    excess_m2 = float(np.mean(residuals**2) - np.mean(residual_sigma**2))
+    if excess_m2 <= 0.0 or count < 3:
+        return np.zeros((2, 2))
+    correlation = float(np.clip(np.mean(residuals[:-1] * residuals[1:]) / excess_m2, 0.0, 1.0))
+    shared = correlation ** np.abs(np.subtract.outer(np.arange(count), np.arange(count)))
+    mirror = np.eye(count)[::-1]
+    gain = np.linalg.solve(normal, (normals[:, :2] / residual_sigma[:, None] ** 2).T)
+    covariance = np.zeros((2, 2))
+    for sign in (1.0, -1.0):
+        part = 0.5 * (np.eye(count) + sign * mirror)
+        part_excess_m2 = float(np.mean((part @ residuals) ** 2) - 0.5 * np.mean(residual_sigma**2))
+        pattern = part @ shared @ part
+        scale = float(np.mean(np.diag(pattern)))
+        if part_excess_m2 > 0.0 and scale > 0.0:
+            covariance += part_excess_m2 / scale * gain @ pattern @ gain.T
+    return covariance
 
 
 def _unknown_tilt_variance_m2(section: _Section, settings: ExtractionSettings) -> float:
@@ -1150,6 +1182,7 @@ def _fit_segment(
         centre_uv_m=fit.centre_uv_m,
         covariance_uv_m2=fit.covariance_uv_m2,
         warnings=warnings,
+        noise_covariance_uv_m2=fit.noise_covariance_uv_m2,
         quality=RodQuality(
             beams_used=int(keep.size),
             fit_rms_m=rms,
@@ -1375,6 +1408,19 @@ def _with_shared_push(
     return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))
 
 
+def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray) -> _Fit:
+    """The fit with a sideways check's variance in its covariance and in its noise: which
+    beams are the silhouette's edges changes from dwell to dwell (a far rod's 3-7 beams: its
+    centre moved 5-7 mm sideways between two dwells at one pose), so another dwell draws that
+    part anew too."""
+    noise = fit.noise_covariance_uv_m2
+    return replace(
+        fit,
+        covariance_uv_m2=fit.covariance_uv_m2 + doubt_m2,
+        noise_covariance_uv_m2=None if noise is None else noise + doubt_m2,
+    )
+
+
 def _with_edge_doubt(
     points: FloatArray, sigma: FloatArray, fit: _Fit, section: _Section, settings: ExtractionSettings
 ) -> _Fit:
@@ -1404,7 +1450,7 @@ def _with_edge_doubt(
     excess_m2 = sideways_m**2 - max(float(across @ difference_m2 @ across), 0.0)
     if excess_m2 <= 0.0:
         return fit
-    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + excess_m2 * np.outer(across, across))
+    return _with_sideways_doubt(fit, excess_m2 * np.outer(across, across))
 
 
 def _symmetry_bearing_rad(scan: AveragedScan, beams: NDArray[np.int64], section: _Section) -> float | None:
@@ -1455,5 +1501,5 @@ def _with_symmetry_doubt(
     excess_m2 = sideways_m**2 - fitted_m2 - quantisation_m2
     if excess_m2 <= 0.0:
         return fit
-    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + excess_m2 * np.outer(across, across))
+    return _with_sideways_doubt(fit, excess_m2 * np.outer(across, across))
 

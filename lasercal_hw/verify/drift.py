@@ -10,9 +10,11 @@ pose and what the fit left over), so it is the centre measured back then.  The r
     S = blockdiag(C_i + R_i) + J_u Sigma_cal J_u^T
 
 with ``C_i`` the centre noise of the measurement and ``R_i`` the robot's share: for a
-waypoint the calibration visited, the centre noise it had then (the same dwell gives the
-same ``C_i``) plus the robot's repeatability ``sigma_rep^2 A A^T``; for any other, the
-robot's absolute accuracy ``sigma_robot^2 A A^T``, and the calibration's own 6x6
+waypoint the calibration visited, ``C_i`` is only what a dwell draws anew (the rest of the
+centre's covariance repeats at the same pose and cancels in ``d``), ``R_i`` the same again
+for the calibration's dwell plus the robot's repeatability ``sigma_rep^2 A A^T``; for any
+other, ``C_i`` whole and the robot's absolute accuracy ``sigma_robot^2 A A^T``, and the
+calibration's own 6x6
 covariance propagated with the Jacobian ``J_u`` of those predictions (rows of visited
 waypoints are zero there: their prediction does not depend on the solved transform).
 The last term correlates the waypoints, so S is whitened as a whole. ``d^T S^-1 d`` is
@@ -195,14 +197,27 @@ def predictions(
 
 
 def noise_blocks(
-    model: DriftModel, slope: FloatArray, covariance_uv_m2: FloatArray, visited: NDArray[np.bool_]
+    model: DriftModel,
+    slope: FloatArray,
+    covariance_uv_m2: FloatArray,
+    visited: NDArray[np.bool_],
+    noise_covariance_uv_m2: FloatArray | None = None,
 ) -> FloatArray:
     """``C_i + R_i`` (N, 2, 2) of the module docstring; ``visited`` (N,) is True where the
-    calibration saw the waypoint (its residual is part of the prediction)."""
+    calibration saw the waypoint (its residual is part of the prediction).
+
+    ``noise_covariance_uv_m2`` (N, 2, 2): the part of each centre's covariance a new dwell
+    draws anew (None: all of it). At a visited waypoint the prediction is the centre the
+    calibration measured there from the same pose and view: the rest of the covariance (the
+    rod's shape, blends, the range error across the arc) is in both centres and cancels;
+    what a dwell draws anew is counted for both dwells."""
     centre = np.asarray(covariance_uv_m2, dtype=float)
+    noise = centre if noise_covariance_uv_m2 is None else np.asarray(noise_covariance_uv_m2, dtype=float)
+    revisit = 2.0 * noise
     spread = np.eye(2) + slope[:, :, None] * slope[:, None, :]
     robot_var = np.where(visited, model.repeatability_m**2, model.robot_sigma_m**2)
-    return centre * (1.0 + visited)[:, None, None] + robot_var[:, None, None] * spread
+    blocks = np.where(visited[:, None, None], revisit, centre)
+    return blocks + robot_var[:, None, None] * spread
 
 
 def residual_covariance(
@@ -211,10 +226,11 @@ def residual_covariance(
     slope: FloatArray,
     covariance_uv_m2: FloatArray,
     visited: NDArray[np.bool_],
+    noise_covariance_uv_m2: FloatArray | None = None,
 ) -> FloatArray:
     """``S`` (2N, 2N) of the module docstring."""
     j = (jac * (~visited)[:, None, None]).reshape(-1, 6)
-    blocks = noise_blocks(model, slope, covariance_uv_m2, visited)
+    blocks = noise_blocks(model, slope, covariance_uv_m2, visited, noise_covariance_uv_m2)
     return block_diag(*blocks) + j @ np.asarray(model.covariance, dtype=float) @ j.T
 
 
@@ -225,6 +241,7 @@ def run_drift_test(
     measured_uv_m: FloatArray,
     covariance_uv_m2: FloatArray,
     recorded_residual_uv_m: FloatArray | None = None,
+    noise_covariance_uv_m2: FloatArray | None = None,
 ) -> DriftTest:
     """The chi-square test and the correction for N >= 1 measured waypoints.
 
@@ -240,7 +257,7 @@ def run_drift_test(
     visited = np.isfinite(recorded).all(axis=1)
     crossing, jac, slope = predictions(model.T_base_laser, poses, model.rod)
     predicted = crossing + np.where(visited[:, None], recorded, 0.0)
-    total = residual_covariance(model, jac, slope, covariance_uv_m2, visited)
+    total = residual_covariance(model, jac, slope, covariance_uv_m2, visited, noise_covariance_uv_m2)
     factor = cho_factor(total)
     d = (measured - predicted).reshape(-1)
     chi_square = float(d @ cho_solve(factor, d))

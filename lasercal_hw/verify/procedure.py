@@ -30,6 +30,7 @@ from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.two_pass import refit_centres
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
+from lasercal_hw.scan.extraction import RodCentre
 from lasercal_hw.verify.active import ActiveCalibration, load_active_calibration, recorded_residuals
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
 from lasercal_hw.verify.identity import IdentityCheck, check_identity, robot_calibration_check
@@ -283,8 +284,15 @@ def refit_and_test(
         centres_uv_m,
         np.array([m.centre.covariance_uv_m2 for m in refitted]),
         plan.reference[job_index],
+        np.array([_noise_covariance(m.centre) for m in refitted]),
     )
     return test, kept
+
+
+def _noise_covariance(centre: RodCentre) -> FloatArray:
+    """The part of a centre's covariance another dwell draws anew (all of it where unknown)."""
+    noise = centre.noise_covariance_uv_m2
+    return centre.covariance_uv_m2 if noise is None else noise
 
 
 class _OtherDevicesError(Exception):

@@ -103,7 +103,7 @@ def test_solve_command_flags_the_outlier_refuses_the_impossible_and_gates(tmp_pa
 CURVED_RANGE_ERROR = Path(__file__).parents[1] / "data" / "observations" / "cell-front-seed14-first-pass.csv"
 
 
-def test_rows_the_consensus_sets_apart_but_the_range_curve_explains_are_fitted_again() -> None:
+def test_rows_the_consensus_sets_apart_but_the_range_curve_explains_are_kept() -> None:
     options = SolverOptions(robot_sigma_m=0.001, estimate_range_offset="auto", max_range_terms=5)
     result = solve(read_observations_csv(CURVED_RANGE_ERROR), RodLine(radius_m=0.02, length_m=0.3),
                    options=options)

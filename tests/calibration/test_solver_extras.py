@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from fakes.world import World
 from lasercal_hw.calibration.model import (
     axis_basis,
     extended_residuals_and_jacobian,
@@ -15,10 +17,18 @@ from lasercal_hw.calibration.model import (
     range_error_m,
     rod_lines_in_base,
 )
+from lasercal_hw.calibration.observations import read_observations_csv, read_solve_settings
 from lasercal_hw.calibration.simulate import Protocol, protocol_tcp_poses
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.errors import CalibrationError
-from lasercal_hw.geometry import make_transform, matrix_to_pose, pose_to_matrix, rotvec_to_matrix
+from lasercal_hw.geometry import (
+    euler_zyx_to_matrix,
+    make_transform,
+    matrix_to_pose,
+    matrix_to_rotvec,
+    pose_to_matrix,
+    rotvec_to_matrix,
+)
 from lasercal_hw.models import Observation, RodLine
 from tests.calibration.test_solver_helpers import TRUTH, translation_error_mm
 
@@ -327,3 +337,45 @@ def test_axis_crossing_one_stretch_of_the_rod_reports_its_offset_there_and_a_wea
     assert np.all(np.abs(error) < 2.5 * np.asarray(axis.crossing_offset_std_mm))
     assert max(axis.crossing_offset_std_mm) < 0.5 < max(axis.tilt_std_deg)
     assert translation_error_mm(result.matrix()) < 2.5 * np.linalg.norm(result.std_translation_mm)
+
+
+def test_a_range_curve_the_linear_start_cannot_see_does_not_gate_its_waypoints_out() -> None:
+    """The second pass of a default run on the physical scanner model (the dry run's world,
+    seed 102): centres with honest covariances (0.3-1 mm) and a range error that climbs from
+    -15 mm at 0.44 m to +8 mm at 1 m. The linear start knows no range error, and its
+    consensus left the near waypoints out; the robust fit started without them extrapolated
+    the curve and failed 8 of 20 waypoints by 7-200 sigma. Started on every waypoint, the
+    curve follows them all and the pose is within 2 mm / 0.3 deg of the world's."""
+    path = Path(__file__).parents[1] / "data" / "solver" / "physical_second_pass.csv"
+    settings = read_solve_settings(path)
+    assert settings is not None
+    result = solve(read_observations_csv(path), settings.rod, options=settings.solver)
+    truth = World.from_scene(None).ground_truth_T_base_laser
+    solved = result.matrix()
+    assert len(result.outliers) <= 1
+    assert float(np.linalg.norm(solved[:3, 3] - truth[:3, 3])) * 1e3 < 2.0
+    assert np.degrees(np.linalg.norm(matrix_to_rotvec(solved[:3, :3] @ truth[:3, :3].T))) < 0.3
+
+
+def test_a_short_job_whose_curve_terms_all_fail_their_test_keeps_every_waypoint() -> None:
+    """The first pass of the front scanner's 7-waypoint quick job in the cell's dry run (ideal
+    scanner model, 0.5 s dwell; tests/service/test_daemon_cell_kill.py), its crossings all at
+    0.3-0.55 m. The gate took all 5 curve terms (11 parameters on 14 residuals) and the fit
+    gave them large cancelling coefficients (-0.2, -1.1, -2.1, -1.7, -0.5 m in powers of
+    ln d); cut short by the quartic term, that curve was hundreds of millimetres off where the
+    rod was seen, and the robust fit from there refused 3 of 7 waypoints. Each lower curve
+    now starts from the one closest to the fitted curve at the crossings, and the terms fall
+    one by one to none, every waypoint kept, the pose within 3 std of the scene's."""
+    path = Path(__file__).parents[1] / "data" / "solver" / "short_cell_first_pass.csv"
+    settings = read_solve_settings(path)
+    assert settings is not None
+    result = solve(read_observations_csv(path), settings.rod, options=settings.solver)
+    assert result.waypoints_used == 7 and not result.outliers
+    assert result.range_offset is None
+    assert any("quartic term" in note for note in result.observability.notes)
+    truth_m = np.array([0.30, 0.50, 0.20])  # fakes/scenes/two_scanners.toml, front
+    error_mm = (result.matrix()[:3, 3] - truth_m) * 1e3
+    assert np.all(np.abs(error_mm) < 3.0 * np.asarray(result.std_translation_mm))
+    truth = euler_zyx_to_matrix(*np.radians([5.0, 7.0, 3.0]))
+    turned_deg = np.degrees(np.linalg.norm(matrix_to_rotvec(result.matrix()[:3, :3] @ truth.T)))
+    assert turned_deg < 3.0 * float(np.linalg.norm(result.std_rotation_deg))

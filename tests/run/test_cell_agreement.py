@@ -5,13 +5,14 @@ why; the rest still decide."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from lasercal_hw.config import load_job
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, matrix_to_pose
-from lasercal_hw.run.cell import RecordedCentres, ScannerOutcome, pair_agreement
+from lasercal_hw.run.cell import RecordedCentres, ScannerOutcome, first_pass_scatter_uv_m2, pair_agreement
 
 REPO = Path(__file__).resolve().parents[2]
 JOB = load_job(REPO / "examples" / "cell.toml")  # a 0.30 m rod along the TCP's z axis
@@ -76,3 +77,29 @@ def test_a_centre_farther_from_the_rod_than_its_radius_is_left_out_and_a_nearer_
     shared, agreement = _agreement_with_the_front_finding(1, 0.012)  # off, but it could be the rod: tested
     assert "rear 1" in shared
     assert agreement["verdict"] == "disagree", agreement
+
+
+def _agreement_with_every_front_centre_off(off_m: float, scatter_uv_m2: np.ndarray | None) -> dict:
+    """The rear's first four waypoints, each front centre ``off_m`` along u and -v (a first-pass
+    centre's error), the front's first-pass scatter as given."""
+    poses = [_tcp_pose(p) for p in TCP_POINTS_M[:4]]
+    own = {i: (pose, _crossing_uv_m(T_REAR, pose), COVARIANCE_UV_M2) for i, pose in enumerate(poses)}
+    watched = {i: (pose, _crossing_uv_m(T_FRONT, pose) + np.array([off_m, -off_m]), COVARIANCE_UV_M2)
+               for i, pose in enumerate(poses)}
+    centres: dict[str, RecordedCentres] = {"front": {}, "rear": {None: own, "front": watched}}
+    front = replace(_outcome("front", T_FRONT), first_pass_scatter_uv_m2=scatter_uv_m2)
+    outcomes = {"front": front, "rear": _outcome("rear", T_REAR)}
+    return pair_agreement("front", "rear", outcomes, centres, JOB)[1]
+
+
+def test_a_watchers_first_pass_error_within_its_scanners_first_pass_scatter_agrees() -> None:
+    # The front's own waypoints: its first-pass centres 2 mm from its solved ones either way.
+    first = {i: np.array([0.5 + 0.01 * i, 0.1]) for i in range(4)}
+    solved = {i: first[i] + (-1) ** i * np.array([0.002, -0.002]) for i in range(4)}
+    scatter = first_pass_scatter_uv_m2(first, solved, None)
+    assert np.allclose(scatter, [[4e-6, -4e-6], [-4e-6, 4e-6]])
+    assert first_pass_scatter_uv_m2(dict(list(first.items())[:2]), solved, None) is None
+
+    assert _agreement_with_every_front_centre_off(0.002, None)["verdict"] == "disagree"
+    assert _agreement_with_every_front_centre_off(0.002, scatter)["verdict"] == "agree"
+    assert _agreement_with_every_front_centre_off(0.012, scatter)["verdict"] == "disagree"

@@ -298,3 +298,84 @@ def test_edge_beams_flipping_during_a_short_dwell_are_trimmed() -> None:
     untrimmed = ExtractionSettings(min_stable_fraction=0.0, max_spread_ratio=np.inf)
     with pytest.raises(RodNotFoundError):
         find_rod_centre(averaged_scan, radius_m=0.02, background=background, settings=untrimmed)
+
+
+def test_an_error_symmetric_across_the_arc_widens_the_covariance_along_the_bearing_only() -> None:
+    """Every beam on a 20 mm rod at 0.5 m reads long by up to 4 mm, growing towards the grazing
+    edges alike on both sides (as a range error that grows with the incidence angle does):
+    the centre moves along its bearing, not across it. The covariance must cover the move
+    along the bearing without claiming as much across it (the residuals' excess over the
+    noise was added whole to both axes: sideways std 0.7-0.9 mm for a 0.1 mm error)."""
+    rng = np.random.default_rng(3)
+    radius_m, sigma_m, range_m = 0.020, 0.0003, 0.5
+    ratios = []
+    for _ in range(8):
+        bearing = rng.uniform(-1.0, 1.0)
+        centre = _centre(range_m, bearing)
+        lateral_m = range_m * np.sin(ANGLES - bearing)
+        bias_m = np.where(np.abs(lateral_m) < radius_m, 0.004 * (lateral_m / radius_m) ** 2, 0.0)
+        noise_m = rng.normal(0.0, sigma_m, ANGLES.shape)
+        noisy = rod_ranges(centre, radius_m, wall_behind_m=0.5) + bias_m + noise_m
+        scan = AveragedScan.from_ranges(noisy, ANGLES, np.full_like(noisy, sigma_m))
+        found = find_rod_centre(scan, radius_m=radius_m, axis_in_scanner=Z_AXIS, settings=THIN_BEAMS)
+        along = centre / np.linalg.norm(centre)
+        across = np.array([-along[1], along[0]])
+        std_along = float(np.sqrt(along @ found.covariance_uv_m2 @ along))
+        std_across = float(np.sqrt(across @ found.covariance_uv_m2 @ across))
+        assert abs(float(along @ (found.centre_uv_m - centre))) < 2.5 * std_along
+        ratios.append(std_across / std_along)
+    assert float(np.median(ratios)) < 0.6
+
+
+def test_the_noise_covariance_is_what_another_dwell_at_the_same_pose_draws_anew() -> None:
+    """Two dwells of the same rod, whose beams carry the same 4 mm symmetric range error and
+    new noise: the centres differ by the noise alone, which ``noise_covariance_uv_m2`` covers
+    (twice it, for two dwells), while the repeatable error (in the whole covariance, along the
+    bearing) is left out of it (verify compares a centre with the one measured there before)."""
+    rng = np.random.default_rng(5)
+    radius_m, sigma_m, range_m = 0.020, 0.0003, 0.5
+    difference_m2, std_ratio = [], []
+    for _ in range(12):
+        bearing = rng.uniform(-1.0, 1.0)
+        centre = _centre(range_m, bearing)
+        lateral_m = range_m * np.sin(ANGLES - bearing)
+        bias_m = np.where(np.abs(lateral_m) < radius_m, 0.004 * (lateral_m / radius_m) ** 2, 0.0)
+        found = []
+        for _ in range(2):
+            noise_m = rng.normal(0.0, sigma_m, ANGLES.shape)
+            noisy = rod_ranges(centre, radius_m, wall_behind_m=0.5) + bias_m + noise_m
+            scan = AveragedScan.from_ranges(noisy, ANGLES, np.full_like(noisy, sigma_m))
+            found.append(
+                find_rod_centre(scan, radius_m=radius_m, axis_in_scanner=Z_AXIS, settings=THIN_BEAMS)
+            )
+        noise = found[0].noise_covariance_uv_m2
+        assert noise is not None
+        difference = found[0].centre_uv_m - found[1].centre_uv_m
+        difference_m2.append(float(difference @ np.linalg.solve(2.0 * noise, difference)))
+        along = centre / np.linalg.norm(centre)
+        std_ratio.append(np.sqrt((along @ noise @ along) / (along @ found[0].covariance_uv_m2 @ along)))
+    assert float(np.mean(difference_m2)) < 6.0  # 2 when exact
+    assert float(np.max(std_ratio)) < 0.5
+
+
+def test_what_the_sideways_checks_add_is_drawn_anew_by_another_dwell() -> None:
+    """A 20 mm rod at 1 m whose first edge beam reads 6 mm long (a spot's blend on one side):
+    the arc without its edges disagrees sideways, and that doubt joins the covariance. Which
+    beams are the edges changes from dwell to dwell (a far rod's centre moved 5-7 mm sideways
+    between two dwells at one pose on the physical model, and verify flagged the unmoved
+    scanner), so the doubt belongs to the noise covariance too, not to the repeatable part."""
+    rng = np.random.default_rng(9)
+    for _ in range(5):
+        centre = _centre(1.0, rng.uniform(-1.0, 1.0))
+        truth = rod_ranges(centre, 0.02, wall_behind_m=1.0)
+        on_rod = np.flatnonzero(np.isfinite(truth) & (truth < np.nanmin(truth) + 0.03))
+        blended = truth.copy()
+        blended[on_rod[0]] += 0.006
+        noisy = blended + rng.normal(0.0, 0.0001, truth.shape)
+        scan = AveragedScan.from_ranges(noisy, ANGLES, np.full_like(noisy, 0.0001))
+        found = find_rod_centre(scan, radius_m=0.02, axis_in_scanner=Z_AXIS, settings=THIN_BEAMS)
+        along = centre / np.linalg.norm(centre)
+        across = np.array([-along[1], along[0]])
+        noise = found.noise_covariance_uv_m2
+        assert noise is not None
+        assert across @ noise @ across > 0.8**2 * (across @ found.covariance_uv_m2 @ across)
