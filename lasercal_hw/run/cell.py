@@ -299,11 +299,11 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
     """Every scanner-to-scanner transform ``T_a_b`` (a before b in the job's order) with its
     covariance, the two poses' agreement where both scanners saw the rod at one waypoint
     (``calibration/agreement``), and against the truth when both have one (a dry run)."""
-    replayed = {name: _recorded_centres(folder / name, name, job) for name in outcomes}
-    centres = {name: found for name, (found, _) in replayed.items()}
+    recorded = {name: _recorded_centres(folder / name, name, job) for name in outcomes}
+    centres = {name: entry.centres for name, entry in recorded.items()}
     outcomes = {
         name: replace(outcome, first_pass_scatter_uv_m2=first_pass_scatter_uv_m2(
-            _first_pass_centres(folder / name),
+            recorded[name].first_pass,
             {index: centre for index, (_, centre, _) in centres[name].get(None, {}).items()},
             outcome.range_offset,
         ))
@@ -314,7 +314,7 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
     for i, a in enumerate(names):
         for b in names[i + 1:]:
             pair = pair_document(a, b, outcomes, centres, job)
-            watched = (replayed[a][1], b), (replayed[b][1], a)  # b at a's waypoints, a at b's
+            watched = (recorded[a].replayed, b), (recorded[b].replayed, a)  # b at a's waypoints, a at b's
             pair["agreement"]["watcher_centres"] = {
                 "recomputed": sum(run.recomputed.get(other, 0) for run, other in watched),
                 "notes": [note for run, other in watched for note in run.notes.get(other, [])],
@@ -373,30 +373,34 @@ RecordedCentres = dict[str | None, dict[int, tuple[Any, Any, Any]]]
 CURVE_REACH_M = 0.1
 
 
-def _recorded_centres(
-    folder: Path, name: str, job: JobConfig
-) -> tuple[RecordedCentres, ReplayedSharedCentres]:
+@dataclass(frozen=True)
+class _RecordedRun:
+    """What the cell's pairs need of one scanner's run, read from its folder once."""
+
+    #: Its own centres as its solve used them (key None) and its watchers' (by name).
+    centres: RecordedCentres
+    #: How its watchers' centres were computed again (``run/replay.replay_shared_centres``).
+    replayed: ReplayedSharedCentres
+    #: Its own centres as its run found them (``observation`` events: the first pass, as a
+    #: watcher finds its centres).
+    first_pass: dict[int, FloatArray]
+
+
+def _recorded_centres(folder: Path, name: str, job: JobConfig) -> _RecordedRun:
     """Scanner ``name``'s centres: its own as its solve used them (``observations.csv``: second
-    pass, range offset removed) and those its run's watchers measured, each computed again from
-    the watcher's recorded scans (``run/replay.replay_shared_centres``, with what it could not);
-    empty without a recording."""
+    pass, range offset removed) and as its run found them, and those its run's watchers
+    measured, each computed again from the watcher's recorded scans
+    (``run/replay.replay_shared_centres``, with what it could not); empty without a recording."""
     if not (folder / SESSION_FILE).is_file() or not (folder / OBSERVATIONS_FILE).is_file():
-        return {}, ReplayedSharedCentres()
+        return _RecordedRun({}, ReplayedSharedCentres(), {})
     own = {o.index: (o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2)
            for o in read_observations_csv(folder / OBSERVATIONS_FILE)}
     nominals = {other: job.for_scanner(other).scanner.nominal for other in job.scanner_names()}
     recording = read_session(folder / SESSION_FILE)
     replayed = replay_shared_centres(recording, job.for_scanner(name).rod.rod_line(), nominals)
-    return {None: own} | dict(replayed.centres), replayed
-
-
-def _first_pass_centres(folder: Path) -> dict[int, FloatArray]:
-    """A scanner's own centres as its run found them (``observation`` events: the first pass,
-    as a watcher finds its centres); empty without a recording."""
-    if not (folder / SESSION_FILE).is_file():
-        return {}
-    return {int(event["index"]): np.asarray(event["centre_uv_m"], dtype=float)
-            for event in read_session(folder / SESSION_FILE).events_of("observation")}
+    first_pass = {int(event["index"]): np.asarray(event["centre_uv_m"], dtype=float)
+                  for event in recording.events_of("observation")}
+    return _RecordedRun({None: own} | dict(replayed.centres), replayed, first_pass)
 
 
 def pair_agreement(
