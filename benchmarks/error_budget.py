@@ -68,15 +68,15 @@ def _robot_off(scene: Scene) -> Scene:
 
 
 def _bias_off(scene: Scene) -> Scene:
-    physics = scene.physics.model_copy(update={"near_bias_m": 0.0, "unit_bias_m": 0.0, "walk_m_per_efold": 0.0})
+    off = {"near_bias_m": 0.0, "unit_bias_m": 0.0, "walk_m_per_efold": 0.0}
+    physics = scene.physics.model_copy(update=off)
     return scene.model_copy(update={"physics": physics})
 
 
 def _quiet(scene: Scene) -> Scene:
     p = scene.physics
-    physics = p.model_copy(
-        update={"noise_floor_m": p.noise_floor_m / 10.0, "noise_at_reference_m": p.noise_at_reference_m / 10.0}
-    )
+    tenth = {"noise_floor_m": p.noise_floor_m / 10.0, "noise_at_reference_m": p.noise_at_reference_m / 10.0}
+    physics = p.model_copy(update=tenth)
     return scene.model_copy(update={"physics": physics})
 
 
@@ -85,7 +85,7 @@ def _no_curve(job: JobConfig) -> JobConfig:
 
 
 def _all(*changes: Callable) -> Callable:
-    def apply(value):  # noqa: ANN001, ANN202 (a scene or a job)
+    def apply(value):  # a scene or a job
         for change in changes:
             value = change(value)
         return value
@@ -102,7 +102,8 @@ VARIANTS = (
     Variant("dwell-x4", dwell_factor=4.0),
     Variant("axis-estimated", job=lambda j: with_overrides(j, {"rod.estimate_axis": True})),
     Variant(
-        "robot-stated-0.58", job=lambda j: with_overrides(j, {"robot.position_accuracy_mm": FIELD_PER_AXIS_MM})
+        "robot-stated-0.58",
+        job=lambda j: with_overrides(j, {"robot.position_accuracy_mm": FIELD_PER_AXIS_MM}),
     ),
     Variant("robot-only", scene=_all(_bias_off, _quiet), job=_no_curve),
     Variant("floor", scene=_all(_bias_off, _quiet, _robot_off), job=_no_curve),
