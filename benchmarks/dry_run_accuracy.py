@@ -124,7 +124,8 @@ def measure(
         expected = None if nominal is None else predict_rod(nominal.matrix(), pose, rod).expected_uv_m
         try:
             centre = find_rod_centre(
-                averaged, radius_m=rod.radius_m, background=background, expected_uv_m=expected
+                averaged, radius_m=rod.radius_m, background=background, expected_uv_m=expected,
+                fluted=rod.fluted,
             )
         except RodNotFoundError:
             continue

@@ -195,6 +195,7 @@ def measure(
             radius_m=radius_m,
             background=average_scans(dwell.background),
             axis_in_scanner=np.array([0.0, 0.0, 1.0]),
+            fluted=shape == "twist_drill",
         )
     except CalibrationError as exc:
         return Outcome(None, None, False, own, str(exc))

@@ -137,6 +137,12 @@ class RodConfig(_Strict):
         "only where it faces the scanner square, so trajectory design leans it across the beam, not along, "
         "and keeps the robot's base from right behind it",
     )
+    fluted: bool = Field(
+        False,
+        description="the rod is a twist drill: its section has two flutes and is no circle, so a centre "
+        "found on it may lie off the axis by a part of the radius, depending on how the flutes face the "
+        "scanner; the extraction puts that in the centre's covariance",
+    )
 
     @field_validator("direction")
     @classmethod
@@ -152,6 +158,7 @@ class RodConfig(_Strict):
             direction=np.asarray(self.direction, dtype=float),
             radius_m=self.radius_m,
             length_m=self.length_m,
+            fluted=self.fluted,
         )
 
 

@@ -121,6 +121,8 @@ class RodLine:
     direction: FloatArray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     radius_m: float = 0.02
     length_m: float = 0.3
+    #: A twist drill: its section has two flutes, not a circle (``find_rod_centre(fluted=)``).
+    fluted: bool = False
 
     def unit_direction(self) -> FloatArray:
         """The axis direction normalised to length one."""

@@ -159,7 +159,8 @@ def _reextract(
             expected = expectation.at(tcp_pose, measurements)
             try:
                 centre = find_rod_centre(
-                    averaged, radius_m=rod.radius_m, background=background, expected_uv_m=expected
+                    averaged, radius_m=rod.radius_m, background=background, expected_uv_m=expected,
+                    fluted=rod.fluted,
                 )
             except RodNotFoundError as exc:
                 problem = f"no rod found in its scans ({exc})"

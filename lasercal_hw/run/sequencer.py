@@ -298,6 +298,7 @@ class Sequencer:
                 radius_m=self._rod.radius_m,
                 background=self._background,
                 expected_uv_m=expected_uv_m,
+                fluted=self._rod.fluted,
             )
         except RodNotFoundError as exc:
             self._skip(index, str(exc), averaged)

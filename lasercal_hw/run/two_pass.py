@@ -162,6 +162,7 @@ def refit_centres(
                 axis_in_scanner=predicted.axis_in_scanner,
                 expected_uv_m=predicted.expected_uv_m,
                 range_offset_m=range_offset_m,
+                fluted=rod.fluted,
             )
         except RodNotFoundError as exc:
             kept.append((m.index, str(exc)))

@@ -83,7 +83,9 @@ def watcher_centre(
     """The rod's centre in a watcher's averaged scan: no background, the rod picked and its
     cross-section cut where ``expected_crossing`` puts it (a RodNotFoundError when it is not there)."""
     expected_uv_m, axis = expected
-    return find_rod_centre(averaged, radius_m=rod.radius_m, axis_in_scanner=axis, expected_uv_m=expected_uv_m)
+    return find_rod_centre(
+        averaged, radius_m=rod.radius_m, axis_in_scanner=axis, expected_uv_m=expected_uv_m, fluted=rod.fluted
+    )
 
 
 def watch_waypoint(
