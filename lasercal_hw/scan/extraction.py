@@ -142,6 +142,14 @@ class ExtractionSettings:
     #: spot passes partly beside the rod also returns light from what lies behind it ...
     spot_width_at_scanner_m: float = 0.020
     spot_divergence_rad: float = 0.011
+    #: The spot's faint skirt: this share of the power over ``spot_halo_scale`` times its
+    #: width (docs/scanner-model.md: chosen there to reproduce issue 18's real retro-reflective
+    #: rod's ramps). A surface close behind that is much brighter than the rod merges through
+    #: it into every beam's echo: a matte 20 mm rod at 0.1 m before a wall 0.3 m behind (the
+    #: wall 16 times the rod's power) read every beam 4-5 mm long, the centre 4.7 mm long
+    #: against 0.6 mm std, where the core alone gave a share of 0.03 %.
+    spot_halo_fraction: float = 0.015
+    spot_halo_scale: float = 2.5
     #: ... and when that surface is nearer behind the rod than about the laser pulse's length
     #: (about 1 m: docs/scanner-model.md), the two merge into one echo whose peak lies between
     #: them: a steady blend. A beam's blend is bounded by its share of the background (the
@@ -423,17 +431,23 @@ def _candidate_segments(
         cuts = np.flatnonzero(split[run[1:]]) + 1
         segments.extend(_trim_unstable(part, unstable) for part in np.split(run, cuts))
     scored, notes = [], []
-    last_beam = ranges.size - 1
+    last_beam, min_beams = ranges.size - 1, settings.min_beams
     for part in segments:
         if part.size == 0:
             continue
         visible = _visible_fraction(scan, part, background, settings)
-        cores = [
-            core
-            for core in _rod_cores(scan, sigma, part, section, settings)
-            if core.size >= settings.min_beams
-            and _size_mismatch(scan, core, section, settings, visible) is not None
-        ]
+        rod_sized = [c for c in _rod_cores(scan, sigma, part, section, settings) if c.size >= min_beams]
+        cores = [c for c in rod_sized if _size_mismatch(scan, c, section, settings, visible) is not None]
+        narrow_part = _size_mismatch(scan, part, section, settings, visible) is None
+        if background is not None and not cores and narrow_part:
+            # The whole segment is too narrow too: its steps into a wall close behind split
+            # the rod's blended flanks off, and the middle that reads the rod is all that is
+            # left (a bare-metal 20 mm rod at 0.2 m: 14 of its 46 beams, "no segment matching
+            # a rod"). Its core may span what a dark rod's middle may; whether its beams are
+            # the rod's own or blends the blend bound then says (``_fit_segment``). Without a
+            # background scan a narrow core may be any thin object (a post hiding the rod).
+            visible = settings.min_visible_fraction_far_background
+            cores = [c for c in rod_sized if _size_mismatch(scan, c, section, settings, visible) is not None]
         # Without a rod-sized core the segment is judged whole, so that its fit says why.
         for beams in cores or [part]:
             if beams[0] == 0 or beams[-1] == last_beam:
@@ -1110,8 +1124,9 @@ def _fit_segment(
         # Where no beam reads the rod cleanly the echo may be merged and still look like an arc:
         # the covariance takes every beam's whole bound. Where some do, the blended edge beams
         # show as residuals (the misfit test below allows them their bound).
-        doubtful = settings.doubtful_blend_share_spot_shown if spot_shown else settings.doubtful_blend_share
-        bound_in_fit = float(np.min(share[keep])) > doubtful
+        # Only where the scan shows the spot: without that sign (the ideal scanner's exact rays)
+        # the spot model's share is no evidence of a blend.
+        bound_in_fit = spot_shown and float(np.min(share[keep])) > settings.doubtful_blend_share_spot_shown
         if bound_in_fit:
             inner, fit = _drop_mixed_edges(points[keep], sigma[keep], section, settings, bound_m[keep])
             keep = keep[inner]
@@ -1126,14 +1141,16 @@ def _fit_segment(
     narrow = _size_mismatch(scan, beams[keep], section, settings) is None
     if keep.size <= settings.symmetry_check_max_beams or narrow:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
-    if spot_shown and not bound_in_fit and keep.size <= settings.symmetry_check_max_beams:
+    if spot_shown and not bound_in_fit:
         # A fit of few beams takes its range from its edge beams too, whose spots reach past
         # the rod onto the surface close behind: the blend pushes them long, and the fit's one
         # or two spare beams cannot show it (a 45 mm rod at 2-3 m before a wall 0.3 m behind,
         # 3-5 beams: 1.6-3.1 mm long against 0.45-0.7 mm std). Added after the sideways checks,
         # which measure their excess against the covariance before it: added before, it took
         # their share away across and left a 20 mm rod at 0.75 m 5.9 std off, 1.1 before.
-        fit = _with_shared_push(used, sigma[keep], np.zeros(keep.size), bound_m[keep], fit, section, settings)
+        fit = _with_shared_push(
+            used, sigma[keep], np.zeros(keep.size), bound_m[keep], fit, section, settings, shown_by_arc=True
+        )
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies off the surface by up to its bound, and the arc's range error by up
     # to its own: that part is no misfit.
@@ -1245,7 +1262,12 @@ def _blend(
     offset = np.sin(angles) * centre[0] - np.cos(angles) * centre[1]
     spot = np.fmax(_spot_sigma_m(ranges, settings), 1e-9)  # a thin ray: all or nothing
     half = section.radius_m
-    share = 1.0 - (ndtr((half - offset) / spot) - ndtr((-half - offset) / spot))
+
+    def beside(sigma_m: FloatArray) -> FloatArray:
+        return 1.0 - (ndtr((half - offset) / sigma_m) - ndtr((-half - offset) / sigma_m))
+
+    halo = settings.spot_halo_fraction
+    share = (1.0 - halo) * beside(spot) + halo * beside(settings.spot_halo_scale * spot)
     if behind.intensities is not None and scan.intensities is not None:
         own = np.fmax(scan.intensities[beams], 1.0)
         ratio = np.where(np.isfinite(behind.intensities[beams]), behind.intensities[beams] / own, 1.0)
@@ -1392,10 +1414,21 @@ def _with_shared_push(
     fit: _Fit,
     section: _Section,
     settings: ExtractionSettings,
+    *,
+    shown_by_arc: bool = False,
 ) -> _Fit:
     """The fit with the centre's move were every beam's range off by ``push_m`` in its
     covariance (shared by neighbours, so taken whole); ``blend_m``: blend allowances already
-    in the beams' sigmas."""
+    in the beams' sigmas.
+
+    ``shown_by_arc``: ``push_m`` is a bound the push may reach or not (a blend), and the arc's
+    residuals show as much of it as the centre cannot absorb: the push's size, a fraction of
+    the bound with prior std 1, is then known from the fit with variance ``1 / (1 + q)``,
+    ``q`` the squared whitened residual the whole push would leave, and only that much of the
+    move joins the covariance. A fit of 3-5 beams cannot show it (``q`` near 0: the whole
+    move); a near thick rod's dozens of beams show it well. (Before, a fit of more than 8 beams
+    took none of it: a 45 mm rod at 1.5 m before a wall 0.3 m behind, 9 beams, 1.25 mm long
+    against 0.29 mm std.)"""
     if not np.any(push_m > 0.0):
         return fit
     _, normals = _residuals(points, fit.centre_uv_m, section, section.radius_m)
@@ -1405,7 +1438,13 @@ def _with_shared_push(
         shift = _centre_shift(points, normals, residual_sigma, jac.T @ jac, push_m)
     except np.linalg.LinAlgError:
         return fit
-    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))
+    share = 1.0
+    if shown_by_arc:
+        beams = points / np.linalg.norm(points, axis=1)[:, None]
+        pushed = np.einsum("ij,ij->i", beams, normals[:, :2]) * push_m / residual_sigma
+        left = pushed + jac @ shift
+        share = 1.0 / (1.0 + float(left @ left))
+    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + share * np.outer(shift, shift))
 
 
 def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray, noise_doubt_m2: FloatArray | None = None) -> _Fit:
