@@ -294,7 +294,8 @@ def test_a_warned_centre_is_not_taken_as_repeating_at_a_revisited_waypoint() -> 
     whole, noise = np.diag([0.06**2, 0.007**2]), np.eye(2) * 0.002**2
     clean = RodCentre(np.array([0.06, -1.2]), whole, quality, noise_covariance_uv_m2=noise)
     warned = RodCentre(
-        np.array([0.06, -1.2]), whole, quality, warnings=("blends with the wall",), noise_covariance_uv_m2=noise
+        np.array([0.06, -1.2]), whole, quality, warnings=("blends with the wall",),
+        noise_covariance_uv_m2=noise,
     )
     np.testing.assert_array_equal(_noise_covariance(clean), noise)
     np.testing.assert_array_equal(_noise_covariance(warned), whole)
