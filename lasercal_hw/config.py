@@ -27,7 +27,9 @@ DEFAULT_PRESET = "paper"
 DEFAULT_SCANNER_NAME = "default"
 """The name of a job's one scanner when it gives ``[scanner]`` (or nothing) rather than
 ``[scanners.NAME]`` tables: a one-scanner job of today is a cell of the scanner ``default``."""
-SCANNER_NAME_PATTERN = r"^[a-z][a-z0-9_-]{0,31}$"
+# A name goes into ROS 2 topic names (/scan/NAME) and frames (laser_NAME), which allow only
+# letters, digits and underscores (ROS 2 design article 140, rmw_validate_full_topic_name).
+SCANNER_NAME_PATTERN = r"^[a-z][a-z0-9_]{0,31}$"
 
 
 class _Strict(BaseModel):
@@ -360,7 +362,9 @@ class JobConfig(_Strict):
         for name in scanners:
             if not re.match(SCANNER_NAME_PATTERN, name):
                 raise ValueError(
-                    f"scanner name {name!r}: use a lower-case letter, then up to 31 of a-z, 0-9, _ and -"
+                    f"scanner name {name!r}: use a lower-case letter, then up to 31 of a-z, 0-9 and _ "
+                    "(it names the ROS 2 topic /scan/NAME, where '-' is not allowed: "
+                    f"e.g. {re.sub('[^a-z0-9_]', '_', name.lower())!r})"
                 )
         return scanners
 

@@ -56,6 +56,7 @@ def test_each_scanner_of_a_cell_job_is_a_one_scanner_job_with_its_own_tables(tmp
     [
         ("[scanner]\nurl = \"scip+tcp://127.0.0.1:10940\"\n[scanners.a]\n", "not both"),
         ("[scanners.Front]\n", "scanner name 'Front'"),
+        ("[scanners.front-left]\n", "scanner name 'front-left'.*'-' is not allowed: e.g. 'front_left'"),
         ("[scanners.a]\nurl = \"http://x\"\n", "scanners.a.url"),
     ],
 )
