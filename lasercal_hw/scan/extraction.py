@@ -1141,16 +1141,14 @@ def _fit_segment(
     narrow = _size_mismatch(scan, beams[keep], section, settings) is None
     if keep.size <= settings.symmetry_check_max_beams or narrow:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
-    if spot_shown and not bound_in_fit:
+    if spot_shown and not bound_in_fit and keep.size <= settings.symmetry_check_max_beams:
         # A fit of few beams takes its range from its edge beams too, whose spots reach past
         # the rod onto the surface close behind: the blend pushes them long, and the fit's one
         # or two spare beams cannot show it (a 45 mm rod at 2-3 m before a wall 0.3 m behind,
         # 3-5 beams: 1.6-3.1 mm long against 0.45-0.7 mm std). Added after the sideways checks,
         # which measure their excess against the covariance before it: added before, it took
         # their share away across and left a 20 mm rod at 0.75 m 5.9 std off, 1.1 before.
-        fit = _with_shared_push(
-            used, sigma[keep], np.zeros(keep.size), bound_m[keep], fit, section, settings, shown_by_arc=True
-        )
+        fit = _with_shared_push(used, sigma[keep], np.zeros(keep.size), bound_m[keep], fit, section, settings)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies off the surface by up to its bound, and the arc's range error by up
     # to its own: that part is no misfit.
@@ -1414,21 +1412,10 @@ def _with_shared_push(
     fit: _Fit,
     section: _Section,
     settings: ExtractionSettings,
-    *,
-    shown_by_arc: bool = False,
 ) -> _Fit:
     """The fit with the centre's move were every beam's range off by ``push_m`` in its
     covariance (shared by neighbours, so taken whole); ``blend_m``: blend allowances already
-    in the beams' sigmas.
-
-    ``shown_by_arc``: ``push_m`` is a bound the push may reach or not (a blend), and the arc's
-    residuals show as much of it as the centre cannot absorb: the push's size, a fraction of
-    the bound with prior std 1, is then known from the fit with variance ``1 / (1 + q)``,
-    ``q`` the squared whitened residual the whole push would leave, and only that much of the
-    move joins the covariance. A fit of 3-5 beams cannot show it (``q`` near 0: the whole
-    move); a near thick rod's dozens of beams show it well. (Before, a fit of more than 8 beams
-    took none of it: a 45 mm rod at 1.5 m before a wall 0.3 m behind, 9 beams, 1.25 mm long
-    against 0.29 mm std.)"""
+    in the beams' sigmas."""
     if not np.any(push_m > 0.0):
         return fit
     _, normals = _residuals(points, fit.centre_uv_m, section, section.radius_m)
@@ -1438,13 +1425,7 @@ def _with_shared_push(
         shift = _centre_shift(points, normals, residual_sigma, jac.T @ jac, push_m)
     except np.linalg.LinAlgError:
         return fit
-    share = 1.0
-    if shown_by_arc:
-        beams = points / np.linalg.norm(points, axis=1)[:, None]
-        pushed = np.einsum("ij,ij->i", beams, normals[:, :2]) * push_m / residual_sigma
-        left = pushed + jac @ shift
-        share = 1.0 / (1.0 + float(left @ left))
-    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + share * np.outer(shift, shift))
+    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))
 
 
 def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray, noise_doubt_m2: FloatArray | None = None) -> _Fit:
