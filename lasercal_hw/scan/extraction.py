@@ -158,11 +158,13 @@ class ExtractionSettings:
     echo_merge_m: float = 0.85
     #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
     max_blend_share: float = 0.5
-    #: ... and one whose least blended beam still has this share of background may be a merged
-    #: echo that looks like an arc: its covariance takes every beam's whole bound (otherwise
-    #: what the residuals show of it) and the centre carries a warning when that is large.
+    #: An edge beam under this share reads the rod cleanly (``_drop_blended_edges``: the other
+    #: edge, more background than rod, is then dropped).
     doubtful_blend_share: float = 0.05
-    #: ... or this share, where the scan shows the spot wider than the rod: at least
+    #: A rod whose least blended beam still has this share of background may be a merged echo
+    #: that looks like an arc: its covariance takes every beam's whole bound (otherwise what
+    #: the residuals show of it) and the centre carries a warning when that is large; only
+    #: where the scan shows the spot wider than the rod: at least
     #: ``spot_shown_ramp_beams`` beams were cut off the rod's segment (steady ramps into a
     #: surface close behind, a bright rod's halo). A 4 mm taped rod at 0.1-0.15 m before a wall
     #: 0.3 m behind lights 13-19 deg of beams and reads the wall in every beam at 2-4 % of its
