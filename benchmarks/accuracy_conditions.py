@@ -5,7 +5,7 @@ Run from the repository root::
 
     .venv/bin/python -m benchmarks.accuracy_conditions [--seeds 20] [--first-seed 0]
         [--cases default-3s,drill-estimated]
-        [--model physical|ideal] [--design-seed 0] [--design-range-terms K]
+        [--model physical|ideal] [--design-seed 0] [--design-range-terms K] [--design-waypoints 20]
 
 Each case runs the sequencer's measurement chain (``benchmarks.dry_run_accuracy.simulate``:
 noisy scans of the world at every waypoint, averaging, extraction with the background,
@@ -43,9 +43,9 @@ the truth (median, 95th percentile, max), the share of error components within 2
 reported std, and the estimated axis / range offset against the truth in reported std.
 The default (5 seeds) is a quick look; the figures in docs/solver.md use ``--seeds 20``.
 ``--model``: the scene's scanner model (``physical``, its default: a real UTM-30LX-EW's
-footprint, echoes and range error; or ``ideal``, the reference). ``--design-seed`` and
-``--design-range-terms``: another design of the ``designed-*`` cases (one design is one
-draw: docs/trajectory-design.md compares several).
+footprint, echoes and range error; or ``ideal``, the reference). ``--design-seed``,
+``--design-range-terms`` and ``--design-waypoints``: another design of the ``designed-*``
+cases (one design is one draw: docs/trajectory-design.md compares several).
 """
 
 from __future__ import annotations
@@ -139,21 +139,23 @@ def cases() -> list[Case]:
 
 @dataclass(frozen=True)
 class DesignChoice:
-    """How the ``designed-*`` cases' waypoints are laid out: the design's seed and, when
-    given, how many range curve terms it plans for (None: ``request_for_job``'s own)."""
+    """How the ``designed-*`` cases' waypoints are laid out: the design's seed, how many
+    waypoints and, when given, how many range curve terms it plans for (None:
+    ``request_for_job``'s own)."""
 
     seed: int = 0
     range_terms: int | None = None
+    waypoints: int = 20
 
 
 def designed_waypoints(job: JobConfig, scene: Scene, choice: DesignChoice = DesignChoice()) -> np.ndarray:
     """What ``lasercal trajectory design`` lays out for the scene's scanner (the default 5 cm /
-    5 deg uncertainty, 20 waypoints, a UR5; seed 0 unless ``choice`` says otherwise)."""
+    5 deg uncertainty, a UR5; 20 waypoints and seed 0 unless ``choice`` says otherwise)."""
     mounting = scene.scanner
     T_base_laser = make_transform(
         euler_zyx_to_matrix(*np.radians(mounting.euler_zyx_deg)), mounting.translation_m
     )
-    request = request_for_job(job, T_base_laser, UR5, seed=choice.seed)
+    request = request_for_job(job, T_base_laser, UR5, waypoints=choice.waypoints, seed=choice.seed)
     if choice.range_terms is not None:
         request = replace(request, range_terms=choice.range_terms)
     result = design(request, extended_fisher_information)
@@ -314,8 +316,11 @@ def main() -> None:
         default=None,
         help="range curve terms the designed-* cases' design plans for (default: the design's own)",
     )
+    parser.add_argument(
+        "--design-waypoints", type=int, default=20, help="the designed-* cases' waypoints (default 20)"
+    )
     args = parser.parse_args()
-    choice = DesignChoice(args.design_seed, args.design_range_terms)
+    choice = DesignChoice(args.design_seed, args.design_range_terms, args.design_waypoints)
     chosen = cases()
     if args.cases:
         names = set(args.cases.split(","))
