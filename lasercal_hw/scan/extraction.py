@@ -142,6 +142,14 @@ class ExtractionSettings:
     #: spot passes partly beside the rod also returns light from what lies behind it ...
     spot_width_at_scanner_m: float = 0.020
     spot_divergence_rad: float = 0.011
+    #: The spot's faint skirt: this share of the power over ``spot_halo_scale`` times its
+    #: width (docs/scanner-model.md: chosen there to reproduce issue 18's real retro-reflective
+    #: rod's ramps). A surface close behind that is much brighter than the rod merges through
+    #: it into every beam's echo: a matte 20 mm rod at 0.1 m before a wall 0.3 m behind (the
+    #: wall 16 times the rod's power) read every beam 4-5 mm long, the centre 4.7 mm long
+    #: against 0.6 mm std, where the core alone gave a share of 0.03 %.
+    spot_halo_fraction: float = 0.015
+    spot_halo_scale: float = 2.5
     #: ... and when that surface is nearer behind the rod than about the laser pulse's length
     #: (about 1 m: docs/scanner-model.md), the two merge into one echo whose peak lies between
     #: them: a steady blend. A beam's blend is bounded by its share of the background (the
@@ -150,11 +158,13 @@ class ExtractionSettings:
     echo_merge_m: float = 0.85
     #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
     max_blend_share: float = 0.5
-    #: ... and one whose least blended beam still has this share of background may be a merged
-    #: echo that looks like an arc: its covariance takes every beam's whole bound (otherwise
-    #: what the residuals show of it) and the centre carries a warning when that is large.
+    #: An edge beam under this share reads the rod cleanly (``_drop_blended_edges``: the other
+    #: edge, more background than rod, is then dropped).
     doubtful_blend_share: float = 0.05
-    #: ... or this share, where the scan shows the spot wider than the rod: at least
+    #: A rod whose least blended beam still has this share of background may be a merged echo
+    #: that looks like an arc: its covariance takes every beam's whole bound (otherwise what
+    #: the residuals show of it) and the centre carries a warning when that is large; only
+    #: where the scan shows the spot wider than the rod: at least
     #: ``spot_shown_ramp_beams`` beams were cut off the rod's segment (steady ramps into a
     #: surface close behind, a bright rod's halo). A 4 mm taped rod at 0.1-0.15 m before a wall
     #: 0.3 m behind lights 13-19 deg of beams and reads the wall in every beam at 2-4 % of its
@@ -435,17 +445,33 @@ def _candidate_segments(
         cuts = np.flatnonzero(split[run[1:]]) + 1
         segments.extend(_trim_unstable(part, unstable) for part in np.split(run, cuts))
     scored, notes = [], []
-    last_beam = ranges.size - 1
+    last_beam, min_beams = ranges.size - 1, settings.min_beams
     for part in segments:
         if part.size == 0:
             continue
         visible = _visible_fraction(scan, part, background, settings)
-        cores = [
-            core
-            for core in _rod_cores(scan, sigma, part, section, settings)
-            if core.size >= settings.min_beams
-            and _size_mismatch(scan, core, section, settings, visible) is not None
-        ]
+        rod_sized = [c for c in _rod_cores(scan, sigma, part, section, settings) if c.size >= min_beams]
+        cores = [c for c in rod_sized if _size_mismatch(scan, c, section, settings, visible) is not None]
+        narrow_part = _size_mismatch(scan, part, section, settings, visible) is None
+        if background is not None and not cores and narrow_part and _in_front(scan, part, sigma):
+            # The whole segment is too narrow too: its steps into a wall close behind split
+            # the rod's blended flanks off, and the middle that reads the rod is all that is
+            # left (a bare-metal 20 mm rod at 0.2 m: 14 of its 46 beams, "no segment matching
+            # a rod"). Its core may span what a dark rod's middle may; whether its beams are
+            # the rod's own or blends the blend bound then says (``_fit_segment``). Only a segment
+            # standing in front of its neighbours, and a middle that is a clean arc of the rod
+            # without any blend allowance: a 10 mm steel rod at 0.3 m whose every beam blends
+            # with the wall showed a jagged middle 35 mm behind the rod, taken for it 40 mm
+            # long. Without a background scan a narrow core may be any thin object (a post
+            # hiding the rod).
+            middle = settings.min_visible_fraction_far_background
+            cores = [
+                c
+                for c in rod_sized
+                if _size_mismatch(scan, c, section, settings, middle) is not None
+                and _clean_arc(scan, sigma, c, section, settings)
+            ]
+            visible = middle if cores else visible
         # Without a rod-sized core the segment is judged whole, so that its fit says why.
         for beams in cores or [part]:
             if beams[0] == 0 or beams[-1] == last_beam:
@@ -464,6 +490,30 @@ def _candidate_segments(
             scored.append((fit, beams, ramps))
     scored.sort(key=lambda item: item[0])
     return [(beams, ramp) for _, beams, ramp in scored], notes
+
+
+def _clean_arc(
+    scan: AveragedScan,
+    sigma: FloatArray,
+    beams: NDArray[np.int64],
+    section: _Section,
+    settings: ExtractionSettings,
+) -> bool:
+    """True when a known-radius fit of the beams has no more misfit than a rod's (the misfit
+    test of ``_fit_segment`` without any blend allowance) and every beam lies on the rod's
+    half facing the scanner (three jagged blends fit a circle through its far side)."""
+    points = scan.points_m()[beams]
+    try:
+        fit = _fit_centre(points, sigma[beams], section, settings)
+    except RodNotFoundError:
+        return False
+    rms_m = float(np.sqrt(np.mean(fit.residuals_m**2)))
+    towards_m = float(np.linalg.norm(fit.centre_uv_m))
+    behind_m = points @ (fit.centre_uv_m / towards_m) - towards_m
+    noise_m = 3.0 * float(np.median(sigma[beams]))
+    return rms_m <= settings.max_rms_radius_fraction * section.radius_m + noise_m and bool(
+        np.all(behind_m <= noise_m)
+    )
 
 
 def _visible_fraction(
@@ -1122,8 +1172,9 @@ def _fit_segment(
         # Where no beam reads the rod cleanly the echo may be merged and still look like an arc:
         # the covariance takes every beam's whole bound. Where some do, the blended edge beams
         # show as residuals (the misfit test below allows them their bound).
-        doubtful = settings.doubtful_blend_share_spot_shown if spot_shown else settings.doubtful_blend_share
-        bound_in_fit = float(np.min(share[keep])) > doubtful
+        # Only where the scan shows the spot: without that sign (the ideal scanner's exact rays)
+        # the spot model's share is no evidence of a blend.
+        bound_in_fit = spot_shown and float(np.min(share[keep])) > settings.doubtful_blend_share_spot_shown
         if bound_in_fit:
             inner, fit = _drop_mixed_edges(points[keep], sigma[keep], section, settings, bound_m[keep])
             keep = keep[inner]
@@ -1241,8 +1292,12 @@ def _blend(
     section: _Section,
     behind: _Behind,
     settings: ExtractionSettings,
+    *,
+    halo: bool = True,
 ) -> tuple[FloatArray, FloatArray]:
-    """Per beam, the background's share of the returned echo and the blend allowance (m).
+    """Per beam, the background's share of the returned echo and the blend allowance (m);
+    ``halo``: with the spot's faint halo (False: its core alone, which tells the edge beams
+    apart; the halo adds about the same to every beam).
 
     The share is the part of the spot passing beside the rod (a gaussian spot across the
     rod's silhouette); with intensities it is weighted by the background's power against
@@ -1257,7 +1312,12 @@ def _blend(
     offset = np.sin(angles) * centre[0] - np.cos(angles) * centre[1]
     spot = np.fmax(_spot_sigma_m(ranges, settings), 1e-9)  # a thin ray: all or nothing
     half = section.radius_m
-    share = 1.0 - (ndtr((half - offset) / spot) - ndtr((-half - offset) / spot))
+
+    def beside(sigma_m: FloatArray) -> FloatArray:
+        return 1.0 - (ndtr((half - offset) / sigma_m) - ndtr((-half - offset) / sigma_m))
+
+    halo_fraction = settings.spot_halo_fraction if halo else 0.0
+    share = (1.0 - halo_fraction) * beside(spot) + halo_fraction * beside(settings.spot_halo_scale * spot)
     if behind.intensities is not None and scan.intensities is not None:
         own = np.fmax(scan.intensities[beams], 1.0)
         ratio = np.where(np.isfinite(behind.intensities[beams]), behind.intensities[beams] / own, 1.0)
@@ -1295,7 +1355,11 @@ def _drop_blended_edges(
         share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
         if keep.size <= settings.min_beams:
             return keep, fit, share, bound_m
-        first, last = share[keep[0]], share[keep[-1]]
+        # The edges compared by the spot's core: its halo, much the same on both sides, lifted
+        # the clean edge of a dark 45 mm rod at 0.1 m before a bright wall over 5 %, and the
+        # blends kept on the other side pulled it 10.9 mm sideways.
+        core, _ = _blend(scan, beams, fit.centre_uv_m, section, behind, settings, halo=False)
+        first, last = core[keep[0]], core[keep[-1]]
         if max(first, last) <= settings.max_blend_share or min(first, last) > settings.doubtful_blend_share:
             return keep, fit, share, bound_m
         kept = keep[1:] if first > last else keep[:-1]
@@ -1420,16 +1484,17 @@ def _with_shared_push(
     return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))
 
 
-def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray) -> _Fit:
-    """The fit with a sideways check's variance in its covariance and in its noise: which
-    beams are the silhouette's edges changes from dwell to dwell (a far rod's 3-7 beams: its
-    centre moved 5-7 mm sideways between two dwells at one pose), so another dwell draws that
-    part anew too."""
+def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray, noise_doubt_m2: FloatArray | None = None) -> _Fit:
+    """The fit with a sideways check's variance in its covariance (``doubt_m2``) and in its
+    noise (``noise_doubt_m2``, default the same): which beams are the silhouette's edges
+    changes from dwell to dwell (a far rod's 3-7 beams: its centre moved 5-7 mm sideways
+    between two dwells at one pose), so another dwell draws that part anew too."""
     noise = fit.noise_covariance_uv_m2
+    noise_doubt_m2 = doubt_m2 if noise_doubt_m2 is None else noise_doubt_m2
     return replace(
         fit,
         covariance_uv_m2=fit.covariance_uv_m2 + doubt_m2,
-        noise_covariance_uv_m2=None if noise is None else noise + doubt_m2,
+        noise_covariance_uv_m2=None if noise is None else noise + noise_doubt_m2,
     )
 
 
@@ -1508,12 +1573,21 @@ def _with_symmetry_doubt(
     across = np.array([-fit.centre_uv_m[1], fit.centre_uv_m[0]]) / distance_m
     fitted = float(np.arctan2(fit.centre_uv_m[1], fit.centre_uv_m[0]))
     sideways_m = distance_m * float(np.angle(np.exp(1j * (bearing - fitted))))
-    fitted_m2 = float(across @ fit.covariance_uv_m2 @ across)
     quantisation_m2 = (distance_m * _beam_step_rad(scan)) ** 2 / 12.0
-    excess_m2 = sideways_m**2 - fitted_m2 - quantisation_m2
-    if excess_m2 <= 0.0:
+    noise = fit.covariance_uv_m2 if fit.noise_covariance_uv_m2 is None else fit.noise_covariance_uv_m2
+    # Against the whole covariance for the covariance, against the noise for the noise: a
+    # blend bound that covers the disagreement repeats at the pose, while which beams the
+    # core keeps is drawn anew by every dwell (verify seed 6: a 20 mm rod at 1.2 m, 3 beams,
+    # 192-194 at the calibration and 191-193 at the verify, 11.7 mm apart sideways against
+    # 2-3 mm of noise std, its 59-188 mm blend std having swallowed the check).
+    excess_m2, noise_excess_m2 = (
+        max(sideways_m**2 - float(across @ covariance @ across) - quantisation_m2, 0.0)
+        for covariance in (fit.covariance_uv_m2, noise)
+    )
+    if noise_excess_m2 <= 0.0:
         return fit
-    return _with_sideways_doubt(fit, excess_m2 * np.outer(across, across))
+    doubt = np.outer(across, across)
+    return _with_sideways_doubt(fit, excess_m2 * doubt, noise_excess_m2 * doubt)
 
 
 def _flute_moments_m(radius_m: float, settings: ExtractionSettings) -> tuple[float, float, float]:

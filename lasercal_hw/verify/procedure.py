@@ -290,9 +290,15 @@ def refit_and_test(
 
 
 def _noise_covariance(centre: RodCentre) -> FloatArray:
-    """The part of a centre's covariance another dwell draws anew (all of it where unknown)."""
+    """The part of a centre's covariance another dwell draws anew: all of it where unknown,
+    and where the extraction warns that the centre may be off by more than its noise (a rod
+    blended with the surface behind it): which beams its fit keeps changes from dwell to dwell,
+    and the blend moves with them, so nothing of it is known to repeat at the pose (verify
+    seed 6: a 20 mm rod at 1.2 m whose 3 beams were 192-194 at the calibration and 191-193
+    at the verify, 11.7 mm apart sideways against 2-3 mm of noise std: an unmoved scanner
+    flagged at chi-square 62.6)."""
     noise = centre.noise_covariance_uv_m2
-    return centre.covariance_uv_m2 if noise is None else noise
+    return centre.covariance_uv_m2 if noise is None or centre.warnings else noise
 
 
 class _OtherDevicesError(Exception):

@@ -280,3 +280,22 @@ def test_at_a_visited_waypoint_only_what_a_dwell_draws_anew_is_counted_twice(
     assert split.chi_square > 10.0 * twice.chi_square
     unknown = run_drift_test(model, [0, 1, 2, 3], chosen, measured, whole, recorded, whole)
     assert not unknown.changed
+
+
+def test_a_warned_centre_is_not_taken_as_repeating_at_a_revisited_waypoint() -> None:
+    """Verify seed 6: a 20 mm rod at 1.2 m blended with the wall behind it kept beams 192-194
+    at the calibration's dwell and 191-193 at the verify's, 11.7 mm apart sideways against
+    2-3 mm of noise std, and the unmoved scanner was flagged (chi-square 62.6): its blend
+    moves with the beams the fit keeps, so nothing of a warned centre is known to repeat."""
+    from lasercal_hw.scan.extraction import RodCentre, RodQuality
+    from lasercal_hw.verify.procedure import _noise_covariance
+
+    quality = RodQuality(3, 0.001, 20.0, None, 0)
+    whole, noise = np.diag([0.06**2, 0.007**2]), np.eye(2) * 0.002**2
+    clean = RodCentre(np.array([0.06, -1.2]), whole, quality, noise_covariance_uv_m2=noise)
+    warned = RodCentre(
+        np.array([0.06, -1.2]), whole, quality, warnings=("blends with the wall",),
+        noise_covariance_uv_m2=noise,
+    )
+    np.testing.assert_array_equal(_noise_covariance(clean), noise)
+    np.testing.assert_array_equal(_noise_covariance(warned), whole)
