@@ -12,17 +12,20 @@ from lasercal_hw.models import RodLine
 
 
 def write_rod_scene(rod: RodLine, path: Path) -> Path:
-    """A scene file: the default scene with its rod changed to ``rod`` (kept with the
-    outputs, so the dry run can be repeated with ``--scene``)."""
+    """A scene file: the default scene with its rod changed to ``rod`` (a fluted rod: a steel
+    twist drill, without a chuck) kept with the outputs, so the dry run can be repeated with
+    ``--scene``."""
     from fakes.scene import load_scene  # the dry-run step only: nothing else here needs a fake
 
     default = load_scene(None)
+    as_drill = {"shape": "twist_drill", "material": "steel_drill"} if rod.fluted else {}
     rod_settings = default.rod.model_copy(
         update={
             "origin_m": [float(v) for v in rod.origin_m],
             "direction": [float(v) for v in rod.direction],
             "radius_m": float(rod.radius_m),
             "length_m": float(rod.length_m),
+            **as_drill,
         }
     )
     scene = default.model_copy(update={"rod": rod_settings})

@@ -35,6 +35,13 @@ def test_the_dry_run_scene_is_the_default_scene_holding_the_jobs_rod(tmp_path: P
     default = load_scene(None)
     assert scene.rod.radius_m == 0.0025 and scene.rod.origin_m == [0.0, 0.0, 0.12]
     assert scene.model_copy(update={"rod": default.rod}) == default
+    assert (scene.rod.shape, scene.rod.material) == ("cylinder", default.rod.material)
+
+
+def test_the_dry_run_scene_of_a_fluted_rod_holds_a_steel_twist_drill(tmp_path: Path) -> None:
+    rod = RodLine(radius_m=0.005, length_m=0.1, fluted=True)
+    scene = load_scene(write_rod_scene(rod, tmp_path / "scene.toml"))
+    assert (scene.rod.shape, scene.rod.material, scene.rod.radius_m) == ("twist_drill", "steel_drill", 0.005)
 
 
 def test_a_bad_mapping_names_the_field() -> None:
