@@ -16,6 +16,7 @@ from tests.browser.test_page import (
     _answer_confirmation,
     _by_id,
     _check_plot_labels,
+    _click,
     _enter_token,
     _get,
     _screenshot,
@@ -28,8 +29,12 @@ pytestmark = [pytest.mark.slow, pytest.mark.integration, pytest.mark.timeout(600
 SCANNERS = ("front", "rear")
 
 
+def _card_css(name: str) -> str:
+    return f'#scanner-cards .scanner-card[data-scanner="{name}"]'
+
+
 def _card(browser: Any, name: str) -> Any:
-    return browser.find_element("css selector", f'#scanner-cards .scanner-card[data-scanner="{name}"]')
+    return browser.find_element("css selector", _card_css(name))
 
 
 def _seen(browser: Any, css: str) -> bool:
@@ -72,7 +77,7 @@ def test_a_cell_scanner_by_scanner(cell_daemon: DaemonProcess, browser: Any, art
             "css selector", f'#job-result [data-scanner="{name}"]').text
 
     # The rear chosen: its history alone, its exports in its own frame, its scan picture; verified.
-    _card(browser, "rear").click()
+    _click(browser, _card_css("rear"), "the rear's card")
     _wait(browser, lambda d: "laser_rear" in _by_id(d, "exports").text, "the rear's exports")
     rows = browser.find_elements("css selector", "#history-body tr[data-id]")
     assert rows and {row.get_attribute("data-scanner") for row in rows} == {"rear"}
@@ -102,7 +107,7 @@ def test_a_cell_scanner_by_scanner(cell_daemon: DaemonProcess, browser: Any, art
     _screenshot(browser, artifacts, "cell")
 
     # Every scanner again: both scanners' rows, each named.
-    browser.find_element("css selector", '#scanner-filter button[data-scanner=""]').click()
+    _click(browser, '#scanner-filter button[data-scanner=""]', "the every-scanner filter")
     _wait(browser, lambda d: {r.get_attribute("data-scanner") for r in d.find_elements(
         "css selector", "#history-body tr[data-id]")} == set(SCANNERS), "every scanner's history")
     assert not _seen(browser, "#exports")

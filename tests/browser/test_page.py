@@ -54,6 +54,12 @@ def _by_id(browser: Any, element_id: str) -> Any:
     return browser.find_element("id", element_id)
 
 
+def _click(browser: Any, css: str, what: str) -> None:
+    """Click the element ``css`` finds, found again until the click lands: the page re-renders
+    its cards, filter and history on every event, so one found a moment before may be gone."""
+    _wait(browser, lambda d: d.find_element("css selector", css).click() is None, what)
+
+
 def _answer_confirmation(browser: Any, yes: bool) -> str:
     dialog = _wait(browser, lambda d: _by_id(d, "confirm-dialog").get_attribute("open") is not None and
                    _by_id(d, "confirm-dialog"), "the confirmation dialog")
@@ -127,7 +133,7 @@ def test_dry_run_from_the_page(daemon: DaemonProcess, browser: Any, artifacts: P
         browser.find_elements("css selector", "#skipped li:not(.muted)"))
 
     # Activating it asks for confirmation but not for the token again (kept for the tab).
-    row.find_element("css selector", "button.activate").click()
+    _click(browser, f"{row_selector} button.activate", "the history row's activate button")
     assert calibration_id in _answer_confirmation(browser, yes=True)
     _wait(browser, lambda d: calibration_id in _by_id(d, "active-calibration").text, "the calibration active")
     assert _get(daemon, "/v1/calibration")["id"] == calibration_id
