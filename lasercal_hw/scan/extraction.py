@@ -1149,22 +1149,24 @@ def _fit_centre(
     """Fit the centre to the points; ``blend_m``: each beam's blend allowance (m, along the
     beam, one-sided: shared by neighbouring beams), which joins the covariance whole."""
     seed = seed_centre_pi4(points, section.radius_m, section.axis)
-    solved = _gauss_newton(points, sigma, seed, section, settings, free_radius=False)
+    solved = _gauss_newton(points, sigma, seed, section, settings, free_radius=False, spot=False)
     limit = 2.0 * section.semi_major_m + 0.01
     if solved is None or float(np.linalg.norm(solved[0] - seed)) > limit:
         raise RodNotFoundError(
             f"circle fit diverged from its seed ({seed[0]:.3f}, {seed[1]:.3f}) m; the segment is not a "
             "clean arc (clutter touching the rod?)"
         )
-    centre, normal, whitened = solved
+    centre, normal, _ = solved
     if float(np.linalg.norm(centre)) <= float(np.min(np.linalg.norm(points, axis=1))):
         raise RodNotFoundError(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
+    centre, normal = _along_the_spot(points, sigma, centre, normal, section, settings)
     residuals, normals, _ = _fit_residuals(points, centre, section, settings)
     dof = max(points.shape[0] - 2, 1)
-    variance_factor = max(1.0, float(whitened @ whitened) / dof)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
+    whitened = residuals / residual_sigma
+    variance_factor = max(1.0, float(whitened @ whitened) / dof)
     noise_covariance = np.linalg.inv(normal) * variance_factor
     covariance = (
         noise_covariance
@@ -1178,6 +1180,56 @@ def _fit_centre(
         blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
         covariance += np.outer(blend_shift, blend_shift)
     return _Fit(centre, covariance, residuals, whitened, float(np.linalg.norm(blend_shift)), noise_covariance)
+
+
+def _along_the_spot(
+    points: FloatArray,
+    sigma: FloatArray,
+    centre: FloatArray,
+    normal: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> tuple[FloatArray, FloatArray]:
+    """The ray fit's centre and normal matrix with their part along the bearing taken from a
+    fit against what each beam's spot returns (``_fit_residuals``), started there.
+
+    Along the bearing the spot's blur is one-sided: on a rod's curved front the spot's sides
+    meet the surface deeper than its middle, so the middle beams read long and the silhouette's
+    edge beams short, and a ray fit's centre lay long by more than its std (a 45 mm matte rod at
+    1.5 m: 1.3 mm against 0.29 mm; docs/extraction.md). Across the bearing the blur is
+    symmetric about the rod and the ray fit's edges pin the centre well; the spot model's own
+    sideways hold, the ranges' curvature under the blur, is weak where the rod is not much
+    wider than the spot (a 10 mm rod at 0.3 m wandered 16 mm sideways), so the ray fit keeps it.
+    The spot fit's centre is moved sideways to the ray fit's and along by what its normal
+    matrix couples to that move; the covariance is the spot fit's along the bearing given the
+    side, the ray fit's across it, and their coupling. A spot of no width, or a spot fit that
+    fails, leaves the ray fit."""
+    if not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
+        return centre, normal
+    solved = _gauss_newton(points, sigma, centre, section, settings, free_radius=False)
+    if solved is None or float(np.linalg.norm(solved[0] - centre)) > section.semi_major_m:
+        return centre, normal
+    bearing = centre / float(np.linalg.norm(centre))
+    side = np.array([-bearing[1], bearing[0]])
+    spot_normal = solved[1]
+    information = float(bearing @ spot_normal @ bearing)
+    try:
+        side_m2 = float(side @ np.linalg.inv(normal) @ side)
+    except np.linalg.LinAlgError:
+        return centre, normal
+    if not information > 0.0:
+        return centre, normal
+    # The spot fit's centre moved sideways to the ray fit's, and along by what that move
+    # costs it (its normal matrix's coupling); the ray fit's sideways variance carried along.
+    coupling = float(bearing @ spot_normal @ side) / information
+    sideways_m = float(side @ (centre - solved[0]))
+    moved = solved[0] + sideways_m * (side - coupling * bearing)
+    basis = np.column_stack([bearing, side])
+    covariance = basis @ np.array([
+        [1.0 / information + coupling**2 * side_m2, -coupling * side_m2],
+        [-coupling * side_m2, side_m2],
+    ]) @ basis.T
+    return moved, np.linalg.inv(covariance)
 
 
 def _centre_shift(
@@ -1661,8 +1713,11 @@ def _with_edge_doubt(
     the larger one's) joins the covariance across the bearing."""
     if points.shape[0] < settings.min_beams + 2:
         return fit
-    full = _gauss_newton(points, sigma, fit.centre_uv_m, section, settings, free_radius=False)
-    inner = _gauss_newton(points[1:-1], sigma[1:-1], fit.centre_uv_m, section, settings, free_radius=False)
+    # Ray fits: the sideways position is the ray fit's (``_along_the_spot``).
+    full = _gauss_newton(points, sigma, fit.centre_uv_m, section, settings, free_radius=False, spot=False)
+    inner = _gauss_newton(
+        points[1:-1], sigma[1:-1], fit.centre_uv_m, section, settings, free_radius=False, spot=False
+    )
     if full is None or inner is None:
         return fit
     try:
