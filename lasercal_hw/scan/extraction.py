@@ -1156,12 +1156,14 @@ def _fit_centre(
             f"circle fit diverged from its seed ({seed[0]:.3f}, {seed[1]:.3f}) m; the segment is not a "
             "clean arc (clutter touching the rod?)"
         )
-    centre, normal, _ = solved
+    centre, normal, ray_whitened = solved
     if float(np.linalg.norm(centre)) <= float(np.min(np.linalg.norm(points, axis=1))):
         raise RodNotFoundError(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
-    centre, normal = _along_the_spot(points, sigma, centre, normal, section, settings)
+    centre, normal = _along_the_spot(
+        points, sigma, centre, normal, float(ray_whitened @ ray_whitened), section, settings
+    )
     residuals, normals, _ = _fit_residuals(points, centre, section, settings)
     dof = max(points.shape[0] - 2, 1)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
@@ -1187,11 +1189,13 @@ def _along_the_spot(
     sigma: FloatArray,
     centre: FloatArray,
     normal: FloatArray,
+    ray_cost: float,
     section: _Section,
     settings: ExtractionSettings,
 ) -> tuple[FloatArray, FloatArray]:
-    """The ray fit's centre and normal matrix with their part along the bearing taken from a
-    fit against what each beam's spot returns (``_fit_residuals``), started there.
+    """The ray fit's centre and normal matrix (``ray_cost``: its chi-square) with their part
+    along the bearing taken from a fit against what each beam's spot returns
+    (``_fit_residuals``), started there, unless the rays fit the beams better.
 
     Along the bearing the spot's blur is one-sided: on a rod's curved front the spot's sides
     meet the surface deeper than its middle, so the middle beams read long and the silhouette's
@@ -1203,11 +1207,18 @@ def _along_the_spot(
     The spot fit's centre is moved sideways to the ray fit's and along by what its normal
     matrix couples to that move; the covariance is the spot fit's along the bearing given the
     side, the ray fit's across it, and their coupling. A spot of no width, or a spot fit that
-    fails, leaves the ray fit."""
+    fails, leaves the ray fit.
+
+    A scanner whose beams are rays (the ideal fake's exact ray casts) shows it: its edge beams
+    read the grazing surface, where a spot's read several millimetres short, and the rays fit
+    with the smaller chi-square; the ray fit is kept then (each beam's noise is the same in both
+    fits, so their chi-squares compare)."""
     if not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         return centre, normal
     solved = _gauss_newton(points, sigma, centre, section, settings, free_radius=False)
     if solved is None or float(np.linalg.norm(solved[0] - centre)) > section.semi_major_m:
+        return centre, normal
+    if float(solved[2] @ solved[2]) > ray_cost:
         return centre, normal
     bearing = centre / float(np.linalg.norm(centre))
     side = np.array([-bearing[1], bearing[0]])
