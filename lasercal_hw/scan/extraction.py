@@ -151,6 +151,12 @@ class ExtractionSettings:
     #: against 0.6 mm std, where the core alone gave a share of 0.03 %.
     spot_halo_fraction: float = 0.015
     spot_halo_scale: float = 2.5
+    #: The spot fit weights its spot's power by a diffuse surface's cosine (``_spot_readings_m``);
+    #: a glossy or retro-reflective surface weights the middle more. On the physical model a
+    #: retro-reflective rod's noise-free readings differ from that prediction by 1-2.5 mm RMS
+    #: where a ray's differ by 4-9 mm: this share of the spot's correction along the bearing
+    #: joins the covariance.
+    spot_model_doubt: float = 0.5
     #: The fit predicts each beam's reading as its spot returns it from the rod (a power-weighted
     #: mean over the part of the spot on the rod: ``_spot_readings_m``), integrated with this many
     #: Gauss-Legendre nodes across the rod's visible half.
@@ -918,6 +924,8 @@ class _Fit:
     whitened: FloatArray
     blend_shift_m: float = 0.0
     noise_covariance_uv_m2: FloatArray | None = None
+    #: The residuals are against the beam's spot, not rays (``_along_the_spot``).
+    spot: bool = False
 
 
 def _residuals(
@@ -930,6 +938,11 @@ def _residuals(
     dist = np.linalg.norm(w, axis=1)
     normals = w / np.fmax(dist, 1e-15)[:, None]
     return dist - radius_m, normals
+
+
+def _rays(settings: ExtractionSettings) -> ExtractionSettings:
+    """The settings with a spot of no width: the fit against rays (``_fit_residuals``)."""
+    return replace(settings, spot_width_at_scanner_m=0.0, spot_divergence_rad=0.0)
 
 
 def _fit_residuals(
@@ -1104,7 +1117,7 @@ def _gauss_newton(
     """Weighted Gauss-Newton on (u, v[, r]); returns (params, normal matrix, whitened) or None.
     ``spot``: against what the beam's spot returns (``_fit_residuals``); False: against rays."""
     params = np.concatenate([seed, [section.radius_m]]) if free_radius else seed.copy()
-    model = settings if spot else replace(settings, spot_width_at_scanner_m=0.0, spot_divergence_rad=0.0)
+    model = settings if spot else _rays(settings)
 
     def evaluate(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         res, normals, jac = _fit_residuals(points, p, section, model, free_radius=free_radius)
@@ -1117,14 +1130,18 @@ def _gauss_newton(
         normal = jac.T @ jac
         try:
             step = np.linalg.solve(normal, -jac.T @ whitened)
-            # Done once a step moves the centre less than a small fraction of its std: the
-            # weights move with the centre, so the fit converges only linearly, and the spot
-            # model (``_spot_readings_m``) costs a millisecond an evaluation.
-            tolerance_m = settings.fit_tolerance_std * float(np.sqrt(np.trace(np.linalg.inv(normal)[:2, :2])))
+            # Against the spot, done once a step moves the centre less than a small fraction
+            # of its std: the weights move with the centre, so the fit converges only
+            # linearly, and the spot model (``_spot_readings_m``) costs a millisecond an
+            # evaluation. Against rays, to the last 0.1 nm as before.
+            tolerance_m = 1e-10
+            if spot:
+                centre_std_m = float(np.sqrt(np.trace(np.linalg.inv(normal)[:2, :2])))
+                tolerance_m = settings.fit_tolerance_std * centre_std_m
         except np.linalg.LinAlgError:
             return None
         scale = 1.0
-        while scale * float(np.linalg.norm(step[:2])) > tolerance_m:
+        while scale > 1e-4 and (not spot or scale * float(np.linalg.norm(step[:2])) > tolerance_m):
             trial = params + scale * step
             trial_whitened, trial_jac, _ = evaluate(trial)
             trial_cost = float(trial_whitened @ trial_whitened)
@@ -1134,6 +1151,8 @@ def _gauss_newton(
         else:
             break
         params, whitened, jac, cost = trial, trial_whitened, trial_jac, trial_cost
+        if float(np.linalg.norm(scale * step[:2])) < tolerance_m:
+            break
     if not np.all(np.isfinite(params)):
         return None
     return params, jac.T @ jac, whitened
@@ -1161,27 +1180,69 @@ def _fit_centre(
         raise RodNotFoundError(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
-    centre, normal = _along_the_spot(
+    ray_noise, ray_covariance = _fit_covariances_m2(points, sigma, centre, normal, section, _rays(settings))
+    spot_centre, spot_normal, spot = _along_the_spot(
         points, sigma, centre, normal, float(ray_whitened @ ray_whitened), section, settings
     )
-    residuals, normals, _ = _fit_residuals(points, centre, section, settings)
-    dof = max(points.shape[0] - 2, 1)
-    residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
+    model = settings if spot else _rays(settings)
+    noise_covariance, covariance = ray_noise, ray_covariance
+    if spot:
+        # Each direction keeps the covariance of the fit it came from (what that fit's residuals
+        # leave unexplained included): along the bearing the spot's, across it the rays'.
+        spot_noise, spot_covariance = _fit_covariances_m2(
+            points, sigma, spot_centre, spot_normal, section, settings
+        )
+        bearing = centre / float(np.linalg.norm(centre))
+        # The spot's power weighting is a diffuse surface's; a glossy or retro-reflective one
+        # weights the spot's middle more (``spot_model_doubt`` of the correction).
+        doubt_m = settings.spot_model_doubt * float(bearing @ (spot_centre - centre))
+        spot_covariance = spot_covariance + doubt_m**2 * np.outer(bearing, bearing)
+        noise_covariance = _along_and_across_m2(spot_noise, ray_noise, bearing)
+        covariance = _along_and_across_m2(spot_covariance, ray_covariance, bearing)
+        centre, normal = spot_centre, spot_normal
+    residuals, normals, _ = _fit_residuals(points, centre, section, model)
+    residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
     whitened = residuals / residual_sigma
-    variance_factor = max(1.0, float(whitened @ whitened) / dof)
-    noise_covariance = np.linalg.inv(normal) * variance_factor
-    covariance = (
-        noise_covariance
-        + np.eye(2) * _unknown_tilt_variance_m2(section, settings)
-        + _systematic_covariance_m2(residuals, residual_sigma, normals, normal)
-    )
+    covariance = covariance + np.eye(2) * _unknown_tilt_variance_m2(section, settings)
     mismatch = _range_error_mismatch(points, centre, normals, residual_sigma, normal)
     covariance += np.outer(mismatch, mismatch) * settings.typical_range_error_m**2
     blend_shift = np.zeros(2)
     if blend_m is not None:
         blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
         covariance += np.outer(blend_shift, blend_shift)
-    return _Fit(centre, covariance, residuals, whitened, float(np.linalg.norm(blend_shift)), noise_covariance)
+    blend_m = float(np.linalg.norm(blend_shift))
+    return _Fit(centre, covariance, residuals, whitened, blend_m, noise_covariance, spot)
+
+
+def _fit_covariances_m2(
+    points: FloatArray,
+    sigma: FloatArray,
+    centre: FloatArray,
+    normal: FloatArray,
+    section: _Section,
+    model: ExtractionSettings,
+) -> tuple[FloatArray, FloatArray]:
+    """A fit's noise covariance (its normal matrix's, scaled up by the reduced chi-square
+    above 1) and that plus what its residuals leave unexplained (``_systematic_covariance_m2``),
+    against the spot or rays as ``model`` says."""
+    residuals, normals, _ = _fit_residuals(points, centre, section, model)
+    residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
+    whitened = residuals / residual_sigma
+    variance_factor = max(1.0, float(whitened @ whitened) / max(points.shape[0] - 2, 1))
+    noise = np.linalg.inv(normal) * variance_factor
+    return noise, noise + _systematic_covariance_m2(residuals, residual_sigma, normals, normal)
+
+
+def _along_and_across_m2(along_m2: FloatArray, across_m2: FloatArray, bearing: FloatArray) -> FloatArray:
+    """A covariance with ``along_m2``'s variance along the bearing, ``across_m2``'s across it,
+    and ``along_m2``'s correlation between the two."""
+    side = np.array([-bearing[1], bearing[0]])
+    along, across = float(bearing @ along_m2 @ bearing), float(side @ across_m2 @ side)
+    both_m2 = max(along * float(side @ along_m2 @ side), 1e-300)
+    correlation = float(bearing @ along_m2 @ side) / np.sqrt(both_m2)
+    basis = np.column_stack([bearing, side])
+    cross = correlation * np.sqrt(along * across)
+    return basis @ np.array([[along, cross], [cross, across]]) @ basis.T
 
 
 def _along_the_spot(
@@ -1192,10 +1253,11 @@ def _along_the_spot(
     ray_cost: float,
     section: _Section,
     settings: ExtractionSettings,
-) -> tuple[FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, bool]:
     """The ray fit's centre and normal matrix (``ray_cost``: its chi-square) with their part
     along the bearing taken from a fit against what each beam's spot returns
-    (``_fit_residuals``), started there, unless the rays fit the beams better.
+    (``_fit_residuals``), started there, unless the rays fit the beams better; and whether
+    the spot's was taken.
 
     Along the bearing the spot's blur is one-sided: on a rod's curved front the spot's sides
     meet the surface deeper than its middle, so the middle beams read long and the silhouette's
@@ -1214,12 +1276,12 @@ def _along_the_spot(
     with the smaller chi-square; the ray fit is kept then (each beam's noise is the same in both
     fits, so their chi-squares compare)."""
     if not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
-        return centre, normal
+        return centre, normal, False
     solved = _gauss_newton(points, sigma, centre, section, settings, free_radius=False)
     if solved is None or float(np.linalg.norm(solved[0] - centre)) > section.semi_major_m:
-        return centre, normal
+        return centre, normal, False
     if float(solved[2] @ solved[2]) > ray_cost:
-        return centre, normal
+        return centre, normal, False
     bearing = centre / float(np.linalg.norm(centre))
     side = np.array([-bearing[1], bearing[0]])
     spot_normal = solved[1]
@@ -1227,9 +1289,9 @@ def _along_the_spot(
     try:
         side_m2 = float(side @ np.linalg.inv(normal) @ side)
     except np.linalg.LinAlgError:
-        return centre, normal
+        return centre, normal, False
     if not information > 0.0:
-        return centre, normal
+        return centre, normal, False
     # The spot fit's centre moved sideways to the ray fit's, and along by what that move
     # costs it (its normal matrix's coupling); the ray fit's sideways variance carried along.
     coupling = float(bearing @ spot_normal @ side) / information
@@ -1240,7 +1302,7 @@ def _along_the_spot(
         [1.0 / information + coupling**2 * side_m2, -coupling * side_m2],
         [-coupling * side_m2, side_m2],
     ]) @ basis.T
-    return moved, np.linalg.inv(covariance)
+    return moved, np.linalg.inv(covariance), True
 
 
 def _centre_shift(
@@ -1431,7 +1493,9 @@ def _fit_segment(
     span = _arc_span_deg(used, fit.centre_uv_m, section)
     estimated_radius = None
     if keep.size >= settings.min_beams_for_radius and span >= settings.min_arc_span_for_radius_deg:
-        free = _gauss_newton(used, sigma[keep], fit.centre_uv_m, section, settings, free_radius=True)
+        free = _gauss_newton(
+            used, sigma[keep], fit.centre_uv_m, section, settings, free_radius=True, spot=fit.spot
+        )
         if free is not None and 0.0 < free[0][2] < 4.0 * section.radius_m:
             estimated_radius = float(free[0][2])
     dropped = int(beams.size - keep.size) + ramp_beams
@@ -1684,7 +1748,8 @@ def _with_shared_push(
     in the beams' sigmas."""
     if not np.any(push_m > 0.0):
         return fit
-    _, normals, _ = _fit_residuals(points, fit.centre_uv_m, section, settings)
+    model = settings if fit.spot else _rays(settings)
+    _, normals, _ = _fit_residuals(points, fit.centre_uv_m, section, model)
     residual_sigma = _residual_sigma(points, np.hypot(sigma, blend_m), normals, section.radius_m, settings)
     jac = -normals[:, :2] / residual_sigma[:, None]
     try:
