@@ -962,13 +962,15 @@ def _fit_residuals(
     ``kappa`` (a ray's orthogonal distance to the surface, to first order, so the residual and
     its noise stay in those units); positive where the reading lies behind. Its "normal" is
     ``kappa`` times the spot reading's gradient (a ray's: the surface normal). A beam the spot
-    does not reach, or a spot of no width, keeps the ray's orthogonal distance (``_residuals``)."""
+    does not reach, or a spot of no width, keeps the ray's orthogonal distance (``_residuals``).
+    The free radius is fitted against rays: it is reported, not used, and against the spot its
+    fit (nearly degenerate with the range) took 20 evaluations of a millisecond each."""
     radius = float(params[2]) if free_radius else section.radius_m
     centre = params[:2]
     ray, normals = _residuals(points, centre, section, radius)
     jacobian = -normals[:, :2]
     if free_radius:
-        jacobian = np.column_stack([jacobian, -np.ones(points.shape[0])])
+        return ray, normals, np.column_stack([jacobian, -np.ones(points.shape[0])])
     spot = _spot_readings_m(points, centre, section, radius, settings)
     if spot is None:
         return ray, normals, jacobian
@@ -979,15 +981,7 @@ def _fit_residuals(
     spot_normals = np.zeros_like(normals)
     spot_normals[:, :2] = kappa[:, None] * gradient
     normals = np.where(seen[:, None], spot_normals, normals)
-    spot_jacobian = np.zeros_like(jacobian)
-    spot_jacobian[:, :2] = excess[:, None] * kappa_gradient - kappa[:, None] * gradient
-    if free_radius:
-        step_m = 1e-7 * max(radius, 1e-3)
-        wider = _spot_readings_m(points, centre, section, radius + step_m, settings)
-        narrower = _spot_readings_m(points, centre, section, radius - step_m, settings)
-        if wider is not None and narrower is not None:
-            d_reading, d_kappa = ((w - n) / (2.0 * step_m) for w, n in zip(wider[:2], narrower[:2], strict=True))  # noqa: E501
-            spot_jacobian[:, 2] = excess * d_kappa - kappa * d_reading
+    spot_jacobian = excess[:, None] * kappa_gradient - kappa[:, None] * gradient
     usable = seen & np.all(np.isfinite(spot_jacobian), axis=1)
     return residuals, normals, np.where(usable[:, None], spot_jacobian, jacobian)
 
@@ -1117,6 +1111,7 @@ def _gauss_newton(
     """Weighted Gauss-Newton on (u, v[, r]); returns (params, normal matrix, whitened) or None.
     ``spot``: against what the beam's spot returns (``_fit_residuals``); False: against rays."""
     params = np.concatenate([seed, [section.radius_m]]) if free_radius else seed.copy()
+    spot = spot and not free_radius  # the free radius is fitted against rays (``_fit_residuals``)
     model = settings if spot else _rays(settings)
 
     def evaluate(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -1493,9 +1488,7 @@ def _fit_segment(
     span = _arc_span_deg(used, fit.centre_uv_m, section)
     estimated_radius = None
     if keep.size >= settings.min_beams_for_radius and span >= settings.min_arc_span_for_radius_deg:
-        free = _gauss_newton(
-            used, sigma[keep], fit.centre_uv_m, section, settings, free_radius=True, spot=fit.spot
-        )
+        free = _gauss_newton(used, sigma[keep], fit.centre_uv_m, section, settings, free_radius=True)
         if free is not None and 0.0 < free[0][2] < 4.0 * section.radius_m:
             estimated_radius = float(free[0][2])
     dropped = int(beams.size - keep.size) + ramp_beams
