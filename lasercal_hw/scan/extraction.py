@@ -1191,7 +1191,12 @@ def _fit_centre(
         # The spot's power weighting is a diffuse surface's; a glossy or retro-reflective one
         # weights the spot's middle more (``spot_model_doubt`` of the correction).
         doubt_m = settings.spot_model_doubt * float(bearing @ (spot_centre - centre))
-        spot_covariance = spot_covariance + doubt_m**2 * np.outer(bearing, bearing)
+        # No tighter along the bearing than the ray fit: what its residuals showed beyond the
+        # noise was the spot's blur, which the spot fit explains, and what else the arc carries
+        # (range walk across a bright rod, blends), which it may not.
+        along_m2 = float(bearing @ spot_covariance @ bearing) + doubt_m**2
+        missing_m2 = max(float(bearing @ ray_covariance @ bearing) - along_m2, 0.0)
+        spot_covariance = spot_covariance + (doubt_m**2 + missing_m2) * np.outer(bearing, bearing)
         noise_covariance = _along_and_across_m2(spot_noise, ray_noise, bearing)
         covariance = _along_and_across_m2(spot_covariance, ray_covariance, bearing)
         centre, normal = spot_centre, spot_normal
