@@ -19,6 +19,9 @@ Steps (docs/extraction.md has the reasoning):
    projected on the surface normal plus a small lateral (beam-angle) term.  The
    covariance adds what the dwell does not average away (residuals beyond the noise) and
    how far the solver's range-error model is from this fit's response to a range error.
+   Then the same fit against what each beam's spot returns from the rod (its power-weighted
+   mean over the curved front: ``_spot_readings_m``) gives the centre along the bearing,
+   the ray fit across it (``_along_the_spot``), unless the rays fit the beams better.
 4. Mixed pixels: unstable beams (their readings flipped between rod and background
    during the dwell: a low inlier count or a reading spread far above the scan's) are
    trimmed off the ends of every segment before it is judged; after the fit, edge beams
