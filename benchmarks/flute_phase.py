@@ -58,8 +58,11 @@ def rows(seed: int, bias_off: bool) -> list[tuple[float, float, float, float, fl
         crossing = point[:2] - point[2] / axis[2] * axis[:2]
         try:
             centre = find_rod_centre(
-                averaged, radius_m=case.true_rod.radius_m, background=background,
-                axis_in_scanner=axis if axis[2] > 0 else -axis, expected_uv_m=crossing,
+                averaged,
+                radius_m=case.true_rod.radius_m,
+                background=background,
+                axis_in_scanner=axis if axis[2] > 0 else -axis,
+                expected_uv_m=crossing,
             )
         except RodNotFoundError:
             continue
@@ -69,7 +72,9 @@ def rows(seed: int, bias_off: bool) -> list[tuple[float, float, float, float, fl
         across = np.array([-bearing[1], bearing[0]])
         offset = centre.centre_uv_m - crossing
         turn = _turn_deg(T, true_pose, case.true_rod)
-        found.append((turn, offset @ bearing * 1e3, offset @ across * 1e3, model @ bearing * 1e3, model @ across * 1e3))
+        found.append(
+            (turn, offset @ bearing * 1e3, offset @ across * 1e3, model @ bearing * 1e3, model @ across * 1e3)
+        )
     return found
 
 

@@ -99,7 +99,11 @@ def _turns(
 
 
 def facing_angles_rad(
-    phase0_rad: float, T_base_laser: FloatArray, tcp_poses: FloatArray, rod: RodLine, helix_deg: float = HELIX_DEG
+    phase0_rad: float,
+    T_base_laser: FloatArray,
+    tcp_poses: FloatArray,
+    rod: RodLine,
+    helix_deg: float = HELIX_DEG,
 ) -> FloatArray:
     """The scanner's direction seen from the bit, from a flute's middle, at each crossing (N,)."""
     return _turns(phase0_rad, T_base_laser, tcp_poses, rod, helix_deg)[3]

@@ -75,8 +75,12 @@ def _shifted(
 
     def offsets(phase: float) -> FloatArray:
         return flute_offsets_m(
-            phase, result.matrix(), poses, result.estimated_rod(rod),
-            web_fraction=settings.flute_web_fraction, opening_deg=settings.flute_opening_deg,
+            phase,
+            result.matrix(),
+            poses,
+            result.estimated_rod(rod),
+            web_fraction=settings.flute_web_fraction,
+            opening_deg=settings.flute_opening_deg,
         )
 
     offset = depth * offsets(phase_rad)
