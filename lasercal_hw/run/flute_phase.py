@@ -30,13 +30,15 @@ from lasercal_hw.models import FloatArray, Observation, RodLine
 from lasercal_hw.scan.extraction import ExtractionSettings
 
 #: Trial phases over the half turn (the section is point-symmetric).
-PHASE_STEP_DEG = 6.0
+PHASE_STEP_DEG = 4.0
 #: What the section model leaves of a centre's offset, per axis, as a fraction of the radius
-#: (drill job, seeds 100-101, bias off: ``benchmarks.flute_phase``).
-MODEL_ALLOWANCE_RADIUS_FRACTION = 0.15
+#: (drill job, seeds 100-101, range bias off: 1.5 mm RMS along the bearing, 1.8 mm across
+#: with the fit's noise, ``benchmarks.flute_phase``; 0.15 r gave phases 30 deg off on seeds
+#: 100-109, 0.25 r within 16 deg but one).
+MODEL_ALLOWANCE_RADIUS_FRACTION = 0.25
 #: The best phase must fit this much better in chi-square than no flutes at all (the centres
-#: taken as they are, with the same allowance): 3 std for the one parameter.
-MIN_GAIN = 9.0
+#: taken as they are, with the same allowance): 2 std for the one parameter.
+MIN_GAIN = 4.0
 #: A whitened residual's square counts at most this much in the profile (the solver's outlier
 #: limit at 99.9 %), so that one bad centre does not pick the phase.
 CAPPED_SQUARE = 13.8

@@ -133,7 +133,11 @@ def solve_two_pass(
         )
         plain_observations = [_without_range_offset(m.observation(), range_offset_m) for m in plain]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)
-        if phase is not None:
+        if phase is None:
+            refinement += (
+                "; the flute phase was not told by the turns (its centres keep the widened allowance)"
+            )
+        else:
             result, observations = phase.result, phase.observations
             refinement += f"; {phase.note}"
     settings = SolveSettings(rod, applied, job.quality)
