@@ -141,7 +141,8 @@ class RodConfig(_Strict):
         False,
         description="the rod is a twist drill: its section has two flutes and is no circle, so a centre "
         "found on it may lie off the axis by a part of the radius, depending on how the flutes face the "
-        "scanner; the extraction puts that in the centre's covariance",
+        "scanner; the run estimates the flutes' phase with the transform and takes each centre's offset "
+        "out where the tool's turns tell it, else the extraction puts it in the centre's covariance",
     )
 
     @field_validator("direction")

@@ -10,7 +10,7 @@ import pytest
 from drivers.hokuyo.client import HokuyoScanner
 from fakes.cell import FakeCell
 from fakes.cell_process import free_loopback_address
-from fakes.scene import ScannerSettings, load_scene, parse_scene
+from fakes.scene import ScannerSettings, Scene, load_scene, parse_scene
 from fakes.scip_identity import UTM_30LX_EW, identity_of_scanner
 from fakes.world import World
 from lasercal_hw.calibration.pairs import error_in_std, relative_pose
@@ -84,6 +84,22 @@ def test_a_scene_places_several_scanners_in_one_world() -> None:
     assert scene.for_scanner("rear").scanner == ScannerSettings(
         translation_m=[-0.45, -0.40, 0.30], euler_zyx_deg=[45.0, -6.0, 5.0]
     )
+
+
+def test_the_bumped_cell_moves_the_rear_5_mm_and_half_a_degree_and_leaves_the_front() -> None:
+    """fakes/scenes/two_scanners_rear_moved.toml, docs/cell.md's verify example."""
+    scenes = REPO / "fakes" / "scenes"
+    before = load_scene(scenes / "two_scanners.toml")
+    after = load_scene(scenes / "two_scanners_rear_moved.toml")
+
+    def pose(scene: Scene, name: str) -> np.ndarray:
+        return World(scene, name).ground_truth_T_base_laser
+
+    assert pose(after, "front").tolist() == pose(before, "front").tolist()
+    moved = np.linalg.inv(pose(before, "rear")) @ pose(after, "rear")
+    turn_deg = np.degrees(np.arccos(np.clip((np.trace(moved[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+    shift_mm = 1000.0 * np.linalg.norm(pose(after, "rear")[:3, 3] - pose(before, "rear")[:3, 3])
+    assert shift_mm == pytest.approx(5.0) and turn_deg == pytest.approx(0.5, abs=1e-6)
 
 
 def test_the_fake_cell_serves_each_scanner_on_its_own_port_with_its_own_serial() -> None:

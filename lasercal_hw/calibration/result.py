@@ -10,6 +10,7 @@ under the stated noise model (a priori).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Literal
 
 import numpy as np
@@ -17,6 +18,7 @@ from pydantic import BaseModel, Field
 
 from lasercal_hw.calibration.model import RangeCurveBasis, range_error_m
 from lasercal_hw.geometry import FloatArray
+from lasercal_hw.models import RodLine
 
 
 class WaypointResidual(BaseModel):
@@ -171,6 +173,13 @@ class CalibrationResult(BaseModel):
     def matrix(self) -> FloatArray:
         """``T_base_laser`` as a 4x4 numpy array."""
         return np.asarray(self.T_base_laser, dtype=float)
+
+    def estimated_rod(self, nominal: RodLine) -> RodLine:
+        """The rod line this result estimated (``nominal`` when it did not estimate it)."""
+        axis = self.rod_axis
+        if axis is None or not axis.estimated:
+            return nominal
+        return replace(nominal, origin_m=np.asarray(axis.origin_m), direction=np.asarray(axis.direction))
 
     def inverse_matrix(self) -> FloatArray:
         """``T_laser_base`` as a 4x4 numpy array."""

@@ -18,6 +18,7 @@ from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray, Observation, RodLine
+from lasercal_hw.run.flute_phase import estimate_flute_phase
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
@@ -68,14 +69,6 @@ def _without_range_offset(observation: Observation, range_offset_m: float) -> Ob
     return replace(observation, centre_uv_m=moved)
 
 
-def estimated_rod(result: CalibrationResult, nominal: RodLine) -> RodLine:
-    """The rod line a result estimated (the nominal one when it did not estimate it)."""
-    axis = result.rod_axis
-    if axis is None or not axis.estimated:
-        return nominal
-    return replace(nominal, origin_m=np.asarray(axis.origin_m), direction=np.asarray(axis.direction))
-
-
 @dataclass(frozen=True)
 class TwoPassSolution:
     """The solve of a run: first pass on the circle-fit centres, then the second pass on
@@ -116,7 +109,7 @@ def solve_two_pass(
         on_second_pass()
     range_offset_m = _typical_range_error_m(first.range_offset)
     refitted, kept = refit_centres(
-        measurements, first.matrix(), estimated_rod(first, rod), background, range_offset_m=range_offset_m
+        measurements, first.matrix(), first.estimated_rod(rod), background, range_offset_m=range_offset_m
     )
     kept_indices = {index for index, _ in kept}
     observations = [
@@ -133,6 +126,20 @@ def solve_two_pass(
         f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
         "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
     )
+    if rod.fluted:
+        plain, _ = refit_centres(
+            measurements, result.matrix(), replace(result.estimated_rod(rod), fluted=False), background,
+            range_offset_m=range_offset_m,
+        )
+        plain_observations = [_without_range_offset(m.observation(), range_offset_m) for m in plain]
+        phase = estimate_flute_phase(plain_observations, result, rod, applied)
+        if phase is None:
+            refinement += (
+                "; the flute phase was not told by the turns (its centres keep the widened allowance)"
+            )
+        else:
+            result, observations = phase.result, phase.observations
+            refinement += f"; {phase.note}"
     settings = SolveSettings(rod, applied, job.quality)
     warnings = [(m.index, warning) for m in refitted for warning in m.centre.warnings]
     return TwoPassSolution(first, result, observations, refinement, kept, settings, warnings)

@@ -1,0 +1,145 @@
+"""A twist drill's flute phase estimated with the transform (docs/solver.md, "Flute phase").
+
+The extraction cannot tell a twist drill's turn from one scan, so with ``rod.fluted`` it moves
+each centre by the mean offset and widens its covariance over an unknown turn. The run knows
+more: the bit turns with the tool, so its turn at every waypoint is one unknown phase plus what
+the TCP poses and the helix give (``calibration/flutes.py``). This pass re-extracts the centres
+as plain fits of the section, takes each one's offset at a trial phase out, solves, and keeps
+the phase whose solution fits best (a profile over the half turn, refined by a parabola). The
+phase's std comes from the profile (chi-square up by one, scaled by the reduced chi-square when
+that is above 1) and is carried into each centre's covariance with the model's own allowance.
+
+The gate: the pass is kept only when its best phase fits the centres better than no flute
+offsets at all by ``MIN_GAIN`` in chi-square (a round bit, or turns that leave the phase
+unobservable, do not) and every solve of it succeeds; otherwise the widened solution stands,
+as before.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from lasercal_hw.calibration.flutes import flute_offsets_m
+from lasercal_hw.calibration.result import CalibrationResult
+from lasercal_hw.calibration.solver import SolverOptions, solve
+from lasercal_hw.errors import LasercalError
+from lasercal_hw.models import FloatArray, Observation, RodLine
+from lasercal_hw.scan.extraction import ExtractionSettings
+
+#: Trial phases over the half turn (the section is point-symmetric).
+PHASE_STEP_DEG = 4.0
+#: What the section model leaves of a centre's offset, per axis, as a fraction of the radius
+#: (drill job, seeds 100-101, range bias off: 1.5 mm RMS along the bearing, 1.8 mm across
+#: with the fit's noise, ``benchmarks.flute_phase``; 0.15 r gave phases 30 deg off on seeds
+#: 100-109, 0.25 r within 16 deg but one).
+MODEL_ALLOWANCE_RADIUS_FRACTION = 0.25
+#: The best phase must fit this much better in chi-square than no flutes at all (the centres
+#: taken as they are, with the same allowance): 2 std for the one parameter.
+MIN_GAIN = 4.0
+#: A whitened residual's square counts at most this much in the profile (the solver's outlier
+#: limit at 99.9 %), so that one bad centre does not pick the phase.
+CAPPED_SQUARE = 13.8
+
+
+@dataclass(frozen=True)
+class FlutePhase:
+    """The phase pass's solution and what it found."""
+
+    result: CalibrationResult
+    observations: list[Observation]
+    phase_deg: float
+    phase_std_deg: float
+    #: How much better in chi-square the phase fits than no flute offsets (the gate).
+    gain: float
+    note: str
+
+
+def _cost(result: CalibrationResult) -> float:
+    """The profile's measure of fit: every centre's whitened residual squared, capped."""
+    return float(sum(min(r.whitened_norm**2, CAPPED_SQUARE) for r in result.residuals))
+
+
+def _shifted(
+    plain: Sequence[Observation],
+    result: CalibrationResult,
+    rod: RodLine,
+    phase_rad: float,
+    phase_std_rad: float,
+    depth: float = 1.0,
+) -> list[Observation]:
+    """The plain centres with the section's offset at ``phase_rad`` (times ``depth``: 0 for
+    none) taken out, their covariance widened by the model's allowance and the phase's std."""
+    settings = ExtractionSettings()
+    poses = np.array([o.tcp_pose for o in plain], dtype=float)
+
+    def offsets(phase: float) -> FloatArray:
+        return flute_offsets_m(
+            phase,
+            result.matrix(),
+            poses,
+            result.estimated_rod(rod),
+            web_fraction=settings.flute_web_fraction,
+            opening_deg=settings.flute_opening_deg,
+        )
+
+    offset = depth * offsets(phase_rad)
+    spread = 0.5 * depth * (offsets(phase_rad + phase_std_rad) - offsets(phase_rad - phase_std_rad))
+    allowance = np.eye(2) * (MODEL_ALLOWANCE_RADIUS_FRACTION * rod.radius_m) ** 2
+    moved = []
+    for o, shift, dphase in zip(plain, offset, spread, strict=True):
+        covariance = np.asarray(o.covariance_uv_m2, dtype=float) + allowance + np.outer(dphase, dphase)
+        moved.append(replace(o, centre_uv_m=np.asarray(o.centre_uv_m) - shift, covariance_uv_m2=covariance))
+    return moved
+
+
+def _parabola_minimum(phases_rad: FloatArray, costs: FloatArray, best: int) -> tuple[float, float]:
+    """The profile's minimum by a parabola through the best trial and its neighbours (the grid
+    wraps at the half turn), and the half-width at which it rises by one (rad)."""
+    step = phases_rad[1] - phases_rad[0]
+    left, mid, right = costs[best - 1], costs[best], costs[(best + 1) % len(costs)]
+    curvature = (left - 2.0 * mid + right) / step**2
+    if curvature <= 0.0:
+        return float(phases_rad[best]), float(step)
+    shift = float(np.clip(0.5 * (left - right) / (curvature * step), -0.5, 0.5)) * step
+    return float(phases_rad[best] + shift), float(np.sqrt(2.0 / curvature))
+
+
+def estimate_flute_phase(
+    plain: Sequence[Observation],
+    widened: CalibrationResult,
+    rod: RodLine,
+    options: SolverOptions,
+) -> FlutePhase | None:
+    """The phase pass over ``plain`` centres (plain fits, the range offset out) from the
+    widened solution ``widened`` of ``rod``; None when the gate (module docstring) refuses it."""
+    phases = np.radians(np.arange(0.0, 180.0, PHASE_STEP_DEG))
+    costs = np.full(len(phases), np.inf)
+    for k, phase in enumerate(phases):
+        try:
+            costs[k] = _cost(solve(_shifted(plain, widened, rod, phase, 0.0), rod, options=options))
+        except LasercalError:
+            continue
+    if not np.isfinite(costs).any():
+        return None
+    best = int(np.argmin(costs))
+    phase, std = _parabola_minimum(phases, costs, best)
+    try:
+        trial = solve(_shifted(plain, widened, rod, phase, 0.0), rod, options=options)
+        std *= np.sqrt(max(1.0, trial.reduced_chi_square))
+        observations = _shifted(plain, trial, rod, phase, std)
+        result = solve(observations, rod, options=options)
+        flat = _cost(solve(_shifted(plain, widened, rod, 0.0, 0.0, depth=0.0), rod, options=options))
+    except LasercalError:
+        return None
+    phase_deg, std_deg = float(np.degrees(phase)) % 180.0, float(np.degrees(std))
+    gain = flat - _cost(trial)
+    if gain < MIN_GAIN:
+        return None
+    note = (
+        f"flute phase {phase_deg:.0f} +- {std_deg:.0f} deg from the tool's x axis (the bit's section "
+        f"modelled at every waypoint's turn; chi-square {gain:.0f} below no flutes)"
+    )
+    return FlutePhase(result, observations, phase_deg, std_deg, gain, note)
