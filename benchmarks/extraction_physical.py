@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+import time
 from collections import defaultdict
 from dataclasses import dataclass, field
 
@@ -67,13 +68,15 @@ MIN_OWN_TOLERANCE_M = 0.005
 @dataclass(frozen=True)
 class Outcome:
     """One extraction: error (m, range error removed), covariance, warned, the beams reading
-    the rod's own echo, and the refusal's reason (None when found)."""
+    the rod's own echo, the refusal's reason (None when found) and how long
+    ``find_rod_centre`` took (s)."""
 
     error_m: np.ndarray | None
     covariance: np.ndarray | None
     warned: bool
     own_beams: int
     reason: str | None
+    seconds: float = 0.0
 
 
 @dataclass
@@ -189,19 +192,22 @@ def measure(
         spindle_deg=float(np.degrees(bearing_rad) * 7.0),
     )
     own, bias_m = own_echo_beams(dwell), front_range_error_m(dwell)
+    scan, background = average_scans(dwell.scans), average_scans(dwell.background)
+    start = time.perf_counter()
     try:
         result = find_rod_centre(
-            average_scans(dwell.scans),
+            scan,
             radius_m=radius_m,
-            background=average_scans(dwell.background),
+            background=background,
             axis_in_scanner=np.array([0.0, 0.0, 1.0]),
             fluted=shape == "twist_drill",
         )
     except CalibrationError as exc:
-        return Outcome(None, None, False, own, str(exc))
+        return Outcome(None, None, False, own, str(exc), time.perf_counter() - start)
+    seconds = time.perf_counter() - start
     bearing = centre / np.linalg.norm(centre)
     error = result.centre_uv_m - bias_m * bearing - dwell.centre_uv_m
-    return Outcome(error, result.covariance_uv_m2, bool(result.warnings), own, None)
+    return Outcome(error, result.covariance_uv_m2, bool(result.warnings), own, None, seconds)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -220,6 +226,7 @@ def main(argv: list[str] | None = None) -> int:
     by_rod: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
     by_range: dict[tuple[str, float], Tally] = defaultdict(Tally)
     skip_reasons: dict[str, int] = defaultdict(int)
+    seconds: dict[str, list[float]] = defaultdict(list)
     rng = np.random.default_rng(18 + args.first_seed)
     for label, radius_m, shape, materials in RODS:
         for material in materials:
@@ -235,6 +242,7 @@ def main(argv: list[str] | None = None) -> int:
                                 args.scans,
                             )
                             notable = by_rod[(model, label, material)].add(outcome)
+                            seconds[model].append(outcome.seconds)
                             by_range[(model, range_m)].add(outcome)
                             if model == "physical" and outcome.own_beams < MIN_BEAMS:
                                 skip_reasons[reason_kind(outcome.reason)] += 1
@@ -265,6 +273,13 @@ def main(argv: list[str] | None = None) -> int:
     for (model, _, _), tally in by_rod.items():
         total[model].merge(tally)
     print(f"\n{'all':32s}{total['physical'].row()}   | {total['ideal'].row()}")
+    print(
+        "find_rod_centre per dwell (median / 95th percentile): "
+        + ", ".join(
+            f"{model} {1000 * np.median(times):.0f} / {1000 * np.percentile(times, 95):.0f} ms"
+            for model, times in seconds.items()
+        )
+    )
     print("\nskipped positions (fewer than 5 beams read the rod's own echo), physical model, by outcome:")
     for reason, count in sorted(skip_reasons.items(), key=lambda item: -item[1]):
         print(f"  {count:4d}  {reason}")

@@ -19,6 +19,9 @@ Steps (docs/extraction.md has the reasoning):
    projected on the surface normal plus a small lateral (beam-angle) term.  The
    covariance adds what the dwell does not average away (residuals beyond the noise) and
    how far the solver's range-error model is from this fit's response to a range error.
+   Then the same fit against what each beam's spot returns from the rod (its power-weighted
+   mean over the curved front: ``_spot_readings_m``) gives the centre along the bearing,
+   the ray fit across it (``_along_the_spot``), unless the rays fit the beams better.
 4. Mixed pixels: unstable beams (their readings flipped between rod and background
    during the dwell: a low inlier count or a reading spread far above the scan's) are
    trimmed off the ends of every segment before it is judged; after the fit, edge beams
@@ -36,6 +39,7 @@ Steps (docs/extraction.md has the reasoning):
 
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass, field, replace
 
@@ -150,6 +154,16 @@ class ExtractionSettings:
     #: against 0.6 mm std, where the core alone gave a share of 0.03 %.
     spot_halo_fraction: float = 0.015
     spot_halo_scale: float = 2.5
+    #: The spot fit weights its spot's power by a diffuse surface's cosine (``_spot_readings_m``);
+    #: a glossy or retro-reflective surface weights the middle more. On the physical model a
+    #: retro-reflective rod's noise-free readings differ from that prediction by 1-2.5 mm RMS
+    #: where a ray's differ by 4-9 mm: this share of the spot's correction along the bearing
+    #: joins the covariance.
+    spot_model_doubt: float = 0.5
+    #: The fit predicts each beam's reading as its spot returns it from the rod (a power-weighted
+    #: mean over the part of the spot on the rod: ``_spot_readings_m``), integrated with this many
+    #: Gauss-Legendre nodes across the rod's visible half.
+    spot_quadrature_nodes: int = 16
     #: ... and when that surface is nearer behind the rod than about the laser pulse's length
     #: (about 1 m: docs/scanner-model.md), the two merge into one echo whose peak lies between
     #: them: a steady blend. A beam's blend is bounded by its share of the background (the
@@ -201,6 +215,8 @@ class ExtractionSettings:
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
+    #: The fit stops once a step moves the centre less than this fraction of its std.
+    fit_tolerance_std: float = 0.01
     min_axis_cos_tilt: float = 0.2
     #: Without ``axis_in_scanner`` the rod may still be tilted: segments up to the width of a
     #: rod tilted this much are accepted (and fitted as circles; a second pass with the axis
@@ -698,7 +714,11 @@ def _rod_core(
         if np.array_equal(part[best], run) or best.size < settings.min_beams:
             return part[best]
         run = part[best]
-        solved = _gauss_newton(points[best], sigma[part][best], centre, section, settings, free_radius=False)
+        # Against rays, as the surface test above: which beams lie on the rod (the spot's
+        # centre lies a sagitta further, and the edge beams' ray residuals would cut them).
+        solved = _gauss_newton(
+            points[best], sigma[part][best], centre, section, settings, free_radius=False, spot=False
+        )
         if solved is None:
             return run
         centre = solved[0]
@@ -907,6 +927,8 @@ class _Fit:
     whitened: FloatArray
     blend_shift_m: float = 0.0
     noise_covariance_uv_m2: FloatArray | None = None
+    #: The residuals are against the beam's spot, not rays (``_along_the_spot``).
+    spot: bool = False
 
 
 def _residuals(
@@ -919,6 +941,140 @@ def _residuals(
     dist = np.linalg.norm(w, axis=1)
     normals = w / np.fmax(dist, 1e-15)[:, None]
     return dist - radius_m, normals
+
+
+def _rays(settings: ExtractionSettings) -> ExtractionSettings:
+    """The settings with a spot of no width: the fit against rays (``_fit_residuals``)."""
+    return replace(settings, spot_width_at_scanner_m=0.0, spot_divergence_rad=0.0)
+
+
+def _fit_residuals(
+    points: FloatArray,
+    params: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+    *,
+    free_radius: bool = False,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The fit's residual per beam (m), its "normal" (N, 3: a ray's surface normal; the noise
+    model ``_residual_sigma`` and the covariance terms take it) and its Jacobian by the centre
+    ``params[:2]`` (and the radius ``params[2]`` when ``free_radius``).
+
+    Against the spot (``_spot_readings_m``): ``kappa (r - r_spot)``, the reading's excess over
+    what the beam's spot returns from the rod, scaled by the spot's mean cosine of incidence
+    ``kappa`` (a ray's orthogonal distance to the surface, to first order, so the residual and
+    its noise stay in those units); positive where the reading lies behind. Its "normal" is
+    ``kappa`` times the spot reading's gradient (a ray's: the surface normal). A beam the spot
+    does not reach, or a spot of no width, keeps the ray's orthogonal distance (``_residuals``).
+    The free radius is fitted against rays: it is reported, not used, and against the spot its
+    fit (nearly degenerate with the range) took 20 evaluations of a millisecond each."""
+    radius = float(params[2]) if free_radius else section.radius_m
+    centre = params[:2]
+    ray, normals = _residuals(points, centre, section, radius)
+    jacobian = -normals[:, :2]
+    if free_radius:
+        return ray, normals, np.column_stack([jacobian, -np.ones(points.shape[0])])
+    spot = _spot_readings_m(points, centre, section, radius, settings)
+    if spot is None:
+        return ray, normals, jacobian
+    readings, kappa, gradient, kappa_gradient = spot
+    seen = np.isfinite(readings)
+    excess = np.linalg.norm(points, axis=1) - np.where(seen, readings, 0.0)
+    residuals = np.where(seen, kappa * excess, ray)
+    spot_normals = np.zeros_like(normals)
+    spot_normals[:, :2] = kappa[:, None] * gradient
+    normals = np.where(seen[:, None], spot_normals, normals)
+    spot_jacobian = excess[:, None] * kappa_gradient - kappa[:, None] * gradient
+    usable = seen & np.all(np.isfinite(spot_jacobian), axis=1)
+    return residuals, normals, np.where(usable[:, None], spot_jacobian, jacobian)
+
+
+def _spot_readings_m(
+    points: FloatArray, centre: FloatArray, section: _Section, radius_m: float, settings: ExtractionSettings
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray] | None:
+    """Per beam, the range its spot reads on the rod (NaN: the spot misses it), the
+    power-weighted mean cosine of incidence over the part on the rod (``kappa``), and the
+    derivatives of both by the centre (N, 2 each); None for a spot of no width.
+
+    As the scanner's echo makes it: the spot's rays parallel to the beam (a gaussian core
+    ``spot_width_at_scanner_m + spot_divergence_rad * range`` wide at 1/e^2, and its faint
+    halo), each returning from where it meets the rod the power the spot's profile gives it
+    times the cosine of its incidence (a diffuse surface: Lambert), the echo's range their
+    power-weighted mean. Where part of the spot passes beside the rod, that part is not in
+    the rod's echo (a surface close behind merging into it: ``_blend``).
+
+    On a rod's curved front the spot's sides meet the surface deeper than its middle (a
+    sagitta of ``x^2 / 2r``): a beam across the middle reads long, by about ``sigma^2 / 2r``
+    (0.9 mm for a 45 mm rod at 1.5 m), and one at the silhouette short (the spot's part on
+    the rod is nearer than the grazing ray's hit: 10-20 mm for that rod); a ray fit's centre
+    was off by more than its std (docs/extraction.md).
+
+    The integral runs over the visible half of the section by the angle ``phi`` about its
+    centre (in the squeezed frame, where it is a circle and the rays stay parallel): the ray
+    meeting the surface there lies ``m + x(phi)`` beside the beam (``m``: the rod's middle)
+    and reads ``b.c + tau(phi)``, both ``x`` and ``tau`` fixed by the section's shape, so the
+    reading moves with the centre as ``b + d(mean tau)/dm across``. Gauss-Legendre nodes over
+    the part each of the spot's core and halo covers (to twice its 1/e^2 half-width, where it
+    is 3e-4 of its peak: the moving limits add nothing worth keeping to the derivative)."""
+    ranges = np.linalg.norm(points, axis=1)
+    core_m = 2.0 * _spot_sigma_m(ranges, settings)  # the core's 1/e^2 half-width
+    if not np.any(core_m > 0.0):
+        return None
+    beams = points / ranges[:, None]
+    across = np.column_stack([-beams[:, 1], beams[:, 0]])
+    squeeze, unsqueeze = section.to_circle(np.eye(2)), section.from_circle(np.eye(2))  # symmetric maps
+    beams_c = beams @ squeeze
+    beams_c /= np.linalg.norm(beams_c, axis=1)[:, None]
+    # The surface point at phi, from the centre: cos(phi) front + sin(phi) side (the real frame).
+    front = -radius_m * (beams_c @ unsqueeze)
+    side = radius_m * (np.column_stack([-beams_c[:, 1], beams_c[:, 0]]) @ unsqueeze)
+    half_width = np.einsum("ij,ij->i", side, across)  # the silhouette's half-width
+    side *= np.where(half_width < 0.0, -1.0, 1.0)[:, None]
+    half_width = np.fmax(np.abs(half_width), 1e-12)
+    front_b, side_b = np.einsum("ij,ij->i", front, beams), np.einsum("ij,ij->i", side, beams)
+    axis_xy, axis_b = section.axis[:2], beams @ section.axis[:2]
+    front_a, side_a = front @ axis_xy, side @ axis_xy
+    front2, side2, front_side = (front**2).sum(1), (side**2).sum(1), np.einsum("ij,ij->i", front, side)
+    beside_m = across @ centre
+    shares = [1.0 - settings.spot_halo_fraction]
+    scales = [1.0]
+    if settings.spot_halo_fraction > 0.0:
+        shares.append(settings.spot_halo_fraction)
+        scales.append(settings.spot_halo_scale)
+    nodes, weights = _gauss_legendre(settings.spot_quadrature_nodes)
+    count = nodes.size
+    half_m = np.repeat(np.fmax(core_m, 1e-12)[:, None] * np.array(scales)[None, :], count, axis=1)
+    share = np.repeat(np.array(shares), count)[None, :]
+    col = lambda v: v[:, None]  # noqa: E731 (per beam, broadcast over the nodes)
+    low = np.arcsin(np.clip((-2.0 * half_m - col(beside_m)) / col(half_width), -1.0, 1.0))
+    high = np.arcsin(np.clip((2.0 * half_m - col(beside_m)) / col(half_width), -1.0, 1.0))
+    phi = 0.5 * (low + high) + 0.5 * (high - low) * np.tile(nodes, len(shares))[None, :]
+    cos_phi, sin_phi = np.cos(phi), np.sin(phi)
+    tau = cos_phi * col(front_b) + sin_phi * col(side_b)  # the ray's reading less b.c
+    along_axis = cos_phi * col(front_a) + sin_phi * col(side_a)
+    length2 = cos_phi**2 * col(front2) + 2.0 * cos_phi * sin_phi * col(front_side) + sin_phi**2 * col(side2)
+    cosine = np.abs(tau - along_axis * col(axis_b)) / np.sqrt(np.fmax(length2 - along_axis**2, 1e-30))
+    spread = np.abs(col(half_width) * cos_phi) * 0.5 * (high - low) * np.tile(weights, len(shares))[None, :]
+    beside = (col(beside_m) + col(half_width) * sin_phi) / half_m
+    power = share / (half_m * np.sqrt(np.pi / 2.0)) * np.exp(-2.0 * beside**2) * cosine * spread
+    slope = power * (-4.0 * beside / half_m)  # d power / d m
+    total, moment = power.sum(axis=1), (power * tau).sum(axis=1)
+    d_total, d_moment = slope.sum(axis=1), (slope * tau).sum(axis=1)
+    found = total > 1e-12 * np.max(total, initial=0.0)
+    safe = np.where(found, total, 1.0)
+    mean_tau = moment / safe
+    readings = np.where(found, beams @ centre + mean_tau, np.nan)
+    gradient = beams + ((d_moment - mean_tau * d_total) / safe)[:, None] * across
+    lit, d_lit = (power * cosine).sum(axis=1), (slope * cosine).sum(axis=1)
+    kappa = np.where(found, lit / safe, 1.0)
+    kappa_gradient = ((d_lit - kappa * d_total) / safe)[:, None] * across
+    return readings, kappa, gradient, kappa_gradient
+
+
+@functools.cache
+def _gauss_legendre(count: int) -> tuple[FloatArray, FloatArray]:
+    """Gauss-Legendre nodes and weights on [-1, 1]."""
+    return np.polynomial.legendre.leggauss(count)
 
 
 def _residual_sigma(
@@ -953,17 +1109,17 @@ def _gauss_newton(
     settings: ExtractionSettings,
     *,
     free_radius: bool,
+    spot: bool = True,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
-    """Weighted Gauss-Newton on (u, v[, r]); returns (params, normal matrix, whitened) or None."""
+    """Weighted Gauss-Newton on (u, v[, r]); returns (params, normal matrix, whitened) or None.
+    ``spot``: against what the beam's spot returns (``_fit_residuals``); False: against rays."""
     params = np.concatenate([seed, [section.radius_m]]) if free_radius else seed.copy()
+    spot = spot and not free_radius  # the free radius is fitted against rays (``_fit_residuals``)
+    model = settings if spot else _rays(settings)
 
     def evaluate(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        radius = p[2] if free_radius else section.radius_m
-        res, normals = _residuals(points, p[:2], section, radius)
+        res, normals, jac = _fit_residuals(points, p, section, model, free_radius=free_radius)
         res_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
-        jac = -normals[:, :2]
-        if free_radius:
-            jac = np.column_stack([jac, -np.ones(points.shape[0])])
         return res / res_sigma, jac / res_sigma[:, None], res
 
     whitened, jac, _ = evaluate(params)
@@ -972,10 +1128,18 @@ def _gauss_newton(
         normal = jac.T @ jac
         try:
             step = np.linalg.solve(normal, -jac.T @ whitened)
+            # Against the spot, done once a step moves the centre less than a small fraction
+            # of its std: the weights move with the centre, so the fit converges only
+            # linearly, and the spot model (``_spot_readings_m``) costs a millisecond an
+            # evaluation. Against rays, to the last 0.1 nm as before.
+            tolerance_m = 1e-10
+            if spot:
+                centre_std_m = float(np.sqrt(np.trace(np.linalg.inv(normal)[:2, :2])))
+                tolerance_m = settings.fit_tolerance_std * centre_std_m
         except np.linalg.LinAlgError:
             return None
         scale = 1.0
-        while scale > 1e-4:
+        while scale > 1e-4 and (not spot or scale * float(np.linalg.norm(step[:2])) > tolerance_m):
             trial = params + scale * step
             trial_whitened, trial_jac, _ = evaluate(trial)
             trial_cost = float(trial_whitened @ trial_whitened)
@@ -985,7 +1149,7 @@ def _gauss_newton(
         else:
             break
         params, whitened, jac, cost = trial, trial_whitened, trial_jac, trial_cost
-        if float(np.linalg.norm(scale * step[:2])) < 1e-10:
+        if float(np.linalg.norm(scale * step[:2])) < tolerance_m:
             break
     if not np.all(np.isfinite(params)):
         return None
@@ -1002,35 +1166,146 @@ def _fit_centre(
     """Fit the centre to the points; ``blend_m``: each beam's blend allowance (m, along the
     beam, one-sided: shared by neighbouring beams), which joins the covariance whole."""
     seed = seed_centre_pi4(points, section.radius_m, section.axis)
-    solved = _gauss_newton(points, sigma, seed, section, settings, free_radius=False)
+    solved = _gauss_newton(points, sigma, seed, section, settings, free_radius=False, spot=False)
     limit = 2.0 * section.semi_major_m + 0.01
     if solved is None or float(np.linalg.norm(solved[0] - seed)) > limit:
         raise RodNotFoundError(
             f"circle fit diverged from its seed ({seed[0]:.3f}, {seed[1]:.3f}) m; the segment is not a "
             "clean arc (clutter touching the rod?)"
         )
-    centre, normal, whitened = solved
+    centre, normal, ray_whitened = solved
     if float(np.linalg.norm(centre)) <= float(np.min(np.linalg.norm(points, axis=1))):
         raise RodNotFoundError(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
-    residuals, normals = _residuals(points, centre, section, section.radius_m)
-    dof = max(points.shape[0] - 2, 1)
-    variance_factor = max(1.0, float(whitened @ whitened) / dof)
-    residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
-    noise_covariance = np.linalg.inv(normal) * variance_factor
-    covariance = (
-        noise_covariance
-        + np.eye(2) * _unknown_tilt_variance_m2(section, settings)
-        + _systematic_covariance_m2(residuals, residual_sigma, normals, normal)
+    ray_noise, ray_covariance = _fit_covariances_m2(points, sigma, centre, normal, section, _rays(settings))
+    spot_centre, spot_normal, spot = _along_the_spot(
+        points, sigma, centre, normal, float(ray_whitened @ ray_whitened), section, settings
     )
+    model = settings if spot else _rays(settings)
+    noise_covariance, covariance = ray_noise, ray_covariance
+    if spot:
+        # Each direction keeps the covariance of the fit it came from (what that fit's residuals
+        # leave unexplained included): along the bearing the spot's, across it the rays'.
+        spot_noise, spot_covariance = _fit_covariances_m2(
+            points, sigma, spot_centre, spot_normal, section, settings
+        )
+        bearing = centre / float(np.linalg.norm(centre))
+        # The spot's power weighting is a diffuse surface's; a glossy or retro-reflective one
+        # weights the spot's middle more (``spot_model_doubt`` of the correction).
+        doubt_m = settings.spot_model_doubt * float(bearing @ (spot_centre - centre))
+        # No tighter along the bearing than the ray fit: what its residuals showed beyond the
+        # noise was the spot's blur, which the spot fit explains, and what else the arc carries
+        # (range walk across a bright rod, blends), which it may not.
+        along_m2 = float(bearing @ spot_covariance @ bearing) + doubt_m**2
+        missing_m2 = max(float(bearing @ ray_covariance @ bearing) - along_m2, 0.0)
+        spot_covariance = spot_covariance + (doubt_m**2 + missing_m2) * np.outer(bearing, bearing)
+        noise_covariance = _along_and_across_m2(spot_noise, ray_noise, bearing)
+        covariance = _along_and_across_m2(spot_covariance, ray_covariance, bearing)
+        centre, normal = spot_centre, spot_normal
+    residuals, normals, _ = _fit_residuals(points, centre, section, model)
+    residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
+    whitened = residuals / residual_sigma
+    covariance = covariance + np.eye(2) * _unknown_tilt_variance_m2(section, settings)
     mismatch = _range_error_mismatch(points, centre, normals, residual_sigma, normal)
     covariance += np.outer(mismatch, mismatch) * settings.typical_range_error_m**2
     blend_shift = np.zeros(2)
     if blend_m is not None:
         blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
         covariance += np.outer(blend_shift, blend_shift)
-    return _Fit(centre, covariance, residuals, whitened, float(np.linalg.norm(blend_shift)), noise_covariance)
+    blend_m = float(np.linalg.norm(blend_shift))
+    return _Fit(centre, covariance, residuals, whitened, blend_m, noise_covariance, spot)
+
+
+def _fit_covariances_m2(
+    points: FloatArray,
+    sigma: FloatArray,
+    centre: FloatArray,
+    normal: FloatArray,
+    section: _Section,
+    model: ExtractionSettings,
+) -> tuple[FloatArray, FloatArray]:
+    """A fit's noise covariance (its normal matrix's, scaled up by the reduced chi-square
+    above 1) and that plus what its residuals leave unexplained (``_systematic_covariance_m2``),
+    against the spot or rays as ``model`` says."""
+    residuals, normals, _ = _fit_residuals(points, centre, section, model)
+    residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
+    whitened = residuals / residual_sigma
+    variance_factor = max(1.0, float(whitened @ whitened) / max(points.shape[0] - 2, 1))
+    noise = np.linalg.inv(normal) * variance_factor
+    return noise, noise + _systematic_covariance_m2(residuals, residual_sigma, normals, normal)
+
+
+def _along_and_across_m2(along_m2: FloatArray, across_m2: FloatArray, bearing: FloatArray) -> FloatArray:
+    """A covariance with ``along_m2``'s variance along the bearing, ``across_m2``'s across it,
+    and ``along_m2``'s correlation between the two."""
+    side = np.array([-bearing[1], bearing[0]])
+    along, across = float(bearing @ along_m2 @ bearing), float(side @ across_m2 @ side)
+    both_m2 = max(along * float(side @ along_m2 @ side), 1e-300)
+    correlation = float(bearing @ along_m2 @ side) / np.sqrt(both_m2)
+    basis = np.column_stack([bearing, side])
+    cross = correlation * np.sqrt(along * across)
+    return basis @ np.array([[along, cross], [cross, across]]) @ basis.T
+
+
+def _along_the_spot(
+    points: FloatArray,
+    sigma: FloatArray,
+    centre: FloatArray,
+    normal: FloatArray,
+    ray_cost: float,
+    section: _Section,
+    settings: ExtractionSettings,
+) -> tuple[FloatArray, FloatArray, bool]:
+    """The ray fit's centre and normal matrix (``ray_cost``: its chi-square) with their part
+    along the bearing taken from a fit against what each beam's spot returns
+    (``_fit_residuals``), started there, unless the rays fit the beams better; and whether
+    the spot's was taken.
+
+    Along the bearing the spot's blur is one-sided: on a rod's curved front the spot's sides
+    meet the surface deeper than its middle, so the middle beams read long and the silhouette's
+    edge beams short, and a ray fit's centre lay long by more than its std (a 45 mm matte rod at
+    1.5 m: 1.3 mm against 0.29 mm; docs/extraction.md). Across the bearing the blur is
+    symmetric about the rod and the ray fit's edges pin the centre well; the spot model's own
+    sideways hold, the ranges' curvature under the blur, is weak where the rod is not much
+    wider than the spot (a 10 mm rod at 0.3 m wandered 16 mm sideways), so the ray fit keeps it.
+    The spot fit's centre is moved sideways to the ray fit's and along by what its normal
+    matrix couples to that move; the covariance is the spot fit's along the bearing given the
+    side, the ray fit's across it, and their coupling. A spot of no width, or a spot fit that
+    fails, leaves the ray fit.
+
+    A scanner whose beams are rays (the ideal fake's exact ray casts) shows it: its edge beams
+    read the grazing surface, where a spot's read several millimetres short, and the rays fit
+    with the smaller chi-square; the ray fit is kept then (each beam's noise is the same in both
+    fits, so their chi-squares compare)."""
+    if not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
+        return centre, normal, False
+    solved = _gauss_newton(points, sigma, centre, section, settings, free_radius=False)
+    if solved is None or float(np.linalg.norm(solved[0] - centre)) > section.semi_major_m:
+        return centre, normal, False
+    if float(solved[2] @ solved[2]) > ray_cost:
+        return centre, normal, False
+    bearing = centre / float(np.linalg.norm(centre))
+    side = np.array([-bearing[1], bearing[0]])
+    spot_normal = solved[1]
+    information = float(bearing @ spot_normal @ bearing)
+    try:
+        side_m2 = float(side @ np.linalg.inv(normal) @ side)
+    except np.linalg.LinAlgError:
+        return centre, normal, False
+    if not information > 0.0:
+        return centre, normal, False
+    # The spot fit's centre moved sideways to the ray fit's, and along by what that move
+    # costs it (its normal matrix's coupling); the ray fit's sideways variance carried along.
+    coupling = float(bearing @ spot_normal @ side) / information
+    sideways_m = float(side @ (centre - solved[0]))
+    moved = solved[0] + sideways_m * (side - coupling * bearing)
+    basis = np.column_stack([bearing, side])
+    covariance = basis @ np.array([
+        [1.0 / information + coupling**2 * side_m2, -coupling * side_m2],
+        [-coupling * side_m2, side_m2],
+    ]) @ basis.T
+    return moved, np.linalg.inv(covariance), True
 
 
 def _centre_shift(
@@ -1474,7 +1749,8 @@ def _with_shared_push(
     in the beams' sigmas."""
     if not np.any(push_m > 0.0):
         return fit
-    _, normals = _residuals(points, fit.centre_uv_m, section, section.radius_m)
+    model = settings if fit.spot else _rays(settings)
+    _, normals, _ = _fit_residuals(points, fit.centre_uv_m, section, model)
     residual_sigma = _residual_sigma(points, np.hypot(sigma, blend_m), normals, section.radius_m, settings)
     jac = -normals[:, :2] / residual_sigma[:, None]
     try:
@@ -1514,8 +1790,11 @@ def _with_edge_doubt(
     the larger one's) joins the covariance across the bearing."""
     if points.shape[0] < settings.min_beams + 2:
         return fit
-    full = _gauss_newton(points, sigma, fit.centre_uv_m, section, settings, free_radius=False)
-    inner = _gauss_newton(points[1:-1], sigma[1:-1], fit.centre_uv_m, section, settings, free_radius=False)
+    # Ray fits: the sideways position is the ray fit's (``_along_the_spot``).
+    full = _gauss_newton(points, sigma, fit.centre_uv_m, section, settings, free_radius=False, spot=False)
+    inner = _gauss_newton(
+        points[1:-1], sigma[1:-1], fit.centre_uv_m, section, settings, free_radius=False, spot=False
+    )
     if full is None or inner is None:
         return fit
     try:
