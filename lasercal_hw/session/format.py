@@ -37,6 +37,12 @@ TOPIC_JOINT_STATES_EXACT = "/lasercal/joint_states"
 FRAME_LASER = "laser"
 FRAME_BASE = "base"
 
+#: Meta and event key: the scanner whose run wrote the document (a cell job; docs/recorder.md).
+META_SCANNER_NAME = "scanner_name"
+#: Meta key of a cell job's one recording (its first, untagged meta document): the scanners the
+#: job runs, in order. Its presence makes a file a job recording (``SessionRecording.for_scanner``).
+META_JOB_SCANNERS = "job_scanners"
+
 
 def scan_topics(scanner: str | None = None) -> tuple[str, str, str]:
     """A scanner's ``LaserScan`` topic, its ``scan_info`` companion and its frame: the run's

@@ -46,6 +46,7 @@ from lasercal_hw.session.format import (
     JSON_SCHEMAS,
     LASER_SCAN_DEF,
     LASER_SCAN_TYPE,
+    META_SCANNER_NAME,
     POSE_STAMPED_DEF,
     POSE_STAMPED_TYPE,
     TOPIC_EVENT,
@@ -287,6 +288,10 @@ class SessionRecorder:
             self._sync(durable=True)
         return copied
 
+    def for_scanner(self, name: str) -> ScannerRecorder:
+        """What scanner ``name``'s run of a cell job writes to this (the job's one) recording."""
+        return ScannerRecorder(self, name)
+
     def flush(self) -> None:
         """Push everything written so far to the disk (fsync)."""
         with self._lock:
@@ -385,6 +390,42 @@ class SessionRecorder:
         self._writer.flush()
         if durable:
             os.fsync(self._file.fileno())
+
+
+class ScannerRecorder:
+    """One scanner's run writing to a cell job's one recording (docs/recorder.md): its scans on
+    ``/scan/NAME`` (a watcher's on its own), its meta documents and events tagged
+    ``scanner_name``; the TCP poses and joint states as they are. The file is the job's: it is
+    closed by whoever opened it, not here."""
+
+    def __init__(self, recorder: SessionRecorder, name: str) -> None:
+        self._recorder = recorder
+        self.name = name
+
+    @property
+    def path(self) -> Path:
+        """The job's recording."""
+        return self._recorder.path
+
+    def write_meta(self, meta: dict[str, Any], host_time_s: float | None = None) -> None:
+        """``SessionRecorder.write_meta``, the document tagged with the scanner."""
+        self._recorder.write_meta(meta | {META_SCANNER_NAME: self.name}, host_time_s)
+
+    def write_scan(self, scan: LaserScan, scanner: str | None = None) -> None:
+        """This scanner's scan on ``/scan/NAME``; a watcher's (``scanner``) on its own topic."""
+        self._recorder.write_scan(scan, scanner or self.name)
+
+    def write_tcp_pose(self, host_time_s: float, pose: ArrayLike) -> None:
+        """``SessionRecorder.write_tcp_pose``."""
+        self._recorder.write_tcp_pose(host_time_s, pose)
+
+    def write_joint_state(self, host_time_s: float, q_rad: ArrayLike) -> None:
+        """``SessionRecorder.write_joint_state``."""
+        self._recorder.write_joint_state(host_time_s, q_rad)
+
+    def write_event(self, host_time_s: float, kind: str, **fields: Any) -> None:
+        """``SessionRecorder.write_event``, the event tagged with the scanner."""
+        self._recorder.write_event(host_time_s, kind, **(fields | {META_SCANNER_NAME: self.name}))
 
 
 def repair_session(source: str | Path, target: str | Path) -> int:
