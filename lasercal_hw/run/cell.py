@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -39,7 +40,7 @@ from lasercal_hw.run.engine import JobRecording, MotionPlan, RunEvent, RunReport
 from lasercal_hw.run.events import EventSink
 from lasercal_hw.run.outputs import OBSERVATIONS_FILE, RESULT_FILE, SESSION_FILE, read_result_file, write_text
 from lasercal_hw.run.replay import ReplayedSharedCentres, replay_shared_centres
-from lasercal_hw.session.format import META_JOB_SCANNERS
+from lasercal_hw.session.format import META_JOB_SCANNERS, scan_topics
 from lasercal_hw.session.reader import SessionRecording, read_session
 from lasercal_hw.session.recorder import SessionRecorder
 
@@ -121,9 +122,16 @@ class CellReport:
         return {"passed": self.passed, "scanners": scanners, "pairs": self.pairs}
 
 
+def names_a_cell(path: Path) -> bool:
+    """Whether a ``--resume`` path names a cell job: its folder, its ``cell.json``, or its one
+    recording (``<out>/session.mcap`` beside ``cell.json``)."""
+    return path.is_dir() or path.name == CELL_FILE or (path.parent / CELL_FILE).is_file()
+
+
 def cell_folder(path: Path) -> Path:
-    """The cell folder a ``--resume`` path names (the folder, or its ``cell.json``)."""
-    folder = path.parent if path.name == CELL_FILE else path
+    """The cell folder a ``--resume`` path names (the folder, its ``cell.json`` or its one
+    recording)."""
+    folder = path.parent if path.name == CELL_FILE or path.is_file() else path
     if not (folder / CELL_FILE).is_file():
         raise ConfigError(f"{folder} holds no {CELL_FILE}: pass the folder of a cell job to resume")
     return folder
@@ -208,7 +216,7 @@ def calibrate_cell(
             fake_cell = start_fake_cell(request.scene, stack, sink, cancel)  # one world for every scanner
         recording = None
         if pending and _one_recording(request.out_dir):
-            recording = _open_job_recording(request.out_dir, names)
+            recording = _open_job_recording(request.out_dir, names, job)
             stack.callback(recording.recorder.close)
         for name in names:
             watch = tuple(
@@ -230,15 +238,21 @@ def _one_recording(folder: Path) -> bool:
     return _read_cell_file(folder).get(CELL_RECORDING) is not None
 
 
-def _open_job_recording(folder: Path, names: list[str]) -> JobRecording:
+def _open_job_recording(folder: Path, names: list[str], job: JobConfig) -> JobRecording:
     """The job's one recording, new or, after a stop, continued (``SessionRecorder.resume``: the
-    stopped file kept as ``session.interrupted-<k>.mcap``, every complete message copied)."""
+    stopped file kept as ``session.interrupted-<k>.mcap``, every complete message copied); a new
+    one starts with each scanner's nominal frame (``/tf_static``, for viewers)."""
     path = folder / SESSION_FILE
     meta = {META_JOB_SCANNERS: names, "software_version": __version__}
     if path.exists():
         recorder = SessionRecorder.resume(path, meta)
         return JobRecording(recorder, recorder.previous)
-    return JobRecording(SessionRecorder(path, meta))
+    recorder = SessionRecorder(path, meta)
+    for name in names:
+        nominal = job.for_scanner(name).scanner.nominal
+        if nominal is not None:
+            recorder.write_frame(time.time(), scan_topics(name)[2], nominal.matrix())
+    return JobRecording(recorder)
 
 
 def scanner_recordings(folder: Path, names: list[str]) -> dict[str, SessionRecording]:
@@ -288,6 +302,8 @@ def _scanner(
         )
         report = calibrate(run, on_event=events_of_scanner(on_event, name), cancel=cancel, confirm=confirm)
     outcome = _scanner_outcome(name, folder / RESULT_FILE, report)
+    if recording is not None and report is not None:  # its calibrated frame, for viewers of the recording
+        recording.recorder.write_frame(time.time(), scan_topics(name)[2], outcome.T_base_laser)
     sink.emit(
         SCANNER_RESULT,
         f"scanner {name}: {'passed' if outcome.passed else 'failed its quality gates'}"

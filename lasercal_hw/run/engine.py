@@ -395,7 +395,14 @@ def _earlier_run(request: RunRequest) -> SessionRecording | None:
     """What the run continues: the recording it resumes, or this scanner's run in a resumed cell
     job's one recording (``SessionRecording.for_scanner``); None: a new run."""
     if request.resume is not None:
-        return read_session(request.resume)
+        recording = read_session(request.resume)
+        if recording.is_job_recording:  # continued as a whole, by its job (run/cell.py)
+            names = ", ".join(recording.scanner_names)
+            raise ConfigError(
+                f"{request.resume} is a cell job's recording of scanners {names}: resume the job from its "
+                f"folder: lasercal run --resume {request.resume.parent}"
+            )
+        return recording
     if request.recording is not None and request.scanner_name is not None:
         return request.recording.earlier_run(request.scanner_name)
     return None

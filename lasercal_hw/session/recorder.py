@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike
 
 from lasercal_hw import __version__
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.geometry import rotvec_to_quat
+from lasercal_hw.geometry import matrix_to_quat, rotvec_to_quat
 from lasercal_hw.models import LaserScan
 from lasercal_hw.session.format import (
     FORMAT_NAME,
@@ -49,6 +49,8 @@ from lasercal_hw.session.format import (
     META_SCANNER_NAME,
     POSE_STAMPED_DEF,
     POSE_STAMPED_TYPE,
+    TF_MESSAGE_DEF,
+    TF_MESSAGE_TYPE,
     TOPIC_EVENT,
     TOPIC_JOINT_STATES,
     TOPIC_JOINT_STATES_EXACT,
@@ -57,6 +59,7 @@ from lasercal_hw.session.format import (
     TOPIC_SCAN_INFO,
     TOPIC_TCP_POSE,
     TOPIC_TCP_POSE_EXACT,
+    TOPIC_TF_STATIC,
     UR_JOINT_NAMES,
     EventKind,
     dump_json,
@@ -77,6 +80,7 @@ _ROS_TOPICS = {
     TOPIC_SCAN: (LASER_SCAN_TYPE, LASER_SCAN_DEF),
     TOPIC_TCP_POSE: (POSE_STAMPED_TYPE, POSE_STAMPED_DEF),
     TOPIC_JOINT_STATES: (JOINT_STATE_TYPE, JOINT_STATE_DEF),
+    TOPIC_TF_STATIC: (TF_MESSAGE_TYPE, TF_MESSAGE_DEF),
 }
 _METADATA_NAME = "lasercal_session"
 
@@ -243,6 +247,22 @@ class SessionRecorder:
         with self._lock:
             self._add_ros(TOPIC_JOINT_STATES, host_time_s, message)
             self._add_json(TOPIC_JOINT_STATES_EXACT, host_time_s, {"host_time_s": host_time_s, "q_rad": q})
+            self._sync()
+
+    def write_frame(self, host_time_s: float, child_frame: str, T_parent_child: ArrayLike) -> None:
+        """Record where ``child_frame`` is in the base frame (4x4) on ``/tf_static``, for viewers
+        (a cell job's scanner frames: docs/recorder.md); the reader does not use it."""
+        T = np.asarray(T_parent_child, dtype=np.float64).reshape(4, 4)
+        qx, qy, qz, qw = matrix_to_quat(T[:3, :3]).tolist()
+        x, y, z = T[:3, 3].tolist()
+        message = {"transforms": [{
+            "header": {"stamp": ros_stamp(host_time_s), "frame_id": FRAME_BASE},
+            "child_frame_id": child_frame,
+            "transform": {"translation": {"x": x, "y": y, "z": z},
+                          "rotation": {"x": qx, "y": qy, "z": qz, "w": qw}},
+        }]}
+        with self._lock:
+            self._add_ros(TOPIC_TF_STATIC, host_time_s, message)
             self._sync()
 
     def write_event(self, host_time_s: float, kind: str, **fields: Any) -> None:

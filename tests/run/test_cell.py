@@ -38,6 +38,7 @@ from lasercal_hw.session.reader import SessionRecording, read_session
 from tests.cli_helpers import assert_one_line_error, run_cli
 from tests.run.test_cell_watcher_replay import as_before_watchers_scans
 from tests.run.test_replay import _copy
+from tests.session.test_job_recording import scanner_frames
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(400)]
 
@@ -283,7 +284,9 @@ def test_a_stopped_cell_job_resumes_at_the_scanner_and_waypoint_where_it_stopped
     # one recording for the job: the stopped one kept beside it, nothing recorded per scanner
     assert (run.out / "session.interrupted-1.mcap").is_file()
     assert not list(run.out.glob("*/session.mcap"))
-    before = read_session(run.out / "session.interrupted-1.mcap")
+    # the file as it stopped (the newest kept: a stall may have been resumed before, _through_stalls)
+    before = read_session(max(run.out.glob("session.interrupted-*.mcap"),
+                              key=lambda path: int(path.stem.rsplit("-", 1)[1])))
     for name in ("front", "rear"):  # every event recorded before the stop is in the resumed file
         kept = [e for e in before.for_scanner(name).events if e["kind"] != "resume"]
         after = [e for e in _run_of(run.out, name).events if e["kind"] != "resume"]
@@ -299,8 +302,10 @@ def test_one_recording_for_the_job_solves_each_scanner_as_its_run_did(
     out = stopped_and_resumed.out
     assert read_session(out / "session.mcap").scanner_names == ["front", "rear"]
     old = as_written_before_one_recording(out, tmp_path / "old")
+    frames = scanner_frames(out / "session.mcap")  # every scan plane placed in one scene, for viewers
     for name in ("front", "rear"):
         live = np.array(json.loads((out / name / "result.json").read_text())["T_base_laser"])
+        np.testing.assert_allclose(frames[f"laser_{name}"], live, rtol=0, atol=1e-9)
         for args in ([str(out / "session.mcap"), "--scanner", name], [str(old / name / "session.mcap")]):
             result = CliRunner().invoke(app, ["solve", *args, "--json"])
             assert result.exit_code == 0, result.output
@@ -312,6 +317,12 @@ def test_one_recording_for_the_job_solves_each_scanner_as_its_run_did(
                           "several scanners (front, rear); name the one to read with --scanner NAME")
     assert_one_line_error(run_cli("solve", str(old / "rear" / "session.mcap"), "--scanner", "front"), 2,
                           "the recording of scanner 'rear' alone, not of 'front'")
+    again = tmp_path / "again"  # the job resumed by its one recording: the pairs written again, no device
+    shutil.copytree(out, again)
+    resumed = CliRunner().invoke(
+        app, ["run", "--resume", str(again / "session.mcap")], env={"COLUMNS": "2000"}
+    )
+    assert resumed.exit_code == 0 and f"cell: {again / CELL_FILE}" in resumed.output, resumed.output
     info = CliRunner().invoke(app, ["session", "info", str(out / "session.mcap"), "--json"])
     summary = json.loads(info.stdout)
     assert summary["scanners"] == ["front", "rear"] and summary["scanner"] is None

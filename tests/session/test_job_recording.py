@@ -9,9 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.session.format import META_JOB_SCANNERS
+from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, quat_to_matrix
+from lasercal_hw.session.format import META_JOB_SCANNERS, TOPIC_TF_STATIC
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
 from tests.recorder_helpers import START_TIME_S, assert_scans_equal, make_pose, make_scan
@@ -111,3 +114,33 @@ def test_a_job_recording_killed_in_the_second_scanner_keeps_both_runs(tmp_path: 
     assert again.for_scanner("rear").dwell_windows()[0].complete
     front_ends = recording.for_scanner("front").events_of("dwell_end")
     assert again.for_scanner("front").events_of("dwell_end") == front_ends
+
+
+def scanner_frames(path: Path) -> dict[str, np.ndarray]:
+    """The last ``/tf_static`` transform of each child frame in a recording, as a standard ROS 2
+    reader decodes it (what Foxglove places each scanner's scans with): 4x4 in the base frame."""
+    frames = {}
+    with open(path, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, _, _, message in reader.iter_decoded_messages(topics=[TOPIC_TF_STATIC]):
+            for transform in message.transforms:
+                assert transform.header.frame_id == "base"
+                t, q = transform.transform.translation, transform.transform.rotation
+                frames[transform.child_frame_id] = make_transform(
+                    quat_to_matrix([q.x, q.y, q.z, q.w]), [t.x, t.y, t.z]
+                )
+    return frames
+
+
+def test_scanner_frames_are_on_tf_static_for_viewers_and_survive_a_resume(tmp_path: Path) -> None:
+    path = tmp_path / "session.mcap"
+    T = make_transform(euler_zyx_to_matrix(0.3, -0.2, 0.1), [0.3, -0.4, 0.25])
+    recorder = SessionRecorder(path, {META_JOB_SCANNERS: ["front"]})
+    recorder.write_frame(START_TIME_S, "laser_front", np.eye(4))
+    recorder.write_frame(START_TIME_S + 1.0, "laser_front", T)  # its calibrated frame replaces the nominal
+    recorder.flush()  # not closed: a killed writer
+    SessionRecorder.resume(path).close()
+    (frame,) = scanner_frames(path).items()
+    assert frame[0] == "laser_front"
+    np.testing.assert_allclose(frame[1], T, atol=1e-12)
+    assert read_session(path).scanner_names == []  # a frame is no scanner's run
