@@ -399,8 +399,8 @@ def _earlier_run(request: RunRequest) -> SessionRecording | None:
         if recording.is_job_recording:  # continued as a whole, by its job (run/cell.py)
             names = ", ".join(recording.scanner_names)
             raise ConfigError(
-                f"{request.resume} is a cell job's recording of scanners {names}: resume the job from its "
-                f"folder: lasercal run --resume {request.resume.parent}"
+                f"{request.resume} is a cell job's recording of scanners {names}: it is continued by "
+                f"resuming the job, its folder {request.resume.parent}, not one scanner's run"
             )
         return recording
     if request.recording is not None and request.scanner_name is not None:

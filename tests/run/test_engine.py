@@ -68,7 +68,7 @@ def test_a_cell_jobs_one_recording_resumes_only_as_the_job(tmp_path: Path) -> No
     path = tmp_path / "session.mcap"
     with SessionRecorder(path, {META_JOB_SCANNERS: ["front", "rear"]}) as recorder:
         recorder.for_scanner("front").write_meta({"job": {}, "waypoints": []})
-    with pytest.raises(ConfigError, match=rf"cell job's recording of scanners front: resume the job from its "
-                                          rf"folder: lasercal run --resume {tmp_path}"):
+    with pytest.raises(ConfigError, match=rf"cell job's recording of scanners front: it is continued by "
+                                          rf"resuming the job, its folder {tmp_path}, not one scanner's run"):
         calibrate(RunRequest(job=JobConfig(), out_dir=tmp_path, resume=path))
     assert read_session(path).scanner_names == ["front"]  # untouched
