@@ -42,6 +42,7 @@ def _summary(recording: SessionRecording, scanner: str | None = None) -> dict[st
         "path": str(recording.path),
         "truncated": recording.truncated,
         "truncation_reason": recording.truncation_reason,
+        "job_recording": recording.is_job_recording,
         "scanners": recording.scanner_names,
         "scanner": None if whole else selected.scanner_names[0],
         "scans": len(scans),
@@ -85,7 +86,8 @@ def info(
         f"TCP poses {summary['tcp_poses']}, joint states {summary['joint_states']}"
     )
     for name, count in summary["watcher_scans"].items():  # a cell's other scanners (docs/cell.md)
-        console.print(f"scans of {escape(name)}, watching: {count}")
+        of = "" if summary["job_recording"] else ", watching"  # a job's: its own run's too
+        console.print(f"scans of {escape(name)}{of}: {count}")
     console.print("events: " + (", ".join(f"{k} {n}" for k, n in summary["events"].items()) or "none"))
     console.print("meta: " + (", ".join(summary["meta_keys"]) or "none"))
     for window in summary["dwell_windows"]:
