@@ -171,6 +171,7 @@ def verify(
         raise ConfigError(
             f"{active.path} does not record the job it was made with: give verify that job file"
         )
+    chosen_job = _scanner_job(chosen_job, active)
     plan = plan_verify(
         chosen_job,
         active.T_base_laser,
@@ -287,6 +288,18 @@ def refit_and_test(
         np.array([_noise_covariance(m.centre) for m in refitted]),
     )
     return test, kept
+
+
+def _scanner_job(job: JobConfig, active: ActiveCalibration) -> JobConfig:
+    """``job`` for the calibrated scanner: a cell's job file narrowed to that scanner's job."""
+    if not job.scanners:
+        return job
+    if active.scanner_name is None:
+        raise ConfigError(
+            f"{active.path} is a one-scanner calibration, but the job file describes a cell "
+            f"(scanners {', '.join(job.scanners)}): give the job file it was made with"
+        )
+    return job.for_scanner(active.scanner_name)
 
 
 def _noise_covariance(centre: RodCentre) -> FloatArray:

@@ -12,10 +12,12 @@ from scipy.linalg import block_diag
 
 from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.cli.verify import verify_command
+from lasercal_hw.config import job_from_mapping
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.geometry import make_transform, rotvec_to_matrix
 from lasercal_hw.models import RobotIdentity, ScannerIdentity
 from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.verify import VerifyRequest, verify
 from lasercal_hw.verify.active import load_active_calibration, recorded_residuals
 from lasercal_hw.verify.drift import (
     DriftModel,
@@ -188,6 +190,24 @@ def test_cli_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
     assert_one_line_error(missing, 2, "none.json does not exist")
     with pytest.raises(ConfigError, match="--scene only applies to --dry-run"):
         verify_command(tmp_path / "none.json", scene=Path("x.toml"), yes=True)
+
+
+def test_a_cell_job_file_needs_the_calibrations_scanner(tmp_path: Path) -> None:
+    """A cell's job file is narrowed to the scanner the calibration is of: a one-scanner
+    calibration, or a scanner the file does not describe, is refused naming what it holds
+    (before any device is touched: no robot address is given)."""
+    cell = job_from_mapping({"scanners": {"front": {}, "back": {}}})
+    one = write_calibration(tmp_path / "one", fast_job())
+    with pytest.raises(ConfigError, match=r"one-scanner calibration, but the job file describes a cell "
+                                          r"\(scanners front, back\)"):
+        verify(VerifyRequest(out_dir=tmp_path / "v1", job=cell), one)
+    document = calibration_document(fast_job())
+    document["run"]["scanner_name"] = "rear"
+    rear = tmp_path / "rear" / "result.json"
+    rear.parent.mkdir()
+    rear.write_text(json.dumps(document))
+    with pytest.raises(ConfigError, match="the job has no scanner 'rear'; its scanners: front, back"):
+        verify(VerifyRequest(out_dir=tmp_path / "v2", job=cell), rear)
 
 
 def test_the_stated_power_is_the_power(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
