@@ -35,7 +35,7 @@ from lasercal_hw.cli.solve import print_result
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
 from lasercal_hw.live.foxglove import foxglove_view
-from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell
+from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell, names_a_cell
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate, default_out_dir
 
 OVERHEAD_TARGET = 0.10
@@ -286,7 +286,8 @@ RunScannerOption = Annotated[str | None, typer.Option(
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Job file (TOML); defaults without it.")]
 DwellOption = Annotated[float | None, typer.Option("--dwell", help="Dwell per waypoint in s (default 3).")]
 OutOption = Annotated[Path | None, typer.Option("--out", help="Output folder (./lasercal-out/<time>).")]
-ResumeOption = Annotated[Path | None, typer.Option("--resume", help="Continue an interrupted session.mcap.")]
+ResumeOption = Annotated[Path | None, typer.Option(
+    "--resume", help="Continue an interrupted session.mcap, or a cell job's folder.")]
 
 
 def run_command(
@@ -322,7 +323,7 @@ def run_command(
     live_port = foxglove_port if foxglove else None
     if robot is None and job.robot.host is None and not dry_run and resume is None:
         raise ConfigError("no robot given: pass --robot HOST (or set robot.host in the job file)")
-    if job.scanners or (resume is not None and (resume.is_dir() or resume.name == CELL_FILE)):
+    if job.scanners or (resume is not None and names_a_cell(resume)):
         _run_cell(job, scanner_name, robot, dry_run, scene, resume, yes=yes, as_json=as_json,
                   live_port=live_port)
         return

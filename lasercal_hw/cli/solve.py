@@ -53,9 +53,13 @@ def solve_command(
     use_recorded_centres: bool = typer.Option(
         False, "--use-recorded-centres", help="session.mcap: keep recorded centres where re-extraction fails."
     ),
+    scanner: str | None = typer.Option(
+        None, "--scanner", help="session.mcap of a cell job: the scanner whose run to solve (docs/cell.md)."
+    ),
 ) -> None:
     """Solve for T_base_laser from observations (index,tcp_x..tcp_rz,u,v[,sigma_u,sigma_v[,rho_uv]]) or
-    from a run's session.mcap (same extraction and solver as the live run; rod and noise from its job).
+    from a run's session.mcap (same extraction and solver as the live run; rod and noise from its job;
+    a cell job's one recording: the run of the scanner named with --scanner).
 
     A run's observations.csv carries the rod, solver settings and gates of the run's final
     solve, so it solves as the run did; options given here change those. The quality gates of
@@ -86,14 +90,16 @@ def solve_command(
         if estimate_range_offset:
             overrides["scanner.estimate_range_offset"] = True
         replay = solve_recording(
-            input_path, use_recorded_centres=use_recorded_centres, job_overrides=overrides
+            input_path, use_recorded_centres=use_recorded_centres, job_overrides=overrides, scanner=scanner
         )
         for message in replay.messages:
             err_console.print(f"[yellow]replay:[/] {message}")
         result, gates = replay.solution.result, replay.job.quality
     else:
-        if use_recorded_centres:
-            raise ConfigError("--use-recorded-centres applies to a session.mcap, not to observations.csv")
+        if use_recorded_centres or scanner is not None:
+            raise ConfigError(
+                "--use-recorded-centres and --scanner apply to a session.mcap, not to observations.csv"
+            )
         observations = load_observations(input_path)
         settings = read_solve_settings(input_path) or SolveSettings(
             RodLine(), SolverOptions(robot_sigma_m=RobotConfig().position_accuracy_mm / 1e3), QualityConfig()

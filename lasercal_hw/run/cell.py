@@ -2,18 +2,21 @@
 
 A job with ``[scanners.NAME]`` tables calibrates each named scanner in turn, each a whole
 run of ``engine.calibrate`` on the scanner's own one-scanner job (``JobConfig.for_scanner``:
-its waypoints, rod and gates) in the folder ``<out>/<NAME>/`` (its own ``session.mcap``,
-``result.json`` and exports). ``<out>/cell.json`` holds the job and the scanners' order from
+its waypoints, rod and gates) in the folder ``<out>/<NAME>/`` (its ``result.json`` and
+exports), all recording into the job's one ``<out>/session.mcap`` (each scanner's part named
+by it: docs/recorder.md). ``<out>/cell.json`` holds the job and the scanners' order from
 the start, and at the end every scanner's result and every scanner-to-scanner transform
 with its covariance (``calibration/pairs.py``). Resuming the cell folder keeps every
-scanner that has a ``result.json``, continues the one whose recording stopped at the
-waypoint where it stopped, and runs the rest (docs/cell.md).
+scanner that has a ``result.json``, continues the one whose run stopped at the waypoint
+where it stopped, and runs the rest (docs/cell.md). A cell folder written before the one
+recording (one ``<out>/<NAME>/session.mcap`` per scanner) resumes and reads in its layout.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -22,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from lasercal_hw import __version__
 from lasercal_hw.calibration.agreement import SharedCentre, agreement_test
 from lasercal_hw.calibration.model import plane_crossing, range_error_m, rod_lines_in_base
 from lasercal_hw.calibration.observations import read_observations_csv
@@ -32,13 +36,18 @@ from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.dry_run_cell import DryRunCell, start_fake_cell
-from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate
+from lasercal_hw.run.engine import JobRecording, MotionPlan, RunEvent, RunReport, RunRequest, calibrate
 from lasercal_hw.run.events import EventSink
 from lasercal_hw.run.outputs import OBSERVATIONS_FILE, RESULT_FILE, SESSION_FILE, read_result_file, write_text
 from lasercal_hw.run.replay import ReplayedSharedCentres, replay_shared_centres
-from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.format import META_JOB_SCANNERS, scan_topics
+from lasercal_hw.session.reader import SessionRecording, read_session
+from lasercal_hw.session.recorder import SessionRecorder
 
 CELL_FILE = "cell.json"
+#: ``cell.json``'s key naming the job's one recording (in the cell folder); a cell folder
+#: without it was written with one recording per scanner (``<NAME>/session.mcap``).
+CELL_RECORDING = "recording"
 #: The event a cell job sends once a scanner has its ``result.json`` (run now, or kept from
 #: before a resume): ``scanner``, ``folder``, ``passed``, ``kept``. A daemon files the scanner's
 #: calibration on it, so a job killed later keeps it in the history.
@@ -113,9 +122,16 @@ class CellReport:
         return {"passed": self.passed, "scanners": scanners, "pairs": self.pairs}
 
 
+def names_a_cell(path: Path) -> bool:
+    """Whether a ``--resume`` path names a cell job: its folder, its ``cell.json``, or its one
+    recording (``<out>/session.mcap`` beside ``cell.json``)."""
+    return path.is_dir() or path.name == CELL_FILE or (path.parent / CELL_FILE).is_file()
+
+
 def cell_folder(path: Path) -> Path:
-    """The cell folder a ``--resume`` path names (the folder, or its ``cell.json``)."""
-    folder = path.parent if path.name == CELL_FILE else path
+    """The cell folder a ``--resume`` path names (the folder, its ``cell.json`` or its one
+    recording)."""
+    folder = path.parent if path.name == CELL_FILE or path.is_file() else path
     if not (folder / CELL_FILE).is_file():
         raise ConfigError(f"{folder} holds no {CELL_FILE}: pass the folder of a cell job to resume")
     return folder
@@ -162,6 +178,7 @@ def _start(request: CellRunRequest) -> tuple[CellRunRequest, JobConfig, list[str
     document = {
         "job": request.job.model_dump(mode="json"),
         "scanners_run": names,
+        CELL_RECORDING: SESSION_FILE,
         "request": {
             "dry_run": request.dry_run, "scene": str(request.scene.resolve()) if request.scene else None,
         },
@@ -191,21 +208,62 @@ def calibrate_cell(
     sink = EventSink(on_event)
     cancel = cancel or CancelToken()
     outcomes: dict[str, ScannerOutcome] = {}
+    pending = [name for name in names if not (request.out_dir / name / RESULT_FILE).is_file()]
     with contextlib.ExitStack() as stack:
         fake_cell = None
-        if request.dry_run and any(not (request.out_dir / name / RESULT_FILE).is_file() for name in names):
+        if request.dry_run and pending:
             assert request.scene is not None, "a cell job's dry run has a scene (checked above, or recorded)"
             fake_cell = start_fake_cell(request.scene, stack, sink, cancel)  # one world for every scanner
+        recording = None
+        if pending and _one_recording(request.out_dir):
+            recording = _open_job_recording(request.out_dir, names, job)
+            stack.callback(recording.recorder.close)
         for name in names:
             watch = tuple(
                 (other, job.for_scanner(other).scanner) for other in names
                 if other != name and job.for_scanner(other).scanner.nominal is not None
             )
-            outcomes[name] = _scanner(request, job, name, watch, fake_cell, sink, on_event, cancel, confirm)
+            outcomes[name] = _scanner(
+                request, job, name, watch, fake_cell, recording, sink, on_event, cancel, confirm
+            )
     cell = CellReport(request.out_dir, outcomes, _pairs(outcomes, request.out_dir, job))
     document = _read_cell_file(request.out_dir) | cell.document()
     write_text(request.out_dir / CELL_FILE, json.dumps(document, indent=2, allow_nan=False) + "\n")
     return cell
+
+
+def _one_recording(folder: Path) -> bool:
+    """Whether the cell folder records into one ``session.mcap`` (False: a folder written before,
+    one recording per scanner)."""
+    return _read_cell_file(folder).get(CELL_RECORDING) is not None
+
+
+def _open_job_recording(folder: Path, names: list[str], job: JobConfig) -> JobRecording:
+    """The job's one recording, new or, after a stop, continued (``SessionRecorder.resume``: the
+    stopped file kept as ``session.interrupted-<k>.mcap``, every complete message copied); a new
+    one starts with each scanner's nominal frame (``/tf_static``, for viewers)."""
+    path = folder / SESSION_FILE
+    meta = {META_JOB_SCANNERS: names, "software_version": __version__}
+    if path.exists():
+        recorder = SessionRecorder.resume(path, meta)
+        return JobRecording(recorder, recorder.previous)
+    recorder = SessionRecorder(path, meta)
+    for name in names:
+        nominal = job.for_scanner(name).scanner.nominal
+        if nominal is not None:
+            recorder.write_frame(time.time(), scan_topics(name)[2], nominal.matrix())
+    return JobRecording(recorder)
+
+
+def scanner_recordings(folder: Path, names: list[str]) -> dict[str, SessionRecording]:
+    """Each scanner's run as the cell folder recorded it: its part of the job's one recording
+    (``SessionRecording.for_scanner``) or, in a folder written before it, its own
+    ``<NAME>/session.mcap``; a scanner with no recorded run is left out."""
+    if (folder / SESSION_FILE).is_file():
+        recording = read_session(folder / SESSION_FILE)
+        return {name: recording.for_scanner(name) for name in names if name in recording.scanner_names}
+    own = {name: folder / name / SESSION_FILE for name in names}
+    return {name: read_session(path) for name, path in own.items() if path.is_file()}
 
 
 def _scanner(
@@ -214,14 +272,16 @@ def _scanner(
     name: str,
     watch: tuple[tuple[str, ScannerConfig], ...],
     fake_cell: DryRunCell | None,
+    recording: JobRecording | None,
     sink: EventSink,
     on_event: Callable[[RunEvent], None] | None,
     cancel: CancelToken,
     confirm: Callable[[MotionPlan], None] | None,
 ) -> ScannerOutcome:
-    """One scanner's outcome: its run (continued from its recording when it has one; the
-    scanners of ``watch`` measure the rod where they see it: ``run/watchers``), or its
-    ``result.json`` kept from before a resume; told as a ``scanner_result`` event."""
+    """One scanner's outcome: its run (recorded in the job's ``recording``, or in a folder written
+    before it in its own; continued where that holds its run; the scanners of ``watch`` measure
+    the rod where they see it: ``run/watchers``), or its ``result.json`` kept from before a
+    resume; told as a ``scanner_result`` event."""
     folder = request.out_dir / name
     kept = (folder / RESULT_FILE).is_file()
     report = None
@@ -233,14 +293,17 @@ def _scanner(
             robot_host=None if request.dry_run else request.robot_host,
             dry_run=request.dry_run,
             scene=request.scene,
-            resume=session if session.is_file() else None,
+            resume=session if recording is None and session.is_file() else None,
             title=f"{request.title}: scanner {name}",
             scanner_name=name,
             fake_cell=fake_cell,
             watch=watch,
+            recording=recording,
         )
         report = calibrate(run, on_event=events_of_scanner(on_event, name), cancel=cancel, confirm=confirm)
     outcome = _scanner_outcome(name, folder / RESULT_FILE, report)
+    if recording is not None and report is not None:  # its calibrated frame, for viewers of the recording
+        recording.recorder.write_frame(time.time(), scan_topics(name)[2], outcome.T_base_laser)
     sink.emit(
         SCANNER_RESULT,
         f"scanner {name}: {'passed' if outcome.passed else 'failed its quality gates'}"
@@ -299,7 +362,8 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
     """Every scanner-to-scanner transform ``T_a_b`` (a before b in the job's order) with its
     covariance, the two poses' agreement where both scanners saw the rod at one waypoint
     (``calibration/agreement``), and against the truth when both have one (a dry run)."""
-    recorded = {name: _recorded_centres(folder / name, name, job) for name in outcomes}
+    recordings = scanner_recordings(folder, list(outcomes))
+    recorded = {name: _recorded_centres(folder / name, recordings.get(name), name, job) for name in outcomes}
     centres = {name: entry.centres for name, entry in recorded.items()}
     outcomes = {
         name: replace(outcome, first_pass_scatter_uv_m2=first_pass_scatter_uv_m2(
@@ -386,17 +450,19 @@ class _RecordedRun:
     first_pass: dict[int, FloatArray]
 
 
-def _recorded_centres(folder: Path, name: str, job: JobConfig) -> _RecordedRun:
-    """Scanner ``name``'s centres: its own as its solve used them (``observations.csv``: second
-    pass, range offset removed) and as its run found them, and those its run's watchers
-    measured, each computed again from the watcher's recorded scans
-    (``run/replay.replay_shared_centres``, with what it could not); empty without a recording."""
-    if not (folder / SESSION_FILE).is_file() or not (folder / OBSERVATIONS_FILE).is_file():
+def _recorded_centres(
+    folder: Path, recording: SessionRecording | None, name: str, job: JobConfig
+) -> _RecordedRun:
+    """Scanner ``name``'s centres: its own as its solve used them (``observations.csv`` in its
+    ``folder``: second pass, range offset removed) and as its run found them, and those its
+    run's watchers measured, each computed again from the watcher's recorded scans
+    (``run/replay.replay_shared_centres``, with what it could not); empty without its run's
+    ``recording``."""
+    if recording is None or not (folder / OBSERVATIONS_FILE).is_file():
         return _RecordedRun({}, ReplayedSharedCentres(), {})
     own = {o.index: (o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2)
            for o in read_observations_csv(folder / OBSERVATIONS_FILE)}
     nominals = {other: job.for_scanner(other).scanner.nominal for other in job.scanner_names()}
-    recording = read_session(folder / SESSION_FILE)
     replayed = replay_shared_centres(recording, job.for_scanner(name).rod.rod_line(), nominals)
     first_pass = {int(event["index"]): np.asarray(event["centre_uv_m"], dtype=float)
                   for event in recording.events_of("observation")}

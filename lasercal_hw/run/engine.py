@@ -32,18 +32,19 @@ from lasercal_hw.run.events import EventSink, RunEvent, Stage
 from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
 from lasercal_hw.run.preflight import PreflightReport
-from lasercal_hw.run.records import ProgressCallback, ResumeState, RunOutcome
+from lasercal_hw.run.records import ProgressCallback, ResumeState, RunOutcome, RunRecorder
 from lasercal_hw.run.resume import META_JOB, META_WAYPOINTS, recorded_job, resume_state
 from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.watchers import Watcher
 from lasercal_hw.run.waypoints import job_waypoints
-from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.format import META_SCANNER_NAME
+from lasercal_hw.session.reader import SessionRecording, read_session
 from lasercal_hw.session.recorder import SessionRecorder
 from lasercal_hw.ur_kinematics import offline_model
 
 __all__ = [
-    "CancelToken", "MotionPlan", "ProcedureReport", "RunEvent", "RunReport", "RunRequest", "SequencerSession",
-    "calibrate", "default_out_dir", "open_sequencer",
+    "CancelToken", "JobRecording", "MotionPlan", "ProcedureReport", "RunEvent", "RunReport", "RunRequest",
+    "SequencerSession", "calibrate", "default_out_dir", "open_sequencer",
 ]
 
 DRY_RUN_SCENE_FILE = "dry_run_scene.toml"
@@ -51,10 +52,24 @@ DRY_RUN_SCENE_FILE = "dry_run_scene.toml"
 #: dry run's recording resumes against a new fake cell of the same world.
 META_DRY_RUN = "dry_run"
 META_SCENE = "dry_run_scene_toml"
-#: Recording meta: the scanner of a cell job this recording calibrates (docs/cell.md).
-META_SCANNER_NAME = "scanner_name"
 #: Recording meta: the robot's own kinematics calibration (``RobotCalibration.as_dict``, or None: unknown).
 META_ROBOT_CALIBRATION = "robot_calibration"
+
+
+@dataclass(frozen=True)
+class JobRecording:
+    """A cell job's one recording (docs/recorder.md), opened by the job: each scanner's run
+    writes to it through ``recorder.for_scanner(NAME)``; ``previous`` is what the file held
+    before the job was resumed (None: a new file)."""
+
+    recorder: SessionRecorder
+    previous: SessionRecording | None = None
+
+    def earlier_run(self, name: str) -> SessionRecording | None:
+        """Scanner ``name``'s run as the file held it before the resume (None: not started)."""
+        if self.previous is None or name not in self.previous.scanner_names:
+            return None
+        return self.previous.for_scanner(name)
 
 
 @dataclass(frozen=True)
@@ -83,6 +98,9 @@ class RunRequest:
     #: The cell's other scanners that measure the rod at this run's waypoints where they see it
     #: (``run/watchers``): name and settings (url, nominal pose; a dry run's url is its fake cell's).
     watch: tuple[tuple[str, ScannerConfig], ...] = ()
+    #: A cell job's one recording this run writes to, as scanner ``scanner_name`` (continuing that
+    #: scanner's run where the file holds one); None: the run's own ``session.mcap``.
+    recording: JobRecording | None = None
 
 
 OutcomeT = TypeVar("OutcomeT")
@@ -253,7 +271,7 @@ class SequencerSession:
     sequencer: Sequencer
     robot: Robot
     scanner: Scanner
-    recorder: SessionRecorder
+    recorder: RunRecorder
     ground_truth: FloatArray | None
     fake_cell: dict[str, Any] | None
     on_progress: ProgressCallback
@@ -275,7 +293,7 @@ def open_sequencer(
     output folder, fake cell, devices, recording, and on failure where the recording is
     (and that the run can be resumed from it, when ``resumable``)."""
     request, job, waypoints, out_dir, state, created = _prepare(request)
-    session_path = request.resume or out_dir / SESSION_FILE
+    session_path = _recording_path(request)
     try:
         with contextlib.ExitStack() as stack:
             ground_truth: FloatArray | None = None
@@ -297,7 +315,8 @@ def open_sequencer(
             robot_calibration = _read_robot_calibration(devices, job.robot.host, sink)
             recorder = _open_recorder(request, job, waypoints, robot, scanner, fake_cell, ground_truth,
                                       session_path, robot_calibration)
-            stack.callback(recorder.close)
+            if isinstance(recorder, SessionRecorder):  # a cell job's one recording is closed by the job
+                stack.callback(recorder.close)
             on_progress = sink.progress_listener(job.rod.radius_m)
             sequencer = Sequencer(
                 robot,
@@ -333,22 +352,21 @@ def _prepare(
     a dry run), the job, its waypoints, the output folder (made here), what a resumed run
     already has, and whether this call created the folder."""
     devices = {"robot.host": request.robot_host, "scanner.url": request.scanner_url}
-    if request.resume is not None:
-        previous = read_session(request.resume)
+    previous = _earlier_run(request)
+    if previous is not None:
         request = _as_recorded(request, previous.meta)
         recorded, waypoints = recorded_job(previous)
         job = with_overrides(recorded, devices)  # the recording decides all but where the devices are
-        return request, job, waypoints, request.resume.parent, resume_state(previous), False
+        out_dir = request.out_dir if request.resume is None else request.resume.parent
+        _make_folder(out_dir)
+        return request, job, waypoints, out_dir, resume_state(previous), False
     job = with_overrides(request.job, devices)
     waypoints = (
         request.waypoints if request.waypoints is not None else job_waypoints(job, live=not request.dry_run)
     )
     out_dir = request.out_dir
     created = not out_dir.exists()
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}") from exc
+    _make_folder(out_dir)
     if (out_dir / SESSION_FILE).exists():
         raise ConfigError(
             f"{out_dir / SESSION_FILE} already exists: choose another output folder, "
@@ -357,27 +375,60 @@ def _prepare(
     return request, job, np.asarray(waypoints, dtype=float).reshape(-1, 6), out_dir, None, created
 
 
+def _make_folder(out_dir: Path) -> None:
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot create the output folder {out_dir}: {exc.strerror or exc}") from exc
+
+
+def _recording_path(request: RunRequest) -> Path:
+    """Where the run records: the recording it resumes, a cell job's one recording, or its own."""
+    if request.resume is not None:
+        return request.resume
+    if request.recording is not None:
+        return request.recording.recorder.path
+    return request.out_dir / SESSION_FILE
+
+
+def _earlier_run(request: RunRequest) -> SessionRecording | None:
+    """What the run continues: the recording it resumes, or this scanner's run in a resumed cell
+    job's one recording (``SessionRecording.for_scanner``); None: a new run."""
+    if request.resume is not None:
+        recording = read_session(request.resume)
+        if recording.is_job_recording:  # continued as a whole, by its job (run/cell.py)
+            names = ", ".join(recording.scanner_names)
+            raise ConfigError(
+                f"{request.resume} is a cell job's recording of scanners {names}: it is continued by "
+                f"resuming the job, its folder {request.resume.parent}, not one scanner's run"
+            )
+        return recording
+    if request.recording is not None and request.scanner_name is not None:
+        return request.recording.earlier_run(request.scanner_name)
+    return None
+
+
 def _as_recorded(request: RunRequest, meta: dict[str, Any]) -> RunRequest:
     """A resumed run continues on what it was recorded on: a dry run's recording against a
     new fake cell of the recorded scene (the recording alone is enough), a live recording
     only against hardware."""
-    assert request.resume is not None
+    recorded_at = _recording_path(request)
     if not meta.get(META_DRY_RUN):
         if request.dry_run:
             raise ConfigError(
-                f"{request.resume} was recorded on hardware: a dry run cannot continue it; resume it "
+                f"{recorded_at} was recorded on hardware: a dry run cannot continue it; resume it "
                 "against the robot and scanner it was recorded with"
             )
         return request
     if request.robot_host is not None or request.scanner_url is not None:
         raise ConfigError(
-            f"{request.resume} is a dry run's recording: it continues against a new fake cell, not "
+            f"{recorded_at} is a dry run's recording: it continues against a new fake cell, not "
             "against a robot or scanner"
         )
     scene = request.scene
     scene_toml = meta.get(META_SCENE)
     if scene is None and scene_toml is not None:
-        scene = request.resume.parent / DRY_RUN_SCENE_FILE
+        scene = recorded_at.parent / DRY_RUN_SCENE_FILE
         if not scene.is_file() or scene.read_text(encoding="utf-8") != scene_toml:
             scene.write_text(scene_toml, encoding="utf-8")
     return replace(request, dry_run=True, scene=scene, scanner_name=meta.get(META_SCANNER_NAME))
@@ -459,8 +510,9 @@ def _open_recorder(
     ground_truth: FloatArray | None,
     session_path: Path,
     robot_calibration: RobotCalibration | None,
-) -> SessionRecorder:
-    """A new ``session.mcap``, or the interrupted one continued, with the run's meta."""
+) -> RunRecorder:
+    """A new ``session.mcap``, or the interrupted one continued, with the run's meta; in a cell
+    job's one recording, the scanner's part of it (``SessionRecorder.for_scanner``)."""
     meta = {
         META_JOB: job.model_dump(mode="json"),
         META_WAYPOINTS: np.asarray(waypoints).tolist(),
@@ -477,6 +529,10 @@ def _open_recorder(
         meta["ground_truth_T_base_laser"] = np.asarray(ground_truth).tolist()
     if fake_cell is not None:
         meta[META_SCENE] = Path(fake_cell["scene"]).read_text(encoding="utf-8")
+    if request.recording is not None and request.scanner_name is not None:
+        recorder = request.recording.recorder.for_scanner(request.scanner_name)
+        recorder.write_meta(meta)
+        return recorder
     if request.resume is not None:
         return SessionRecorder.resume(request.resume, meta)
     return SessionRecorder(session_path, meta)

@@ -62,9 +62,11 @@ class RecordingSolution:
 
 
 def solve_recording(
-    path: str | Path, *, use_recorded_centres: bool = False, job_overrides: dict[str, Any] | None = None
+    path: str | Path, *, use_recorded_centres: bool = False, job_overrides: dict[str, Any] | None = None,
+    scanner: str | None = None,
 ) -> RecordingSolution:
-    """Re-extract and re-solve a ``session.mcap`` written by ``lasercal run``.
+    """Re-extract and re-solve a ``session.mcap`` written by ``lasercal run`` (of a cell job's
+    one recording, the run of ``scanner``: ``SessionRecording.for_scanner``).
 
     ``job_overrides`` changes the recorded job (``{"rod.estimate_axis": True}``).
     Raises ``ConfigError`` (one line) for a recording that lacks what a replay needs and
@@ -72,7 +74,7 @@ def solve_recording(
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"recording {str(path)!r} does not exist; pass the session.mcap of a run")
-    recording = read_session(path)
+    recording = read_session(path).for_scanner(scanner)
     job, _ = recorded_job(recording)
     if job_overrides:
         job = with_overrides(job, job_overrides, "command line")
@@ -87,7 +89,7 @@ def solve_recording(
     for message in messages:
         logger.warning("%s", message)
     if not measurements:
-        raise CalibrationError(_nothing_to_solve(path, messages, scanned=len(messages) - unscanned))
+        raise CalibrationError(_nothing_to_solve(recording, messages, scanned=len(messages) - unscanned))
     if recording.truncated:
         logger.warning("%s was not closed (%s); solving what it holds", path, recording.truncation_reason)
     observed = {int(event["index"]) for event in events}
@@ -117,10 +119,12 @@ def _background(recording: SessionRecording) -> AveragedScan | None:
     return background
 
 
-def _nothing_to_solve(path: Path, messages: list[str], scanned: int) -> str:
+def _nothing_to_solve(recording: SessionRecording, messages: list[str], scanned: int) -> str:
     """Why a recording gave no waypoint to solve and what to do instead, in one line;
     ``scanned`` waypoints had their scans (--use-recorded-centres would keep their centres)."""
-    found = path.parent / "observations.csv"
+    path = recording.path
+    folder = path.parent if recording.view_of is None else path.parent / recording.view_of
+    found = folder / "observations.csv"
     if found.is_file():
         instead = f"solve the centres the live run wrote instead: lasercal solve {found}"
     else:

@@ -33,9 +33,18 @@ TOPIC_EVENT = "/lasercal/event"
 TOPIC_SCAN_INFO = "/lasercal/scan_info"
 TOPIC_TCP_POSE_EXACT = "/lasercal/tcp_pose"
 TOPIC_JOINT_STATES_EXACT = "/lasercal/joint_states"
+#: A cell job's one recording: each scanner's frame in the base frame (its nominal pose, then its
+#: calibrated one), so a viewer shows every scan plane in one scene (docs/recorder.md).
+TOPIC_TF_STATIC = "/tf_static"
 
 FRAME_LASER = "laser"
 FRAME_BASE = "base"
+
+#: Meta and event key: the scanner whose run wrote the document (a cell job; docs/recorder.md).
+META_SCANNER_NAME = "scanner_name"
+#: Meta key of a cell job's one recording (its first, untagged meta document): the scanners the
+#: job runs, in order. Its presence makes a file a job recording (``SessionRecording.for_scanner``).
+META_JOB_SCANNERS = "job_scanners"
 
 
 def scan_topics(scanner: str | None = None) -> tuple[str, str, str]:
@@ -85,6 +94,7 @@ class EventKind(enum.StrEnum):
 _SEPARATOR = "=" * 80
 _TIME_DEF = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec"
 _HEADER_DEF = "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id"
+_QUATERNION_DEF = "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1"
 
 
 def _msgdef(main: str, *deps: str) -> str:
@@ -116,7 +126,19 @@ POSE_STAMPED_DEF = _msgdef(
     _TIME_DEF,
     "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation",
     "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z",
-    "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1",
+    _QUATERNION_DEF,
+)
+
+TF_MESSAGE_TYPE = "tf2_msgs/msg/TFMessage"
+TF_MESSAGE_DEF = _msgdef(
+    "geometry_msgs/TransformStamped[] transforms",
+    "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\n"
+    "geometry_msgs/Transform transform",
+    _HEADER_DEF,
+    _TIME_DEF,
+    "MSG: geometry_msgs/Transform\ngeometry_msgs/Vector3 translation\ngeometry_msgs/Quaternion rotation",
+    "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z",
+    _QUATERNION_DEF,
 )
 
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"

@@ -26,9 +26,12 @@ from mcap.records import Channel, McapRecord, Message, Schema
 from mcap.stream_reader import MAGIC_SIZE, StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
+from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, LaserScan, ScanGeometry
 from lasercal_hw.session.format import (
+    META_JOB_SCANNERS,
+    META_SCANNER_NAME,
     TOPIC_EVENT,
     TOPIC_JOINT_STATES_EXACT,
     TOPIC_META,
@@ -195,6 +198,73 @@ class SessionRecording:
     truncation_reason: str | None = None
     damaged: list[str] = field(default_factory=list)
     """Damaged chunks skipped while reading, each with what it lost."""
+    #: The scanner whose run this is the view of (``for_scanner`` of a job recording); None: the file.
+    view_of: str | None = None
+
+    @property
+    def is_job_recording(self) -> bool:
+        """True for a cell job's one recording (every scanner's run; docs/recorder.md), not a view."""
+        return self.view_of is None and any(
+            META_JOB_SCANNERS in document and META_SCANNER_NAME not in document for document in self.metas
+        )
+
+    @property
+    def scanner_names(self) -> list[str]:
+        """The scanners whose runs the recording holds: a job recording's that have started, in
+        order; a one-scanner recording's one (its meta's ``scanner_name``, else ``default``)."""
+        if self.view_of is not None:
+            return [self.view_of]
+        if not self.is_job_recording:
+            return [str(self.meta.get(META_SCANNER_NAME) or DEFAULT_SCANNER_NAME)]
+        names: list[str] = []
+        for document in self.metas:
+            name = document.get(META_SCANNER_NAME)
+            if name is not None and str(name) not in names:
+                names.append(str(name))
+        return names
+
+    def for_scanner(self, name: str | None) -> SessionRecording:
+        """Scanner ``name``'s run as its own one-scanner recording would hold it: of a job
+        recording, its meta documents and events (and the untagged ones), its scans as ``scans``
+        and the other scanners' as ``scans_by_scanner``, every TCP pose and joint state; a
+        one-scanner recording is its own view (``name`` None or its scanner's). The one way a
+        reader selects a scanner; a scanner the file does not hold is a one-line ``ConfigError``
+        naming those it holds."""
+        names = self.scanner_names
+        if not self.is_job_recording:
+            if name is None or name in names:
+                return self
+            raise ConfigError(
+                f"{self.path} is the recording of scanner {names[0]!r} alone, not of {name!r}; "
+                f"leave out the scanner name, or pass {names[0]!r}"
+            )
+        held = ", ".join(names) if names else "none yet (no scanner's run has started)"
+        if name is None:
+            if len(names) != 1:
+                raise ConfigError(
+                    f"{self.path} is a cell job's recording of several scanners ({held}); name the one to "
+                    "read with --scanner NAME"
+                )
+            name = names[0]
+        if name not in names:
+            raise ConfigError(f"{self.path} holds no run of scanner {name!r}; the scanners it holds: {held}")
+
+        def mine(document: dict[str, Any]) -> bool:
+            return document.get(META_SCANNER_NAME) in (None, name)
+
+        return SessionRecording(
+            path=self.path,
+            metas=[document for document in self.metas if mine(document)],
+            scans=self.scans_by_scanner.get(name, []),
+            scans_by_scanner={other: s for other, s in self.scans_by_scanner.items() if other != name},
+            tcp_poses=self.tcp_poses,
+            joint_states=self.joint_states,
+            events=[event for event in self.events if mine(event)],
+            truncated=self.truncated,
+            truncation_reason=self.truncation_reason,
+            damaged=self.damaged,
+            view_of=name,
+        )
 
     @property
     def meta(self) -> dict[str, Any]:

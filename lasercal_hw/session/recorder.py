@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike
 
 from lasercal_hw import __version__
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.geometry import rotvec_to_quat
+from lasercal_hw.geometry import matrix_to_quat, rotvec_to_quat
 from lasercal_hw.models import LaserScan
 from lasercal_hw.session.format import (
     FORMAT_NAME,
@@ -46,8 +46,11 @@ from lasercal_hw.session.format import (
     JSON_SCHEMAS,
     LASER_SCAN_DEF,
     LASER_SCAN_TYPE,
+    META_SCANNER_NAME,
     POSE_STAMPED_DEF,
     POSE_STAMPED_TYPE,
+    TF_MESSAGE_DEF,
+    TF_MESSAGE_TYPE,
     TOPIC_EVENT,
     TOPIC_JOINT_STATES,
     TOPIC_JOINT_STATES_EXACT,
@@ -56,6 +59,7 @@ from lasercal_hw.session.format import (
     TOPIC_SCAN_INFO,
     TOPIC_TCP_POSE,
     TOPIC_TCP_POSE_EXACT,
+    TOPIC_TF_STATIC,
     UR_JOINT_NAMES,
     EventKind,
     dump_json,
@@ -76,6 +80,7 @@ _ROS_TOPICS = {
     TOPIC_SCAN: (LASER_SCAN_TYPE, LASER_SCAN_DEF),
     TOPIC_TCP_POSE: (POSE_STAMPED_TYPE, POSE_STAMPED_DEF),
     TOPIC_JOINT_STATES: (JOINT_STATE_TYPE, JOINT_STATE_DEF),
+    TOPIC_TF_STATIC: (TF_MESSAGE_TYPE, TF_MESSAGE_DEF),
 }
 _METADATA_NAME = "lasercal_session"
 
@@ -244,6 +249,22 @@ class SessionRecorder:
             self._add_json(TOPIC_JOINT_STATES_EXACT, host_time_s, {"host_time_s": host_time_s, "q_rad": q})
             self._sync()
 
+    def write_frame(self, host_time_s: float, child_frame: str, T_parent_child: ArrayLike) -> None:
+        """Record where ``child_frame`` is in the base frame (4x4) on ``/tf_static``, for viewers
+        (a cell job's scanner frames: docs/recorder.md); the reader does not use it."""
+        T = np.asarray(T_parent_child, dtype=np.float64).reshape(4, 4)
+        qx, qy, qz, qw = matrix_to_quat(T[:3, :3]).tolist()
+        x, y, z = T[:3, 3].tolist()
+        message = {"transforms": [{
+            "header": {"stamp": ros_stamp(host_time_s), "frame_id": FRAME_BASE},
+            "child_frame_id": child_frame,
+            "transform": {"translation": {"x": x, "y": y, "z": z},
+                          "rotation": {"x": qx, "y": qy, "z": qz, "w": qw}},
+        }]}
+        with self._lock:
+            self._add_ros(TOPIC_TF_STATIC, host_time_s, message)
+            self._sync()
+
     def write_event(self, host_time_s: float, kind: str, **fields: Any) -> None:
         """Record an event (``EventKind``: dwell_start/dwell_end with ``index`` and
         ``tcp_pose``, observation, abort, fault, resume, run_end) and fsync it."""
@@ -286,6 +307,10 @@ class SessionRecorder:
                     self._writer.add_metadata(record.name, record.metadata)
             self._sync(durable=True)
         return copied
+
+    def for_scanner(self, name: str) -> ScannerRecorder:
+        """What scanner ``name``'s run of a cell job writes to this (the job's one) recording."""
+        return ScannerRecorder(self, name)
 
     def flush(self) -> None:
         """Push everything written so far to the disk (fsync)."""
@@ -385,6 +410,42 @@ class SessionRecorder:
         self._writer.flush()
         if durable:
             os.fsync(self._file.fileno())
+
+
+class ScannerRecorder:
+    """One scanner's run writing to a cell job's one recording (docs/recorder.md): its scans on
+    ``/scan/NAME`` (a watcher's on its own), its meta documents and events tagged
+    ``scanner_name``; the TCP poses and joint states as they are. The file is the job's: it is
+    closed by whoever opened it, not here."""
+
+    def __init__(self, recorder: SessionRecorder, name: str) -> None:
+        self._recorder = recorder
+        self.name = name
+
+    @property
+    def path(self) -> Path:
+        """The job's recording."""
+        return self._recorder.path
+
+    def write_meta(self, meta: dict[str, Any], host_time_s: float | None = None) -> None:
+        """``SessionRecorder.write_meta``, the document tagged with the scanner."""
+        self._recorder.write_meta(meta | {META_SCANNER_NAME: self.name}, host_time_s)
+
+    def write_scan(self, scan: LaserScan, scanner: str | None = None) -> None:
+        """This scanner's scan on ``/scan/NAME``; a watcher's (``scanner``) on its own topic."""
+        self._recorder.write_scan(scan, scanner or self.name)
+
+    def write_tcp_pose(self, host_time_s: float, pose: ArrayLike) -> None:
+        """``SessionRecorder.write_tcp_pose``."""
+        self._recorder.write_tcp_pose(host_time_s, pose)
+
+    def write_joint_state(self, host_time_s: float, q_rad: ArrayLike) -> None:
+        """``SessionRecorder.write_joint_state``."""
+        self._recorder.write_joint_state(host_time_s, q_rad)
+
+    def write_event(self, host_time_s: float, kind: str, **fields: Any) -> None:
+        """``SessionRecorder.write_event``, the event tagged with the scanner."""
+        self._recorder.write_event(host_time_s, kind, **(fields | {META_SCANNER_NAME: self.name}))
 
 
 def repair_session(source: str | Path, target: str | Path) -> int:

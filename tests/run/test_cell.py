@@ -1,7 +1,9 @@
 """A cell job (``[scanners.NAME]``) end to end on the two-scanner fake cell: both scanners
-calibrated in one job, the front-to-rear transform against the truth, and a job stopped in
-the second scanner's waypoints resumed without repeating a waypoint. The suite's one
-two-scanner dry run (a module fixture shared by the tests)."""
+calibrated in one job and one recording, the front-to-rear transform against the truth, and a
+job stopped in the second scanner's waypoints resumed without repeating a waypoint; the one
+recording solved per scanner, and the same job as a cell folder was written before it (one
+recording per scanner) still read. The suite's one two-scanner dry run (a module fixture
+shared by the tests)."""
 
 from __future__ import annotations
 
@@ -14,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
 from typer.testing import CliRunner
 
 from lasercal_hw.cli.main import app
@@ -23,9 +27,18 @@ from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell
 from lasercal_hw.run.engine import RunEvent
 from lasercal_hw.run.replay import replay_shared_centres
-from lasercal_hw.session.reader import read_session
+from lasercal_hw.session.format import (
+    META_JOB_SCANNERS,
+    META_SCANNER_NAME,
+    TOPIC_EVENT,
+    TOPIC_META,
+    scan_topics,
+)
+from lasercal_hw.session.reader import SessionRecording, read_session
+from tests.cli_helpers import assert_one_line_error, run_cli
 from tests.run.test_cell_watcher_replay import as_before_watchers_scans
 from tests.run.test_replay import _copy
+from tests.session.test_job_recording import scanner_frames
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(400)]
 
@@ -118,13 +131,57 @@ def stopped_and_resumed(tmp_path_factory: pytest.TempPathFactory) -> StoppedAndR
     with pytest.raises(InterruptedRunError) as stopped:
         _through_stalls(request, watch, cancel, events, calls)
     front_before = (out / "front" / "result.json").read_bytes()
-    recording = read_session(out / "rear" / "session.mcap")
+    recording = _run_of(out, "rear")
     done = [event["index"] for event in recording.events_of("observation")]
     done += [event["index"] for event in recording.events_of("waypoint_skipped")]
     assert not (out / "rear" / "result.json").exists()
     resume = CellRunRequest(job=load_job(None), out_dir=out, resume=out)
     resumed = _through_stalls(resume, events.append, CancelToken(), events, calls)
     return StoppedAndResumed(out, stopped.value, front_before, done, events, resumed, calls)
+
+
+def _run_of(out: Path, name: str) -> SessionRecording:
+    """Scanner ``name``'s run in the cell job's one recording."""
+    return read_session(out / "session.mcap").for_scanner(name)
+
+
+def as_written_before_one_recording(out: Path, target: Path) -> Path:
+    """The cell folder ``out`` as cell jobs wrote it before the one recording: each scanner's
+    run in its own ``<NAME>/session.mcap`` (its scans on ``/scan``, its events untagged, the
+    others' scans on their topics), ``cell.json`` without ``recording``."""
+    shutil.copytree(out, target)
+    (target / "session.mcap").unlink()
+    cell = json.loads((target / CELL_FILE).read_text())
+    cell.pop("recording")
+    (target / CELL_FILE).write_text(json.dumps(cell, indent=2) + "\n")
+    for name in cell["scanners_run"]:
+        own = dict(zip(scan_topics(name)[:2], scan_topics(None)[:2], strict=True))
+        with open(out / "session.mcap", "rb") as src, open(target / name / "session.mcap", "wb") as dst:
+            writer = Writer(dst)
+            writer.start(profile="ros2")
+            schemas: dict[int, int] = {}
+            channels: dict[str, int] = {}
+            for schema, channel, message in make_reader(src).iter_messages(log_time_order=False):
+                data = message.data
+                if channel.topic in (TOPIC_META, TOPIC_EVENT):
+                    document = json.loads(data)
+                    if document.get(META_SCANNER_NAME, name) != name or META_JOB_SCANNERS in document:
+                        continue  # another scanner's, or the job's own meta
+                    if channel.topic == TOPIC_EVENT:
+                        document.pop(META_SCANNER_NAME, None)
+                    data = json.dumps(document).encode()
+                topic = own.get(channel.topic, channel.topic)
+                if schema is not None and schema.id not in schemas:
+                    schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+                if topic not in channels:
+                    channels[topic] = writer.register_channel(
+                        topic, channel.message_encoding, schemas.get(channel.schema_id, 0)
+                    )
+                writer.add_message(
+                    channels[topic], message.log_time, data, message.publish_time, message.sequence
+                )
+            writer.finish()
+    return target
 
 
 def test_both_scanners_calibrated_and_their_transform_within_its_std(
@@ -159,7 +216,7 @@ def test_both_scanners_calibrated_and_their_transform_within_its_std(
 
 
 def test_the_other_scanner_measures_the_rod_where_it_sees_it(stopped_and_resumed: StoppedAndResumed) -> None:
-    recording = read_session(stopped_and_resumed.out / "rear" / "session.mcap")
+    recording = _run_of(stopped_and_resumed.out, "rear")
     shared = recording.events_of("shared_observation")
     assert shared and {event["scanner"] for event in shared} == {"front"}
     for event in shared:  # the centre near where front's nominal pose put it
@@ -178,7 +235,7 @@ def test_the_other_scanner_measures_the_rod_where_it_sees_it(stopped_and_resumed
     for event in shared:
         _, centre_uv_m, _ = replayed.centres["front"][event["index"]]
         np.testing.assert_allclose(centre_uv_m, event["centre_uv_m"], rtol=0, atol=1e-12)
-    recordings = [read_session(stopped_and_resumed.out / name / "session.mcap") for name in ("front", "rear")]
+    recordings = [_run_of(stopped_and_resumed.out, name) for name in ("front", "rear")]
     latest = {(e["scanner"], e["index"]) for r in recordings for e in r.events_of("shared_observation")}
     (pair,) = json.loads((stopped_and_resumed.out / CELL_FILE).read_text())["pairs"]
     assert pair["agreement"]["watcher_centres"] == {"recomputed": len(latest), "notes": []}
@@ -188,9 +245,9 @@ def test_a_cell_recording_from_before_the_watchers_scans_reuses_their_centres_an
     stopped_and_resumed: StoppedAndResumed, tmp_path: Path,
 ) -> None:
     """``lasercal run --resume`` on the finished job's folder writes its pairs again from the
-    recordings (no device needed); rear's recording made as an older version wrote it."""
-    out = tmp_path / "out"
-    shutil.copytree(stopped_and_resumed.out, out)
+    recordings (no device needed); the folder as older versions wrote it: one recording per
+    scanner, rear's from before the watchers' scans were recorded."""
+    out = as_written_before_one_recording(stopped_and_resumed.out, tmp_path / "out")
     rear = out / "rear" / "session.mcap"
     _copy(rear, tmp_path / "old.mcap", as_before_watchers_scans("front")).replace(rear)
     indices = ", ".join(str(e["index"]) for e in read_session(rear).events_of("shared_observation"))
@@ -218,13 +275,62 @@ def test_a_stopped_cell_job_resumes_at_the_scanner_and_waypoint_where_it_stopped
     assert (run.out / "front" / "result.json").read_bytes() == run.front_result_before
     assert run.report.scanners["front"].report is None and run.report.scanners["rear"].report is not None
     assert set(range(STOP_AT_REAR_WAYPOINT + 1)) <= set(run.rear_recording_before)
-    final = read_session(run.out / "rear" / "session.mcap")
+    final = _run_of(run.out, "rear")
     first_attempts = [e["index"] for e in final.events_of("dwell_start") if e["attempt"] == 1]
     assert sorted(first_attempts) == list(range(WAYPOINTS)), "no waypoint measured twice"
     assert final.meta["scanner_name"] == "rear"
     assert final.meta["scanner"]["url"].endswith(":10941")
     rear = json.loads((run.out / "rear" / "result.json").read_text())
     assert rear["run"]["resumed_after_waypoints"] == len(run.rear_recording_before)
+    # one recording for the job: the stopped one kept beside it, nothing recorded per scanner
+    assert (run.out / "session.interrupted-1.mcap").is_file()
+    assert not list(run.out.glob("*/session.mcap"))
+    # the file as it stopped (the newest kept: a stall may have been resumed before, _through_stalls)
+    before = read_session(max(run.out.glob("session.interrupted-*.mcap"),
+                              key=lambda path: int(path.stem.rsplit("-", 1)[1])))
+    for name in ("front", "rear"):  # every event recorded before the stop is in the resumed file
+        kept = [e for e in before.for_scanner(name).events if e["kind"] != "resume"]
+        after = [e for e in _run_of(run.out, name).events if e["kind"] != "resume"]
+        assert after[: len(kept)] == kept, name
+
+
+def test_one_recording_for_the_job_solves_each_scanner_as_its_run_did(
+    stopped_and_resumed: StoppedAndResumed, tmp_path: Path,
+) -> None:
+    """``lasercal solve <out>/session.mcap --scanner NAME`` reproduces each scanner's result.json,
+    as the folder written before the one recording does from ``<NAME>/session.mcap``; a scanner
+    the file does not hold, or none named, is a one-line error naming those it holds."""
+    out = stopped_and_resumed.out
+    assert read_session(out / "session.mcap").scanner_names == ["front", "rear"]
+    old = as_written_before_one_recording(out, tmp_path / "old")
+    frames = scanner_frames(out / "session.mcap")  # every scan plane placed in one scene, for viewers
+    for name in ("front", "rear"):
+        live = np.array(json.loads((out / name / "result.json").read_text())["T_base_laser"])
+        np.testing.assert_allclose(frames[f"laser_{name}"], live, rtol=0, atol=1e-9)
+        for args in ([str(out / "session.mcap"), "--scanner", name], [str(old / name / "session.mcap")]):
+            result = CliRunner().invoke(app, ["solve", *args, "--json"])
+            assert result.exit_code == 0, result.output
+            solved = json.loads(result.stdout)["T_base_laser"]
+            np.testing.assert_allclose(solved, live, rtol=0, atol=1e-9, err_msg=" ".join(args))
+    assert_one_line_error(run_cli("solve", str(out / "session.mcap"), "--scanner", "side"), 2,
+                          "holds no run of scanner 'side'; the scanners it holds: front, rear")
+    assert_one_line_error(run_cli("solve", str(out / "session.mcap")), 2,
+                          "several scanners (front, rear); name the one to read with --scanner NAME")
+    assert_one_line_error(run_cli("solve", str(old / "rear" / "session.mcap"), "--scanner", "front"), 2,
+                          "the recording of scanner 'rear' alone, not of 'front'")
+    again = tmp_path / "again"  # the job resumed by its one recording: the pairs written again, no device
+    shutil.copytree(out, again)
+    resumed = CliRunner().invoke(
+        app, ["run", "--resume", str(again / "session.mcap")], env={"COLUMNS": "2000"}
+    )
+    assert resumed.exit_code == 0 and f"cell: {again / CELL_FILE}" in resumed.output, resumed.output
+    info = CliRunner().invoke(app, ["session", "info", str(out / "session.mcap"), "--json"])
+    summary = json.loads(info.stdout)
+    assert summary["scanners"] == ["front", "rear"] and summary["scanner"] is None
+    assert {w["scanner"] for w in summary["dwell_windows"]} == {"front", "rear"}
+    rear = json.loads(CliRunner().invoke(
+        app, ["session", "info", str(out / "session.mcap"), "--scanner", "rear", "--json"]).stdout)
+    assert sorted(w["index"] for w in rear["dwell_windows"]) == list(range(WAYPOINTS))
 
 
 def test_a_dry_run_of_the_cell_starts_one_fake_cell_for_all_its_scanners(
@@ -240,3 +346,28 @@ def test_a_dry_run_of_the_cell_starts_one_fake_cell_for_all_its_scanners(
     assert ["front", "rear"] in names, names  # one call ran both scanners on its one cell
     results = [(e.data["scanner"], e.data["kept"]) for e in run.events if e.kind == "scanner_result"]
     assert results[-2:] == [("front", True), ("rear", False)] and ("front", False) in results
+
+
+def test_a_cell_folder_written_before_the_one_recording_resumes_in_its_own_layout(
+    stopped_and_resumed: StoppedAndResumed, tmp_path: Path,
+) -> None:
+    """rear's result lost from a folder of one recording per scanner: the resume continues rear's
+    own ``rear/session.mcap`` (every waypoint already in it: none measured again) and writes no
+    job recording; rear's result is that of its recording."""
+    out = as_written_before_one_recording(stopped_and_resumed.out, tmp_path / "old")
+    for name in ("result.json", "observations.csv", "report.png", "base_to_laser.urdf.xml",
+                 "static_transform_publisher.args"):
+        (out / "rear" / name).unlink(missing_ok=True)
+    events: list[RunEvent] = []
+    report = _through_stalls(CellRunRequest(job=load_job(None), out_dir=out, resume=out), events.append,
+                             CancelToken(), events, [])
+    assert report.scanners["front"].report is None and report.scanners["rear"].report is not None
+    assert not (out / "session.mcap").exists() and (out / "rear" / "session.interrupted-1.mcap").is_file()
+    final = read_session(out / "rear" / "session.mcap")
+    assert [e["index"] for e in final.events_of("dwell_start") if e["attempt"] == 1] == [
+        e["index"] for e in read_session(out / "rear" / "session.interrupted-1.mcap").events_of("dwell_start")
+        if e["attempt"] == 1
+    ], "no waypoint measured again"
+    before = json.loads((stopped_and_resumed.out / "rear" / "result.json").read_text())["T_base_laser"]
+    after = json.loads((out / "rear" / "result.json").read_text())["T_base_laser"]
+    np.testing.assert_allclose(after, before, rtol=0, atol=1e-9)

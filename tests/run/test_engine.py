@@ -11,6 +11,7 @@ import pytest
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ConfigError, InterruptedRunError
 from lasercal_hw.run.engine import CancelToken, RunRequest, calibrate
+from lasercal_hw.session.reader import read_session
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(240)]
 
@@ -56,3 +57,18 @@ def test_a_resumed_run_continues_on_what_it_was_recorded_on(tmp_path: Path) -> N
         _as_recorded(replace(request, dry_run=True), {META_DRY_RUN: False})
     with pytest.raises(ConfigError, match="dry run's recording: it continues against a new fake cell"):
         _as_recorded(replace(request, robot_host="127.0.0.9"), {META_DRY_RUN: True})
+
+
+def test_a_cell_jobs_one_recording_resumes_only_as_the_job(tmp_path: Path) -> None:
+    """``RunRequest.resume`` given a cell job's recording is refused, naming its folder: one
+    scanner's run resumed on its own would write into the job's file as a one-scanner run."""
+    from lasercal_hw.session.format import META_JOB_SCANNERS
+    from lasercal_hw.session.recorder import SessionRecorder
+
+    path = tmp_path / "session.mcap"
+    with SessionRecorder(path, {META_JOB_SCANNERS: ["front", "rear"]}) as recorder:
+        recorder.for_scanner("front").write_meta({"job": {}, "waypoints": []})
+    with pytest.raises(ConfigError, match=rf"cell job's recording of scanners front: it is continued by "
+                                          rf"resuming the job, its folder {tmp_path}, not one scanner's run"):
+        calibrate(RunRequest(job=JobConfig(), out_dir=tmp_path, resume=path))
+    assert read_session(path).scanner_names == ["front"]  # untouched

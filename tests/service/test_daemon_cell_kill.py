@@ -2,7 +2,7 @@
 HTTP on loopback, killed with SIGKILL during the second scanner's waypoints: after a restart
 the job is ``interrupted``, the first scanner's calibration is kept (in the history and on
 disk), and resume finishes the second scanner without measuring a waypoint twice (read from
-the recordings, not from timing)."""
+the job's one recording, not from timing), every record of the killed file kept."""
 
 from __future__ import annotations
 
@@ -60,12 +60,16 @@ def _filed(client: httpx.Client, scanner: str) -> list[dict[str, Any]]:
     return list(client.get("/v1/calibrations", params={"scanner": scanner}).json()["calibrations"])
 
 
-def _measured(session: Path) -> list[int]:
-    """The waypoints a (possibly cut-off) recording holds a centre or a skip for, in order."""
+def _measured(session: Path, scanner: str = "rear") -> list[int]:
+    """The waypoints ``scanner``'s run in a cell job's (possibly cut-off) recording holds a centre
+    or a skip for, in order."""
     if not session.is_file():
         return []
     with _quiet(logging.getLogger("lasercal_hw.session.reader")):  # a live recording is "truncated"
         recording = read_session(session)
+    if scanner not in recording.scanner_names:
+        return []
+    recording = recording.for_scanner(scanner)
     events = recording.events_of("observation") + recording.events_of("waypoint_skipped")
     return [int(event["index"]) for event in events]
 
@@ -80,10 +84,10 @@ def test_a_cell_job_killed_in_the_second_scanner_resumes_there(tmp_path: Path) -
             response = client.post("/v1/jobs", json=body)
             assert response.status_code == 202, response.text
             job_id = response.json()["id"]
-            rear_session = data_dir / "jobs" / job_id / "rear" / "session.mcap"
+            session = data_dir / "jobs" / job_id / "session.mcap"  # the job's one recording
             # until the rear scanner has measured some waypoints (a device error on a loaded machine,
             # the fake robot's RTDE stream stalling, is resumed as wait_for does)
-            wait_for(client, job_id, lambda job: len(_measured(rear_session)) >= KILL_AFTER_REAR_OBSERVATIONS
+            wait_for(client, job_id, lambda job: len(_measured(session)) >= KILL_AFTER_REAR_OBSERVATIONS
                      or job["state"] in ("succeeded", "cancelled"), timeout_s=300.0)
             assert client.get(f"/v1/jobs/{job_id}").json()["state"] not in ("succeeded", "cancelled")
         first.kill()
@@ -91,7 +95,9 @@ def test_a_cell_job_killed_in_the_second_scanner_resumes_there(tmp_path: Path) -
         first.stop()
     out = data_dir / "jobs" / job_id
     front_result = (out / "front" / "result.json").read_bytes()
-    measured_before = _measured(rear_session)
+    measured_before = _measured(session)
+    front_before = _measured(session, "front")
+    killed_size = session.stat().st_size
     assert len(measured_before) >= KILL_AFTER_REAR_OBSERVATIONS
     assert not (out / "rear" / "result.json").exists()
 
@@ -116,7 +122,12 @@ def test_a_cell_job_killed_in_the_second_scanner_resumes_there(tmp_path: Path) -
         second.stop()
 
     assert (out / "front" / "result.json").read_bytes() == front_result, "the front scanner ran again"
-    final = _measured(rear_session)
+    final = _measured(session)
+    assert not list(out.glob("*/session.mcap")), "one recording for the job"
+    # the killed file, kept whole beside it (the newest kept: wait_for may have resumed a stall before)
+    kept = max(out.glob("session.interrupted-*.mcap"), key=lambda path: int(path.stem.rsplit("-", 1)[1]))
+    assert kept.stat().st_size == killed_size and _measured(kept) == measured_before
+    assert _measured(session, "front") == front_before, "the front scanner's run is in the one recording"
     assert Counter(final) == Counter(range(WAYPOINTS)), f"a waypoint measured twice or never: {final}"
     assert final[: len(measured_before)] == measured_before, "the waypoints measured before the kill are kept"
     cell = json.loads((out / "cell.json").read_text())
