@@ -269,7 +269,8 @@ def wait_for(
     timeout_s: float = 400.0,
 ) -> dict[str, Any]:
     """Poll a job until ``predicate(job)``. A job a device stopped (on a loaded CI machine the
-    fakes can stall: "RTDE stream stalled") is resumed, as an operator would, up to 3 times."""
+    fakes can stall: "RTDE stream stalled") is resumed, as an operator would, up to 3 times;
+    any other failure ends the wait at once."""
     deadline = time.monotonic() + timeout_s
     resumed = 0
     while time.monotonic() < deadline:
@@ -279,5 +280,7 @@ def wait_for(
         if job["state"] == "failed" and job["error"]["code"] == "device_error" and resumed < 3:
             resumed += 1
             client.post(f"/v1/jobs/{job_id}/resume", json={"confirm_motion": True}).raise_for_status()
+        elif job["state"] == "failed":  # it stays failed: say so now, not after the timeout
+            raise AssertionError(f"job {job_id} failed: {job['error']}")
         time.sleep(0.3)
     raise AssertionError(f"job {job_id} never got there: {job}")
