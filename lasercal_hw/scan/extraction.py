@@ -204,6 +204,14 @@ class ExtractionSettings:
     range_walk_m_per_efold: float = 0.0025
     near_bias_m: float = 0.020
     near_bias_decay_m: float = 0.09
+    #: ... and the slope of the scanner's range-error curve over the rod's depth: the solver's
+    #: curve moves a centre by one value, the curve's at its distance, while the rod's edge
+    #: beams lie up to a radius deeper than its front and read the curve there. Issue 18's real
+    #: UTM-30LX-EW: +12 mm at 0.15 m, -13 mm at 0.75 m, +8 mm at 2 m, i.e. 16-21 mm per e-fold
+    #: of range between them (the physical model's unit: 4-31 mm; a dark 45 mm rod at 0.5 m,
+    #: its edges 0.09 e-folds deeper than its front, read them 2.5 mm longer and its centre lay
+    #: 1.1 mm long against 0.5 mm std).
+    range_error_slope_m_per_efold: float = 0.015
     #: Without a background scan, what lies behind a beam is the farthest reading this many
     #: beams either side (the background beside the rod).
     behind_window_beams: int = 40
@@ -211,7 +219,7 @@ class ExtractionSettings:
     #: beams at its edges, which a blend with the background moves: it is checked against the
     #: symmetry of the range profile (``_with_symmetry_doubt``). More beams' arc pins the
     #: centre better than that symmetry, which a background differing left and right bends.
-    symmetry_check_max_beams: int = 8
+    symmetry_check_max_beams: int = 10
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -1713,7 +1721,8 @@ def _arc_bias_m(scan: AveragedScan, beams: NDArray[np.int64], settings: Extracti
     ranges = scan.ranges_m[beams]
     front = int(np.argmin(ranges))
     near = settings.near_bias_m * np.exp(-(np.fmax(ranges, 0.1) - 0.1) / settings.near_bias_decay_m)
-    bias = np.abs(near - near[front])
+    deeper_efolds = np.log(np.fmax(ranges, 1e-3) / max(float(ranges[front]), 1e-3))
+    bias = np.abs(near - near[front]) + settings.range_error_slope_m_per_efold * np.abs(deeper_efolds)
     if scan.intensities is not None:
         intensity = np.fmax(scan.intensities[beams], 1.0)
         bias = bias + settings.range_walk_m_per_efold * np.abs(np.log(intensity / intensity[front]))
