@@ -175,6 +175,12 @@ class ExtractionSettings:
     #: surface behind weighted by its power and by the pulse's gaussian at its depth
     #: (``_merged_readings_m``).
     pulse_fwhm_m: float = 1.0
+    #: ... where the surface behind returns at least this much of the beam's power per unit of
+    #: spot: a dimmer one's pulses, beside a bright rod's echo, are too faint to move its peak
+    #: (the physical model leaves sub-pulses under 0.3 % of the echo out, docs/scanner-model.md;
+    #: merged in, a retro-reflective 10 mm rod before a wall 0.3 m behind, 6-40 times the wall's
+    #: power, came out 1-3 mm short).
+    merge_min_power_ratio: float = 0.1
     #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
     max_blend_share: float = 0.5
     #: An edge beam under this share reads the rod cleanly (``_drop_blended_edges``: the other
@@ -1725,7 +1731,9 @@ def _merge_behind(
     None without a background or a spot."""
     if behind is None or not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         return None
-    return _Merge(behind.ranges_m[beams], _power_ratio(scan, beams, behind))
+    ratio = _power_ratio(scan, beams, behind)
+    behind_m = np.where(ratio >= settings.merge_min_power_ratio, behind.ranges_m[beams], np.nan)
+    return _Merge(behind_m, ratio)
 
 
 def _drop_blended_edges(
