@@ -170,17 +170,6 @@ class ExtractionSettings:
     #: spot's part beside the rod; with intensities, weighted by the background's power
     #: against the beam's) times the depth behind.
     echo_merge_m: float = 0.85
-    #: The laser pulse's length in range (FWHM; docs/scanner-model.md: 1 m, assumed, 6.7 ns):
-    #: the spot fit predicts a merged echo's range as the peak of the two pulses' sum, the
-    #: surface behind weighted by its power and by the pulse's gaussian at its depth
-    #: (``_merged_readings_m``).
-    pulse_fwhm_m: float = 1.0
-    #: ... where the surface behind returns at least this much of the beam's power per unit of
-    #: spot: a dimmer one's pulses, beside a bright rod's echo, are too faint to move its peak
-    #: (the physical model leaves sub-pulses under 0.3 % of the echo out, docs/scanner-model.md;
-    #: merged in, a retro-reflective 10 mm rod before a wall 0.3 m behind, 6-40 times the wall's
-    #: power, came out 1-3 mm short).
-    merge_min_power_ratio: float = 0.1
     #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
     max_blend_share: float = 0.5
     #: An edge beam under this share reads the rod cleanly (``_drop_blended_edges``: the other
@@ -950,20 +939,9 @@ class _Fit:
     noise_covariance_uv_m2: FloatArray | None = None
     #: The residuals are against the beam's spot, not rays (``_along_the_spot``).
     spot: bool = False
-
-
-@dataclass(frozen=True)
-class _Merge:
-    """Per beam of a fit, the surface close behind the rod that merges into its echo: its
-    range (m; NaN: none, or one farther behind than ``echo_merge_m``, whose echo is its own)
-    and its power per unit of spot against the beam's (``(I_behind / I_beam)^2``, the UTM's
-    intensity growing like the square root of the power; 1 without intensities)."""
-
-    behind_range_m: FloatArray
-    power_ratio: FloatArray
-
-    def take(self, index: NDArray[np.int64]) -> _Merge:
-        return _Merge(self.behind_range_m[index], self.power_ratio[index])
+    #: Where the ray fit was kept: how far along the bearing the fit against the spot put the
+    #: centre from it (m; 0 where there was none).
+    spot_disagreement_m: float = 0.0
 
 
 def _residuals(
@@ -990,7 +968,6 @@ def _fit_residuals(
     settings: ExtractionSettings,
     *,
     free_radius: bool = False,
-    merge: _Merge | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The fit's residual per beam (m), its "normal" (N, 3: a ray's surface normal; the noise
     model ``_residual_sigma`` and the covariance terms take it) and its Jacobian by the centre
@@ -1003,9 +980,7 @@ def _fit_residuals(
     ``kappa`` times the spot reading's gradient (a ray's: the surface normal). A beam the spot
     does not reach, or a spot of no width, keeps the ray's orthogonal distance (``_residuals``).
     The free radius is fitted against rays: it is reported, not used, and against the spot its
-    fit (nearly degenerate with the range) took 20 evaluations of a millisecond each.
-    ``merge``: the surface close behind each beam, whose echo merges with the rod's
-    (``_merged_readings_m``)."""
+    fit (nearly degenerate with the range) took 20 evaluations of a millisecond each."""
     radius = float(params[2]) if free_radius else section.radius_m
     centre = params[:2]
     ray, normals = _residuals(points, centre, section, radius)
@@ -1016,10 +991,6 @@ def _fit_residuals(
     if spot is None:
         return ray, normals, jacobian
     readings, kappa, gradient, kappa_gradient = spot
-    if merge is not None:
-        readings, gradient = _merged_readings_m(
-            points, centre, section, radius, settings, merge, readings, gradient
-        )
     seen = np.isfinite(readings)
     excess = np.linalg.norm(points, axis=1) - np.where(seen, readings, 0.0)
     residuals = np.where(seen, kappa * excess, ray)
@@ -1113,59 +1084,6 @@ def _spot_readings_m(
     return readings, kappa, gradient, kappa_gradient
 
 
-def _merged_readings_m(
-    points: FloatArray,
-    centre: FloatArray,
-    section: _Section,
-    radius_m: float,
-    settings: ExtractionSettings,
-    merge: _Merge,
-    readings: FloatArray,
-    gradient: FloatArray,
-) -> tuple[FloatArray, FloatArray]:
-    """The spot's readings on the rod (``_spot_readings_m``) with the surface close behind
-    merged in, and their derivatives by the centre.
-
-    The part of the spot passing beside the rod (a gaussian core and its halo across the
-    rod's silhouette, as ``_blend`` sizes it) returns from the surface behind, ``q`` of the
-    rod's power (that share times ``merge.power_ratio``); the two pulses merge into one lobe
-    whose peak lies ``g q / (1 + g q)`` of the way to the surface behind, ``g`` the pulse's
-    gaussian at the depth between them (``pulse_fwhm_m``). A 45 mm matte rod at 1.5 m before a
-    wall 0.3 m behind: its edge beams read 2.5 mm behind what the spot returns from the rod
-    alone, so the spot fit lost to the ray fit (chi-square 11.5 against 5.4) and the centre
-    stayed 1.25 mm long against 0.29 mm std."""
-    ranges = np.linalg.norm(points, axis=1)
-    beams = points / ranges[:, None]
-    across = np.column_stack([-beams[:, 1], beams[:, 0]])
-    offset = across @ centre
-    # The silhouette's half-width across the beam (the section is a circle in the squeezed frame).
-    beams_c = beams @ section.to_circle(np.eye(2))
-    beams_c /= np.linalg.norm(beams_c, axis=1)[:, None]
-    side = radius_m * (np.column_stack([-beams_c[:, 1], beams_c[:, 0]]) @ section.from_circle(np.eye(2)))
-    half = np.fmax(np.abs(np.einsum("ij,ij->i", side, across)), 1e-12)
-    spot = np.fmax(_spot_sigma_m(ranges, settings), 1e-12)
-    beside = np.zeros_like(ranges)
-    d_beside = np.zeros_like(ranges)
-    halo = settings.spot_halo_fraction
-    for share, scale in ((1.0 - halo, 1.0), (halo, settings.spot_halo_scale)):
-        sigma = scale * spot
-        high, low = (half - offset) / sigma, (-half - offset) / sigma
-        beside += share * (1.0 - (ndtr(high) - ndtr(low)))
-        d_beside += share * (np.exp(-0.5 * high**2) - np.exp(-0.5 * low**2)) / (sigma * np.sqrt(2.0 * np.pi))
-    depth = merge.behind_range_m - readings
-    with np.errstate(invalid="ignore"):
-        merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
-    pulse_sigma = settings.pulse_fwhm_m / (2.0 * np.sqrt(2.0 * np.log(2.0)))
-    g = np.where(merged, np.exp(-0.5 * (np.where(merged, depth, 0.0) / pulse_sigma) ** 2), 0.0)
-    weight = g * merge.power_ratio * beside
-    pull = weight / (1.0 + weight)
-    d_weight = g * merge.power_ratio * d_beside  # by the offset, i.e. along ``across``
-    depth = np.where(merged, depth, 0.0)
-    moved = readings + pull * depth
-    d_moved = (1.0 - pull)[:, None] * gradient + (depth * d_weight / (1.0 + weight) ** 2)[:, None] * across
-    return moved, np.where(merged[:, None], d_moved, gradient)
-
-
 @functools.cache
 def _gauss_legendre(count: int) -> tuple[FloatArray, FloatArray]:
     """Gauss-Legendre nodes and weights on [-1, 1]."""
@@ -1205,17 +1123,15 @@ def _gauss_newton(
     *,
     free_radius: bool,
     spot: bool = True,
-    merge: _Merge | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
     """Weighted Gauss-Newton on (u, v[, r]); returns (params, normal matrix, whitened) or None.
-    ``spot``: against what the beam's spot returns (``_fit_residuals``, with ``merge``); False:
-    against rays."""
+    ``spot``: against what the beam's spot returns (``_fit_residuals``); False: against rays."""
     params = np.concatenate([seed, [section.radius_m]]) if free_radius else seed.copy()
     spot = spot and not free_radius  # the free radius is fitted against rays (``_fit_residuals``)
     model = settings if spot else _rays(settings)
 
     def evaluate(p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        res, normals, jac = _fit_residuals(points, p, section, model, free_radius=free_radius, merge=merge)
+        res, normals, jac = _fit_residuals(points, p, section, model, free_radius=free_radius)
         res_sigma = _residual_sigma(points, sigma, normals, section.radius_m, settings)
         return res / res_sigma, jac / res_sigma[:, None], res
 
@@ -1259,11 +1175,9 @@ def _fit_centre(
     section: _Section,
     settings: ExtractionSettings,
     blend_m: FloatArray | None = None,
-    merge: _Merge | None = None,
 ) -> _Fit:
     """Fit the centre to the points; ``blend_m``: each beam's blend allowance (m, along the
-    beam, one-sided: shared by neighbouring beams), which joins the covariance whole;
-    ``merge``: the surface close behind, which the spot fit predicts (``_merged_readings_m``)."""
+    beam, one-sided: shared by neighbouring beams), which joins the covariance whole."""
     seed = seed_centre_pi4(points, section.radius_m, section.axis)
     solved = _gauss_newton(points, sigma, seed, section, settings, free_radius=False, spot=False)
     limit = 2.0 * section.semi_major_m + 0.01
@@ -1278,8 +1192,8 @@ def _fit_centre(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
     ray_noise, ray_covariance = _fit_covariances_m2(points, sigma, centre, normal, section, _rays(settings))
-    spot_centre, spot_normal, spot = _along_the_spot(
-        points, sigma, centre, normal, float(ray_whitened @ ray_whitened), section, settings, merge
+    spot_centre, spot_normal, spot, spot_along_m = _along_the_spot(
+        points, sigma, centre, normal, float(ray_whitened @ ray_whitened), section, settings
     )
     model = settings if spot else _rays(settings)
     noise_covariance, covariance = ray_noise, ray_covariance
@@ -1287,7 +1201,7 @@ def _fit_centre(
         # Each direction keeps the covariance of the fit it came from (what that fit's residuals
         # leave unexplained included): along the bearing the spot's, across it the rays'.
         spot_noise, spot_covariance = _fit_covariances_m2(
-            points, sigma, spot_centre, spot_normal, section, settings, merge
+            points, sigma, spot_centre, spot_normal, section, settings
         )
         bearing = centre / float(np.linalg.norm(centre))
         # The spot's power weighting is a diffuse surface's; a glossy or retro-reflective one
@@ -1302,7 +1216,7 @@ def _fit_centre(
         noise_covariance = _along_and_across_m2(spot_noise, ray_noise, bearing)
         covariance = _along_and_across_m2(spot_covariance, ray_covariance, bearing)
         centre, normal = spot_centre, spot_normal
-    residuals, normals, _ = _fit_residuals(points, centre, section, model, merge=merge if spot else None)
+    residuals, normals, _ = _fit_residuals(points, centre, section, model)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
     whitened = residuals / residual_sigma
     covariance = covariance + np.eye(2) * _unknown_tilt_variance_m2(section, settings)
@@ -1313,7 +1227,8 @@ def _fit_centre(
         blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
         covariance += np.outer(blend_shift, blend_shift)
     blend_m = float(np.linalg.norm(blend_shift))
-    return _Fit(centre, covariance, residuals, whitened, blend_m, noise_covariance, spot)
+    disagreement_m = 0.0 if spot else spot_along_m
+    return _Fit(centre, covariance, residuals, whitened, blend_m, noise_covariance, spot, disagreement_m)
 
 
 def _fit_covariances_m2(
@@ -1323,12 +1238,11 @@ def _fit_covariances_m2(
     normal: FloatArray,
     section: _Section,
     model: ExtractionSettings,
-    merge: _Merge | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """A fit's noise covariance (its normal matrix's, scaled up by the reduced chi-square
     above 1) and that plus what its residuals leave unexplained (``_systematic_covariance_m2``),
-    against the spot (with ``merge``) or rays as ``model`` says."""
-    residuals, normals, _ = _fit_residuals(points, centre, section, model, merge=merge)
+    against the spot or rays as ``model`` says."""
+    residuals, normals, _ = _fit_residuals(points, centre, section, model)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
     whitened = residuals / residual_sigma
     variance_factor = max(1.0, float(whitened @ whitened) / max(points.shape[0] - 2, 1))
@@ -1356,12 +1270,12 @@ def _along_the_spot(
     ray_cost: float,
     section: _Section,
     settings: ExtractionSettings,
-    merge: _Merge | None = None,
-) -> tuple[FloatArray, FloatArray, bool]:
+) -> tuple[FloatArray, FloatArray, bool, float]:
     """The ray fit's centre and normal matrix (``ray_cost``: its chi-square) with their part
     along the bearing taken from a fit against what each beam's spot returns
-    (``_fit_residuals``), started there, unless the rays fit the beams better; and whether
-    the spot's was taken.
+    (``_fit_residuals``), started there, unless the rays fit the beams better; whether the
+    spot's was taken; and how far along the bearing the spot fit lies from the ray fit (m; 0
+    where it failed).
 
     Along the bearing the spot's blur is one-sided: on a rod's curved front the spot's sides
     meet the surface deeper than its middle, so the middle beams read long and the silhouette's
@@ -1380,22 +1294,23 @@ def _along_the_spot(
     with the smaller chi-square; the ray fit is kept then (each beam's noise is the same in both
     fits, so their chi-squares compare)."""
     if not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
-        return centre, normal, False
-    solved = _gauss_newton(points, sigma, centre, section, settings, free_radius=False, merge=merge)
+        return centre, normal, False, 0.0
+    solved = _gauss_newton(points, sigma, centre, section, settings, free_radius=False)
     if solved is None or float(np.linalg.norm(solved[0] - centre)) > section.semi_major_m:
-        return centre, normal, False
-    if float(solved[2] @ solved[2]) > ray_cost:
-        return centre, normal, False
+        return centre, normal, False, 0.0
     bearing = centre / float(np.linalg.norm(centre))
+    along_m = float(bearing @ (solved[0] - centre))
+    if float(solved[2] @ solved[2]) > ray_cost:
+        return centre, normal, False, along_m
     side = np.array([-bearing[1], bearing[0]])
     spot_normal = solved[1]
     information = float(bearing @ spot_normal @ bearing)
     try:
         side_m2 = float(side @ np.linalg.inv(normal) @ side)
     except np.linalg.LinAlgError:
-        return centre, normal, False
+        return centre, normal, False, along_m
     if not information > 0.0:
-        return centre, normal, False
+        return centre, normal, False, along_m
     # The spot fit's centre moved sideways to the ray fit's, and along by what that move
     # costs it (its normal matrix's coupling); the ray fit's sideways variance carried along.
     coupling = float(bearing @ spot_normal @ side) / information
@@ -1406,7 +1321,7 @@ def _along_the_spot(
         [1.0 / information + coupling**2 * side_m2, -coupling * side_m2],
         [-coupling * side_m2, side_m2],
     ]) @ basis.T
-    return moved, np.linalg.inv(covariance), True
+    return moved, np.linalg.inv(covariance), True, along_m
 
 
 def _centre_shift(
@@ -1482,11 +1397,10 @@ def _drop_mixed_edges(
     section: _Section,
     settings: ExtractionSettings,
     blend_m: FloatArray | None = None,
-    merge: _Merge | None = None,
 ) -> tuple[NDArray[np.int64], _Fit]:
     """Fit, then drop edge beams lying significantly behind the fitted surface; refit."""
     keep = np.arange(points.shape[0])
-    fit = _fit_centre(points, sigma, section, settings, blend_m, merge)
+    fit = _fit_centre(points, sigma, section, settings, blend_m)
     dropped = {"first": 0, "last": 0}
     while keep.size > settings.min_beams:
         candidates = []
@@ -1501,8 +1415,7 @@ def _drop_mixed_edges(
         dropped[side] += 1
         keep = np.delete(keep, pos)
         kept_blend = None if blend_m is None else blend_m[keep]
-        kept_merge = None if merge is None else merge.take(keep)
-        fit = _fit_centre(points[keep], sigma[keep], section, settings, kept_blend, kept_merge)
+        fit = _fit_centre(points[keep], sigma[keep], section, settings, kept_blend)
     return keep, fit
 
 
@@ -1536,8 +1449,7 @@ def _fit_segment(
         )
     points = scan.points_m()[beams]
     sigma = sigma_all[beams]
-    merge = _merge_behind(scan, beams, behind, settings)
-    keep, fit = _drop_mixed_edges(points, sigma, section, settings, merge=merge)
+    keep, fit = _drop_mixed_edges(points, sigma, section, settings)
     bound_m = np.zeros(beams.size)
     spot_shown = behind is not None and (
         max(ramp_beams, _steady_beams_beside(scan, sigma_all, beams, behind, settings))
@@ -1546,7 +1458,7 @@ def _fit_segment(
     bound_in_fit = False
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         keep, fit, share, bound_m = _drop_blended_edges(
-            scan, beams, points, sigma, keep, fit, section, behind, settings, merge
+            scan, beams, points, sigma, keep, fit, section, behind, settings
         )
         # Where no beam reads the rod cleanly the echo may be merged and still look like an arc:
         # the covariance takes every beam's whole bound. Where some do, the blended edge beams
@@ -1555,10 +1467,7 @@ def _fit_segment(
         # the spot model's share is no evidence of a blend.
         bound_in_fit = spot_shown and float(np.min(share[keep])) > settings.doubtful_blend_share_spot_shown
         if bound_in_fit:
-            kept_merge = None if merge is None else merge.take(keep)
-            inner, fit = _drop_mixed_edges(
-                points[keep], sigma[keep], section, settings, bound_m[keep], kept_merge
-            )
+            inner, fit = _drop_mixed_edges(points[keep], sigma[keep], section, settings, bound_m[keep])
             keep = keep[inner]
         if float(np.min(share[keep])) > settings.max_blend_share:
             raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
@@ -1576,6 +1485,16 @@ def _fit_segment(
     wide_spot = spot_m >= settings.symmetry_check_spot_fraction * 2.0 * section.radius_m
     if keep.size <= settings.symmetry_check_max_beams or narrow or wide_spot:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
+    if spot_shown and not fit.spot and fit.spot_disagreement_m:
+        # The rays fit these beams better than the spot on a scanner whose spot shows: the spot
+        # model does not describe them (a wall close behind merged into the edge beams, which
+        # then read long where the spot says short), and neither fit is vouched for. A 45 mm
+        # matte rod at 1.5 m before a wall 0.3 m behind: the ray fit 1.25 mm long against 0.29
+        # mm std, the spot fit 0.68 mm nearer. Their difference joins the covariance along the
+        # bearing.
+        bearing = fit.centre_uv_m / float(np.linalg.norm(fit.centre_uv_m))
+        doubt_m2 = fit.spot_disagreement_m**2 * np.outer(bearing, bearing)
+        fit = replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + doubt_m2)
     if spot_shown and not bound_in_fit and keep.size <= settings.symmetry_check_max_beams:
         # A fit of few beams takes its range from its edge beams too, whose spots reach past
         # the rod onto the surface close behind: the blend pushes them long, and the fit's one
@@ -1705,35 +1624,15 @@ def _blend(
 
     halo_fraction = settings.spot_halo_fraction if halo else 0.0
     share = (1.0 - halo_fraction) * beside(spot) + halo_fraction * beside(settings.spot_halo_scale * spot)
-    share = np.fmin(share * _power_ratio(scan, beams, behind), 1.0)
+    if behind.intensities is not None and scan.intensities is not None:
+        own = np.fmax(scan.intensities[beams], 1.0)
+        ratio = np.where(np.isfinite(behind.intensities[beams]), behind.intensities[beams] / own, 1.0)
+        share = np.fmin(share * ratio**2, 1.0)
     with np.errstate(invalid="ignore"):
         depth = behind.ranges_m[beams] - ranges
         merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
     share = np.where(merged, share, 0.0)
     return share, share * np.where(merged, depth, 0.0)
-
-
-def _power_ratio(scan: AveragedScan, beams: NDArray[np.int64], behind: _Behind) -> FloatArray:
-    """Per beam, the surface behind's power per unit of spot against the beam's: ``(I_behind /
-    I_beam)^2`` (the UTM's intensity grows like the square root of the power); 1 without
-    intensities."""
-    if behind.intensities is None or scan.intensities is None:
-        return np.ones(beams.size)
-    own = np.fmax(scan.intensities[beams], 1.0)
-    ratio = np.where(np.isfinite(behind.intensities[beams]), behind.intensities[beams] / own, 1.0)
-    return ratio**2
-
-
-def _merge_behind(
-    scan: AveragedScan, beams: NDArray[np.int64], behind: _Behind | None, settings: ExtractionSettings
-) -> _Merge | None:
-    """What lies close behind each of ``beams`` for the spot fit (``_merged_readings_m``);
-    None without a background or a spot."""
-    if behind is None or not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
-        return None
-    ratio = _power_ratio(scan, beams, behind)
-    behind_m = np.where(ratio >= settings.merge_min_power_ratio, behind.ranges_m[beams], np.nan)
-    return _Merge(behind_m, ratio)
 
 
 def _drop_blended_edges(
@@ -1746,7 +1645,6 @@ def _drop_blended_edges(
     section: _Section,
     behind: _Behind,
     settings: ExtractionSettings,
-    merge: _Merge | None = None,
 ) -> tuple[NDArray[np.int64], _Fit, FloatArray, FloatArray]:
     """The fit without an edge beam that is more background than rod by its centre (its spot
     passes mostly beside the rod and the surface behind merges into its echo) while the other
@@ -1773,9 +1671,7 @@ def _drop_blended_edges(
         kept = keep[1:] if first > last else keep[:-1]
         if kept.size < settings.min_beams:
             return keep, fit, share, bound_m
-        inner, fit = _drop_mixed_edges(
-            points[kept], sigma[kept], section, settings, merge=None if merge is None else merge.take(kept)
-        )
+        inner, fit = _drop_mixed_edges(points[kept], sigma[kept], section, settings)
         keep = kept[inner]
 
 
