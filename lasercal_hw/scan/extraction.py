@@ -188,7 +188,7 @@ class ExtractionSettings:
     #: blend. Steady beams beside the rod between its edge and the surface behind (a far rod's
     #: ramps, split off its segment by their range jumps: ``_steady_beams_beside``) show the
     #: spot too (3 or more: an exact ray grazing the rod reads one such beam a side). Where it
-    #: shows, a fit of ``symmetry_check_max_beams`` or fewer also takes its beams' blend bounds
+    #: shows, a fit of ``few_beams_push_max_beams`` or fewer also takes its beams' blend bounds
     #: into its covariance (``_with_shared_push``): its edge beams' spots reach the surface
     #: behind and read long, which its one or two spare beams cannot show (a 45 mm rod at 2-3
     #: m before a wall 0.3 m behind, 3-5 beams: 1.6-3.1 mm long against 0.45-0.7 mm std).
@@ -219,9 +219,12 @@ class ExtractionSettings:
     #: beams at its edges, which a blend with the background moves: it is checked against the
     #: symmetry of the range profile (``_with_symmetry_doubt``). More beams' arc pins the
     #: centre better than that symmetry, which a background differing left and right bends.
-    symmetry_check_max_beams: int = 8
-    #: ... and so is a fit whose spot is at least this fraction of the rod's diameter wide.
-    symmetry_check_spot_fraction: float = 0.4
+    #: (8 until 2026-11-26: a painted 45 mm rod at 2 m, 10 beams under a 42 mm spot, sat 2.7 mm
+    #: sideways against 0.85 mm std, its edges lit unevenly by the surface's specular lobe.)
+    symmetry_check_max_beams: int = 10
+    #: A fit of this many beams or fewer, where the scan shows the spot, takes its beams' blend
+    #: bounds into its covariance (``_with_shared_push``).
+    few_beams_push_max_beams: int = 8
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -1478,12 +1481,7 @@ def _fit_segment(
     # whose blended flanks were dropped) give their sideways position from a flat arc too: the
     # profile's symmetry checks it likewise.
     narrow = _size_mismatch(scan, beams[keep], section, settings) is None
-    # And where the spot is wide against the rod, its edge beams are blurred over much of the
-    # arc: a painted 45 mm rod at 2 m (10 beams, the spot 42 mm) sat 2.7 mm sideways against
-    # 0.85 mm std, its two edges lit unevenly by the surface's specular lobe.
-    spot_m = 4.0 * float(_spot_sigma_m(np.array([float(np.min(scan.ranges_m[beams[keep]]))]), settings)[0])
-    wide_spot = spot_m >= settings.symmetry_check_spot_fraction * 2.0 * section.radius_m
-    if keep.size <= settings.symmetry_check_max_beams or narrow or wide_spot:
+    if keep.size <= settings.symmetry_check_max_beams or narrow:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
     if spot_shown and not fit.spot and fit.spot_disagreement_m:
         # The rays fit these beams better than the spot on a scanner whose spot shows: the spot
@@ -1495,7 +1493,7 @@ def _fit_segment(
         bearing = fit.centre_uv_m / float(np.linalg.norm(fit.centre_uv_m))
         doubt_m2 = fit.spot_disagreement_m**2 * np.outer(bearing, bearing)
         fit = replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + doubt_m2)
-    if spot_shown and not bound_in_fit and keep.size <= settings.symmetry_check_max_beams:
+    if spot_shown and not bound_in_fit and keep.size <= settings.few_beams_push_max_beams:
         # A fit of few beams takes its range from its edge beams too, whose spots reach past
         # the rod onto the surface close behind: the blend pushes them long, and the fit's one
         # or two spare beams cannot show it (a 45 mm rod at 2-3 m before a wall 0.3 m behind,
