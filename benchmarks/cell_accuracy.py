@@ -20,7 +20,8 @@ cell job's replay does), and each pair's agreement is tested as the cell job tes
 (``run/cell.pair_agreement``): with the solved poses, and with the second scanner's solved pose
 moved by ``--moved-mm`` along base x and turned ``--moved-deg`` about base z (a scanner knocked
 after its calibration: the test should say ``disagree``; its watcher centres keep the second
-pass with the solved pose, which a 5 mm / 0.5 deg move changes by hundredths of a millimetre).
+pass with the solved pose: with the moved pose instead, rear's centres at front's waypoints move
+by 0.006 mm median, 0.05 mm at the 95th percentile, 0.34 mm at most over seeds 0-39).
 
 Printed: per seed each scanner's error against the truth, the front-to-rear (each pair's)
 error in its combined std and the agreement verdicts (solved, moved); then the
