@@ -265,7 +265,7 @@ def test_a_cell_recording_from_before_the_watchers_scans_reuses_their_centres_an
     recomputed = len(read_session(out / "front" / "session.mcap").events_of("shared_observation"))
     centres = pair["agreement"]["watcher_centres"]
     assert centres == {"recomputed": recomputed, "second_pass": centres["second_pass"], "notes": [note]}
-    assert 0 < centres["second_pass"] <= recomputed, centres
+    assert centres["second_pass"] <= recomputed, centres  # the reused ones keep their first pass
 
 
 def test_a_stopped_cell_job_resumes_at_the_scanner_and_waypoint_where_it_stopped(
