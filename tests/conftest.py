@@ -7,7 +7,11 @@ groups, each group on one worker, one module after the other: so at most two rea
 modules run at once, one per core (a dry run takes about 0.85 of a core, no more than a
 CPU-bound test beside it). The two groups hold about the same time; the CPU-bound rest fill
 whichever worker is free. One group of them all took 12.6 min of the suite's 13 (issue 22
-added the cell's page, kill and agreement tests).
+added the cell's page, kill and agreement tests). On 26 Nov 2026 (2 cores, nothing else
+running): real_time_service 386 s of test time, real_time_runs 378 s, the rest 210 s; the
+suite 8 min 22 s, so the wall time is the sum over two (``--junitxml`` gives each test's time).
+A real-time test is mostly the arm's moves (joint caps 1.5 rad/s, 4 rad/s^2), so time comes
+back only by fewer runs: share a run between tests that read it (module fixtures).
 
 The fake cell's scanner model is the physical UTM-30LX-EW by default, on which today's rod
 extraction does not yet hold (issue 18); dry runs in this suite test the run, the service

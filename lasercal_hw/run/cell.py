@@ -30,7 +30,7 @@ from lasercal_hw.calibration.agreement import SharedCentre, agreement_test
 from lasercal_hw.calibration.model import plane_crossing, range_error_m, rod_lines_in_base
 from lasercal_hw.calibration.observations import read_observations_csv
 from lasercal_hw.calibration.pairs import error_in_std, joint_relative_pose, relative_pose
-from lasercal_hw.calibration.result import RangeOffset
+from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
 from lasercal_hw.config import JobConfig, ScannerConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, RodLine
@@ -40,6 +40,8 @@ from lasercal_hw.run.engine import JobRecording, MotionPlan, RunEvent, RunReport
 from lasercal_hw.run.events import EventSink
 from lasercal_hw.run.outputs import OBSERVATIONS_FILE, RESULT_FILE, SESSION_FILE, read_result_file, write_text
 from lasercal_hw.run.replay import ReplayedSharedCentres, replay_shared_centres
+from lasercal_hw.run.resume import recorded_background
+from lasercal_hw.run.watchers import SolvedWatcher
 from lasercal_hw.session.format import META_JOB_SCANNERS, scan_topics
 from lasercal_hw.session.reader import SessionRecording, read_session
 from lasercal_hw.session.recorder import SessionRecorder
@@ -82,12 +84,12 @@ class ScannerOutcome:
     covariance: list[list[float]]
     ground_truth: list[list[float]] | None
     report: RunReport | None
-    #: The range error curve it estimated (None: none) and its solve's RMS residual.
+    #: The range error curve it estimated (None: none), the part of it its solved centres
+    #: already have taken out (the second pass's offset: ``range_offset_applied_m`` of
+    #: ``result.json``'s solver options), and its solve's reduced chi-square.
     range_offset: RangeOffset | None = None
-    rms_residual_mm: float = 0.0
-    #: How far its first-pass centres (a watcher's kind) sit from its solved ones: the mean
-    #: outer product of their differences over its own waypoints [m^2] (None: unknown).
-    first_pass_scatter_uv_m2: FloatArray | None = None
+    range_offset_applied_m: float = 0.0
+    reduced_chi_square: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -354,8 +356,14 @@ def _scanner_outcome(name: str, path: Path, report: RunReport | None) -> Scanner
         ground_truth=truth,
         report=report,
         range_offset=result_file.result.range_offset,
-        rms_residual_mm=result_file.result.rms_residual_mm,
+        range_offset_applied_m=applied_range_offset_m(result_file.result),
+        reduced_chi_square=result_file.result.reduced_chi_square,
     )
+
+
+def applied_range_offset_m(result: CalibrationResult) -> float:
+    """The range offset a result's second pass took out of its centres before its solve."""
+    return float(result.provenance.solver_options.get("range_offset_applied_m", 0.0))
 
 
 def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) -> list[dict[str, Any]]:
@@ -363,16 +371,12 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
     covariance, the two poses' agreement where both scanners saw the rod at one waypoint
     (``calibration/agreement``), and against the truth when both have one (a dry run)."""
     recordings = scanner_recordings(folder, list(outcomes))
-    recorded = {name: _recorded_centres(folder / name, recordings.get(name), name, job) for name in outcomes}
+    runs = {name: _own_run(folder / name, recordings.get(name)) for name in outcomes}
+    solved = {name: _solved_watcher(name, outcomes[name], recordings[name], run, job)
+              for name, run in runs.items() if run is not None}
+    recorded = {name: _recorded_centres(recordings.get(name), runs[name], name, job, solved)
+                for name in outcomes}
     centres = {name: entry.centres for name, entry in recorded.items()}
-    outcomes = {
-        name: replace(outcome, first_pass_scatter_uv_m2=first_pass_scatter_uv_m2(
-            recorded[name].first_pass,
-            {index: centre for index, (_, centre, _) in centres[name].get(None, {}).items()},
-            outcome.range_offset,
-        ))
-        for name, outcome in outcomes.items()
-    }
     names = list(outcomes)
     pairs = []
     for i, a in enumerate(names):
@@ -381,6 +385,7 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
             watched = (recorded[a].replayed, b), (recorded[b].replayed, a)  # b at a's waypoints, a at b's
             pair["agreement"]["watcher_centres"] = {
                 "recomputed": sum(run.recomputed.get(other, 0) for run, other in watched),
+                "second_pass": sum(run.second_pass.get(other, 0) for run, other in watched),
                 "notes": [note for run, other in watched for note in run.notes.get(other, [])],
             }
             pairs.append(pair)
@@ -445,28 +450,62 @@ class _RecordedRun:
     centres: RecordedCentres
     #: How its watchers' centres were computed again (``run/replay.replay_shared_centres``).
     replayed: ReplayedSharedCentres
-    #: Its own centres as its run found them (``observation`` events: the first pass, as a
-    #: watcher finds its centres).
+
+
+@dataclass(frozen=True)
+class _OwnRun:
+    """A scanner's own centres: as its solve used them (``observations.csv``: second pass, its
+    applied range offset taken out) and as its run found them (``observation`` events: the
+    first pass, as a watcher finds its centres)."""
+
+    solved: dict[int, tuple[Any, Any, Any]]
     first_pass: dict[int, FloatArray]
 
 
-def _recorded_centres(
-    folder: Path, recording: SessionRecording | None, name: str, job: JobConfig
-) -> _RecordedRun:
-    """Scanner ``name``'s centres: its own as its solve used them (``observations.csv`` in its
-    ``folder``: second pass, range offset removed) and as its run found them, and those its
-    run's watchers measured, each computed again from the watcher's recorded scans
-    (``run/replay.replay_shared_centres``, with what it could not); empty without its run's
-    ``recording``."""
+def _own_run(folder: Path, recording: SessionRecording | None) -> _OwnRun | None:
+    """The scanner's own centres from its ``folder`` and run's ``recording`` (None without either)."""
     if recording is None or not (folder / OBSERVATIONS_FILE).is_file():
-        return _RecordedRun({}, ReplayedSharedCentres(), {})
-    own = {o.index: (o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2)
-           for o in read_observations_csv(folder / OBSERVATIONS_FILE)}
-    nominals = {other: job.for_scanner(other).scanner.nominal for other in job.scanner_names()}
-    replayed = replay_shared_centres(recording, job.for_scanner(name).rod.rod_line(), nominals)
+        return None
+    solved = {o.index: (o.tcp_pose, o.centre_uv_m, o.covariance_uv_m2)
+              for o in read_observations_csv(folder / OBSERVATIONS_FILE)}
     first_pass = {int(event["index"]): np.asarray(event["centre_uv_m"], dtype=float)
                   for event in recording.events_of("observation")}
-    return _RecordedRun({None: own} | dict(replayed.centres), replayed, first_pass)
+    return _OwnRun(solved, first_pass)
+
+
+def _solved_watcher(
+    name: str, outcome: ScannerOutcome, recording: SessionRecording, run: _OwnRun, job: JobConfig
+) -> SolvedWatcher:
+    """What scanner ``name``'s centres as a watcher take from its own solved run for their second
+    pass: its pose, the rod line its solve estimated, its background (none where the recording
+    lacks its scans) and its first-pass scatter (``first_pass_scatter_uv_m2``)."""
+    background = recorded_background(recording)
+    rod = read_result_file(outcome.result_path).result.estimated_rod(job.for_scanner(name).rod.rod_line())
+    scatter = first_pass_scatter_uv_m2(
+        run.first_pass, {index: centre for index, (_, centre, _) in run.solved.items()}, outcome
+    )
+    return SolvedWatcher(np.asarray(outcome.T_base_laser, dtype=float), rod,
+                         None if isinstance(background, str) else background, scatter)
+
+
+def _recorded_centres(
+    recording: SessionRecording | None, run: _OwnRun | None, name: str, job: JobConfig,
+    solved: dict[str, SolvedWatcher],
+) -> _RecordedRun:
+    """Scanner ``name``'s centres: its own as its solve used them and those its run's watchers
+    measured, each computed again from the watcher's recorded scans and fitted again as the
+    watcher's second pass (``run/replay.replay_shared_centres``, with what it could not; a
+    watcher whose rod differs from this run's keeps its solve's pose and background but takes
+    this run's rod); empty without its run's ``recording``."""
+    if recording is None or run is None:
+        return _RecordedRun({}, ReplayedSharedCentres())
+    rod = job.for_scanner(name).rod.rod_line()
+    nominals = {other: job.for_scanner(other).scanner.nominal for other in job.scanner_names()}
+    own_rod = job.for_scanner(name).rod
+    views = {other: view if job.for_scanner(other).rod == own_rod else replace(view, rod=rod)
+             for other, view in solved.items() if other != name}
+    replayed = replay_shared_centres(recording, rod, nominals, views)
+    return _RecordedRun({None: run.solved} | dict(replayed.centres), replayed)
 
 
 def pair_agreement(
@@ -506,36 +545,33 @@ def _shared(
     job: JobConfig,
 ) -> tuple[list[SharedCentre], list[tuple[str, str]]]:
     """The waypoints of ``owner``'s run where ``other`` saw the rod too (owner's centre first),
-    and those left out with why (the other's centre beyond its range error curve's reach; a
+    and those left out with why (a centre beyond its scanner's range error curve's reach; a
     centre that by its scanner's solved pose is not the rod's: ``_on_the_rod``).
-    Each centre's covariance has its scanner's RMS residual added: the model error its solve
-    showed; a watcher's centre also its scanner's first-pass scatter: it is a first-pass centre
-    (a circle on the ellipse a tilted rod cuts, no second pass), whose error its covariance
-    does not carry."""
+    Each centre is moved back by what is left in it of its scanner's range error curve (the
+    owner's solved centre had the applied offset taken out, the watcher's none: the solver's
+    own model of its centres), and its covariance is scaled by its scanner's reduced
+    chi-square where that exceeds 1: the model error its solve showed."""
     own, seen = centres[owner].get(None, {}), centres[owner].get(other, {})
     rod = job.for_scanner(owner).rod.rod_line()
-    floor = {name: np.eye(2) * (outcomes[name].rms_residual_mm / 1000.0) ** 2 for name in (owner, other)}
-    first_pass = {name: np.zeros((2, 2)) if outcomes[name].first_pass_scatter_uv_m2 is None
-                  else np.asarray(outcomes[name].first_pass_scatter_uv_m2) for name in (owner, other)}
+    scale = {name: max(1.0, outcomes[name].reduced_chi_square) for name in (owner, other)}
     shared, left_out = [], []
     for index in sorted(set(own) & set(seen)):
         tcp_pose, centre, covariance = own[index]
         _, other_centre, other_covariance = seen[index]
-        corrected = _without_range_error(np.asarray(other_centre, dtype=float), outcomes[other].range_offset)
+        first = _without_range_error(np.asarray(centre, dtype=float), outcomes[owner])
+        second = _without_range_error(np.asarray(other_centre, dtype=float), outcomes[other], removed=False)
         origins, directions = rod_lines_in_base(np.asarray(tcp_pose, dtype=float)[None, :], rod)
-        if corrected is None:
+        if first is None or second is None:
             left_out.append((f"{owner} {index}", _BEYOND_CURVE))
             continue
-        found = ((outcomes[owner], np.asarray(centre, dtype=float)), (outcomes[other], corrected))
+        found = ((outcomes[owner], first), (outcomes[other], second))
         if not all(_on_the_rod(np.asarray(o.T_base_laser, dtype=float), origins, directions, uv, rod)
                    for o, uv in found):
             left_out.append((f"{owner} {index}", _NOT_THE_ROD))
             continue
         shared.append(SharedCentre(
-            f"{owner} {index}", np.asarray(centre, dtype=float),
-            np.asarray(covariance, dtype=float) + floor[owner],
-            corrected, np.asarray(other_covariance, dtype=float) + floor[other] + first_pass[other],
-            directions[0],
+            f"{owner} {index}", first, np.asarray(covariance, dtype=float) * scale[owner],
+            second, np.asarray(other_covariance, dtype=float) * scale[other], directions[0],
         ))
     return shared, left_out
 
@@ -558,24 +594,31 @@ def _on_the_rod(
 
 
 def first_pass_scatter_uv_m2(
-    first_pass: dict[int, FloatArray], solved: dict[int, FloatArray], range_offset: RangeOffset | None
+    first_pass: dict[int, FloatArray], solved: dict[int, FloatArray], outcome: ScannerOutcome
 ) -> FloatArray | None:
-    """The mean outer product of (solved - first-pass) centre differences by waypoint, the
-    first-pass centres corrected as a watcher's are; None with fewer than 3 waypoints."""
+    """The mean outer product of (solved - first-pass) centre differences by the scanner's own
+    waypoints, each centre moved back by what is left in it of the scanner's range error (as the
+    agreement moves them: ``_without_range_error``); None with fewer than 3 waypoints."""
     differences = []
     for index in sorted(set(first_pass) & set(solved)):
-        corrected = _without_range_error(np.asarray(first_pass[index], dtype=float), range_offset)
-        if corrected is not None:
-            differences.append(np.asarray(solved[index], dtype=float) - corrected)
+        first = _without_range_error(np.asarray(first_pass[index], dtype=float), outcome, removed=False)
+        second = _without_range_error(np.asarray(solved[index], dtype=float), outcome)
+        if first is not None and second is not None:
+            differences.append(second - first)
     if len(differences) < 3:
         return None
     d = np.asarray(differences)
     return d.T @ d / len(d)
 
 
-def _without_range_error(centre_uv_m: FloatArray, range_offset: RangeOffset | None) -> FloatArray | None:
-    """A watcher's centre moved back along its bearing by its scanner's range error there, or
-    None beyond ``CURVE_REACH_M`` of the distances the curve spans."""
+def _without_range_error(
+    centre_uv_m: FloatArray, outcome: ScannerOutcome, *, removed: bool = True
+) -> FloatArray | None:
+    """A centre moved back along its bearing by its scanner's range error there, less the
+    offset already taken out of it when ``removed`` (a solved centre: its second pass's
+    applied offset; a watcher's or a first-pass centre has none taken out), or None beyond
+    ``CURVE_REACH_M`` of the distances the curve spans."""
+    range_offset = outcome.range_offset
     if range_offset is None or not range_offset.curve:
         return centre_uv_m
     distance_m = float(np.linalg.norm(centre_uv_m))
@@ -583,7 +626,8 @@ def _without_range_error(centre_uv_m: FloatArray, range_offset: RangeOffset | No
     if not min(spanned) - CURVE_REACH_M <= distance_m <= max(spanned) + CURVE_REACH_M:
         return None
     error_m, _ = range_error_m(np.asarray(range_offset.coefficients_m()), np.asarray([distance_m]))
-    return centre_uv_m * (1.0 - float(error_m[0]) / distance_m)
+    left_m = float(error_m[0]) - (outcome.range_offset_applied_m if removed else 0.0)
+    return centre_uv_m * (1.0 - left_m / distance_m)
 
 
 def _swapped(shared: list[SharedCentre]) -> list[SharedCentre]:

@@ -11,7 +11,8 @@ waypoint, unless ``use_recorded_centres`` keeps the centre the live run recorded
 
 A cell job's recording also holds its watchers' scans and centres (``run/watchers``):
 ``replay_shared_centres`` computes those centres again from their scans with the live
-watcher's own function, and says which it could not and why (docs/cell.md).
+watcher's own function, and says which it could not and why (docs/cell.md); given the
+watchers' solved runs, it then fits each again as their second pass.
 """
 
 from __future__ import annotations
@@ -37,7 +38,14 @@ from lasercal_hw.run.resume import (
     window_average,
 )
 from lasercal_hw.run.two_pass import TwoPassSolution, predict_rod, solve_two_pass
-from lasercal_hw.run.watchers import SHARED_OBSERVATION, predicted_crossing, watcher_centre
+from lasercal_hw.run.watchers import (
+    SHARED_OBSERVATION,
+    SolvedWatcher,
+    as_first_pass,
+    predicted_crossing,
+    second_pass_centre,
+    watcher_centre,
+)
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import RodCentre, RodNotFoundError, find_rod_centre
 from lasercal_hw.session.reader import SessionRecording, read_session
@@ -227,38 +235,51 @@ class ReplayedSharedCentres:
     centres: dict[str, dict[int, SharedEntry]] = field(default_factory=dict)
     recomputed: dict[str, int] = field(default_factory=dict)
     notes: dict[str, list[str]] = field(default_factory=dict)
+    #: By watcher, how many of its recomputed centres got their second pass.
+    second_pass: dict[str, int] = field(default_factory=dict)
 
 
 def replay_shared_centres(
-    recording: SessionRecording, rod: RodLine, nominals: Mapping[str, NominalPose | None]
+    recording: SessionRecording, rod: RodLine, nominals: Mapping[str, NominalPose | None],
+    solved: Mapping[str, SolvedWatcher] | None = None,
 ) -> ReplayedSharedCentres:
     """Every ``shared_observation`` of ``recording`` (the last at a waypoint wins) computed again
     as the live watcher did (``run/watchers.watcher_centre``): the scans of its window averaged,
     the rod picked where the watcher's nominal pose (``nominals``, the cell job's) puts it. A
     centre whose scans are incomplete, where no rod is found, or where the rod found is not the
     recorded one is left out; a recording whose events carry no scan window (written before
-    watchers' scans were recorded) has its recorded centres reused. Each is named in ``notes``."""
+    watchers' scans were recorded) has its recorded centres reused. Each is named in ``notes``.
+    A watcher in ``solved`` (its own run solved) has each centre it found again fitted as its
+    second pass (``run/watchers.second_pass_centre``); a centre without one (reused, or its
+    second pass found no rod) carries the watcher's first-pass scatter in its covariance."""
     latest = {(str(e["scanner"]), int(e["index"])): e for e in recording.events_of(SHARED_OBSERVATION)}
     replayed = ReplayedSharedCentres()
     reused: dict[str, list[int]] = {}
+    solved = solved or {}
     for (name, index), event in sorted(latest.items()):
         tcp_pose = np.asarray(event["tcp_pose"], dtype=float)
         recorded = recorded_centre(event)
         if "window_start_s" not in event or "window_end_s" not in event:
             reused.setdefault(name, []).append(index)
+            if name in solved:
+                recorded = as_first_pass(recorded, solved[name])
             replayed.centres.setdefault(name, {})[index] = (
                 tcp_pose, recorded.centre_uv_m, recorded.covariance_uv_m2
             )
             continue
         scans = recording.scans_by_scanner.get(name, [])
-        centre = _shared_centre_again(event, scans, nominals.get(name), rod)
-        if isinstance(centre, str):
+        found = _shared_centre_again(event, scans, nominals.get(name), rod)
+        if isinstance(found, str):
             replayed.notes.setdefault(name, []).append(
-                f"{recording.path}: {name}'s centre at waypoint {index}: {centre}; left out"
+                f"{recording.path}: {name}'s centre at waypoint {index}: {found}; left out"
             )
             continue
-        replayed.centres.setdefault(name, {})[index] = (tcp_pose, centre.centre_uv_m, centre.covariance_uv_m2)
+        centre, averaged = found
         replayed.recomputed[name] = replayed.recomputed.get(name, 0) + 1
+        if name in solved:
+            centre, second = second_pass_centre(averaged, tcp_pose, centre, solved[name])
+            replayed.second_pass[name] = replayed.second_pass.get(name, 0) + int(second)
+        replayed.centres.setdefault(name, {})[index] = (tcp_pose, centre.centre_uv_m, centre.covariance_uv_m2)
     for name, indices in reused.items():
         replayed.notes.setdefault(name, []).append(
             f"{recording.path}: {name}'s centres at waypoints {', '.join(map(str, indices))} are reused as "
@@ -270,8 +291,9 @@ def replay_shared_centres(
 
 def _shared_centre_again(
     event: dict[str, Any], scans: list[LaserScan], nominal: NominalPose | None, rod: RodLine
-) -> RodCentre | str:
-    """A watcher's centre computed again from its recorded scans, or why it cannot be."""
+) -> tuple[RodCentre, AveragedScan] | str:
+    """A watcher's centre computed again from its recorded scans, with their average, or why it
+    cannot be."""
     if nominal is None:
         return "the job gives its scanner no nominal pose to pick the rod with"
     averaged = window_average(event, scans)
@@ -286,4 +308,4 @@ def _shared_centre_again(
         return f"no rod found in its scans ({exc})"
     recorded = recorded_centre(event)
     problem = _disagreement(centre.centre_uv_m, recorded.centre_uv_m, recorded.covariance_uv_m2)
-    return centre if problem is None else problem
+    return (centre, averaged) if problem is None else problem

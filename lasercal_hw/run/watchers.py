@@ -10,14 +10,15 @@ too, on its own topic (``/scan/NAME``), so a replay computes its centre again fr
 ``watcher_centre`` (``run/replay.replay_shared_centres``). Where two scan planes see the rod at
 one waypoint both centres are then on record, and the cell tests whether the two poses agree
 (``calibration/agreement.py``). No background is taken for a watcher: its nominal pose picks
-the rod among the scan's objects.
+the rod among the scan's objects. After the job, with the watcher's own run solved, its centres
+get the second pass its own centres got (``second_pass_centre``).
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -26,7 +27,8 @@ from lasercal_hw.errors import InterruptedRunError, LasercalError
 from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.devices import Scanner
 from lasercal_hw.run.dwell import collect_window
-from lasercal_hw.run.two_pass import predict_rod
+from lasercal_hw.run.records import WaypointMeasurement
+from lasercal_hw.run.two_pass import predict_rod, refit_centres
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodCentre, find_rod_centre
 
@@ -86,6 +88,42 @@ def watcher_centre(
     return find_rod_centre(
         averaged, radius_m=rod.radius_m, axis_in_scanner=axis, expected_uv_m=expected_uv_m, fluted=rod.fluted
     )
+
+
+@dataclass(frozen=True)
+class SolvedWatcher:
+    """What a watcher's second pass takes from its scanner's own run: the solved pose, the rod
+    line its solve estimated, its background (None: it took none), and how far its first-pass
+    centres lay from its solved ones (``run/cell.first_pass_scatter_uv_m2``; None: unknown)."""
+
+    T_base_laser: FloatArray
+    rod: RodLine
+    background: AveragedScan | None
+    first_pass_scatter_uv_m2: FloatArray | None
+
+
+def second_pass_centre(
+    averaged: AveragedScan, tcp_pose: FloatArray, first: RodCentre, solved: SolvedWatcher
+) -> tuple[RodCentre, bool]:
+    """A watcher's centre fitted again as its scanner's own run fits its own in the second pass
+    (``run/two_pass.refit_centres``: the background, the rod picked and its ellipse cut where the
+    solved pose puts it; no range offset taken out, the cell removes the whole curve), and True;
+    where that finds no rod, the first-pass centre ``first`` with its scanner's first-pass
+    scatter added to its covariance (what a first pass errs by that its covariance leaves out),
+    and False."""
+    measurement = WaypointMeasurement(0, tcp_pose, averaged, first)
+    refitted, kept = refit_centres([measurement], solved.T_base_laser, solved.rod, solved.background)
+    if not kept:
+        return refitted[0].centre, True
+    return as_first_pass(first, solved), False
+
+
+def as_first_pass(centre: RodCentre, solved: SolvedWatcher) -> RodCentre:
+    """A watcher's first-pass centre with its scanner's first-pass scatter in its covariance."""
+    if solved.first_pass_scatter_uv_m2 is None:
+        return centre
+    covariance = np.asarray(centre.covariance_uv_m2, dtype=float) + solved.first_pass_scatter_uv_m2
+    return replace(centre, covariance_uv_m2=covariance)
 
 
 def watch_waypoint(

@@ -77,9 +77,11 @@ def cell_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProc
     yield from _serve(folder, f'default_job = "{job.name}"\ndry_run_scene = "{SCENE}"\n')
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def browser() -> Iterator[Any]:
-    """Headless Chromium with a fresh profile, through the system chromedriver."""
+    """Headless Chromium with a fresh profile, through the system chromedriver: one for the
+    worker's browser tests (their modules share an xdist group; each test loads its own
+    daemon's page, on its own port: nothing of one page's state reaches another)."""
     _require_chromium()
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service

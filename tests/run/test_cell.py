@@ -238,7 +238,9 @@ def test_the_other_scanner_measures_the_rod_where_it_sees_it(stopped_and_resumed
     recordings = [_run_of(stopped_and_resumed.out, name) for name in ("front", "rear")]
     latest = {(e["scanner"], e["index"]) for r in recordings for e in r.events_of("shared_observation")}
     (pair,) = json.loads((stopped_and_resumed.out / CELL_FILE).read_text())["pairs"]
-    assert pair["agreement"]["watcher_centres"] == {"recomputed": len(latest), "notes": []}
+    centres = pair["agreement"]["watcher_centres"]
+    assert centres == {"recomputed": len(latest), "second_pass": centres["second_pass"], "notes": []}
+    assert 0 < centres["second_pass"] <= len(latest), centres  # fitted again with the watcher's solved pose
 
 
 def test_a_cell_recording_from_before_the_watchers_scans_reuses_their_centres_and_says_so(
@@ -261,7 +263,9 @@ def test_a_cell_recording_from_before_the_watchers_scans_reuses_their_centres_an
     assert f"watcher centre: {note}" in " ".join(result.output.split())
     (pair,) = json.loads((out / CELL_FILE).read_text())["pairs"]
     recomputed = len(read_session(out / "front" / "session.mcap").events_of("shared_observation"))
-    assert pair["agreement"]["watcher_centres"] == {"recomputed": recomputed, "notes": [note]}
+    centres = pair["agreement"]["watcher_centres"]
+    assert centres == {"recomputed": recomputed, "second_pass": centres["second_pass"], "notes": [note]}
+    assert centres["second_pass"] <= recomputed, centres  # the reused ones keep their first pass
 
 
 def test_a_stopped_cell_job_resumes_at_the_scanner_and_waypoint_where_it_stopped(

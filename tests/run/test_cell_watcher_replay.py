@@ -1,7 +1,8 @@
 """A cell's watcher (``run/watchers``) records every scan it reads in the calibrated scanner's
 recording, on its own topic, and a replay (``run/replay.replay_shared_centres``, what the cell's
-agreement reads) computes each watcher's centre again from them as the live watcher did; a
-recording without them says which centres it reused and why. Simulated devices, simulated time."""
+agreement reads) computes each watcher's centre again from them as the live watcher did, then,
+given the watcher's solved run, fits it again as its second pass; a recording without them says
+which centres it reused and why. Simulated devices, simulated time."""
 
 from __future__ import annotations
 
@@ -16,7 +17,8 @@ from lasercal_hw.config import NominalPose
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, matrix_to_euler_zyx
 from lasercal_hw.run.records import RunOutcome
 from lasercal_hw.run.replay import replay_shared_centres
-from lasercal_hw.run.watchers import SHARED_OBSERVATION, Watcher
+from lasercal_hw.run.two_pass import predict_rod
+from lasercal_hw.run.watchers import SHARED_OBSERVATION, SolvedWatcher, Watcher
 from lasercal_hw.session.format import TOPIC_EVENT, scan_topics
 from lasercal_hw.session.reader import SessionRecording, read_session
 from lasercal_hw.session.recorder import SessionRecorder
@@ -89,6 +91,38 @@ def test_a_replay_computes_every_watcher_centre_again_as_the_live_watcher_did(re
         np.testing.assert_allclose(tcp_pose, event["tcp_pose"], rtol=0, atol=1e-12)
         np.testing.assert_allclose(centre_uv_m, event["centre_uv_m"], rtol=0, atol=1e-12)
         np.testing.assert_allclose(covariance_uv_m2, event["covariance_uv_m2"], rtol=1e-9, atol=1e-18)
+
+
+def test_with_the_watchers_solved_pose_every_centre_gets_its_second_pass(recorded: Path) -> None:
+    recording = read_session(recorded)
+    rod = fast_job().rod.rod_line()
+    first = _replay(recording)
+    solved = {"rear": SolvedWatcher(T_WATCHER, rod, None, None)}
+    second = replay_shared_centres(recording, rod, {"rear": NOMINAL}, solved)
+    assert second.notes == {} and second.second_pass == second.recomputed == first.recomputed
+    errors_mm = {"first": [], "second": []}
+    for index, (tcp_pose, centre_uv_m, _) in first.centres["rear"].items():
+        truth = predict_rod(T_WATCHER, tcp_pose, rod).expected_uv_m  # the rod is cut where it crosses
+        errors_mm["first"].append(1e3 * np.linalg.norm(centre_uv_m - truth))
+        errors_mm["second"].append(1e3 * np.linalg.norm(second.centres["rear"][index][1] - truth))
+    assert errors_mm["second"] != errors_mm["first"]  # fitted again, with the solved pose's axis
+    assert np.mean(errors_mm["second"]) <= np.mean(errors_mm["first"]), errors_mm
+
+
+def test_a_second_pass_that_finds_no_rod_keeps_the_first_with_its_scanners_scatter(recorded: Path) -> None:
+    recording = read_session(recorded)
+    rod = fast_job().rod.rod_line()
+    far = T_WATCHER.copy()
+    far[:3, 3] += 0.5 * T_WATCHER[:3, 0]  # a solved pose that puts the rod half a metre from where it is
+    scatter_uv_m2 = np.diag([4e-6, 1e-6])
+    first = _replay(recording)
+    solved = {"rear": SolvedWatcher(far, rod, None, scatter_uv_m2)}
+    kept = replay_shared_centres(recording, rod, {"rear": NOMINAL}, solved)
+    assert kept.second_pass == {"rear": 0} and kept.recomputed == first.recomputed
+    for index, (_, centre_uv_m, covariance_uv_m2) in first.centres["rear"].items():
+        _, kept_uv_m, kept_covariance_uv_m2 = kept.centres["rear"][index]
+        np.testing.assert_array_equal(kept_uv_m, centre_uv_m)
+        np.testing.assert_allclose(kept_covariance_uv_m2, covariance_uv_m2 + scatter_uv_m2, rtol=1e-12)
 
 
 def as_before_watchers_scans(name: str) -> Callable[[str, bytes], bytes | None]:

@@ -11,6 +11,7 @@ import shlex
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -308,33 +309,41 @@ def _read_until(fd: int, text: str, timeout_s: float) -> str:
     return seen.decode(errors="replace")
 
 
+@pytest.fixture(scope="module")
+def unmoved_cell() -> Iterator[FakeCellProcess]:
+    """A fake cell the prompt tests connect to and never move (one start for both answers)."""
+    with FakeCellProcess() as cell:
+        yield cell
+
+
 @pytest.mark.parametrize("answer", ["no", "sigterm"])
-def test_operator_declining_or_terminating_at_the_prompt_moves_nothing(tmp_path: Path, answer: str) -> None:
+def test_operator_declining_or_terminating_at_the_prompt_moves_nothing(
+    tmp_path: Path, answer: str, unmoved_cell: FakeCellProcess
+) -> None:
     job = write_job(tmp_path)
     with job.open("a") as file:  # a live run needs to know roughly where the scanner is
         file.write("[scanner.nominal]\ntranslation_m = [0.30, 0.50, 0.20]\neuler_zyx_deg = [5.0, 7.0, 3.0]\n")
     out = tmp_path / "out"
-    with FakeCellProcess() as cell:
-        controller, terminal = pty.openpty()
-        try:
-            process = subprocess.Popen(
-                lasercal("--robot", cell.robot_host, "--scanner", cell.scanner_url, "--config", str(job),
-                         "--out", str(out)),
-                stdin=terminal, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path,
-            )
-            os.close(terminal)
-            assert process.stderr is not None
-            stderr = _read_until(process.stderr.fileno(), "Start the motion?", 90)
-            if answer == "no":
-                os.write(controller, b"n\n")
-            else:
-                process.send_signal(signal.SIGTERM)
-            rest = process.communicate(timeout=60)[1].decode(errors="replace")
-        finally:
-            os.close(controller)
-            if process.poll() is None:
-                process.kill()
-                process.wait()
+    controller, terminal = pty.openpty()
+    try:
+        process = subprocess.Popen(
+            lasercal("--robot", unmoved_cell.robot_host, "--scanner", unmoved_cell.scanner_url,
+                     "--config", str(job), "--out", str(out)),
+            stdin=terminal, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path,
+        )
+        os.close(terminal)
+        assert process.stderr is not None
+        stderr = _read_until(process.stderr.fileno(), "Start the motion?", 90)
+        if answer == "no":
+            os.write(controller, b"n\n")
+        else:
+            process.send_signal(signal.SIGTERM)
+        rest = process.communicate(timeout=60)[1].decode(errors="replace")
+    finally:
+        os.close(controller)
+        if process.poll() is None:
+            process.kill()
+            process.wait()
     stderr += rest
     assert process.returncode == ExitCode.INTERRUPTED, stderr[-3000:]
     assert "Start the motion?" in stderr

@@ -85,10 +85,14 @@ def test_a_cell_job_killed_in_the_second_scanner_resumes_there(tmp_path: Path) -
             assert response.status_code == 202, response.text
             job_id = response.json()["id"]
             session = data_dir / "jobs" / job_id / "session.mcap"  # the job's one recording
+            front_done = data_dir / "jobs" / job_id / "front" / "result.json"
             # until the rear scanner has measured some waypoints (a device error on a loaded machine,
-            # the fake robot's RTDE stream stalling, is resumed as wait_for does)
-            wait_for(client, job_id, lambda job: len(_measured(session)) >= KILL_AFTER_REAR_OBSERVATIONS
-                     or job["state"] in ("succeeded", "cancelled"), timeout_s=300.0)
+            # the fake robot's RTDE stream stalling, is resumed as wait_for does); the growing recording
+            # is read only once the front's result is written (parsing it every poll of the front's
+            # run took a good part of a core beside the real-time fakes)
+            wait_for(client, job_id, lambda job: job["state"] in ("succeeded", "cancelled") or (
+                front_done.is_file() and len(_measured(session)) >= KILL_AFTER_REAR_OBSERVATIONS),
+                timeout_s=300.0)
             assert client.get(f"/v1/jobs/{job_id}").json()["state"] not in ("succeeded", "cancelled")
         first.kill()
     finally:

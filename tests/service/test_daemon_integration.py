@@ -1,6 +1,7 @@
 """The real ``lasercal serve --dry-run`` process on a loopback port, driven through HTTP only:
-a dry run to the end with its events and files, cancel and resume, SIGKILL and resume,
-activate / roll back / diff. The tests of the module share one daemon and run in order."""
+a dry run to the end with its events and files, one job cancelled and resumed then SIGKILLed
+and resumed after a restart, activate / roll back / diff. The tests of the module share one
+daemon (restarted on its data folder after the SIGKILL) and run in order."""
 
 from __future__ import annotations
 
@@ -10,7 +11,6 @@ import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
 
@@ -138,8 +138,12 @@ def test_dry_run_to_the_end_with_every_event_and_file(daemon: DaemonProcess) -> 
         assert client.get(calibration["files"]["session"]).content.startswith(b"\x89MCAP")
 
 
-def test_cancel_stops_the_arm_keeps_the_recording_and_resume_finishes(daemon: DaemonProcess, remote) -> None:
-    """A calibrate job on the daemon's own fake cell, so the status shows its robot."""
+def test_cancel_then_sigkill_each_stop_the_job_and_resume_finishes_it(daemon: DaemonProcess, remote) -> None:
+    """A calibrate job on the daemon's own fake cell (so the status shows its robot), stopped
+    twice: cancelled (the arm stopped, the recording kept, resume needs confirmation), then,
+    resumed, the daemon killed with SIGKILL mid-run: restarted on its data folder, the job is
+    ``interrupted`` and stays so until resumed, and ``lasercal remote resume`` finishes it with
+    every waypoint. One job for both stops: each is a partly measured recording resumed."""
     with daemon.client() as client:
         active_before = client.get("/v1/calibration").json()
         job_id = client.post("/v1/jobs", json=QUICK_CALIBRATE).json()["id"]
@@ -167,6 +171,19 @@ def test_cancel_stops_the_arm_keeps_the_recording_and_resume_finishes(daemon: Da
         assert client.get("/v1/status").json()["robot"]["program_running"] is False
 
         assert client.post(f"/v1/jobs/{job_id}/resume", json={}).json()["code"] == "confirmation_required"
+        assert client.post(f"/v1/jobs/{job_id}/resume", json={"confirm_motion": True}).status_code == 200
+        done_before_kill = cancelled["progress"]["completed"] + 2
+        completed = wait_for(client, job_id, _progressed(done_before_kill))["progress"]["completed"]
+        assert client.get(f"/v1/jobs/{job_id}").json()["state"] not in TERMINAL, "it ended before the kill"
+    daemon.kill()
+    daemon.stop()  # the killed daemon's fake cell, which a crash leaves behind
+    daemon.start()
+    with daemon.client() as client:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        assert job["state"] == "interrupted" and job["error"]["code"] == "interrupted", job
+        assert client.get("/v1/status").json()["job"]["id"] == job_id
+        time.sleep(1.0)
+        assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "interrupted", "it resumed by itself"
     finished = remote("resume", job_id, "--yes", "--wait", "--json")
     done = json.loads(finished.stdout)
     with daemon.client() as client:
@@ -179,7 +196,7 @@ def test_cancel_stops_the_arm_keeps_the_recording_and_resume_finishes(daemon: Da
             assert done["calibration_id"]
             assert done["job_id"] == job_id and len(done["T_base_laser"]) == 4
         job = client.get(f"/v1/jobs/{job_id}").json()
-        assert job["progress"]["completed"] == job["progress"]["waypoint_count"]
+        assert job["progress"]["completed"] == job["progress"]["waypoint_count"] >= completed
 
 
 def test_activate_roll_back_and_diff(daemon: DaemonProcess, remote) -> None:
@@ -253,28 +270,3 @@ def test_a_joint_replaced_since_the_calibration_makes_verify_recalibrate_naming_
         assert filed["document"]["timings"]["motion_s"] == 0.0  # nothing moved
         new = filed["reason"][len(prefix):]
         assert new != old and filed["document"]["robot_calibration"]["checksum"] == new
-
-
-def test_sigkill_mid_run_then_restart_finds_it_interrupted_and_resumes(tmp_path: Path) -> None:
-    data_dir = tmp_path / "data"
-    first = DaemonProcess(data_dir).start()
-    try:
-        with first.client() as client:
-            job_id = client.post("/v1/jobs", json=QUICK_CALIBRATE).json()["id"]
-            completed = wait_for(client, job_id, _progressed(2))["progress"]["completed"]
-        first.kill()
-    finally:
-        first.stop()
-    second = DaemonProcess(data_dir).start()
-    try:
-        with second.client() as client:
-            job = client.get(f"/v1/jobs/{job_id}").json()
-            assert job["state"] == "interrupted" and job["error"]["code"] == "interrupted"
-            assert client.get("/v1/status").json()["job"]["id"] == job_id
-            time.sleep(1.0)
-            assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "interrupted", "it resumed by itself"
-            assert client.post(f"/v1/jobs/{job_id}/resume", json={"confirm_motion": True}).status_code == 200
-            done = wait_for(client, job_id, lambda j: j["state"] == "succeeded")
-            assert done["progress"]["completed"] == done["progress"]["waypoint_count"] >= completed
-    finally:
-        second.stop()
