@@ -188,7 +188,7 @@ class ExtractionSettings:
     #: blend. Steady beams beside the rod between its edge and the surface behind (a far rod's
     #: ramps, split off its segment by their range jumps: ``_steady_beams_beside``) show the
     #: spot too (3 or more: an exact ray grazing the rod reads one such beam a side). Where it
-    #: shows, a fit of ``symmetry_check_max_beams`` or fewer also takes its beams' blend bounds
+    #: shows, a fit of ``few_beams_push_max_beams`` or fewer also takes its beams' blend bounds
     #: into its covariance (``_with_shared_push``): its edge beams' spots reach the surface
     #: behind and read long, which its one or two spare beams cannot show (a 45 mm rod at 2-3
     #: m before a wall 0.3 m behind, 3-5 beams: 1.6-3.1 mm long against 0.45-0.7 mm std).
@@ -204,6 +204,14 @@ class ExtractionSettings:
     range_walk_m_per_efold: float = 0.0025
     near_bias_m: float = 0.020
     near_bias_decay_m: float = 0.09
+    #: ... and the slope of the scanner's range-error curve over the rod's depth: the solver's
+    #: curve moves a centre by one value, the curve's at its distance, while the rod's edge
+    #: beams lie up to a radius deeper than its front and read the curve there. Issue 18's real
+    #: UTM-30LX-EW: +12 mm at 0.15 m, -13 mm at 0.75 m, +8 mm at 2 m, i.e. 16-21 mm per e-fold
+    #: of range between them (the physical model's unit: 4-31 mm; a dark 45 mm rod at 0.5 m,
+    #: its edges 0.09 e-folds deeper than its front, read them 2.5 mm longer and its centre lay
+    #: 1.1 mm long against 0.5 mm std).
+    range_error_slope_m_per_efold: float = 0.015
     #: Without a background scan, what lies behind a beam is the farthest reading this many
     #: beams either side (the background beside the rod).
     behind_window_beams: int = 40
@@ -211,7 +219,12 @@ class ExtractionSettings:
     #: beams at its edges, which a blend with the background moves: it is checked against the
     #: symmetry of the range profile (``_with_symmetry_doubt``). More beams' arc pins the
     #: centre better than that symmetry, which a background differing left and right bends.
-    symmetry_check_max_beams: int = 8
+    #: (8 until 2026-11-26: a painted 45 mm rod at 2 m, 10 beams under a 42 mm spot, sat 2.7 mm
+    #: sideways against 0.85 mm std, its edges lit unevenly by the surface's specular lobe.)
+    symmetry_check_max_beams: int = 10
+    #: A fit of this many beams or fewer, where the scan shows the spot, takes its beams' blend
+    #: bounds into its covariance (``_with_shared_push``).
+    few_beams_push_max_beams: int = 8
     search_radius_m: float = 0.15
     max_rms_radius_fraction: float = 0.1
     max_iterations: int = 50
@@ -929,6 +942,9 @@ class _Fit:
     noise_covariance_uv_m2: FloatArray | None = None
     #: The residuals are against the beam's spot, not rays (``_along_the_spot``).
     spot: bool = False
+    #: Where the ray fit was kept: how far along the bearing the fit against the spot put the
+    #: centre from it (m; 0 where there was none).
+    spot_disagreement_m: float = 0.0
 
 
 def _residuals(
@@ -1179,7 +1195,7 @@ def _fit_centre(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
     ray_noise, ray_covariance = _fit_covariances_m2(points, sigma, centre, normal, section, _rays(settings))
-    spot_centre, spot_normal, spot = _along_the_spot(
+    spot_centre, spot_normal, spot, spot_along_m = _along_the_spot(
         points, sigma, centre, normal, float(ray_whitened @ ray_whitened), section, settings
     )
     model = settings if spot else _rays(settings)
@@ -1214,7 +1230,8 @@ def _fit_centre(
         blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
         covariance += np.outer(blend_shift, blend_shift)
     blend_m = float(np.linalg.norm(blend_shift))
-    return _Fit(centre, covariance, residuals, whitened, blend_m, noise_covariance, spot)
+    disagreement_m = 0.0 if spot else spot_along_m
+    return _Fit(centre, covariance, residuals, whitened, blend_m, noise_covariance, spot, disagreement_m)
 
 
 def _fit_covariances_m2(
@@ -1256,11 +1273,12 @@ def _along_the_spot(
     ray_cost: float,
     section: _Section,
     settings: ExtractionSettings,
-) -> tuple[FloatArray, FloatArray, bool]:
+) -> tuple[FloatArray, FloatArray, bool, float]:
     """The ray fit's centre and normal matrix (``ray_cost``: its chi-square) with their part
     along the bearing taken from a fit against what each beam's spot returns
-    (``_fit_residuals``), started there, unless the rays fit the beams better; and whether
-    the spot's was taken.
+    (``_fit_residuals``), started there, unless the rays fit the beams better; whether the
+    spot's was taken; and how far along the bearing the spot fit lies from the ray fit (m; 0
+    where it failed).
 
     Along the bearing the spot's blur is one-sided: on a rod's curved front the spot's sides
     meet the surface deeper than its middle, so the middle beams read long and the silhouette's
@@ -1279,22 +1297,23 @@ def _along_the_spot(
     with the smaller chi-square; the ray fit is kept then (each beam's noise is the same in both
     fits, so their chi-squares compare)."""
     if not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
-        return centre, normal, False
+        return centre, normal, False, 0.0
     solved = _gauss_newton(points, sigma, centre, section, settings, free_radius=False)
     if solved is None or float(np.linalg.norm(solved[0] - centre)) > section.semi_major_m:
-        return centre, normal, False
-    if float(solved[2] @ solved[2]) > ray_cost:
-        return centre, normal, False
+        return centre, normal, False, 0.0
     bearing = centre / float(np.linalg.norm(centre))
+    along_m = float(bearing @ (solved[0] - centre))
+    if float(solved[2] @ solved[2]) > ray_cost:
+        return centre, normal, False, along_m
     side = np.array([-bearing[1], bearing[0]])
     spot_normal = solved[1]
     information = float(bearing @ spot_normal @ bearing)
     try:
         side_m2 = float(side @ np.linalg.inv(normal) @ side)
     except np.linalg.LinAlgError:
-        return centre, normal, False
+        return centre, normal, False, along_m
     if not information > 0.0:
-        return centre, normal, False
+        return centre, normal, False, along_m
     # The spot fit's centre moved sideways to the ray fit's, and along by what that move
     # costs it (its normal matrix's coupling); the ray fit's sideways variance carried along.
     coupling = float(bearing @ spot_normal @ side) / information
@@ -1305,7 +1324,7 @@ def _along_the_spot(
         [1.0 / information + coupling**2 * side_m2, -coupling * side_m2],
         [-coupling * side_m2, side_m2],
     ]) @ basis.T
-    return moved, np.linalg.inv(covariance), True
+    return moved, np.linalg.inv(covariance), True, along_m
 
 
 def _centre_shift(
@@ -1464,7 +1483,17 @@ def _fit_segment(
     narrow = _size_mismatch(scan, beams[keep], section, settings) is None
     if keep.size <= settings.symmetry_check_max_beams or narrow:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
-    if spot_shown and not bound_in_fit and keep.size <= settings.symmetry_check_max_beams:
+    if spot_shown and not fit.spot and fit.spot_disagreement_m:
+        # The rays fit these beams better than the spot on a scanner whose spot shows: the spot
+        # model does not describe them (a wall close behind merged into the edge beams, which
+        # then read long where the spot says short), and neither fit is vouched for. A 45 mm
+        # matte rod at 1.5 m before a wall 0.3 m behind: the ray fit 1.25 mm long against 0.29
+        # mm std, the spot fit 0.68 mm nearer. Their difference joins the covariance along the
+        # bearing.
+        bearing = fit.centre_uv_m / float(np.linalg.norm(fit.centre_uv_m))
+        doubt_m2 = fit.spot_disagreement_m**2 * np.outer(bearing, bearing)
+        fit = replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + doubt_m2)
+    if spot_shown and not bound_in_fit and keep.size <= settings.few_beams_push_max_beams:
         # A fit of few beams takes its range from its edge beams too, whose spots reach past
         # the rod onto the surface close behind: the blend pushes them long, and the fit's one
         # or two spare beams cannot show it (a 45 mm rod at 2-3 m before a wall 0.3 m behind,
@@ -1713,7 +1742,8 @@ def _arc_bias_m(scan: AveragedScan, beams: NDArray[np.int64], settings: Extracti
     ranges = scan.ranges_m[beams]
     front = int(np.argmin(ranges))
     near = settings.near_bias_m * np.exp(-(np.fmax(ranges, 0.1) - 0.1) / settings.near_bias_decay_m)
-    bias = np.abs(near - near[front])
+    deeper_efolds = np.log(np.fmax(ranges, 1e-3) / max(float(ranges[front]), 1e-3))
+    bias = np.abs(near - near[front]) + settings.range_error_slope_m_per_efold * np.abs(deeper_efolds)
     if scan.intensities is not None:
         intensity = np.fmax(scan.intensities[beams], 1.0)
         bias = bias + settings.range_walk_m_per_efold * np.abs(np.log(intensity / intensity[front]))
