@@ -39,6 +39,11 @@ MODEL_ALLOWANCE_RADIUS_FRACTION = 0.25
 #: The best phase must fit this much better in chi-square than no flutes at all (the centres
 #: taken as they are, with the same allowance): 2 std for the one parameter.
 MIN_GAIN = 4.0
+#: How the pass re-extracts its plain centres: along the bearing as the ray fit puts them,
+#: the frame its section model's offsets were measured in (``benchmarks.flute_phase``). With
+#: the spot fit's centres the pass no longer helped: drill job, seeds 0-9, p95 4.52 mm /
+#: 1.122 deg against 1.66 mm / 0.551 deg with these (docs/solver.md).
+PLAIN_EXTRACTION = replace(ExtractionSettings(), fit_along_the_spot=False)
 #: A whitened residual's square counts at most this much in the profile (the solver's outlier
 #: limit at 99.9 %), so that one bad centre does not pick the phase.
 CAPPED_SQUARE = 13.8

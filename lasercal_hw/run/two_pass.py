@@ -18,10 +18,10 @@ from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray, Observation, RodLine
-from lasercal_hw.run.flute_phase import estimate_flute_phase
+from lasercal_hw.run.flute_phase import PLAIN_EXTRACTION, estimate_flute_phase
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.scan.average import AveragedScan
-from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
+from lasercal_hw.scan.extraction import ExtractionSettings, RodNotFoundError, find_rod_centre
 
 
 @dataclass(frozen=True)
@@ -129,7 +129,7 @@ def solve_two_pass(
     if rod.fluted:
         plain, _ = refit_centres(
             measurements, result.matrix(), replace(result.estimated_rod(rod), fluted=False), background,
-            range_offset_m=range_offset_m,
+            range_offset_m=range_offset_m, settings=PLAIN_EXTRACTION,
         )
         plain_observations = [_without_range_offset(m.observation(), range_offset_m) for m in plain]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)
@@ -152,6 +152,7 @@ def refit_centres(
     background: AveragedScan | None,
     *,
     range_offset_m: float = 0.0,
+    settings: ExtractionSettings | None = None,
 ) -> tuple[list[WaypointMeasurement], list[tuple[int, str]]]:
     """The measurements with each centre fitted again as the ellipse the rod axis predicted
     by ``T_base_laser`` cuts from the plane (the second pass; ``lasercal verify`` with the
@@ -170,6 +171,7 @@ def refit_centres(
                 expected_uv_m=predicted.expected_uv_m,
                 range_offset_m=range_offset_m,
                 fluted=rod.fluted,
+                settings=settings,
             )
         except RodNotFoundError as exc:
             kept.append((m.index, str(exc)))

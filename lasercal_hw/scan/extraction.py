@@ -146,6 +146,10 @@ class ExtractionSettings:
     #: spot passes partly beside the rod also returns light from what lies behind it ...
     spot_width_at_scanner_m: float = 0.020
     spot_divergence_rad: float = 0.011
+    #: Whether the centre along the bearing may come from a fit against the spot
+    #: (``_along_the_spot``); False keeps the ray fit's. The flute phase's plain fits keep it:
+    #: its section model's offsets were measured against ray fits (docs/solver.md).
+    fit_along_the_spot: bool = True
     #: The spot's faint skirt: this share of the power over ``spot_halo_scale`` times its
     #: width (docs/scanner-model.md: chosen there to reproduce issue 18's real retro-reflective
     #: rod's ramps). A surface close behind that is much brighter than the rod merges through
@@ -1296,7 +1300,8 @@ def _along_the_spot(
     read the grazing surface, where a spot's read several millimetres short, and the rays fit
     with the smaller chi-square; the ray fit is kept then (each beam's noise is the same in both
     fits, so their chi-squares compare)."""
-    if not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
+    spot_shows = settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0
+    if not (settings.fit_along_the_spot and spot_shows):
         return centre, normal, False, 0.0
     solved = _gauss_newton(points, sigma, centre, section, settings, free_radius=False)
     if solved is None or float(np.linalg.norm(solved[0] - centre)) > section.semi_major_m:
