@@ -909,9 +909,14 @@ def _range_terms_wanted(
     noise_scale: float = 1.0,
 ) -> tuple[int, str]:
     """How many terms of the range error curve to estimate, and the note when one is left
-    out: a term is taken when the Cramér-Rao std of what it adds to the error over the
-    crossings is within ``auto_range_offset_max_std_m`` (the offset must be, when asked for:
-    ``DegenerateDataError`` otherwise). What it adds is its coefficient's std times half the
+    out: the most terms whose highest term passes, a term passing when the Cramér-Rao std of
+    what it adds to the error over the crossings is within ``auto_range_offset_max_std_m``
+    (the offset must be observable when asked for: ``DegenerateDataError`` otherwise). A
+    term may pass where a lower one does not: the offset trades against the translation
+    along the bearings, and a curve whose slope the distances pin down is estimated with its
+    offset, the offset's std then carried into the pose's (a 10-waypoint quick run on the
+    physical scanner: offset 2.4 mm over the limit, slope within it; without both, its
+    +-10 mm range error failed the outlier test). What it adds is its coefficient's std times half the
     crossings' span in ln d to its power: the highest term's coefficient does not depend on
     where the curve's reference lies (the lower terms take the rest), so a trajectory whose
     crossings all lie on one side of 1 m is judged by its own span, not by an extrapolation.
@@ -922,27 +927,29 @@ def _range_terms_wanted(
     crossing, _ = data.predicted(rotation, translation)
     distances_m = np.linalg.norm(crossing[usable], axis=1)
     reach = max(0.5 * float(np.ptp(range_curve_variable(distances_m)[0])), 1e-3)
-    terms = 0
+    terms = 1 if opts.estimate_range_offset is True else 0
+    left_out: list[tuple[int, float]] = []
     for wanted in range(1, opts.max_range_terms + 1):
         trial = _Extras(range_terms=wanted)
         fisher = _extended_fisher(rotation, translation, data, usable, opts, trial)
         if wanted == 1 and opts.estimate_range_offset is True:
             _require_observable(fisher, opts, trial)
         effect_std_m = float(_crb_std(fisher)[-1]) * reach ** (wanted - 1) * noise_scale
-        if not effect_std_m <= opts.auto_range_offset_max_std_m:
-            if wanted == 1 and opts.estimate_range_offset is True:
-                terms = 1
-                continue
-            name = _TERM_UNITS[wanted - 1][0]
-            limit_mm = opts.auto_range_offset_max_std_m * 1e3
-            return terms, (
-                f"scanner range {name} not estimated (auto): the Cramér-Rao std of what it adds to the range "
-                f"error would be {effect_std_m * 1e3:.2g} mm (limit {limit_mm:g} mm); "
-                "spread the crossings' distances from the scanner more widely (0.3 m or more apart, near and "
-                "far) to see it"
-            )
-        terms = wanted
-    return terms, ""
+        if effect_std_m <= opts.auto_range_offset_max_std_m:
+            terms = wanted
+        else:
+            left_out.append((wanted, effect_std_m))
+    left_out = [(wanted, std) for wanted, std in left_out if wanted > terms]
+    if not left_out:
+        return terms, ""
+    wanted, effect_std_m = left_out[0]
+    name = _TERM_UNITS[wanted - 1][0]
+    return terms, (
+        f"scanner range {name} not estimated (auto): the Cramér-Rao std of what it adds "
+        f"to the range error would be {effect_std_m * 1e3:.2g} mm (limit "
+        f"{opts.auto_range_offset_max_std_m * 1e3:g} mm); spread the crossings' distances from the scanner "
+        "more widely (0.3 m or more apart, near and far) to see it"
+    )
 
 
 def _axis_crb_std(fisher: FloatArray, crossing_along_m: float) -> tuple[FloatArray, FloatArray]:
