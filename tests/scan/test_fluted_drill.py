@@ -83,9 +83,9 @@ def test_a_fluted_bits_centre_is_the_ray_fits_not_the_spot_fits(drill_dwells) ->
     # offsets were measured against ray fits (the drill job's p95 doubled with the spot's).
     rays = replace(ExtractionSettings(), fit_along_the_spot=False)
     for averaged, truth, axis, background in drill_dwells:
-        common = {"radius_m": 0.005, "background": background, "axis_in_scanner": axis, "expected_uv_m": truth}
-        fluted = find_rod_centre(averaged, fluted=True, **common)
-        as_rays = find_rod_centre(averaged, fluted=True, settings=rays, **common)
+        common = {"background": background, "axis_in_scanner": axis, "expected_uv_m": truth}
+        fluted = find_rod_centre(averaged, radius_m=0.005, fluted=True, **common)  # type: ignore[arg-type]
+        as_rays = find_rod_centre(averaged, radius_m=0.005, fluted=True, settings=rays, **common)  # type: ignore[arg-type]
         assert np.allclose(fluted.centre_uv_m, as_rays.centre_uv_m, rtol=0.0, atol=1e-9)
 
 
