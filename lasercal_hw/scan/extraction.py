@@ -147,8 +147,9 @@ class ExtractionSettings:
     spot_width_at_scanner_m: float = 0.020
     spot_divergence_rad: float = 0.011
     #: Whether the centre along the bearing may come from a fit against the spot
-    #: (``_along_the_spot``); False keeps the ray fit's. The flute phase's plain fits keep it:
-    #: its section model's offsets were measured against ray fits (docs/solver.md).
+    #: (``_along_the_spot``); False keeps the ray fit's. A twist drill's fits (``fluted``) and
+    #: the flute phase's plain ones keep it: their offsets were measured against ray fits
+    #: (docs/solver.md).
     fit_along_the_spot: bool = True
     #: The spot's faint skirt: this share of the power over ``spot_halo_scale`` times its
     #: width (docs/scanner-model.md: chosen there to reproduce issue 18's real retro-reflective
@@ -330,6 +331,11 @@ def find_rod_centre(
     ``ConfigError`` for a non-positive radius or a zero axis.
     """
     settings = settings or ExtractionSettings()
+    if fluted:
+        # A twist drill's centre keeps the ray fit's along the bearing: where its echo comes
+        # from is the polished section's glint, not a diffuse circle's spot, and the flutes'
+        # offsets (``_with_flutes``; calibration/flutes.py) were measured against ray fits.
+        settings = replace(settings, fit_along_the_spot=False)
     if not radius_m > 0.0:
         raise ConfigError(f"rod radius must be positive, got {radius_m} m; set the rod radius")
     unknown_tilt_cos = 1.0
