@@ -46,7 +46,7 @@ def _crossing_uv_m(T_base_laser: np.ndarray, tcp_pose: np.ndarray) -> np.ndarray
 
 def _outcome(name: str, T_base_laser: np.ndarray) -> ScannerOutcome:
     return ScannerOutcome(name, Path(), True, T_base_laser.tolist(), POSE_COVARIANCE.tolist(), None, None,
-                          reduced_chi_square=2.0)
+                          JOB.for_scanner(name).rod.rod_line(), reduced_chi_square=2.0)
 
 
 def _agreement_with_the_front_finding(index: int, off_m: float) -> tuple[list[str], dict]:
