@@ -54,6 +54,10 @@ CELL_RECORDING = "recording"
 #: before a resume): ``scanner``, ``folder``, ``passed``, ``kept``. A daemon files the scanner's
 #: calibration on it, so a job killed later keeps it in the history.
 SCANNER_RESULT = "scanner_result"
+#: The event a cell job sends for each pair once every scanner is solved and ``cell.json`` is
+#: written: ``from``, ``to`` and the pair's ``agreement`` as ``cell.json`` holds it, whose
+#: ``centres`` are the centres the test compared (a watcher's after its second pass).
+PAIR_AGREEMENT = "pair_agreement"
 
 
 @dataclass(frozen=True)
@@ -234,6 +238,10 @@ def calibrate_cell(
     cell = CellReport(request.out_dir, outcomes, _pairs(outcomes, request.out_dir, job))
     document = _read_cell_file(request.out_dir) | cell.document()
     write_text(request.out_dir / CELL_FILE, json.dumps(document, indent=2, allow_nan=False) + "\n")
+    for pair in cell.pairs:
+        agreement, a, b = pair["agreement"], pair["from"], pair["to"]
+        sink.emit(PAIR_AGREEMENT, f"{a} and {b}: {agreement['verdict']} ({agreement['reason']})",
+                  **{"from": a, "to": b} | agreement)
     return cell
 
 
@@ -516,7 +524,8 @@ def pair_agreement(
     """The waypoints of either run where the other scanner saw the rod too (a watcher's centre
     corrected by its scanner's range error curve; left out beyond the distances that curve
     spans, and where by the solved poses a plane does not cut the rod between its ends), and
-    the agreement test of ``a`` and ``b`` over them (``calibration/agreement``)."""
+    the agreement test of ``a`` and ``b`` over them (``calibration/agreement``), with the
+    ``centres`` it compared at each (by scanner: centre and covariance as tested)."""
     forward, left_out_ab = _shared(a, b, outcomes, centres, job)
     backward, left_out_ba = _shared(b, a, outcomes, centres, job)
     first, second = outcomes[a], outcomes[b]
@@ -526,6 +535,12 @@ def pair_agreement(
         np.asarray(second.T_base_laser), np.asarray(second.covariance),
         shared,
     )
+    result["centres"] = [
+        {"waypoint": s.waypoint,
+         "centres_uv_m": {a: s.centre_a_uv_m.tolist(), b: s.centre_b_uv_m.tolist()},
+         "covariances_uv_m2": {a: s.covariance_a_uv_m2.tolist(), b: s.covariance_b_uv_m2.tolist()}}
+        for s in shared
+    ]
     left_out = left_out_ab + left_out_ba
     if left_out:
         result["left_out"] = [waypoint for waypoint, _ in left_out]
