@@ -174,12 +174,13 @@ def main() -> None:
             results[name], truths[name] = result, world.ground_truth_T_base_laser
             outcomes[name] = ScannerOutcome(
                 name, Path(), True, result.T_base_laser, result.covariance,
-                world.ground_truth_T_base_laser.tolist(), None, range_offset=result.range_offset,
+                world.ground_truth_T_base_laser.tolist(), None,
+                rod=result.estimated_rod(jobs[name].rod.rod_line()), range_offset=result.range_offset,
                 range_offset_applied_m=applied_range_offset_m(result),
                 reduced_chi_square=result.reduced_chi_square,
             )
             solved_as_watcher[name] = SolvedWatcher(
-                result.matrix(), result.estimated_rod(jobs[name].rod.rod_line()), background,
+                result.matrix(), outcomes[name].rod, background,
                 first_pass_scatter_uv_m2(
                     {m.index: m.centre.centre_uv_m for m in measurements},
                     {o.index: o.centre_uv_m for o in solution.observations}, outcomes[name]),

@@ -12,6 +12,7 @@ from fakes.cell import FakeCell
 from fakes.cell_process import free_loopback_address
 from fakes.scene import ScannerSettings, Scene, load_scene, parse_scene
 from fakes.scip_identity import UTM_30LX_EW, identity_of_scanner
+from fakes.ur_controller.kinematics_calibration import KinematicsCalibration
 from fakes.world import World
 from lasercal_hw.calibration.pairs import error_in_std, relative_pose
 from lasercal_hw.config import DEFAULT_SCANNER_NAME, load_job, with_overrides
@@ -100,6 +101,20 @@ def test_the_bumped_cell_moves_the_rear_5_mm_and_half_a_degree_and_leaves_the_fr
     turn_deg = np.degrees(np.arccos(np.clip((np.trace(moved[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
     shift_mm = 1000.0 * np.linalg.norm(pose(after, "rear")[:3, 3] - pose(before, "rear")[:3, 3])
     assert shift_mm == pytest.approx(5.0) and turn_deg == pytest.approx(0.5, abs=1e-6)
+
+
+def test_the_recalibrated_robots_cell_changes_joint_3s_checksum_and_leaves_the_scanners() -> None:
+    """fakes/scenes/two_scanners_robot_recalibrated.toml, docs/cell.md's verify of a changed robot:
+    the scanners where two_scanners.toml puts them, the controller's calibration that of a
+    replaced joint 3."""
+    scenes = REPO / "fakes" / "scenes"
+    before = load_scene(scenes / "two_scanners.toml")
+    after = load_scene(scenes / "two_scanners_robot_recalibrated.toml")
+
+    assert after.scanners == before.scanners
+    replaced = KinematicsCalibration().with_joint_replaced(3)
+    assert after.robot_kinematics.checksums == list(replaced.checksums)
+    assert after.robot_kinematics.checksums != before.robot_kinematics.checksums
 
 
 def test_the_fake_cell_serves_each_scanner_on_its_own_port_with_its_own_serial() -> None:

@@ -54,6 +54,10 @@ CELL_RECORDING = "recording"
 #: before a resume): ``scanner``, ``folder``, ``passed``, ``kept``. A daemon files the scanner's
 #: calibration on it, so a job killed later keeps it in the history.
 SCANNER_RESULT = "scanner_result"
+#: The event a cell job sends for each pair once every scanner is solved and ``cell.json`` is
+#: written: ``from``, ``to`` and the pair's ``agreement`` as ``cell.json`` holds it, whose
+#: ``centres`` are the centres the test compared (a watcher's after its second pass).
+PAIR_AGREEMENT = "pair_agreement"
 
 
 @dataclass(frozen=True)
@@ -84,6 +88,9 @@ class ScannerOutcome:
     covariance: list[list[float]]
     ground_truth: list[list[float]] | None
     report: RunReport | None
+    #: The rod line its solve estimated (its job's nominal one where it estimated none): what
+    #: its second pass fits a watcher's centres with (``SolvedWatcher.rod``).
+    rod: RodLine
     #: The range error curve it estimated (None: none), the part of it its solved centres
     #: already have taken out (the second pass's offset: ``range_offset_applied_m`` of
     #: ``result.json``'s solver options), and its solve's reduced chi-square.
@@ -231,6 +238,10 @@ def calibrate_cell(
     cell = CellReport(request.out_dir, outcomes, _pairs(outcomes, request.out_dir, job))
     document = _read_cell_file(request.out_dir) | cell.document()
     write_text(request.out_dir / CELL_FILE, json.dumps(document, indent=2, allow_nan=False) + "\n")
+    for pair in cell.pairs:
+        agreement, a, b = pair["agreement"], pair["from"], pair["to"]
+        sink.emit(PAIR_AGREEMENT, f"{a} and {b}: {agreement['verdict']} ({agreement['reason']})",
+                  **{"from": a, "to": b} | agreement)
     return cell
 
 
@@ -303,7 +314,7 @@ def _scanner(
             recording=recording,
         )
         report = calibrate(run, on_event=events_of_scanner(on_event, name), cancel=cancel, confirm=confirm)
-    outcome = _scanner_outcome(name, folder / RESULT_FILE, report)
+    outcome = _scanner_outcome(name, folder / RESULT_FILE, report, job.for_scanner(name).rod.rod_line())
     if recording is not None and report is not None:  # its calibrated frame, for viewers of the recording
         recording.recorder.write_frame(time.time(), scan_topics(name)[2], outcome.T_base_laser)
     sink.emit(
@@ -343,8 +354,9 @@ def events_of_scanner(
     return lambda event: sink(replace(event, data=event.data | {"scanner": name}))
 
 
-def _scanner_outcome(name: str, path: Path, report: RunReport | None) -> ScannerOutcome:
-    """A scanner's outcome from its ``result.json`` (the one source, run now or before)."""
+def _scanner_outcome(name: str, path: Path, report: RunReport | None, nominal_rod: RodLine) -> ScannerOutcome:
+    """A scanner's outcome from its ``result.json`` (the one source, run now or before); its rod
+    the one the result estimated, ``nominal_rod`` (its job's) where it estimated none."""
     result_file = read_result_file(path)
     truth = json.loads(path.read_text(encoding="utf-8")).get("ground_truth", {}).get("T_base_laser")
     return ScannerOutcome(
@@ -355,6 +367,7 @@ def _scanner_outcome(name: str, path: Path, report: RunReport | None) -> Scanner
         covariance=result_file.result.covariance,
         ground_truth=truth,
         report=report,
+        rod=result_file.result.estimated_rod(nominal_rod),
         range_offset=result_file.result.range_offset,
         range_offset_applied_m=applied_range_offset_m(result_file.result),
         reduced_chi_square=result_file.result.reduced_chi_square,
@@ -372,7 +385,7 @@ def _pairs(outcomes: dict[str, ScannerOutcome], folder: Path, job: JobConfig) ->
     (``calibration/agreement``), and against the truth when both have one (a dry run)."""
     recordings = scanner_recordings(folder, list(outcomes))
     runs = {name: _own_run(folder / name, recordings.get(name)) for name in outcomes}
-    solved = {name: _solved_watcher(name, outcomes[name], recordings[name], run, job)
+    solved = {name: _solved_watcher(outcomes[name], recordings[name], run)
               for name, run in runs.items() if run is not None}
     recorded = {name: _recorded_centres(recordings.get(name), runs[name], name, job, solved)
                 for name in outcomes}
@@ -473,18 +486,15 @@ def _own_run(folder: Path, recording: SessionRecording | None) -> _OwnRun | None
     return _OwnRun(solved, first_pass)
 
 
-def _solved_watcher(
-    name: str, outcome: ScannerOutcome, recording: SessionRecording, run: _OwnRun, job: JobConfig
-) -> SolvedWatcher:
-    """What scanner ``name``'s centres as a watcher take from its own solved run for their second
-    pass: its pose, the rod line its solve estimated, its background (none where the recording
-    lacks its scans) and its first-pass scatter (``first_pass_scatter_uv_m2``)."""
+def _solved_watcher(outcome: ScannerOutcome, recording: SessionRecording, run: _OwnRun) -> SolvedWatcher:
+    """What a scanner's centres as a watcher take from its own solved run for their second pass:
+    its pose, the rod line its solve estimated, its background (none where the recording lacks
+    its scans) and its first-pass scatter (``first_pass_scatter_uv_m2``)."""
     background = recorded_background(recording)
-    rod = read_result_file(outcome.result_path).result.estimated_rod(job.for_scanner(name).rod.rod_line())
     scatter = first_pass_scatter_uv_m2(
         run.first_pass, {index: centre for index, (_, centre, _) in run.solved.items()}, outcome
     )
-    return SolvedWatcher(np.asarray(outcome.T_base_laser, dtype=float), rod,
+    return SolvedWatcher(np.asarray(outcome.T_base_laser, dtype=float), outcome.rod,
                          None if isinstance(background, str) else background, scatter)
 
 
@@ -499,9 +509,9 @@ def _recorded_centres(
     this run's rod); empty without its run's ``recording``."""
     if recording is None or run is None:
         return _RecordedRun({}, ReplayedSharedCentres())
-    rod = job.for_scanner(name).rod.rod_line()
-    nominals = {other: job.for_scanner(other).scanner.nominal for other in job.scanner_names()}
     own_rod = job.for_scanner(name).rod
+    rod = own_rod.rod_line()
+    nominals = {other: job.for_scanner(other).scanner.nominal for other in job.scanner_names()}
     views = {other: view if job.for_scanner(other).rod == own_rod else replace(view, rod=rod)
              for other, view in solved.items() if other != name}
     replayed = replay_shared_centres(recording, rod, nominals, views)
@@ -514,7 +524,8 @@ def pair_agreement(
     """The waypoints of either run where the other scanner saw the rod too (a watcher's centre
     corrected by its scanner's range error curve; left out beyond the distances that curve
     spans, and where by the solved poses a plane does not cut the rod between its ends), and
-    the agreement test of ``a`` and ``b`` over them (``calibration/agreement``)."""
+    the agreement test of ``a`` and ``b`` over them (``calibration/agreement``), with the
+    ``centres`` it compared at each (by scanner: centre and covariance as tested)."""
     forward, left_out_ab = _shared(a, b, outcomes, centres, job)
     backward, left_out_ba = _shared(b, a, outcomes, centres, job)
     first, second = outcomes[a], outcomes[b]
@@ -524,6 +535,12 @@ def pair_agreement(
         np.asarray(second.T_base_laser), np.asarray(second.covariance),
         shared,
     )
+    result["centres"] = [
+        {"waypoint": s.waypoint,
+         "centres_uv_m": {a: s.centre_a_uv_m.tolist(), b: s.centre_b_uv_m.tolist()},
+         "covariances_uv_m2": {a: s.covariance_a_uv_m2.tolist(), b: s.covariance_b_uv_m2.tolist()}}
+        for s in shared
+    ]
     left_out = left_out_ab + left_out_ba
     if left_out:
         result["left_out"] = [waypoint for waypoint, _ in left_out]

@@ -13,7 +13,10 @@ Kinds and their ``data``:
   ``angle_min_rad``, ``angle_increment_rad``, ``ranges_m`` (null where no return),
   ``rod_beams``, ``circle`` (``centre_uv_m``, ``radius_m``) or null;
 - ``warning``, ``stopped`` (the run ended on an error: where its recording is), ``result``;
-- a cell job's ``scanner_result`` (``run/cell``): ``scanner``, ``folder``, ``passed``, ``kept``.
+- a cell job's ``scanner_result`` (``run/cell``): ``scanner``, ``folder``, ``passed``, ``kept``;
+  and, once every scanner is solved, one ``pair_agreement`` per pair: ``from``, ``to`` and the
+  pair's agreement as ``cell.json`` holds it (its ``centres``: those the test compared, a
+  watcher's after its second pass; a ``centre`` event is always a first pass).
 
 Every ``stage`` is a ``Stage``, which says which ``Phase`` of the run it belongs to (what a
 job reports as its state).

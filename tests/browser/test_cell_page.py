@@ -68,6 +68,10 @@ def test_a_cell_scanner_by_scanner(cell_daemon: DaemonProcess, browser: Any, art
     _wait(browser, lambda d: _by_id(d, "job-state").text in TERMINAL, "the run's end", RUN_TIMEOUT_S)
     job = _get(cell_daemon, "/v1/jobs")["jobs"][0]
     assert job["state"] == "succeeded", job.get("error")
+    # the pair's agreement, told once both scanners are solved, in the page's log
+    told = "pair agreement: front and rear: "
+    _wait(browser, lambda d: told in _by_id(d, "event-log").get_attribute("textContent"),
+          "the pair's agreement in the log")
     ids = job["document"]["calibration_ids"]
     for name in SCANNERS:  # each scanner's result, and its calibration active with its age
         assert ids[name] in _wait(browser, lambda d, n=name: ids[n] in _card(d, n).text and _card(d, n).text,

@@ -11,12 +11,13 @@ import pytest
 from rich.console import Console
 
 from lasercal_hw.cli import run as cli_run
+from lasercal_hw.models import RodLine
 from lasercal_hw.run.cell import CellReport, ScannerOutcome
 
 
 def _outcome(name: str) -> ScannerOutcome:
     return ScannerOutcome(name, Path(f"{name}/result.json"), True, np.eye(4).tolist(),
-                          (np.eye(6) * 1e-6).tolist(), None, None)
+                          (np.eye(6) * 1e-6).tolist(), None, None, RodLine())
 
 
 def _pair(agreement: dict, joint: dict | None) -> dict:

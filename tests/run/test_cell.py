@@ -243,6 +243,26 @@ def test_the_other_scanner_measures_the_rod_where_it_sees_it(stopped_and_resumed
     assert 0 < centres["second_pass"] <= len(latest), centres  # fitted again with the watcher's solved pose
 
 
+def test_the_job_tells_each_pairs_agreement_once_every_scanner_is_solved(
+    stopped_and_resumed: StoppedAndResumed,
+) -> None:
+    """One ``pair_agreement`` event, after the last scanner's result, holds cell.json's agreement:
+    the centres it compared (a watcher's after its second pass), not the live first pass; the
+    stopped call, which solved no pair, told none."""
+    run = stopped_and_resumed
+    last = run.per_call()[-1]
+    kinds = [event.kind for event in last]
+    told = [event for event in last if event.kind == "pair_agreement"]
+    (pair,) = json.loads((run.out / CELL_FILE).read_text())["pairs"]
+
+    last_result = len(kinds) - 1 - kinds[::-1].index("scanner_result")
+    assert len(told) == 1 and kinds.index("pair_agreement") > last_result
+    assert told[0].data == {"from": "front", "to": "rear"} | pair["agreement"]
+    assert len(told[0].data["centres"]) == told[0].data["shared_waypoints"]
+    assert told[0].message.startswith(f"front and rear: {pair['agreement']['verdict']} (")
+    assert all(event.kind != "pair_agreement" for event in run.events[: run.calls[-1]])
+
+
 def test_a_cell_recording_from_before_the_watchers_scans_reuses_their_centres_and_says_so(
     stopped_and_resumed: StoppedAndResumed, tmp_path: Path,
 ) -> None:

@@ -46,7 +46,7 @@ def _crossing_uv_m(T_base_laser: np.ndarray, tcp_pose: np.ndarray) -> np.ndarray
 
 def _outcome(name: str, T_base_laser: np.ndarray) -> ScannerOutcome:
     return ScannerOutcome(name, Path(), True, T_base_laser.tolist(), POSE_COVARIANCE.tolist(), None, None,
-                          reduced_chi_square=2.0)
+                          JOB.for_scanner(name).rod.rod_line(), reduced_chi_square=2.0)
 
 
 def _agreement_with_the_front_finding(index: int, off_m: float) -> tuple[list[str], dict]:
@@ -81,6 +81,24 @@ def test_a_centre_farther_from_the_rod_than_its_radius_is_left_out_and_a_nearer_
     shared, agreement = _agreement_with_the_front_finding(1, 0.012)  # off, but it could be the rod: tested
     assert "rear 1" in shared
     assert agreement["verdict"] == "disagree", agreement
+
+
+def test_the_agreement_gives_the_centres_it_compared_by_scanner() -> None:
+    """What cell.json's agreement and the job's ``pair_agreement`` event show: at each tested
+    waypoint both scanners' centres and covariances as the test took them (here no range error
+    to move them back; each covariance scaled by its solve's reduced chi-square, 2)."""
+    shared, agreement = _agreement_with_the_front_finding(1, 0.004)
+    pose = _tcp_pose(TCP_POINTS_M[1])
+
+    tested = agreement["centres"]
+
+    assert [entry["waypoint"] for entry in tested] == shared == agreement["waypoints"]
+    assert tested[1]["waypoint"] == "rear 1"
+    found_uv_m = np.add(_crossing_uv_m(T_FRONT, pose), [0.004, 0.0])
+    np.testing.assert_allclose(tested[1]["centres_uv_m"]["front"], found_uv_m)
+    np.testing.assert_allclose(tested[1]["centres_uv_m"]["rear"], _crossing_uv_m(T_REAR, pose))
+    for name in ("front", "rear"):
+        np.testing.assert_allclose(tested[1]["covariances_uv_m2"][name], 2.0 * COVARIANCE_UV_M2)
 
 
 def _agreement_with_every_front_centre_off(

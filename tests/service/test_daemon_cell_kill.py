@@ -19,7 +19,7 @@ import httpx
 import pytest
 
 from lasercal_hw.session.reader import read_session
-from tests.daemon_helpers import QUICK_JOB, DaemonProcess, wait_for
+from tests.daemon_helpers import QUICK_JOB, DaemonProcess, read_sse, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(400)]
 
@@ -122,6 +122,8 @@ def test_a_cell_job_killed_in_the_second_scanner_resumes_there(tmp_path: Path) -
             for name in ("front", "rear"):
                 (filed,) = _filed(client, name)
                 assert filed["id"] == ids[name] and filed["job_id"] == job_id
+            with client.stream("GET", f"/v1/jobs/{job_id}/events?last_event_id=0") as stream:
+                told = [data for _, kind, data in read_sse(stream) if kind == "pair_agreement"]
     finally:
         second.stop()
 
@@ -139,3 +141,8 @@ def test_a_cell_job_killed_in_the_second_scanner_resumes_there(tmp_path: Path) -
     # job passes its gates on a loaded machine is not what this test is about (tests/run/test_cell.py)
     assert sorted(cell["scanners"]) == ["front", "rear"], cell["scanners"]
     assert [p["from"] + ">" + p["to"] for p in cell["pairs"]] == ["front>rear"]
+    # the job's event stream tells the pair's agreement once, as cell.json holds it: the centres
+    # it compared (the watchers' after their second pass), not the live first pass
+    (agreement,) = told
+    assert agreement["from"] == "front" and agreement["to"] == "rear"
+    assert {key: agreement[key] for key in cell["pairs"][0]["agreement"]} == cell["pairs"][0]["agreement"]

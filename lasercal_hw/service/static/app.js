@@ -852,7 +852,8 @@ function plotKind(row) {
 // ---- live events --------------------------------------------------------------------------
 
 const EVENT_KINDS = ["stage", "progress", "centre", "skip", "scan", "fault", "result", "state",
-                     "confirmed", "warning", "stopped", "daemon", "calibration_marked_bad", "deactivation"];
+                     "confirmed", "warning", "stopped", "daemon", "calibration_marked_bad", "deactivation",
+                     "pair_agreement"];
 
 /** The daemon's events from now on, and the latest job's from its start (a reload mid-run). */
 function connectEvents() {
@@ -907,7 +908,8 @@ function applyEvent(kind, data) {
     case "confirmed":
     case "warning":
     case "daemon":
-      log(`${kind}: ${data.message || ""}`);
+    case "pair_agreement":  // a cell job's scanners against each other, once all are solved
+      log(`${kind.replace(/_/g, " ")}: ${data.message || ""}`);
       markDirty("log");
       break;
     case "calibration_marked_bad":
