@@ -164,6 +164,16 @@ class ExtractionSettings:
     #: where a ray's differ by 4-9 mm: this share of the spot's correction along the bearing
     #: joins the covariance.
     spot_model_doubt: float = 0.5
+    #: Across the bearing a spot fit keeps the ray fit's noise, which the ray fit's reduced
+    #: chi-square scales up by the spot's blur of its edge beams; on a rod more than this many
+    #: spot widths across, the spot fit's reduced chi-square scales it instead (the blur is
+    #: symmetric about the rod and repeats at the pose). On a narrower rod the edge beams fall
+    #: unevenly on a silhouette the spot blurs whole and the centre takes up what that moves:
+    #: with the spot fit's factor on every rod, issue 18's benchmark (physical model, seeds 0 and
+    #: 1) had 4-20 mm rods 0.4-3 mm sideways against 0.13-0.45 mm std, 5 and 3 centres silently
+    #: beyond 3 std; at 1 spot width one (a retro-reflective 20 mm rod at 0.75 m, 1.4 widths,
+    #: whose bright halo blurs wider), at 1.5 none.
+    wide_rod_spot_widths: float = 1.5
     #: The fit predicts each beam's reading as its spot returns it from the rod (a power-weighted
     #: mean over the part of the spot on the rod: ``_spot_readings_m``), integrated with this many
     #: Gauss-Legendre nodes across the rod's visible half.
@@ -1198,16 +1208,17 @@ def _fit_centre(
         raise RodNotFoundError(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
-    ray_noise, ray_covariance = _fit_covariances_m2(points, sigma, centre, normal, section, _rays(settings))
+    rays = _rays(settings)
+    ray_noise, ray_covariance, _ = _fit_covariances_m2(points, sigma, centre, normal, section, rays)
     spot_centre, spot_normal, spot, spot_along_m = _along_the_spot(
         points, sigma, centre, normal, float(ray_whitened @ ray_whitened), section, settings
     )
-    model = settings if spot else _rays(settings)
+    model = settings if spot else rays
     noise_covariance, covariance = ray_noise, ray_covariance
     if spot:
         # Each direction keeps the covariance of the fit it came from (what that fit's residuals
         # leave unexplained included): along the bearing the spot's, across it the rays'.
-        spot_noise, spot_covariance = _fit_covariances_m2(
+        spot_noise, spot_covariance, spot_factor = _fit_covariances_m2(
             points, sigma, spot_centre, spot_normal, section, settings
         )
         bearing = centre / float(np.linalg.norm(centre))
@@ -1220,6 +1231,16 @@ def _fit_centre(
         along_m2 = float(bearing @ spot_covariance @ bearing) + doubt_m**2
         missing_m2 = max(float(bearing @ ray_covariance @ bearing) - along_m2, 0.0)
         spot_covariance = spot_covariance + (doubt_m**2 + missing_m2) * np.outer(bearing, bearing)
+        spot_width_m = 4.0 * float(_spot_sigma_m(np.linalg.norm(centre), settings))
+        if 2.0 * section.radius_m > settings.wide_rod_spot_widths * spot_width_m:
+            # Across the bearing, on a rod much wider than the spot, the ray fit's noise scaled by
+            # the spot fit's reduced chi-square, not its own: the ray fit's counts the spot's blur
+            # (its edge beams read 5-17 mm short), which the spot fit explains, which repeats at
+            # the pose and which, symmetric about the rod, does not move it sideways (its
+            # antisymmetric part stays in the ray fit's systematic term).
+            ray_noise, ray_covariance, _ = _fit_covariances_m2(
+                points, sigma, centre, normal, section, rays, variance_factor=spot_factor
+            )
         noise_covariance = _along_and_across_m2(spot_noise, ray_noise, bearing)
         covariance = _along_and_across_m2(spot_covariance, ray_covariance, bearing)
         centre, normal = spot_centre, spot_normal
@@ -1245,16 +1266,18 @@ def _fit_covariances_m2(
     normal: FloatArray,
     section: _Section,
     model: ExtractionSettings,
-) -> tuple[FloatArray, FloatArray]:
+    variance_factor: float | None = None,
+) -> tuple[FloatArray, FloatArray, float]:
     """A fit's noise covariance (its normal matrix's, scaled up by the reduced chi-square
-    above 1) and that plus what its residuals leave unexplained (``_systematic_covariance_m2``),
-    against the spot or rays as ``model`` says."""
+    above 1, or by ``variance_factor`` where given) and that plus what its residuals leave
+    unexplained (``_systematic_covariance_m2``), against the spot or rays as ``model`` says;
+    and its own reduced chi-square above 1."""
     residuals, normals, _ = _fit_residuals(points, centre, section, model)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
     whitened = residuals / residual_sigma
-    variance_factor = max(1.0, float(whitened @ whitened) / max(points.shape[0] - 2, 1))
-    noise = np.linalg.inv(normal) * variance_factor
-    return noise, noise + _systematic_covariance_m2(residuals, residual_sigma, normals, normal)
+    own_factor = max(1.0, float(whitened @ whitened) / max(points.shape[0] - 2, 1))
+    noise = np.linalg.inv(normal) * (own_factor if variance_factor is None else variance_factor)
+    return noise, noise + _systematic_covariance_m2(residuals, residual_sigma, normals, normal), own_factor
 
 
 def _along_and_across_m2(along_m2: FloatArray, across_m2: FloatArray, bearing: FloatArray) -> FloatArray:
