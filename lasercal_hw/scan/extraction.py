@@ -164,16 +164,6 @@ class ExtractionSettings:
     #: where a ray's differ by 4-9 mm: this share of the spot's correction along the bearing
     #: joins the covariance.
     spot_model_doubt: float = 0.5
-    #: Across the bearing a spot fit keeps the ray fit's noise, which the ray fit's reduced
-    #: chi-square scales up by the spot's blur of its edge beams; on a rod more than this many
-    #: spot widths across, the spot fit's reduced chi-square scales it instead (the blur is
-    #: symmetric about the rod and repeats at the pose). On a narrower rod the edge beams fall
-    #: unevenly on a silhouette the spot blurs whole and the centre takes up what that moves:
-    #: with the spot fit's factor on every rod, issue 18's benchmark (physical model, seeds 0 and
-    #: 1) had 4-20 mm rods 0.4-3 mm sideways against 0.13-0.45 mm std, 5 and 3 centres silently
-    #: beyond 3 std; at 1 spot width one (a retro-reflective 20 mm rod at 0.75 m, 1.4 widths,
-    #: whose bright halo blurs wider), at 1.5 none.
-    wide_rod_spot_widths: float = 1.5
     #: The fit predicts each beam's reading as its spot returns it from the rod (a power-weighted
     #: mean over the part of the spot on the rod: ``_spot_readings_m``), integrated with this many
     #: Gauss-Legendre nodes across the rod's visible half.
@@ -1231,13 +1221,20 @@ def _fit_centre(
         along_m2 = float(bearing @ spot_covariance @ bearing) + doubt_m**2
         missing_m2 = max(float(bearing @ ray_covariance @ bearing) - along_m2, 0.0)
         spot_covariance = spot_covariance + (doubt_m**2 + missing_m2) * np.outer(bearing, bearing)
-        spot_width_m = 4.0 * float(_spot_sigma_m(np.linalg.norm(centre), settings))
-        if 2.0 * section.radius_m > settings.wide_rod_spot_widths * spot_width_m:
-            # Across the bearing, on a rod much wider than the spot, the ray fit's noise scaled by
-            # the spot fit's reduced chi-square, not its own: the ray fit's counts the spot's blur
-            # (its edge beams read 5-17 mm short), which the spot fit explains, which repeats at
-            # the pose and which, symmetric about the rod, does not move it sideways (its
-            # antisymmetric part stays in the ray fit's systematic term).
+        halo_width_m = settings.spot_halo_scale * 4.0 * float(_spot_sigma_m(np.linalg.norm(centre), settings))
+        if 2.0 * section.radius_m > halo_width_m:
+            # Across the bearing, on a rod wider than the spot's halo, the ray fit's noise scaled
+            # by the spot fit's reduced chi-square, not its own: the ray fit's counts the spot's
+            # blur (its edge beams read 5-17 mm short), which the spot fit explains, which repeats
+            # at the pose and which, symmetric about the rod, does not move it sideways (its
+            # antisymmetric part stays in the ray fit's systematic term). On a narrower rod the
+            # edge beams fall unevenly on a silhouette the spot blurs whole, and a bright rod
+            # lights the halo too; the centre takes up what that moves sideways, and the ray
+            # fit's own factor is what covers it. With the spot fit's factor on every rod, issue
+            # 18's benchmark (physical model, seeds 0 and 1) had 4-20 mm rods 0.4-3 mm sideways
+            # against 0.13-0.45 mm std (5 and 3 centres silently beyond 3 std); on rods over 1.5
+            # spot widths (seed 100), retro-reflective 20 and 45 mm rods at 0.15 and 2 m (1.9 and
+            # 2.1 widths) 0.6 and 1.3 mm sideways against 0.17 and 0.41 mm.
             ray_noise, ray_covariance, _ = _fit_covariances_m2(
                 points, sigma, centre, normal, section, rays, variance_factor=spot_factor
             )
