@@ -1240,7 +1240,7 @@ def _fit_centre(
             )
         noise_covariance = _along_and_across_m2(spot_noise, ray_noise, bearing)
         covariance = _along_and_across_m2(spot_covariance, ray_covariance, bearing)
-        centre, normal = spot_centre, spot_normal
+        centre = spot_centre
     residuals, normals, _ = _fit_residuals(points, centre, section, model)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
     whitened = residuals / residual_sigma
