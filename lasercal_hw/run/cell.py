@@ -358,14 +358,13 @@ def _scanner_outcome(name: str, path: Path, report: RunReport | None, nominal_ro
     """A scanner's outcome from its ``result.json`` (the one source, run now or before); its rod
     the one the result estimated, ``nominal_rod`` (its job's) where it estimated none."""
     result_file = read_result_file(path)
-    truth = json.loads(path.read_text(encoding="utf-8")).get("ground_truth", {}).get("T_base_laser")
     return ScannerOutcome(
         name=name,
         result_path=path,
         passed=result_file.passed,
         T_base_laser=result_file.result.T_base_laser,
         covariance=result_file.result.covariance,
-        ground_truth=truth,
+        ground_truth=result_file.ground_truth,
         report=report,
         rod=result_file.result.estimated_rod(nominal_rod),
         range_offset=result_file.result.range_offset,

@@ -109,6 +109,8 @@ class ResultFile:
     scanner_name: str | None = None
     #: The robot's own kinematics calibration as recorded (``RobotCalibration.as_dict``), or None.
     robot_calibration: dict[str, Any] | None = None
+    #: A dry run's true ``T_base_laser`` (4x4 rows) as recorded, or None.
+    ground_truth: list[list[float]] | None = None
 
     @property
     def passed(self) -> bool:
@@ -158,6 +160,7 @@ def read_result_file(path: Path) -> ResultFile:
         motion_and_dwell_s=float(busy_s) if busy_s > 0 else None,
         scanner_name=run.get("scanner_name"),
         robot_calibration=_table(run, "robot_calibration"),
+        ground_truth=(_table(document, "ground_truth") or {}).get("T_base_laser"),
     )
 
 
