@@ -35,6 +35,7 @@ from trajectories.design import (
     DesignRequest,
     design,
     information_blocks,
+    objective,
     request_for_job,
     std_of,
     visited_crossings,
@@ -156,13 +157,24 @@ def test_a_design_for_a_job_that_estimates_the_range_error_pins_its_curve_down(r
     assert aware_std[0] < 0.95 * blind_std[0] and aware_std[1] < 0.9 * blind_std[1]
 
 
+def test_the_objective_counts_every_axis_not_only_the_largest() -> None:
+    # The targets are percentiles of the error's norm, which every axis's variance
+    # feeds: of two designs with the same largest std, the one weaker elsewhere scores worse.
+    scale = np.array([0.01] * 3 + [np.radians(1.0)] * 3)
+    one_weak = np.square(scale * np.array([0.1, 0.1, 0.1, 0.2, 0.05, 0.05]))
+    two_weak = np.square(scale * np.array([0.1, 0.1, 0.1, 0.2, 0.2, 0.05]))
+    assert objective(two_weak, scale) > objective(one_weak, scale)
+
+
 def test_no_crossing_right_before_the_robots_base() -> None:
     # A surface close behind the rod blends into its edge beams (the physical scanner's centre
     # moved 5.9 mm sideways at 0.39 m with the base 0.19 m behind, docs/trajectory-design.md):
     # the beam must pass the base with the line-of-sight clearance BACKDROP_M beyond every
     # crossing, for a painted rod as for a polished bit.
     request = request_for_job(JobConfig(), DEFAULT_SCENE, UR5)
-    pool = draw_candidates(request.T_base_laser, request.uncertainty, request.rules, 3000, np.random.default_rng(0))
+    pool = draw_candidates(
+        request.T_base_laser, request.uncertainty, request.rules, 3000, np.random.default_rng(0)
+    )
     assert pool.removed["the rod right before the robot's base"] > 0 and len(pool) > 200
     scanner = request.T_base_laser[:3, 3]
     beam = pool.crossing_base_m - scanner
