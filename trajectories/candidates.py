@@ -53,9 +53,12 @@ HALF_FIELD_OF_VIEW_DEG = 135.0
 FIELD_OF_VIEW_MARGIN_DEG = 5.0
 #: Least distance of a beam from the robot's base axis (m): column radius plus a margin.
 COLUMN_CLEARANCE_M = 0.13
-#: Tilt of the rod from the plane normal (deg): enough to see the plane's height, little
-#: enough for the extraction's round cross-section.
-TILT_RANGE_DEG = (10.0, 30.0)
+#: Tilt of the rod from the plane normal (deg). The plane's height and its tilt (the weak
+#: rotations about the plane's own axes) move a crossing only by tan(tilt) times their shift,
+#: so the information on them grows with tan^2(tilt) until the robot's error along the rod
+#: (also scaled by tan(tilt)) dominates: 40 deg gives nearly twice 30 deg's. The ellipse a steep
+#: rod cuts is fitted as one in the run's second pass (docs/extraction.md).
+TILT_RANGE_DEG = (10.0, 40.0)
 #: Largest lean of a polished rod along the beam (deg), the pose uncertainty's rotation
 #: included: ground steel's specular lobe is about 3.4 deg wide (docs/scanner-model.md).
 POLISHED_MAX_BEAM_LEAN_DEG = 3.0
