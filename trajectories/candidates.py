@@ -8,9 +8,8 @@ falls, and a turn of the tool about the rod (small, or wide when the rod's axis 
 estimated). A polished rod (``rod.polished``: a steel drill bit) is tilted across the beam,
 leaning along it by at most ``POLISHED_MAX_BEAM_LEAN_DEG``: its surface sends the beam back
 only where it faces the scanner square, so a rod leaning toward or away from the scanner
-returns little more than its faint diffuse part (docs/scanner-model.md); and even square its
-echo is faint, so it merges with a surface close behind it: the beam must also pass the
-robot's base ``POLISHED_BACKDROP_M`` beyond the crossing. Each is then kept only if:
+returns little more than its faint diffuse part (docs/scanner-model.md). Each is then kept
+only if:
 
 - the crossing lies 0.30 m (clear of the scanner) to ``max_range_m`` from the scanner, where
   the rod still covers enough beams, and inside the field of view with a margin;
@@ -18,8 +17,10 @@ robot's base ``POLISHED_BACKDROP_M`` beyond the crossing. Each is then kept only
   plane is off by the pose uncertainty (translation ``t`` and rotation ``r`` move the plane
   at range ``rho`` by up to ``t + r * rho`` along its normal, so along a rod tilted by
   ``tau`` by that over ``cos(tau)``);
-- the beam from the scanner to the crossing passes the robot's base axis with
-  ``COLUMN_CLEARANCE_M`` (plus the translation uncertainty) to spare;
+- the beam from the scanner to the crossing, and on ``BACKDROP_M`` beyond it, passes the
+  robot's base axis with ``COLUMN_CLEARANCE_M`` (plus the translation uncertainty) to spare:
+  a surface close behind the rod blends into its edge beams and moves its centre sideways
+  (a polished rod's faint echo merges with it whole);
 - the TCP and both rod ends lie inside the workspace box;
 - the arm reaches the pose on the design's inverse-kinematics branch with the elbow and
   the wrist away from their singularities.
@@ -52,15 +53,19 @@ HALF_FIELD_OF_VIEW_DEG = 135.0
 FIELD_OF_VIEW_MARGIN_DEG = 5.0
 #: Least distance of a beam from the robot's base axis (m): column radius plus a margin.
 COLUMN_CLEARANCE_M = 0.13
-#: Tilt of the rod from the plane normal (deg): enough to see the plane's height, little
-#: enough for the extraction's round cross-section.
-TILT_RANGE_DEG = (10.0, 30.0)
+#: Tilt of the rod from the plane normal (deg). The plane's height and its tilt (the weak
+#: rotations about the plane's own axes) move a crossing only by tan(tilt) times their shift,
+#: so the information on them grows with tan^2(tilt) until the robot's error along the rod
+#: (also scaled by tan(tilt)) dominates: 40 deg gives nearly twice 30 deg's. The ellipse a steep
+#: rod cuts is fitted as one in the run's second pass (docs/extraction.md).
+TILT_RANGE_DEG = (10.0, 40.0)
 #: Largest lean of a polished rod along the beam (deg), the pose uncertainty's rotation
 #: included: ground steel's specular lobe is about 3.4 deg wide (docs/scanner-model.md).
 POLISHED_MAX_BEAM_LEAN_DEG = 3.0
-#: A polished rod's faint echo merges with a surface this close behind it (m): the beam must
-#: pass the robot's base by the line-of-sight clearance this far beyond the crossing too.
-POLISHED_BACKDROP_M = 0.5
+#: A surface this close behind the rod (m) blends into its edge beams (the pulse is about a
+#: metre long; a polished rod's faint echo merges whole): the beam must pass the robot's base
+#: by the line-of-sight clearance this far beyond the crossing too.
+BACKDROP_M = 0.5
 #: Turn of the tool about the rod around its reference heading (deg): keeps joint 6 calm.
 TOOL_TURN_SPREAD_DEG = 30.0
 #: The same when the rod's axis is estimated: turning the tool about the rod moves an axis
@@ -247,11 +252,10 @@ def draw_candidates(
     clear = column_distance_m(scanner[:2], crossing[:, :2]) >= clearance_m
     keep(clear | ~ok, "beam passes the robot's base")
     ok &= clear
-    if rules.polished:
-        beyond = crossing + POLISHED_BACKDROP_M * (crossing - scanner) / range_m[:, None]
-        backdrop = column_distance_m(scanner[:2], beyond[:, :2]) >= clearance_m
-        keep(backdrop | ~ok, "a polished rod right before the robot's base")
-        ok &= backdrop
+    beyond = crossing + BACKDROP_M * (crossing - scanner) / range_m[:, None]
+    backdrop = column_distance_m(scanner[:2], beyond[:, :2]) >= clearance_m
+    keep(backdrop | ~ok, "the rod right before the robot's base")
+    ok &= backdrop
     low, high = crossing_window_m(rod, range_m, np.cos(tilt_rad), uncertainty)
     window = low <= high
     keep(window | ~ok, "rod too short for the pose uncertainty at that range")

@@ -1,14 +1,16 @@
 """Design the waypoints for one cell: minimise the Cramér-Rao bound of the calibration over
 candidates that keep every rule a run checks (``trajectories.candidates``).
 
-The objective is the worse of the largest translation std and the largest rotation std
-(base axes), each divided by the job's quality gate. When the job estimates the rod's axis
-(``rod.estimate_axis``), the four axis parameters join the information and the std are those
-of the pose with the axis unknown; the tool then also turns widely about the rod
-(``AXIS_TOOL_TURN_SPREAD_DEG``), the motion that tells the axis offset from the scanner's
-position. When the job estimates the scanner's range error (``scanner.estimate_range_offset``),
-the terms of its curve over distance (offset, scale, smooth term) join too: the design then
-spreads the crossings over distances and bearings that tell the curve from the pose.
+The objective is the root of the sum of the pose's six variances (base axes), each in units
+of the job's quality gate squared: the expected squared norm of the pose's error, which a
+percentile of the error's norm follows (the largest std alone left the other axes free).
+When the job estimates the rod's axis (``rod.estimate_axis``), the four axis parameters join
+the information and the std are those of the pose with the axis unknown; the tool then also
+turns widely about the rod (``AXIS_TOOL_TURN_SPREAD_DEG``), the motion that tells the axis
+offset from the scanner's position. When the job estimates the scanner's range error
+(``scanner.estimate_range_offset``), the terms of its curve over distance (offset, scale,
+smooth term) join too: the design then spreads the crossings over distances and bearings
+that tell the curve from the pose.
 The Fisher information of a set of waypoints is the sum of theirs, so the search
 works on per-candidate k x k blocks: a greedy pass adds the candidate that lowers the
 objective most, exchange passes swap a chosen waypoint for a better one until none helps.
@@ -227,10 +229,17 @@ def _scale(targets: Targets) -> FloatArray:
     return np.array([targets.translation_mm * 1e-3] * 3 + [np.deg2rad(targets.rotation_deg)] * 3)
 
 
+def objective(diagonal: FloatArray, scale: FloatArray) -> FloatArray:
+    """The objective from the pose's variances (..., 6) (m^2, rad^2): the root of their sum in
+    units of the gates, the expected squared norm of the pose's error (what a percentile of
+    the error's norm follows), where the largest std alone leaves the other axes free."""
+    return np.sqrt((np.clip(diagonal, 0.0, None) / scale**2).sum(axis=-1))
+
+
 def _scores(information: FloatArray, scale: FloatArray) -> FloatArray:
     """The objective for a stack of information matrices (..., k, k)."""
     diagonal = np.diagonal(np.linalg.inv(information), axis1=-2, axis2=-1)[..., :POSE_PARAMETERS]
-    return (np.sqrt(np.clip(diagonal, 0.0, None)) / scale).max(axis=-1)
+    return objective(diagonal, scale)
 
 
 def information_blocks(
@@ -280,7 +289,7 @@ def _scores_with_each(total: FloatArray, factors: FloatArray, scale: FloatArray)
     cl = np.einsum("ij,kja->kia", covariance, factors)
     inner = np.eye(2) + np.einsum("kja,kjb->kab", factors, cl)
     diagonal = np.diag(covariance)[None, :] - np.einsum("kia,kab,kib->ki", cl, np.linalg.inv(inner), cl)
-    return (np.sqrt(np.clip(diagonal[:, :POSE_PARAMETERS], 0.0, None)) / scale).max(axis=1)
+    return objective(diagonal[:, :POSE_PARAMETERS], scale)
 
 
 @dataclass
