@@ -10,9 +10,7 @@ The bit turns with the tool (it is in the chuck), and along its helix: at a cros
 metres down the bit, a flute's middle points along ``cos(b) x + sin(b) (axis x x)`` with ``b =
 phase0 + 2 pi s / lead``, where ``x`` is the TCP's x axis made square to the bit's axis and
 ``phase0`` (the flute's turn from the TCP's x axis where the bit starts) is unknown: the solver
-estimates it (``run/two_pass.py``). ``s`` is the glint's own height along the bit: where the bit
-leans in the scan plane, the plane meets the surface above or below the axis's crossing, and the
-section there is turned by the helix. The section (two flutes of ``opening`` each, a web of
+estimates it (``run/two_pass.py``). The section (two flutes of ``opening`` each, a web of
 ``web_fraction`` of the diameter, circular-arc flutes meeting the lands) is the usual
 twist drill's; the helix is right-handed (a standard drill), ``lead = 2 pi r / tan(helix)``.
 """
@@ -25,10 +23,6 @@ from lasercal_hw.calibration.model import lines_in_scanner, plane_crossing
 from lasercal_hw.geometry import FloatArray, pose_to_matrix
 from lasercal_hw.models import RodLine
 
-#: How often the glint's own height along the bit (where the scan plane meets the bit there, not
-#: at its axis) turns the section again before its offset is taken (0: the section at the axis's
-#: crossing).
-GLINT_HEIGHT_ITERATIONS = 3
 #: A standard (type N) twist drill's helix angle.
 HELIX_DEG = 30.0
 #: Each flute's opening of the section's circumference (as the extraction's settings).
@@ -80,12 +74,12 @@ def helix_lead_m(radius_m: float, helix_deg: float = HELIX_DEG) -> float:
     return 2.0 * np.pi * radius_m / np.tan(np.radians(helix_deg))
 
 
-def _frames(
+def _turns(
     phase0_rad: float, T_base_laser: FloatArray, tcp_poses: FloatArray, rod: RodLine, helix_deg: float
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, float]:
-    """At each waypoint's crossing (scanner frame): the bit's axis (N, 3), the TCP's x axis made
-    square to it (N, 3), the direction to the scanner (N, 3), the bit's turn there (N,, rad)
-    and the helix's lead (m)."""
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """At each waypoint's crossing (scanner frame): the bit's axis, a flute's middle and the
+    direction square to both (N, 3 each), and the scanner's direction seen from the bit in
+    the (middle, across) frame (N,)."""
     T = np.asarray(T_base_laser, dtype=float)
     tcp = pose_to_matrix(np.atleast_2d(np.asarray(tcp_poses, dtype=float)))
     direction = np.asarray(rod.direction, dtype=float) / np.linalg.norm(rod.direction)
@@ -96,20 +90,12 @@ def _frames(
     tool_x = tcp[:, :3, 0] @ T[:3, :3]
     ref = tool_x - np.einsum("ij,ij->i", tool_x, axis)[:, None] * axis
     ref /= np.linalg.norm(ref, axis=1)[:, None]
-    lead = helix_lead_m(rod.radius_m, helix_deg)
-    to_scanner = -np.column_stack([crossing, np.zeros(len(crossing))])
-    return axis, ref, to_scanner, phase0_rad + 2.0 * np.pi * s / lead, lead
-
-
-def _section_at(
-    axis: FloatArray, ref: FloatArray, to_scanner: FloatArray, turn: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """A flute's middle and the direction square to it and the axis (N, 3 each) at ``turn``, and
-    the scanner's direction seen from the bit in that (middle, across) frame (N,)."""
+    turn = phase0_rad + 2.0 * np.pi * s / helix_lead_m(rod.radius_m, helix_deg)
     middle = np.cos(turn)[:, None] * ref + np.sin(turn)[:, None] * np.cross(axis, ref)
     across = np.cross(axis, middle)
+    to_scanner = -np.column_stack([crossing, np.zeros(len(crossing))])
     facing = np.arctan2(np.einsum("ij,ij->i", to_scanner, across), np.einsum("ij,ij->i", to_scanner, middle))
-    return middle, across, facing
+    return axis, middle, across, facing
 
 
 def facing_angles_rad(
@@ -120,8 +106,7 @@ def facing_angles_rad(
     helix_deg: float = HELIX_DEG,
 ) -> FloatArray:
     """The scanner's direction seen from the bit, from a flute's middle, at each crossing (N,)."""
-    axis, ref, to_scanner, turn, _ = _frames(phase0_rad, T_base_laser, tcp_poses, rod, helix_deg)
-    return _section_at(axis, ref, to_scanner, turn)[2]
+    return _turns(phase0_rad, T_base_laser, tcp_poses, rod, helix_deg)[3]
 
 
 def flute_offsets_m(
@@ -133,21 +118,12 @@ def flute_offsets_m(
     web_fraction: float = WEB_FRACTION,
     opening_deg: float = FLUTE_OPENING_DEG,
     helix_deg: float = HELIX_DEG,
-    glint_height: bool = True,
 ) -> FloatArray:
     """Where the centre found on a twist drill lies from its axis crossing (N, 2), in the scan
     plane, m: the section's offset (``glint_offsets``) at each waypoint's turn, carried along
-    the bit's axis into the plane. The turn is the helix's at the glint's own height along the
-    bit (where the plane meets the surface there; ``glint_height=False``: at the axis's
-    crossing): a bit leaning in the plane shows the scanner a section above or below its
-    crossing, turned by ``2 pi height / lead``."""
-    axis, ref, to_scanner, turn, lead = _frames(phase0_rad, T_base_laser, tcp_poses, rod, helix_deg)
-    height = np.zeros(len(turn))
-    for _ in range(GLINT_HEIGHT_ITERATIONS + 1 if glint_height else 1):
-        middle, across, facing = _section_at(axis, ref, to_scanner, turn + 2.0 * np.pi * height / lead)
-        g = glint_offsets(facing, web_fraction, opening_deg) * rod.radius_m
-        offset = g[:, :1] * middle + g[:, 1:] * across
-        glint = offset + rod.radius_m * (np.cos(facing)[:, None] * middle + np.sin(facing)[:, None] * across)
-        height = -glint[:, 2] / axis[:, 2]
+    the bit's axis into the plane."""
+    axis, middle, across, facing = _turns(phase0_rad, T_base_laser, tcp_poses, rod, helix_deg)
+    g = glint_offsets(facing, web_fraction, opening_deg) * rod.radius_m
+    offset = g[:, :1] * middle + g[:, 1:] * across
     in_plane = offset - (offset[:, 2] / axis[:, 2])[:, None] * axis
     return in_plane[:, :2]

@@ -87,19 +87,3 @@ def test_phase_std_spans_every_valley_of_the_profile():
     jagged = np.minimum(sharp, 2.0 + 5000.0 * ((phases - np.radians(120.0)) ** 2))
     assert np.degrees(_profile_spread_rad(phases, jagged, np.radians(80.0))) > 10.0
 
-
-def test_a_leaning_bit_turns_the_section_at_the_glints_height(drill):
-    """Where the bit leans in the plane, the glint sits above or below the axis's crossing and
-    the helix turns its section there: the offsets differ from the section at the crossing."""
-    rod, poses, truth, _ = drill
-    phase = np.radians(90.0)
-    at_crossing = flute_offsets_m(phase, truth, poses, rod, glint_height=False)
-    at_glint = flute_offsets_m(phase, truth, poses, rod)
-    assert np.max(np.linalg.norm(at_glint - at_crossing, axis=1)) > 0.2 * rod.radius_m
-    upright = replace(rod, direction=np.array([0.0, 0.0, 1.0]))
-    flat_poses = poses.copy()
-    flat_poses[:, 3:] = 0.0
-    T = np.eye(4)
-    assert flute_offsets_m(phase, T, flat_poses, upright, glint_height=False) == pytest.approx(
-        flute_offsets_m(phase, T, flat_poses, upright)
-    )
