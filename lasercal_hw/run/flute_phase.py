@@ -6,8 +6,10 @@ more: the bit turns with the tool, so its turn at every waypoint is one unknown 
 the TCP poses and the helix give (``calibration/flutes.py``). This pass re-extracts the centres
 as plain fits of the section, takes each one's offset at a trial phase out, solves, and keeps
 the phase whose solution fits best (a profile over the half turn, refined by a parabola). The
-phase's std comes from the profile (chi-square up by one, scaled by the reduced chi-square when
-that is above 1) and is carried into each centre's covariance with the model's own allowance.
+phase's std comes from the profile: the larger of the best valley's width (chi-square up by one)
+and the spread of every trial phase weighted by its likelihood (the profile has several valleys a
+few in chi-square apart), scaled by the reduced chi-square when that is above 1; it is carried
+into each centre's covariance with the model's own allowance.
 
 The gate: the pass is kept only when its best phase fits the centres better than no flute
 offsets at all by ``MIN_GAIN`` in chi-square (a round bit, or turns that leave the phase
@@ -112,6 +114,17 @@ def _parabola_minimum(phases_rad: FloatArray, costs: FloatArray, best: int) -> t
     return float(phases_rad[best] + shift), float(np.sqrt(2.0 / curvature))
 
 
+def _profile_spread_rad(phases_rad: FloatArray, costs: FloatArray, phase_rad: float) -> float:
+    """The phase's std over the whole half turn: every trial weighted by its likelihood
+    ``exp(-(cost - best) / 2)``, its distance to ``phase_rad`` taken the short way round the
+    half turn. The section's offsets jump where a flute's edge meets a land, so the profile has
+    several valleys a few in chi-square apart; the parabola sees only the best one's width."""
+    finite = np.isfinite(costs)
+    weights = np.exp(-0.5 * (costs[finite] - costs[finite].min()))
+    distance = (phases_rad[finite] - phase_rad + np.pi / 2.0) % np.pi - np.pi / 2.0
+    return float(np.sqrt(np.sum(weights * distance**2) / np.sum(weights)))
+
+
 def estimate_flute_phase(
     plain: Sequence[Observation],
     widened: CalibrationResult,
@@ -131,6 +144,7 @@ def estimate_flute_phase(
         return None
     best = int(np.argmin(costs))
     phase, std = _parabola_minimum(phases, costs, best)
+    std = max(std, _profile_spread_rad(phases, costs, phase))
     try:
         trial = solve(_shifted(plain, widened, rod, phase, 0.0), rod, options=options)
         std *= np.sqrt(max(1.0, trial.reduced_chi_square))

@@ -13,7 +13,7 @@ from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import load_job
 from lasercal_hw.models import Observation
-from lasercal_hw.run.flute_phase import estimate_flute_phase
+from lasercal_hw.run.flute_phase import _profile_spread_rad, estimate_flute_phase
 from lasercal_hw.run.waypoints import job_waypoints
 
 DRILL_JOB = Path(__file__).resolve().parents[2] / "examples" / "drill.toml"
@@ -76,3 +76,14 @@ def test_phase_pass_refuses_a_bit_without_flutes(drill):
     plain = [replace(o, covariance_uv_m2=np.eye(2) * 0.002**2) for o in plain]
     widened = solve(plain, rod, options=options)
     assert estimate_flute_phase(plain, widened, rod, options) is None
+
+
+def test_phase_std_spans_every_valley_of_the_profile():
+    """A profile with a second valley 2 in chi-square above the best, 40 deg away, gives a std
+    of that order, not the best valley's own width; one sharp valley keeps a small std."""
+    phases = np.radians(np.arange(0.0, 180.0, 4.0))
+    sharp = 5000.0 * ((phases - np.radians(80.0) + np.pi / 2) % np.pi - np.pi / 2) ** 2
+    assert np.degrees(_profile_spread_rad(phases, sharp, np.radians(80.0))) < 4.0
+    jagged = np.minimum(sharp, 2.0 + 5000.0 * ((phases - np.radians(120.0)) ** 2))
+    assert np.degrees(_profile_spread_rad(phases, jagged, np.radians(80.0))) > 10.0
+
