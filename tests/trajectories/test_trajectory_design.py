@@ -20,6 +20,7 @@ from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform, pose_to_matrix, rotvec_to_matrix
 from lasercal_hw.ur_kinematics import UR5, UR5E, URModel, inverse_kinematics_pose
+from tests.scene_geometry import T_BASE_LASER
 from trajectories.candidates import (
     BACKDROP_M,
     COLUMN_CLEARANCE_M,
@@ -48,8 +49,6 @@ from trajectories.waypoint_file import load_waypoints
 runner = CliRunner()
 # Right of the robot and lower than the fake cell's default scene (the example).
 RIGHT_LOW = make_transform(euler_zyx_to_matrix(*np.radians([10.0, -3.0, 2.0])), [0.35, -0.55, 0.15])
-#: The fake cell's default scene (fakes/scenes/default.toml).
-DEFAULT_SCENE = make_transform(euler_zyx_to_matrix(*np.radians([5.0, 7.0, 3.0])), [0.30, 0.50, 0.20])
 
 
 def small_request(
@@ -171,7 +170,7 @@ def test_no_crossing_right_before_the_robots_base() -> None:
     # moved 5.9 mm sideways at 0.39 m with the base 0.19 m behind, docs/trajectory-design.md):
     # the beam must pass the base with the line-of-sight clearance BACKDROP_M beyond every
     # crossing, for a painted rod as for a polished bit.
-    request = request_for_job(JobConfig(), DEFAULT_SCENE, UR5)
+    request = request_for_job(JobConfig(), T_BASE_LASER, UR5)
     pool = draw_candidates(
         request.T_base_laser, request.uncertainty, request.rules, 3000, np.random.default_rng(0)
     )
