@@ -2,10 +2,9 @@
 "Flute phase").
 
 A beam's spot is wider than a drill bit, and a polished bit sends the beam back from where its
-surface faces the scanner square: a land's front (on the circle), or, when a flute faces the
-scanner, the flute's hollow, deeper and aside, or both, the echo then their power-weighted mean.
-A known-radius fit puts the circle one radius behind that point, so the centre lies off the
-axis by ``glint + r * bearing``.
+surface faces the scanner square: a land's front (on the circle) or, when a flute faces the
+scanner, the bottom of the flute's hollow, deeper and aside. A known-radius fit puts the circle
+one radius behind that point, so the centre lies off the axis by ``glint + r * bearing``.
 
 The bit turns with the tool (it is in the chuck), and along its helix: at a crossing ``s``
 metres down the bit, a flute's middle points along ``cos(b) x + sin(b) (axis x x)`` with ``b =
@@ -19,7 +18,6 @@ twist drill's; the helix is right-handed (a standard drill), ``lead = 2 pi r / t
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import erf
 
 from lasercal_hw.calibration.model import lines_in_scanner, plane_crossing
 from lasercal_hw.geometry import FloatArray, pose_to_matrix
@@ -31,9 +29,6 @@ HELIX_DEG = 30.0
 FLUTE_OPENING_DEG = 100.0
 #: The web over the diameter (as the extraction's settings).
 WEB_FRACTION = 0.16
-#: A ground drill's glint lobe, ``exp(-(angle / width)^2)``: its surface's RMS slope, a few
-#: degrees for ground or polished metal (docs/scanner-model.md, "Materials").
-GLINT_WIDTH_RAD = 0.06
 
 
 def _flute_arc(web_fraction: float, half_opening_rad: float) -> tuple[float, float]:
@@ -50,70 +45,28 @@ def glint_offsets(
     facing_rad: FloatArray,
     web_fraction: float = WEB_FRACTION,
     opening_deg: float = FLUTE_OPENING_DEG,
-    glint_width_rad: float = GLINT_WIDTH_RAD,
 ) -> FloatArray:
     """The fitted centre's offset from the axis (N, 2), in radii, in the section frame whose
     x axis is a flute's middle, for the scanner's direction (seen from the bit) at
-    ``facing_rad`` in that frame.
-
-    The spot covers the whole section, so the echo is the power-weighted mean of every point
-    whose surface faces the scanner square (``_glints``): the land's front where a land faces
-    it, and the flute's hollow where its arc's normal points at the scanner and the lip does
-    not hide it. Each glint's power is its surface's radius of curvature (a curved mirror's
-    glint is as wide as its radius times the surface's slope spread) times the part of its
-    lobe that lies on its surface: the land's and the hollow's glints both shine where the
-    scanner looks 50-64 deg from a flute's middle (the hollow's arc turns further than the
-    opening), so the centre moves from flute to land smoothly over those angles. Where no
-    glint is seen (never for the usual section), the land's edge next to the flute."""
-    return glint_mixture(facing_rad, web_fraction, opening_deg, glint_width_rad)[0]
-
-
-def glint_mixture(
-    facing_rad: FloatArray,
-    web_fraction: float = WEB_FRACTION,
-    opening_deg: float = FLUTE_OPENING_DEG,
-    glint_width_rad: float = GLINT_WIDTH_RAD,
-) -> tuple[FloatArray, FloatArray]:
-    """``glint_offsets`` (N, 2) and the spread of the glints about it (N, 2, 2), in radii and
-    radii squared: their power-weighted covariance, 0 where one glint shines alone. Where two
-    mix, how much each sends back (the edge's wear, the surface's lay) is the model's least
-    sure figure, and the echo may lie anywhere between them."""
+    ``facing_rad`` in that frame. A land facing the scanner: 0. A flute facing it: its arc's
+    point whose normal points at the scanner, if the lands do not hide it; else the land's
+    edge next to it (the surface nearest to square)."""
     half = np.radians(opening_deg) / 2.0
     facing = np.asarray(facing_rad, dtype=float)
     flip = np.cos(facing) < 0.0  # the other flute: the section is point-symmetric
     gamma = np.where(flip, facing - np.pi, facing)
     gamma = np.angle(np.exp(1j * gamma))
     f = np.stack([np.cos(gamma), np.sin(gamma)], -1)
-    points, powers = _glints(gamma, f, web_fraction, half, glint_width_rad)
-    total = powers.sum(axis=0)
-    share = powers / np.fmax(total, 1e-12)
-    mixed = np.einsum("kn,kni->ni", share, points)
-    apart = points - mixed[None]
-    spread = np.einsum("kn,kni,knj->nij", share, apart, apart)
-    edge = np.stack([np.full_like(gamma, np.cos(half)), np.copysign(np.sin(half), gamma)], -1)
-    offset = np.where((total > 1e-9)[:, None], mixed, edge) - f
-    return np.where(flip[:, None], -offset, offset), spread
-
-
-def _glints(
-    gamma: FloatArray, f: FloatArray, web_fraction: float, half_opening_rad: float, width_rad: float
-) -> tuple[FloatArray, FloatArray]:
-    """The land's and the flute's glint points (2, N, 2) and their powers (2, N) for the
-    scanner at ``gamma`` from a flute's middle (within a quarter turn), direction ``f``.
-    A lobe of ``width_rad`` (the surface's ``exp(-(angle / width)^2)``) is cut where its
-    surface ends: its part on the surface is ``(1 + erf(distance to the end / width)) / 2``."""
-    distance, rho = _flute_arc(web_fraction, half_opening_rad)
-    on_land = 0.5 * (1.0 + erf((np.abs(gamma) - half_opening_rad) / width_rad))
+    distance, rho = _flute_arc(web_fraction, half)
     q = np.array([distance, 0.0]) - rho * f  # the arc's normal there points at the scanner
-    # The arc meets the circle where its normal is this far from the flute's middle.
-    arc_end = np.arccos((distance - np.cos(half_opening_rad)) / rho)
     qf = np.einsum("ij,ij->i", q, f)
     exit_t = -qf + np.sqrt(np.fmax(qf**2 - np.einsum("ij,ij->i", q, q) + 1.0, 0.0))
     exit_point = q + exit_t[:, None] * f
-    exit_angle = np.abs(np.arctan2(exit_point[:, 1], exit_point[:, 0]))
-    on_arc = 0.5 * (1.0 + erf((arc_end - np.abs(gamma)) / width_rad))
-    unhidden = 0.5 * (1.0 + erf((half_opening_rad - exit_angle) / width_rad))
-    return np.stack([f, q]), np.stack([on_land, rho * on_arc * unhidden])
+    seen = np.abs(np.arctan2(exit_point[:, 1], exit_point[:, 0])) <= half
+    edge = np.stack([np.full_like(gamma, np.cos(half)), np.copysign(np.sin(half), gamma)], -1)
+    offset = np.where(seen[:, None], q, edge) - f
+    offset = np.where((np.abs(gamma) < half)[:, None], offset, 0.0)
+    return np.where(flip[:, None], -offset, offset)
 
 
 def helix_lead_m(radius_m: float, helix_deg: float = HELIX_DEG) -> float:
@@ -169,35 +122,8 @@ def flute_offsets_m(
     """Where the centre found on a twist drill lies from its axis crossing (N, 2), in the scan
     plane, m: the section's offset (``glint_offsets``) at each waypoint's turn, carried along
     the bit's axis into the plane."""
-    return flute_offsets_and_spread_m(
-        phase0_rad,
-        T_base_laser,
-        tcp_poses,
-        rod,
-        web_fraction=web_fraction,
-        opening_deg=opening_deg,
-        helix_deg=helix_deg,
-    )[0]
-
-
-def flute_offsets_and_spread_m(
-    phase0_rad: float,
-    T_base_laser: FloatArray,
-    tcp_poses: FloatArray,
-    rod: RodLine,
-    *,
-    web_fraction: float = WEB_FRACTION,
-    opening_deg: float = FLUTE_OPENING_DEG,
-    helix_deg: float = HELIX_DEG,
-) -> tuple[FloatArray, FloatArray]:
-    """``flute_offsets_m`` (N, 2), m, and the glints' spread about it (N, 2, 2), m^2
-    (``glint_mixture``), both in the scan plane."""
     axis, middle, across, facing = _turns(phase0_rad, T_base_laser, tcp_poses, rod, helix_deg)
-    g, spread = glint_mixture(facing, web_fraction, opening_deg)
-
-    def in_plane(v: FloatArray) -> FloatArray:  # along the bit's axis into the plane
-        return (v - (v[:, 2] / axis[:, 2])[:, None] * axis)[:, :2]
-
-    to_plane = np.stack([in_plane(middle), in_plane(across)], -1) * rod.radius_m  # (N, 2, 2)
-    offset = np.einsum("nij,nj->ni", to_plane, g)
-    return offset, np.einsum("nij,njk,nlk->nil", to_plane, spread, to_plane)
+    g = glint_offsets(facing, web_fraction, opening_deg) * rod.radius_m
+    offset = g[:, :1] * middle + g[:, 1:] * across
+    in_plane = offset - (offset[:, 2] / axis[:, 2])[:, None] * axis
+    return in_plane[:, :2]

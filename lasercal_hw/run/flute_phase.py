@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from lasercal_hw.calibration.flutes import flute_offsets_and_spread_m, flute_offsets_m
+from lasercal_hw.calibration.flutes import flute_offsets_m
 from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.errors import LasercalError
@@ -78,8 +78,7 @@ def _shifted(
     depth: float = 1.0,
 ) -> list[Observation]:
     """The plain centres with the section's offset at ``phase_rad`` (times ``depth``: 0 for
-    none) taken out, their covariance widened by the model's allowance, the spread of the
-    glints where two mix (``glint_mixture``) and the phase's std."""
+    none) taken out, their covariance widened by the model's allowance and the phase's std."""
     settings = ExtractionSettings()
     poses = np.array([o.tcp_pose for o in plain], dtype=float)
 
@@ -93,21 +92,12 @@ def _shifted(
             opening_deg=settings.flute_opening_deg,
         )
 
-    offset, glints_m2 = flute_offsets_and_spread_m(
-        phase_rad,
-        result.matrix(),
-        poses,
-        result.estimated_rod(rod),
-        web_fraction=settings.flute_web_fraction,
-        opening_deg=settings.flute_opening_deg,
-    )
-    offset, glints_m2 = depth * offset, depth**2 * glints_m2
+    offset = depth * offsets(phase_rad)
     spread = 0.5 * depth * (offsets(phase_rad + phase_std_rad) - offsets(phase_rad - phase_std_rad))
     allowance = np.eye(2) * (MODEL_ALLOWANCE_RADIUS_FRACTION * rod.radius_m) ** 2
     moved = []
-    for o, shift, dphase, glints in zip(plain, offset, spread, glints_m2, strict=True):
-        widening = allowance + glints + np.outer(dphase, dphase)
-        covariance = np.asarray(o.covariance_uv_m2, dtype=float) + widening
+    for o, shift, dphase in zip(plain, offset, spread, strict=True):
+        covariance = np.asarray(o.covariance_uv_m2, dtype=float) + allowance + np.outer(dphase, dphase)
         moved.append(replace(o, centre_uv_m=np.asarray(o.centre_uv_m) - shift, covariance_uv_m2=covariance))
     return moved
 

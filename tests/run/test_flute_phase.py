@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lasercal_hw.calibration.flutes import flute_offsets_m, glint_mixture, glint_offsets
+from lasercal_hw.calibration.flutes import flute_offsets_m, glint_offsets
 from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import load_job
@@ -53,27 +53,6 @@ def test_glint_offsets_land_facing_is_on_axis_flute_facing_lies_behind():
     assert offsets[4] == pytest.approx(-offsets[3])
 
 
-def test_glint_offsets_move_smoothly_from_flute_to_land():
-    """Where the scanner looks 50-64 deg from a flute's middle, both the land's front and the
-    hollow's far side face it square: the centre lies between theirs, and nowhere over the
-    half turn does it jump (the hard switch at the flute's edge moved it 1.1 r in one degree)."""
-    turns_deg = np.arange(0.0, 180.0, 0.5)
-    offsets = glint_offsets(np.radians(turns_deg))
-    steps = np.linalg.norm(np.diff(offsets, axis=0), axis=1)
-    assert steps.max() < 0.1  # radii per half degree
-    facing = np.radians(57.0)
-    behind = -offsets[turns_deg == 57.0][0] @ np.array([np.cos(facing), np.sin(facing)])
-    assert 0.3 < behind < 0.8
-
-
-def test_glint_spread_is_zero_for_one_glint_and_spans_two():
-    """A flute's or a land's middle facing the scanner: one glint, no spread. Where the land's
-    front and the hollow both shine, the spread reaches across the millimetres between them."""
-    _, spread = glint_mixture(np.radians([0.0, 90.0, 57.0]))
-    assert np.allclose(spread[:2], 0.0, atol=1e-12)
-    assert np.sqrt(np.linalg.eigvalsh(spread[2]).max()) > 0.3  # radii
-
-
 def test_phase_pass_recovers_the_phase_and_the_pose(drill):
     """Centres of a twist drill at a phase the run does not know: a plain solve is off by
     millimetres; the phase pass finds the phase and the pose within the noise."""
@@ -107,3 +86,4 @@ def test_phase_std_spans_every_valley_of_the_profile():
     assert np.degrees(_profile_spread_rad(phases, sharp, np.radians(80.0))) < 4.0
     jagged = np.minimum(sharp, 2.0 + 5000.0 * ((phases - np.radians(120.0)) ** 2))
     assert np.degrees(_profile_spread_rad(phases, jagged, np.radians(80.0))) > 10.0
+
