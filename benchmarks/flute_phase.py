@@ -13,7 +13,9 @@ bearing (+: behind the axis) and across it, and set beside the bit's true turn t
 angle from a flute's middle to the scanner, 0: a flute faces it; the fake turns the bit with
 the tool and along its 30 deg helix) and ``flute_offsets_m`` at the true turn. ``--bias-off``:
 the scanner's range bias off (else the fake's range error is in the along column).
-Printed: one row per centre, sorted by turn, then the RMS of the offsets and of what the model
+Printed: one row per centre, sorted by turn, with the crossing's range, the centre's beams' mean
+intensity and the fake's range bias at both (what to take out of the along column to compare
+it with the model when the bias is on), then the RMS of the offsets and of what the model
 leaves, along and across.
 """
 
