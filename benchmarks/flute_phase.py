@@ -13,7 +13,9 @@ bearing (+: behind the axis) and across it, and set beside the bit's true turn t
 angle from a flute's middle to the scanner, 0: a flute faces it; the fake turns the bit with
 the tool and along its 30 deg helix) and ``flute_offsets_m`` at the true turn. ``--bias-off``:
 the scanner's range bias off (else the fake's range error is in the along column).
-Printed: one row per centre, sorted by turn, then the RMS of the offsets and of what the model
+Printed: one row per centre, sorted by turn, with the crossing's range, the centre's beams' mean
+intensity and the fake's range bias at both (what to take out of the along column to compare
+it with the model when the bias is on), then the RMS of the offsets and of what the model
 leaves, along and across.
 """
 
@@ -26,6 +28,7 @@ import numpy as np
 from benchmarks.accuracy_conditions import ROBOT_ERROR_SEED_BASE, cases
 from benchmarks.dry_run_accuracy import dwell, world_with
 from benchmarks.error_budget import _bias_off
+from fakes.scanner_model.range_error import range_bias_m
 from fakes.scene import load_scene
 from lasercal_hw.calibration.flutes import facing_angles_rad, flute_offsets_m
 from lasercal_hw.geometry import matrix_to_rotvec, pose_to_matrix
@@ -38,8 +41,9 @@ from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 TRUE_PHASE0_RAD = np.pi / 2.0
 
 
-def rows(seed: int, bias_off: bool) -> list[tuple[float, float, float, float, float]]:
-    """(turn deg, along mm, across mm, model along mm, model across mm) per found centre."""
+def rows(seed: int, bias_off: bool) -> list[tuple[float, ...]]:
+    """(turn deg, along mm, across mm, model along mm, model across mm, range m, intensity,
+    the fake's range bias at that range and intensity mm) per found centre."""
     case = {c.name: c for c in cases()}["drill-fluted"]
     scene = load_scene(case.scene_path).model_copy(update={"model": "physical"})
     scene = _bias_off(scene) if bias_off else scene
@@ -72,8 +76,20 @@ def rows(seed: int, bias_off: bool) -> list[tuple[float, float, float, float, fl
         across = np.array([-bearing[1], bearing[0]])
         offset = centre.centre_uv_m - crossing
         turn = _turn_deg(T, true_pose, case.true_rod)
+        distance_m = float(np.linalg.norm(crossing))
+        intensity = float(np.mean(averaged.intensities[centre.beam_indices]))
+        bias_mm = 1e3 * float(range_bias_m(np.array([distance_m]), np.array([intensity]), scene.physics)[0])
         found.append(
-            (turn, offset @ bearing * 1e3, offset @ across * 1e3, model @ bearing * 1e3, model @ across * 1e3)
+            (
+                turn,
+                offset @ bearing * 1e3,
+                offset @ across * 1e3,
+                model @ bearing * 1e3,
+                model @ across * 1e3,
+                distance_m,
+                intensity,
+                bias_mm,
+            )
         )
     return found
 
@@ -94,10 +110,16 @@ def main() -> None:
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         table += rows(seed, args.bias_off)
     table.sort()
-    print("| turn from a flute (deg) | along (mm, +: behind) | across (mm) | model along | model across |")
-    print("| ---: | ---: | ---: | ---: | ---: |")
-    for turn, along, across, m_along, m_across in table:
-        print(f"| {turn:.0f} | {along:+.2f} | {across:+.2f} | {m_along:+.2f} | {m_across:+.2f} |")
+    print(
+        "| turn from a flute (deg) | along (mm, +: behind) | across (mm) | model along | model across "
+        "| range (m) | intensity | fake's range bias (mm) |"
+    )
+    print("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for turn, along, across, m_along, m_across, distance_m, intensity, bias_mm in table:
+        print(
+            f"| {turn:.0f} | {along:+.2f} | {across:+.2f} | {m_along:+.2f} | {m_across:+.2f} "
+            f"| {distance_m:.3f} | {intensity:.0f} | {bias_mm:+.2f} |"
+        )
     a = np.array(table)
     rms = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
     print(
