@@ -152,14 +152,17 @@ def crossing_window_m(
     return END_MARGIN_M + shift_m, rod.length_m - END_MARGIN_M - shift_m
 
 
-def robust_max_range_m(rod: RodLine, uncertainty: PoseUncertainty, rules: CellRules) -> float:
-    """The farthest range with a crossing window at the steepest allowed tilt (drawing
-    beyond it is wasted), capped by the beam count."""
-    half_window_m = (rod.length_m - 2.0 * END_MARGIN_M) / 2.0 * np.cos(np.deg2rad(TILT_RANGE_DEG[1]))
+def robust_max_range_m(
+    rod: RodLine, uncertainty: PoseUncertainty, rules: CellRules, tilt_rad: FloatArray
+) -> FloatArray:
+    """The farthest range at which a rod tilted by ``tilt_rad`` still has a crossing window
+    (drawing beyond it is wasted), capped by the beam count; per tilt. The window's half
+    length shrinks with ``cos(tilt)`` while the plane's shift grows with ``t + r * range``."""
+    half_window_m = (rod.length_m - 2.0 * END_MARGIN_M) / 2.0 * np.cos(tilt_rad)
     spare_m = half_window_m / _UNCERTAINTY_SLACK - uncertainty.translation_m
     if uncertainty.rotation_rad > 0.0:
-        return float(min(rules.max_range_m(), spare_m / uncertainty.rotation_rad))
-    return rules.max_range_m() if spare_m >= 0.0 else MIN_RANGE_M
+        return np.minimum(rules.max_range_m(), spare_m / uncertainty.rotation_rad)
+    return np.where(spare_m >= 0.0, rules.max_range_m(), MIN_RANGE_M)
 
 
 def _orientations(
@@ -230,9 +233,10 @@ def draw_candidates(
 
     rotation, scanner = T_base_laser[:3, :3], T_base_laser[:3, 3]
     e1, e2, normal = rotation[:, 0], rotation[:, 1], rotation[:, 2]
-    range_m = rng.uniform(MIN_RANGE_M, max(MIN_RANGE_M, robust_max_range_m(rod, uncertainty, rules)), count)
-    bearing_rad = np.deg2rad(rng.uniform(-HALF_FIELD_OF_VIEW_DEG, HALF_FIELD_OF_VIEW_DEG, count))
     tilt_rad = np.deg2rad(rng.uniform(*TILT_RANGE_DEG, count))
+    farthest_m = np.maximum(MIN_RANGE_M, robust_max_range_m(rod, uncertainty, rules, tilt_rad))
+    range_m = rng.uniform(MIN_RANGE_M, farthest_m)
+    bearing_rad = np.deg2rad(rng.uniform(-HALF_FIELD_OF_VIEW_DEG, HALF_FIELD_OF_VIEW_DEG, count))
     tilt_direction_rad = rng.uniform(0.0, 2.0 * np.pi, count)
     if rules.polished:
         tilt_direction_rad = _across_the_beam(bearing_rad, tilt_rad, tilt_direction_rad, uncertainty)

@@ -13,7 +13,8 @@ smooth term) join too: the design then spreads the crossings over distances and 
 that tell the curve from the pose.
 The Fisher information of a set of waypoints is the sum of theirs, so the search
 works on per-candidate k x k blocks: a greedy pass adds the candidate that lowers the
-objective most, exchange passes swap a chosen waypoint for a better one until none helps.
+objective most, exchange passes swap a chosen waypoint for a better one until none helps, and
+a restart from each half of that choice looks past what single swaps can reach.
 Chosen crossings keep ``MIN_SEPARATION_M`` apart (the robot's error is smooth, so neighbours would not add
 independent information). The visiting order is a nearest-neighbour tour in joint space
 from the waypoint nearest the start posture (UR's home unless given), improved by 2-opt,
@@ -323,20 +324,19 @@ class _Neighbours:
         return (self.crowded == 0) & ((self.linked > 0) | (chosen == 0))
 
 
-def select(
-    blocks: FloatArray,
-    pool: CandidatePool,
+def _fill(
+    chosen: list[int],
+    total: FloatArray,
     count: int,
+    blocks: FloatArray,
+    factors: FloatArray,
+    neighbours: _Neighbours,
     scale: FloatArray,
-    prior: FloatArray,
     usable: np.ndarray,
-) -> list[int]:
-    """Greedy choice of ``count`` candidates, then exchange passes; indices into the pool."""
-    factors = _rank_two_factors(blocks)
-    neighbours = _Neighbours(pool.crossing_base_m, pool.joints_rad)
-    chosen: list[int] = []
-    total = prior + _regulariser(len(prior))
-    for _ in range(count):
+) -> tuple[list[int], FloatArray]:
+    """Greedy: add the candidate that lowers the objective most until ``count`` are chosen."""
+    chosen = list(chosen)
+    while len(chosen) < count:
         options = np.flatnonzero(usable & neighbours.allowed(len(chosen)))
         if options.size == 0:
             break
@@ -344,6 +344,20 @@ def select(
         chosen.append(best)
         neighbours.add(best)
         total = total + blocks[best]
+    return chosen, total
+
+
+def _exchange(
+    chosen: list[int],
+    total: FloatArray,
+    blocks: FloatArray,
+    factors: FloatArray,
+    neighbours: _Neighbours,
+    scale: FloatArray,
+    usable: np.ndarray,
+) -> tuple[list[int], FloatArray]:
+    """Exchange passes: swap each chosen candidate for the best other one while that helps."""
+    chosen = list(chosen)
     for _ in range(EXCHANGE_PASSES):
         improved = False
         for position in range(len(chosen)):
@@ -362,7 +376,41 @@ def select(
             total = without + blocks[chosen[position]]
         if not improved:
             break
-    return chosen
+    return chosen, total
+
+
+def select(
+    blocks: FloatArray,
+    pool: CandidatePool,
+    count: int,
+    scale: FloatArray,
+    prior: FloatArray,
+    usable: np.ndarray,
+) -> list[int]:
+    """Greedy choice of ``count`` candidates and exchange passes, then one restart from each
+    half of that choice (the other half chosen again greedily, then exchanged); the best set
+    scored, as indices into the pool. Single swaps stop where the separation and link rules
+    fence a better set off (the first picks, made with little information, hold the rest in
+    place); a restart from half the set steps over that fence."""
+    factors = _rank_two_factors(blocks)
+    start = prior + _regulariser(len(prior))
+
+    def search(kept: list[int]) -> tuple[list[int], float]:
+        neighbours = _Neighbours(pool.crossing_base_m, pool.joints_rad)
+        for index in kept:
+            neighbours.add(index)
+        total = start + blocks[kept].sum(axis=0)
+        chosen, total = _fill(kept, total, count, blocks, factors, neighbours, scale, usable)
+        chosen, total = _exchange(chosen, total, blocks, factors, neighbours, scale, usable)
+        return chosen, float(_scores(total[None], scale)[0])
+
+    best, best_score = search([])
+    half = len(best) // 2
+    for kept in (best[half:], best[:half]):
+        chosen, score = search(kept)
+        if len(chosen) >= len(best) and score < best_score * (1.0 - 1e-6):
+            best, best_score = chosen, score
+    return best
 
 
 def _joint_distance(joints: FloatArray) -> FloatArray:

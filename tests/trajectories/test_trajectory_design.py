@@ -134,26 +134,37 @@ def test_a_placement_the_rod_cannot_serve_says_what_stays_weak_and_why() -> None
     assert len(design(tighter, extended_fisher_information).waypoints) == 10
 
 
-def test_a_design_for_a_job_that_estimates_the_range_error_pins_its_curve_down(right_low: Design) -> None:
-    aware = small_request(JobConfig(), RIGHT_LOW)
-    assert aware.range_terms == DESIGN_RANGE_TERMS
+def test_a_design_for_a_job_that_estimates_the_range_error_pins_the_pose_with_the_curve_unknown() -> None:
+    # With the curve estimated, a range error looks like the scanner nearer or farther along
+    # each bearing: only crossings at distances and bearings the design picks for that tell
+    # the two apart. Scored with the curve unknown, the design that knows it never does worse
+    # than one blind to it (whose waypoints come from the same drawn candidates: a worse score
+    # is the search's defect), and over four draws it does clearly better (here 6-22 %, 14 %
+    # on average); a design that ignored the curve would tie. (The curve's own std is not
+    # what the design minimises, and the blind design sometimes pins it as well.)
     blind_job = JobConfig.model_validate({"scanner": {"estimate_range_offset": False}})
-    blind = design(small_request(blind_job, RIGHT_LOW), extended_fisher_information)
-
-    def pose_std(waypoints: list) -> tuple[float, float]:
-        """Largest Cramér-Rao std of the translation (mm) and rotation (deg) with the range
-        curve estimated alongside."""
-        poses = pose_to_matrix(np.array([w.tcp_pose for w in waypoints]))
-        _, range_m = visited_crossings(poses, aware)
-        translation_mm, rotation_deg = std_of(
-            information_blocks(poses, range_m, aware, extended_fisher_information).sum(axis=0)
+    ratios = []
+    for seed in range(4):
+        aware = small_request(JobConfig(), RIGHT_LOW, seed=seed)
+        assert aware.range_terms == DESIGN_RANGE_TERMS
+        scale = np.array(
+            [aware.targets.translation_mm * 1e-3] * 3 + [np.radians(aware.targets.rotation_deg)] * 3
         )
-        return float(translation_mm.max()), float(rotation_deg.max())
 
-    # Designed blind to the curve, the waypoints leave the pose less certain once the curve is
-    # estimated (here 1.79 mm / 0.243 deg against 1.51 mm / 0.189 deg).
-    aware_std, blind_std = pose_std(right_low.waypoints), pose_std(blind.waypoints)
-    assert aware_std[0] < 0.95 * blind_std[0] and aware_std[1] < 0.9 * blind_std[1]
+        def score(result: Design, aware: DesignRequest = aware, scale: np.ndarray = scale) -> float:
+            """The aware design's objective for ``result``'s waypoints, the curve estimated."""
+            poses = pose_to_matrix(np.array([w.tcp_pose for w in result.waypoints]))
+            _, range_m = visited_crossings(poses, aware)
+            information = information_blocks(poses, range_m, aware, extended_fisher_information).sum(axis=0)
+            translation_mm, rotation_deg = std_of(information)
+            variances = np.square(np.concatenate([translation_mm * 1e-3, np.radians(rotation_deg)]))
+            return float(objective(variances, scale))
+
+        aware_design = design(aware, extended_fisher_information)
+        blind_design = design(small_request(blind_job, RIGHT_LOW, seed=seed), extended_fisher_information)
+        ratios.append(score(aware_design) / score(blind_design))
+    assert max(ratios) <= 1.0, ratios
+    assert np.mean(ratios) < 0.93, ratios
 
 
 def test_the_objective_counts_every_axis_not_only_the_largest() -> None:
