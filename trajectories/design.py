@@ -324,59 +324,68 @@ class _Neighbours:
         return (self.crowded == 0) & ((self.linked > 0) | (chosen == 0))
 
 
-def _fill(
-    chosen: list[int],
-    total: FloatArray,
-    count: int,
-    blocks: FloatArray,
-    factors: FloatArray,
-    neighbours: _Neighbours,
-    scale: FloatArray,
-    usable: np.ndarray,
-) -> tuple[list[int], FloatArray]:
-    """Greedy: add the candidate that lowers the objective most until ``count`` are chosen."""
-    chosen = list(chosen)
-    while len(chosen) < count:
-        options = np.flatnonzero(usable & neighbours.allowed(len(chosen)))
-        if options.size == 0:
-            break
-        best = int(options[np.argmin(_scores_with_each(total, factors[options], scale))])
-        chosen.append(best)
-        neighbours.add(best)
-        total = total + blocks[best]
-    return chosen, total
+@dataclass(frozen=True)
+class _Search:
+    """One selection problem: the candidates' information blocks (with their rank-two
+    factors), the objective's scale, which candidates may be used and the information to
+    start from."""
 
+    blocks: FloatArray
+    factors: FloatArray
+    scale: FloatArray
+    usable: np.ndarray
+    start: FloatArray
+    pool: CandidatePool
 
-def _exchange(
-    chosen: list[int],
-    total: FloatArray,
-    blocks: FloatArray,
-    factors: FloatArray,
-    neighbours: _Neighbours,
-    scale: FloatArray,
-    usable: np.ndarray,
-) -> tuple[list[int], FloatArray]:
-    """Exchange passes: swap each chosen candidate for the best other one while that helps."""
-    chosen = list(chosen)
-    for _ in range(EXCHANGE_PASSES):
-        improved = False
-        for position in range(len(chosen)):
-            current = float(_scores(total[None], scale)[0])
-            leaving = chosen[position]
-            neighbours.add(leaving, -1)
-            without = total - blocks[leaving]
-            allowed = usable & neighbours.allowed(len(chosen) - 1)
-            allowed[chosen] = False
-            options = np.flatnonzero(allowed)
-            scores = _scores_with_each(without, factors[options], scale) if options.size else np.zeros(0)
-            if scores.size and scores.min() < current * (1.0 - 1e-6):
-                chosen[position] = int(options[np.argmin(scores)])
-                improved = True
-            neighbours.add(chosen[position])
-            total = without + blocks[chosen[position]]
-        if not improved:
-            break
-    return chosen, total
+    def run(self, kept: list[int], count: int) -> tuple[list[int], float]:
+        """From ``kept``: greedy up to ``count``, then exchange passes; the set and its score."""
+        neighbours = _Neighbours(self.pool.crossing_base_m, self.pool.joints_rad)
+        for index in kept:
+            neighbours.add(index)
+        total = self.start + self.blocks[kept].sum(axis=0)
+        chosen, total = self._fill(list(kept), total, count, neighbours)
+        chosen, total = self._exchange(chosen, total, neighbours)
+        return chosen, float(_scores(total[None], self.scale)[0])
+
+    def _fill(
+        self, chosen: list[int], total: FloatArray, count: int, neighbours: _Neighbours
+    ) -> tuple[list[int], FloatArray]:
+        """Greedy: add the candidate that lowers the objective most until ``count`` are chosen."""
+        while len(chosen) < count:
+            options = np.flatnonzero(self.usable & neighbours.allowed(len(chosen)))
+            if options.size == 0:
+                break
+            best = int(options[np.argmin(_scores_with_each(total, self.factors[options], self.scale))])
+            chosen.append(best)
+            neighbours.add(best)
+            total = total + self.blocks[best]
+        return chosen, total
+
+    def _exchange(
+        self, chosen: list[int], total: FloatArray, neighbours: _Neighbours
+    ) -> tuple[list[int], FloatArray]:
+        """Exchange passes: swap each chosen candidate for the best other one while that helps."""
+        for _ in range(EXCHANGE_PASSES):
+            improved = False
+            for position in range(len(chosen)):
+                current = float(_scores(total[None], self.scale)[0])
+                leaving = chosen[position]
+                neighbours.add(leaving, -1)
+                without = total - self.blocks[leaving]
+                allowed = self.usable & neighbours.allowed(len(chosen) - 1)
+                allowed[chosen] = False
+                options = np.flatnonzero(allowed)
+                scores = np.zeros(0)
+                if options.size:
+                    scores = _scores_with_each(without, self.factors[options], self.scale)
+                if scores.size and scores.min() < current * (1.0 - 1e-6):
+                    chosen[position] = int(options[np.argmin(scores)])
+                    improved = True
+                neighbours.add(chosen[position])
+                total = without + self.blocks[chosen[position]]
+            if not improved:
+                break
+        return chosen, total
 
 
 def select(
@@ -392,22 +401,11 @@ def select(
     scored, as indices into the pool. Single swaps stop where the separation and link rules
     fence a better set off (the first picks, made with little information, hold the rest in
     place); a restart from half the set steps over that fence."""
-    factors = _rank_two_factors(blocks)
-    start = prior + _regulariser(len(prior))
-
-    def search(kept: list[int]) -> tuple[list[int], float]:
-        neighbours = _Neighbours(pool.crossing_base_m, pool.joints_rad)
-        for index in kept:
-            neighbours.add(index)
-        total = start + blocks[kept].sum(axis=0)
-        chosen, total = _fill(kept, total, count, blocks, factors, neighbours, scale, usable)
-        chosen, total = _exchange(chosen, total, blocks, factors, neighbours, scale, usable)
-        return chosen, float(_scores(total[None], scale)[0])
-
-    best, best_score = search([])
+    search = _Search(blocks, _rank_two_factors(blocks), scale, usable, prior + _regulariser(len(prior)), pool)
+    best, best_score = search.run([], count)
     half = len(best) // 2
     for kept in (best[half:], best[:half]):
-        chosen, score = search(kept)
+        chosen, score = search.run(kept, count)
         if len(chosen) >= len(best) and score < best_score * (1.0 - 1e-6):
             best, best_score = chosen, score
     return best
