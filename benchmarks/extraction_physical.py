@@ -78,6 +78,14 @@ class Outcome:
     reason: str | None
     seconds: float = 0.0
 
+    def whitened(self) -> np.ndarray:
+        """The error in units of the reported covariance's Cholesky factor (inf where that
+        covariance is not positive definite); needs a found centre."""
+        try:
+            return np.linalg.solve(np.linalg.cholesky(self.covariance), self.error_m)
+        except np.linalg.LinAlgError:
+            return np.full(2, np.inf)
+
 
 @dataclass
 class Tally:
@@ -99,10 +107,7 @@ class Tally:
         self.skipped += not judged
         if outcome.error_m is None or outcome.covariance is None:
             return judged
-        try:
-            whitened = np.linalg.solve(np.linalg.cholesky(outcome.covariance), outcome.error_m)
-        except np.linalg.LinAlgError:
-            whitened = np.full(2, np.inf)
+        whitened = outcome.whitened()
         off = float(np.linalg.norm(whitened)) > OFF_STD
         silent = off and not outcome.warned
         self.silent_off += silent

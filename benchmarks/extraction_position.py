@@ -52,8 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         covariance = outcome.covariance
         errors_mm.append(1000.0 * np.array([bearing @ outcome.error_m, side @ outcome.error_m]))
         stds_mm.append(1000.0 * np.sqrt([bearing @ covariance @ bearing, side @ covariance @ side]))
-        chol = np.linalg.cholesky(covariance)
-        whitened.append(float(np.linalg.norm(np.linalg.solve(chol, outcome.error_m))))
+        whitened.append(float(np.linalg.norm(outcome.whitened())))
         warned.append(outcome.warned)
     print(
         f"{args.model} model, {args.radius_mm:g} mm {args.shape} of {args.material} at {args.range_m} m, "

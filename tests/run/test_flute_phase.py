@@ -86,4 +86,3 @@ def test_phase_std_spans_every_valley_of_the_profile():
     assert np.degrees(_profile_spread_rad(phases, sharp, np.radians(80.0))) < 4.0
     jagged = np.minimum(sharp, 2.0 + 5000.0 * ((phases - np.radians(120.0)) ** 2))
     assert np.degrees(_profile_spread_rad(phases, jagged, np.radians(80.0))) > 10.0
-
