@@ -64,7 +64,7 @@ def write_job(folder: Path) -> Path:
         (folder / f"{name}-waypoints.csv").write_text("\n".join([header, *numbered]) + "\n")
     example = (REPO / "examples" / "cell.toml").read_text().replace("cell/", "").replace("dwell_s = 1.0", "")
     example = example.replace("pose = [", "scans = 10\npose = [")  # [background]
-    example = example.replace("waypoints = 12\n", "waypoints = 4\n")  # [verify]: a short job's check
+    example = example.replace("waypoints = 12\n", "waypoints = 2\n")  # [verify]: the fewest, a short check
     job = folder / "job.toml"
     job.write_text(
         "dwell_s = 0.5\n"
