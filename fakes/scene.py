@@ -309,8 +309,8 @@ def _toml_value(value: Any) -> str:
 
 MODEL_ENV = "LASERCAL_FAKE_SCANNER_MODEL"
 """Environment variable that overrides the fake cell's scanner model (``ideal`` or
-``physical``), whatever the scene says; the test suite sets it to ``ideal`` until the
-extraction holds on the physical model (docs/scanner-model.md)."""
+``physical``), whatever the scene says; the test suite sets it to ``ideal`` (its dry runs'
+bounds were sized on that model: tests/conftest.py)."""
 
 
 def with_model_override(scene: Scene) -> Scene:

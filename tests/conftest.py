@@ -7,16 +7,24 @@ groups, each group on one worker, one module after the other: so at most two rea
 modules run at once, one per core (a dry run takes about 0.85 of a core, no more than a
 CPU-bound test beside it). The two groups hold about the same time; the CPU-bound rest fill
 whichever worker is free. One group of them all took 12.6 min of the suite's 13 (issue 22
-added the cell's page, kill and agreement tests). On 26 Nov 2026 (2 cores, nothing else
-running): real_time_service 386 s of test time, real_time_runs 378 s, the rest 210 s; the
-suite 8 min 22 s, so the wall time is the sum over two (``--junitxml`` gives each test's time).
+added the cell's page, kill and agreement tests). On 27 Nov 2026 (2 cores, nothing else
+running): real_time_runs 377 s of test time, real_time_service 341 s, the rest 235 s; the
+suite 8 min 14 s (9 min 33 s the same morning before the shorter dwells, verifies and dropped
+report PNGs below), so the wall time is the sum over two (``--junitxml`` gives each test's time).
 A real-time test is mostly the arm's moves (joint caps 1.5 rad/s, 4 rad/s^2), so time comes
-back only by fewer runs: share a run between tests that read it (module fixtures).
+back only by fewer runs, waypoints and dwell seconds: share a run between tests that read it
+(module fixtures), give a dry run no more than its test checks (the daemon's quick job dwells
+0.25 s, a verify of it visits 2 waypoints; no report PNG where no test reads one: rendering
+one took 1.5-7 s beside the other worker).
 
-The fake cell's scanner model is the physical UTM-30LX-EW by default, on which today's rod
-extraction does not yet hold (issue 18); dry runs in this suite test the run, the service
-and the solver, so they use the ideal model (child processes inherit the setting).  Tests
-of the physical model build their worlds directly.  Drop this when the extraction lands.
+The fake cell's scanner model is the physical UTM-30LX-EW by default (the user's, and the
+README's dry run). The suite's dry runs use the ideal model (child processes inherit the
+setting): they test the run, the service and the solver, and their accuracy bounds (a short
+job's error against its std, the engine's run within 5 mm of the truth, the cell's 10 mm and
+3 deg) were sized on the ideal model (exact rays plus the scene's ``[noise]``); the physical
+model's footprint, material echoes, bias and drift would make them bounds on the extraction.
+The physical model's extraction is tested on worlds built directly
+(tests/scan/test_extraction_physical.py) and measured by benchmarks/extraction_physical.py.
 """
 
 import os

@@ -28,14 +28,19 @@ from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
 from tests.verify_helpers import calibration_document, fake_robot_calibration, fast_job
 
-# A short dry run: the quick preset (10 waypoints), 0.5 s dwell, fast joint moves,
-# and acquisition settings that ride out the scan gaps a loaded CI machine causes.
+# A short dry run: the quick preset (10 waypoints), 0.25 s dwell (10 scans; the daemon's tests
+# check the service, not the accuracy a longer dwell buys), 10 background scans, a verify of its
+# calibration on the fewest waypoints (2), fast joint moves, and acquisition settings that ride
+# out the scan gaps a loaded CI machine causes.
 QUICK_JOB: dict[str, Any] = {
     "trajectory": {"preset": "quick"},
+    "background": {"scans": 10},
+    "verify": {"waypoints": 2},
     "motion": {"joint_speed_rad_s": 1.5, "joint_accel_rad_s2": 4.0},
     "acquisition": {"max_missed_scans": 10000, "max_attempts": 10},
 }
-QUICK_DRY_RUN = {"kind": "dry_run", "confirm_motion": True, "job": QUICK_JOB, "dwell_s": 0.5}
+QUICK_DWELL_S = 0.25
+QUICK_DRY_RUN = {"kind": "dry_run", "confirm_motion": True, "job": QUICK_JOB, "dwell_s": QUICK_DWELL_S}
 
 
 @functools.cache

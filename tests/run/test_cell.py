@@ -55,7 +55,8 @@ FIRST_WAYPOINT = {"front": 0, "rear": 10}
 
 def write_job(folder: Path) -> Path:
     """examples/cell.toml's scanners on WAYPOINTS of their designed waypoints in a row (from
-    FIRST_WAYPOINT, numbered from 0), with the short-test settings of tests/run/test_dry_run.py."""
+    FIRST_WAYPOINT, numbered from 0), with the short-test settings of tests/run/test_dry_run.py,
+    and no report PNG."""
     for name, first in FIRST_WAYPOINT.items():
         header, *rows = (REPO / "examples" / "cell" / f"{name}-waypoints.csv").read_text().splitlines()
         chosen = rows[first : first + WAYPOINTS]
@@ -63,12 +64,15 @@ def write_job(folder: Path) -> Path:
         (folder / f"{name}-waypoints.csv").write_text("\n".join([header, *numbered]) + "\n")
     example = (REPO / "examples" / "cell.toml").read_text().replace("cell/", "").replace("dwell_s = 1.0", "")
     example = example.replace("pose = [", "scans = 10\npose = [")  # [background]
-    example = example.replace("waypoints = 12\n", "waypoints = 4\n")  # [verify]: a short job's check
+    example = example.replace("waypoints = 12\n", "waypoints = 2\n")  # [verify]: the fewest, a short check
     job = folder / "job.toml"
     job.write_text(
         "dwell_s = 0.5\n"
         "[motion]\njoint_speed_rad_s = 1.5\njoint_accel_rad_s2 = 4.0\n"
         "[quality]\nmax_std_translation_mm = 100.0\nmax_std_rotation_deg = 10.0\nmin_observations = 6\n"
+        # no report PNGs: no test of the job reads one (tests/run/test_dry_run.py does), and rendering
+        # them took 1.5-3 s a scanner
+        "[output]\nreport = false\n"
         + example
     )
     return job

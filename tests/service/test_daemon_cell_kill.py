@@ -19,7 +19,7 @@ import httpx
 import pytest
 
 from lasercal_hw.session.reader import read_session
-from tests.daemon_helpers import QUICK_JOB, DaemonProcess, read_sse, wait_for
+from tests.daemon_helpers import QUICK_DWELL_S, QUICK_JOB, DaemonProcess, read_sse, wait_for
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.timeout(400)]
 
@@ -30,7 +30,8 @@ KILL_AFTER_REAR_OBSERVATIONS = 2
 
 def _cell_body(waypoint_dir: Path) -> dict[str, Any]:
     """examples/cell.toml on the first WAYPOINTS of each scanner's waypoints (files in the
-    daemon's data folder, where a request may name them), a short dwell, the two-scanner scene."""
+    daemon's data folder, where a request may name them), the quick job's short dwell, the two-scanner
+    scene."""
     job = tomllib.loads((REPO / "examples" / "cell.toml").read_text())
     for name, entry in job["scanners"].items():
         rows = (REPO / "examples" / "cell" / f"{name}-waypoints.csv").read_text().splitlines()
@@ -38,11 +39,12 @@ def _cell_body(waypoint_dir: Path) -> dict[str, Any]:
         path.write_text("\n".join(rows[: WAYPOINTS + 1]) + "\n")
         entry["trajectory"] = {"waypoints_file": str(path)}
     job.pop("dwell_s")
-    job["background"]["scans"] = 10
+    job["background"]["scans"] = 10  # its table (the cell's retract pose) replaces the quick job's
     job["quality"] = {"max_std_translation_mm": 100.0, "max_std_rotation_deg": 10.0, "min_observations": 6}
     job["output"] = {"report": False}
     scene = tomllib.loads((REPO / "fakes" / "scenes" / "two_scanners.toml").read_text())
-    return {"kind": "dry_run", "confirm_motion": True, "dwell_s": 0.5, "job": QUICK_JOB | job, "scene": scene}
+    return {"kind": "dry_run", "confirm_motion": True, "dwell_s": QUICK_DWELL_S, "job": QUICK_JOB | job,
+            "scene": scene}
 
 
 @contextlib.contextmanager

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from fakes.ur_controller.kinematics_calibration import KinematicsCalibration
+from lasercal_hw.config import with_overrides
 from lasercal_hw.errors import ExitCode
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.verify import VerifyRequest, verify
@@ -67,8 +68,9 @@ def test_moved_scanner_needs_recalibration_and_the_move_is_estimated(tmp_path: P
     calibration = write_calibration(tmp_path / "calibration", fast_job())
     scene = moved_scene(tmp_path / "moved.toml", SHIFT_M, TURN_RAD)
     events = []
+    unreported = with_overrides(fast_job(), {"output.report": False})  # the CLI test above reads verify.png
     report = verify(
-        VerifyRequest(out_dir=tmp_path / "verify", dry_run=True, scene=scene),
+        VerifyRequest(out_dir=tmp_path / "verify", dry_run=True, scene=scene, job=unreported),
         calibration,
         on_event=events.append,
     )
