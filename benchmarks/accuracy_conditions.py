@@ -26,6 +26,9 @@ absolute-accuracy error field. Cases:
 * ``drill-fluted``: the drill job as shipped: ``drill-estimated`` on the scene that holds
   the bit as it is (``fakes/scenes/drill.toml``: a fluted 10 mm twist drill of ground steel
   in a collet chuck, turned with the tool);
+* ``drill-fluted-any-turn``: the same, the bit turned in its chuck by an angle drawn per seed
+  (uniform over 0-180 deg, a two-fluted bit's period): a real bit sits in its chuck at any
+  turn, and ``drill-fluted``'s one turn may suit the shipped waypoints' tool turns by chance;
 * ``drill-preset-estimated``: the same bit and estimation on the ``drill`` preset's
   semicircles, which keep the tool's turn about the bit nearly constant (why the drill job
   uses designed waypoints);
@@ -80,6 +83,8 @@ RANGE_OFFSET_M = 0.020
 #: The world's range bias of the curve cases: offset (m), per metre, ripple (m) and its period (m).
 CURVE = {"bias_offset_m": 0.008, "bias_per_m": -0.0055, "bias_ripple_m": 0.003, "bias_ripple_period_m": 2.5}
 ROBOT_ERROR_SEED_BASE = 1000
+#: Seeds the bit's turn in its chuck of ``drill-fluted-any-turn`` (one draw per seed).
+CHUCK_TURN_SEED_BASE = 2000
 
 
 @dataclass(frozen=True)
@@ -97,6 +102,8 @@ class Case:
     designed: bool = False
     #: The scene (None: the packaged default); its rod's material and shape are kept.
     scene_path: Path | None = None
+    #: Turn the twist drill in its chuck by an angle drawn per seed (0-180 deg).
+    chuck_turn_drawn: bool = False
 
 
 def real_bit(nominal: RodLine) -> RodLine:
@@ -128,6 +135,9 @@ def cases() -> list[Case]:
         Case("drill-fixed", drill_fixed, bit, drill.dwell_s),
         Case("drill-estimated", drill, bit, drill.dwell_s),
         Case("drill-fluted", drill, bit, drill.dwell_s, scene_path=DRILL_SCENE),
+        Case(
+            "drill-fluted-any-turn", drill, bit, drill.dwell_s, scene_path=DRILL_SCENE, chuck_turn_drawn=True
+        ),
         Case("drill-preset-estimated", drill_preset, bit, drill.dwell_s),
         Case("offset-off", offset_off, default.rod.rod_line(), 3.0, RANGE_OFFSET_M),
         Case("offset-default", default, default.rod.rod_line(), 3.0, RANGE_OFFSET_M),
@@ -162,6 +172,15 @@ def designed_waypoints(job: JobConfig, scene: Scene, choice: DesignChoice = Desi
     return np.array([w.tcp_pose for w in result.waypoints])
 
 
+def seeded_scene(scene: Scene, case: Case, seed: int) -> Scene:
+    """The scene of ``seed``: with the bit turned in its chuck by a drawn angle where the case
+    asks for it, else ``scene`` itself."""
+    if not case.chuck_turn_drawn:
+        return scene
+    turn_deg = float(np.random.default_rng(CHUCK_TURN_SEED_BASE + seed).uniform(0.0, 180.0))
+    return scene.model_copy(update={"rod": scene.rod.model_copy(update={"chuck_turn_deg": turn_deg})})
+
+
 def axis_truth(case: Case) -> np.ndarray:
     """The true bit against the job's axis, as ``axis_deviation``: offset (m) at the nominal
     origin and tilt (tangent) along the nominal axis basis."""
@@ -181,7 +200,8 @@ def run_case(
     started = time.perf_counter()
     for seed in range(first_seed, first_seed + seeds):
         bias = case.bias or {"bias_offset_m": case.range_offset_m}
-        world = world_with(scene, case.true_rod, ROBOT_ERROR_SEED_BASE + seed, **bias)
+        seeded = seeded_scene(scene, case, seed)
+        world = world_with(seeded, case.true_rod, ROBOT_ERROR_SEED_BASE + seed, **bias)
         try:
             trials.append(simulate(case.job, waypoints, world, scans, np.random.default_rng(seed)))
         except LasercalError as exc:
@@ -255,7 +275,8 @@ def print_curve_errors(offsets: list[RangeOffset], bias: dict[str, float]) -> No
         for point in o.curve:
             d = point.distance_m
             truth_mm = 1e3 * (
-                bias["bias_offset_m"] + bias["bias_per_m"] * d
+                bias["bias_offset_m"]
+                + bias["bias_per_m"] * d
                 + bias["bias_ripple_m"] * np.sin(2.0 * np.pi * d / bias["bias_ripple_period_m"])
             )
             misses.append(point.error_mm - truth_mm)

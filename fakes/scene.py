@@ -78,6 +78,9 @@ class RodSettings(_Strict):
     """Twist drill: web thickness over the diameter."""
     helix_lead_m: float = Field(0.0, ge=0.0)
     """Twist drill: axial length of one flute turn (0 = 6 diameters, a 30 deg helix)."""
+    chuck_turn_deg: float = 0.0
+    """Twist drill: how far the bit sits turned in its chuck about its own axis (right-handed
+    about ``direction``); at 0 the flutes' middles lie 90 deg from the TCP's x axis."""
     chuck_radius_m: float = Field(0.0, ge=0.0)
     """A chuck (collet nut) coaxial with the rod above it, ``s`` in [-chuck_length_m, 0]; 0 = none."""
     chuck_length_m: float = Field(0.05, gt=0.0)

@@ -111,6 +111,20 @@ def test_a_twist_drill_turned_by_the_spindle_changes_its_scan() -> None:
     assert turned.max() > 0.001  # flutes or lands face the scanner
 
 
+def test_a_bit_turned_in_its_chuck_scans_as_the_tool_turned_about_the_bit() -> None:
+    def ranges(spindle_deg: float, chuck_turn_deg: float) -> np.ndarray:
+        dwell = simulate_dwell((0.3, 0.0), 0.005, shape="twist_drill", material="steel_drill",
+                               spindle_deg=spindle_deg, background_m=0.3, scan_count=0)
+        rod = dwell.world.scene.rod.model_copy(update={"chuck_turn_deg": chuck_turn_deg})
+        world = World(dwell.world.scene.model_copy(update={"rod": rod}))
+        beam = _beam_towards(dwell)
+        return world.scan_ranges_m(dwell.T_base_tcp)[beam - 3: beam + 4]
+
+    np.testing.assert_allclose(ranges(0.0, 40.0), ranges(40.0, 0.0), atol=1e-9)
+    np.testing.assert_allclose(ranges(0.0, 220.0), ranges(40.0, 0.0), atol=1e-9)  # two flutes: 180 deg
+    assert np.abs(ranges(0.0, -40.0) - ranges(40.0, 0.0)).max() > 0.0005  # the turn has a sense
+
+
 def test_the_fake_cells_model_can_be_overridden_by_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(MODEL_ENV, "physical")
     assert with_model_override(parse_scene('model = "ideal"\n')).model == "physical"
