@@ -186,8 +186,7 @@ class World:
             ref = T_laser_tcp[:3, 0] - (T_laser_tcp[:3, 0] @ axis) * axis
             if np.linalg.norm(ref) < 1e-9:  # rod along the TCP x axis: use TCP y
                 ref = T_laser_tcp[:3, 1] - (T_laser_tcp[:3, 1] @ axis) * axis
-            turn_rad = np.radians(rod.chuck_turn_deg)
-            ref = np.cos(turn_rad) * ref + np.sin(turn_rad) * np.cross(axis, ref)
+            ref = rotvec_to_matrix(axis * np.radians(rod.chuck_turn_deg)) @ ref  # the bit's turn in its chuck
             lead = rod.helix_lead_m or np.pi * 2.0 * rod.radius_m / np.tan(np.radians(30.0))
             scalars = (rod.radius_m, 0.0, rod.length_m, rod.web_fraction, lead)
             params = (point, axis, ref / np.linalg.norm(ref))
