@@ -5,9 +5,11 @@ drill job as shipped (``accuracy_conditions``' ``drill-fluted`` case), not colle
 Run from the repository root::
 
     .venv/bin/python -m benchmarks.flute_phase [--seeds 3] [--first-seed 100] [--bias-off]
+        [--case drill-fluted|drill-fluted-any-turn] [--bins-only]
 
 Per seed, the job's waypoints are dwelt on (physical scanner model, the scene's fluted steel
-drill) and each centre is extracted with the bit's *true* axis as a plain ellipse fit (no
+drill; with ``--case drill-fluted-any-turn`` turned in its chuck as that case draws it per
+seed) and each centre is extracted with the bit's *true* axis as a plain ellipse fit (no
 ``fluted`` allowance); its offset from the true axis crossing is split along the beam's
 bearing (+: behind the axis) and across it, and set beside the bit's true turn there (the
 angle from a flute's middle to the scanner, 0: a flute faces it; the fake turns the bit with
@@ -16,7 +18,9 @@ the scanner's range bias off (else the fake's range error is in the along column
 Printed: one row per centre, sorted by turn, with the crossing's range, the centre's beams' mean
 intensity and the fake's range bias at both (what to take out of the along column to compare
 it with the model when the bias is on), then the RMS of the offsets and of what the model
-leaves, along and across.
+leaves, along and across, and the same binned by the turn (10 deg bins from a flute's middle:
+the model's error is not the same at every turn; ``run/flute_phase.py``'s allowance is this
+table). ``--bins-only``: the summary and the bins without the per-centre rows.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ import argparse
 
 import numpy as np
 
-from benchmarks.accuracy_conditions import ROBOT_ERROR_SEED_BASE, cases
+from benchmarks.accuracy_conditions import ROBOT_ERROR_SEED_BASE, cases, seeded_scene
 from benchmarks.dry_run_accuracy import dwell, world_with
 from benchmarks.error_budget import _bias_off
 from fakes.scanner_model.range_error import range_bias_m
@@ -37,16 +41,20 @@ from lasercal_hw.run.retract import retract_candidates
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 
-#: The fake's flute middle lies along (bit axis x TCP x) where the bit starts: a turn of 90 deg.
-TRUE_PHASE0_RAD = np.pi / 2.0
+#: The fake's flute middle lies along (bit axis x TCP x) where the bit starts: a turn of 90 deg
+#: plus the bit's turn in its chuck.
+UNTURNED_PHASE0_DEG = 90.0
+#: The width of the turn's bins (deg, from a flute's middle: 0-90).
+BIN_DEG = 10.0
 
 
-def rows(seed: int, bias_off: bool) -> list[tuple[float, ...]]:
+def rows(seed: int, bias_off: bool, case_name: str = "drill-fluted") -> list[tuple[float, ...]]:
     """(turn deg, along mm, across mm, model along mm, model across mm, range m, intensity,
     the fake's range bias at that range and intensity mm) per found centre."""
-    case = {c.name: c for c in cases()}["drill-fluted"]
-    scene = load_scene(case.scene_path).model_copy(update={"model": "physical"})
+    case = {c.name: c for c in cases()}[case_name]
+    scene = seeded_scene(load_scene(case.scene_path).model_copy(update={"model": "physical"}), case, seed)
     scene = _bias_off(scene) if bias_off else scene
+    phase0_rad = float(np.radians(UNTURNED_PHASE0_DEG + scene.rod.chuck_turn_deg))
     world = world_with(scene, case.true_rod, ROBOT_ERROR_SEED_BASE + seed)
     job = case.job
     rng = np.random.default_rng(seed)
@@ -71,11 +79,11 @@ def rows(seed: int, bias_off: bool) -> list[tuple[float, ...]]:
         except RodNotFoundError:
             continue
         true_pose = np.concatenate([true_tcp[:3, 3], matrix_to_rotvec(true_tcp[:3, :3])])
-        model = flute_offsets_m(TRUE_PHASE0_RAD, T, true_pose[None, :], case.true_rod)[0]
+        model = flute_offsets_m(phase0_rad, T, true_pose[None, :], case.true_rod)[0]
         bearing = crossing / np.linalg.norm(crossing)
         across = np.array([-bearing[1], bearing[0]])
         offset = centre.centre_uv_m - crossing
-        turn = _turn_deg(T, true_pose, case.true_rod)
+        turn = _turn_deg(phase0_rad, T, true_pose, case.true_rod)
         distance_m = float(np.linalg.norm(crossing))
         intensity = float(np.mean(averaged.intensities[centre.beam_indices]))
         bias_mm = 1e3 * float(range_bias_m(np.array([distance_m]), np.array([intensity]), scene.physics)[0])
@@ -94,9 +102,9 @@ def rows(seed: int, bias_off: bool) -> list[tuple[float, ...]]:
     return found
 
 
-def _turn_deg(T_base_laser: np.ndarray, pose: np.ndarray, rod: RodLine) -> float:
+def _turn_deg(phase0_rad: float, T_base_laser: np.ndarray, pose: np.ndarray, rod: RodLine) -> float:
     """The angle from the nearest flute's middle to the scanner, seen from the bit (deg, 0-90)."""
-    angle = float(np.degrees(facing_angles_rad(TRUE_PHASE0_RAD, T_base_laser, pose[None, :], rod)[0]))
+    angle = float(np.degrees(facing_angles_rad(phase0_rad, T_base_laser, pose[None, :], rod)[0]))
     return abs((angle + 90.0) % 180.0 - 90.0)
 
 
@@ -105,11 +113,46 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--first-seed", type=int, default=100)
     parser.add_argument("--bias-off", action="store_true")
+    parser.add_argument("--case", default="drill-fluted", choices=["drill-fluted", "drill-fluted-any-turn"])
+    parser.add_argument("--bins-only", action="store_true")
     args = parser.parse_args()
     table = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
-        table += rows(seed, args.bias_off)
+        table += rows(seed, args.bias_off, args.case)
     table.sort()
+    if not args.bins_only:
+        print_rows(table)
+    a = np.array(table)
+    print(
+        f"\n{len(a)} centres: offset RMS along {_rms(a[:, 1]):.2f} mm, across {_rms(a[:, 2]):.2f} mm; "
+        f"left by the model along {_rms(a[:, 1] - a[:, 3]):.2f} mm, across {_rms(a[:, 2] - a[:, 4]):.2f} mm"
+    )
+    print_bins(a)
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+def print_bins(a: np.ndarray) -> None:
+    """What the model leaves (measured - model), along and across, per bin of the turn."""
+    print(
+        "\n| turn from a flute (deg) | centres | left along: mean / RMS (mm) | left across: mean / RMS (mm) |"
+    )
+    print("| --- | ---: | ---: | ---: |")
+    for low in np.arange(0.0, 90.0, BIN_DEG):
+        inside = (a[:, 0] >= low) & (a[:, 0] < low + BIN_DEG)
+        if not inside.any():
+            continue
+        along, across = a[inside, 1] - a[inside, 3], a[inside, 2] - a[inside, 4]
+        print(
+            f"| {low:.0f}-{low + BIN_DEG:.0f} | {int(inside.sum())} "
+            f"| {along.mean():+.2f} / {_rms(along):.2f} | {across.mean():+.2f} / {_rms(across):.2f} |"
+        )
+
+
+def print_rows(table: list[tuple[float, ...]]) -> None:
+    """One row per centre, sorted by turn."""
     print(
         "| turn from a flute (deg) | along (mm, +: behind) | across (mm) | model along | model across "
         "| range (m) | intensity | fake's range bias (mm) |"
@@ -120,12 +163,6 @@ def main() -> None:
             f"| {turn:.0f} | {along:+.2f} | {across:+.2f} | {m_along:+.2f} | {m_across:+.2f} "
             f"| {distance_m:.3f} | {intensity:.0f} | {bias_mm:+.2f} |"
         )
-    a = np.array(table)
-    rms = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
-    print(
-        f"\n{len(a)} centres: offset RMS along {rms(a[:, 1]):.2f} mm, across {rms(a[:, 2]):.2f} mm; "
-        f"left by the model along {rms(a[:, 1] - a[:, 3]):.2f} mm, across {rms(a[:, 2] - a[:, 4]):.2f} mm"
-    )
 
 
 if __name__ == "__main__":
