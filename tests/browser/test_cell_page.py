@@ -37,6 +37,12 @@ def _card(browser: Any, name: str) -> Any:
     return browser.find_element("css selector", _card_css(name))
 
 
+def _card_text(browser: Any, name: str) -> str:
+    """A card's text, found and read again if the page re-rendered it in between (it does on
+    every event: a bare ``_card(...).text`` can meet a stale element)."""
+    return str(_wait(browser, lambda d: _card(d, name).text, f"{name}'s card"))
+
+
 def _seen(browser: Any, css: str) -> bool:
     found = browser.find_elements("css selector", css)
     return bool(found) and found[0].is_displayed()
@@ -48,7 +54,7 @@ def test_a_cell_scanner_by_scanner(cell_daemon: DaemonProcess, browser: Any, art
           "both scanners' cards")
     _wait(browser, lambda d: _by_id(d, "stream-state").text == "stream: live", "the live event stream")
     assert not _seen(browser, "#scanner-status"), "a cell shows its scanners' cards, not one scanner line"
-    assert all("no active calibration" in _card(browser, name).text for name in SCANNERS)
+    assert all("no active calibration" in _card_text(browser, name) for name in SCANNERS)
     _wait(browser, lambda d: d.find_elements("css selector", "#preset option[value^='each']"),
           "the trajectories")
     chosen = Select(_by_id(browser, "preset")).first_selected_option.text
@@ -74,9 +80,9 @@ def test_a_cell_scanner_by_scanner(cell_daemon: DaemonProcess, browser: Any, art
           "the pair's agreement in the log")
     ids = job["document"]["calibration_ids"]
     for name in SCANNERS:  # each scanner's result, and its calibration active with its age
-        assert ids[name] in _wait(browser, lambda d, n=name: ids[n] in _card(d, n).text and _card(d, n).text,
-                                  f"{name}'s active calibration")
-        assert "passed ·" in _card(browser, name).text and "never verified" in _card(browser, name).text
+        expected = (ids[name], "passed ·", "never verified")
+        _wait(browser, lambda d, n=name, parts=expected: all(part in _card(d, n).text for part in parts),
+              f"{name}'s active calibration, passed and never verified")
         assert "T_base_laser: t = (" in browser.find_element(
             "css selector", f'#job-result [data-scanner="{name}"]').text
 
@@ -96,7 +102,7 @@ def test_a_cell_scanner_by_scanner(cell_daemon: DaemonProcess, browser: Any, art
     assert verify["request"]["scanner"] == "rear"
     _wait(browser, lambda d: f"in use by {verify['id']}" in _card(d, "rear").text,
           "the rear held by the verify")
-    assert "in use by" not in _card(browser, "front").text
+    assert "in use by" not in _card_text(browser, "front")
     _wait(browser, lambda d: verify["id"] in _by_id(d, "job-title").text
           and _by_id(d, "job-state").text in TERMINAL, "the verify's end", RUN_TIMEOUT_S)
     verdict = _get(cell_daemon, f"/v1/jobs/{verify['id']}")["verdict"]["status"]
@@ -104,7 +110,7 @@ def test_a_cell_scanner_by_scanner(cell_daemon: DaemonProcess, browser: Any, art
           "the rear's verify verdict on its card")
     _wait(browser, lambda d: "in use by" not in _card(d, "rear").text,
           "the rear released at the verify's end", 15)
-    assert "never verified" in _card(browser, "front").text
+    assert "never verified" in _card_text(browser, "front")
     _wait(browser, lambda d: d.find_elements("css selector", '#history-body tr[data-kind^="verify"]'),
           "the verify's history row")
     _check_plot_labels(browser)
