@@ -20,7 +20,7 @@ one took 1.5-7 s beside the other worker).
 The fake cell's scanner model is the physical UTM-30LX-EW by default (the user's, and the
 README's dry run). The suite's dry runs use the ideal model (child processes inherit the
 setting): they test the run, the service and the solver, and their accuracy bounds (a short
-job's error against its std, the engine's run within 5 mm of the truth, the cell's 10 mm and
+job's error against its std, the engine's run within 5 mm of the truth, the cell's 15 mm and
 3 deg) were sized on the ideal model (exact rays plus the scene's ``[noise]``); the physical
 model's footprint, material echoes, bias and drift would make them bounds on the extraction.
 The physical model's extraction is tested on worlds built directly
