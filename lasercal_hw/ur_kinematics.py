@@ -171,21 +171,22 @@ _WRIST_SINGULAR_SIN = 1e-7
 
 
 def _link_transforms(theta: ArrayLike, d_m: ArrayLike, a_m: ArrayLike, alpha_rad: ArrayLike) -> FloatArray:
-    """``Rz(theta) Tz(d) Tx(a) Rx(alpha)`` (..., 4, 4), broadcasting over all arguments."""
+    """``Rz(theta) Tz(d) Tx(a) Rx(alpha)`` (..., 4, 4), broadcasting over all arguments.
+
+    Filled in place rather than stacked: half the time for one joint vector (the fake
+    controller calls this every 2 ms cycle of a move), the same values.
+    """
     theta, d, a, alpha = np.broadcast_arrays(
         *(np.asarray(v, dtype=float) for v in (theta, d_m, a_m, alpha_rad))
     )
     ct, st = np.cos(theta), np.sin(theta)
     ca, sa = np.cos(alpha), np.sin(alpha)
-    zero = np.zeros_like(theta)
-    one = np.ones_like(theta)
-    rows = [
-        np.stack([ct, -st * ca, st * sa, a * ct], axis=-1),
-        np.stack([st, ct * ca, -ct * sa, a * st], axis=-1),
-        np.stack([zero, sa, ca, d], axis=-1),
-        np.stack([zero, zero, zero, one], axis=-1),
-    ]
-    return np.stack(rows, axis=-2)
+    links = np.zeros((*theta.shape, 4, 4))
+    links[..., 0, 0], links[..., 0, 1], links[..., 0, 2], links[..., 0, 3] = ct, -st * ca, st * sa, a * ct
+    links[..., 1, 0], links[..., 1, 1], links[..., 1, 2], links[..., 1, 3] = st, ct * ca, -ct * sa, a * st
+    links[..., 2, 1], links[..., 2, 2], links[..., 2, 3] = sa, ca, d
+    links[..., 3, 3] = 1.0
+    return links
 
 
 def _tcp_matrix(tcp_offset_pose: ArrayLike | None) -> FloatArray | None:

@@ -22,6 +22,7 @@ import numpy as np
 from fakes.ur_controller.control_script import ControlScript, ScriptRuntimeError
 from fakes.ur_controller.kinematics_calibration import KinematicsCalibration
 from fakes.ur_controller.motion import JointPath, LinearPath, Motion, track_pose
+from fakes.ur_controller.pose_floats import pose_of, rotvec_of
 from fakes.ur_controller.rtde_protocol import REGISTER_COUNT
 from lasercal_hw.geometry import invert_transform, matrix_to_pose, pose_to_matrix
 from lasercal_hw.models import FloatArray
@@ -52,6 +53,7 @@ RUNTIME_PLAYING = 2
 _SAFETY_BITS = {SAFETY_NORMAL: 0x1, SAFETY_PROTECTIVE_STOP: 0x4, SAFETY_ROBOT_EMERGENCY_STOP: 0x80 | 0x40}
 _STATUS_POWER_ON = 0x1
 _STATUS_PROGRAM_RUNNING = 0x2
+_AT_REST = (0.0,) * 6
 _SCRIPT_START_DELAY_S = 0.03
 _STEADY_SPEED_RAD_S = 1e-4
 _MAX_CYCLE_DT_S = 0.05
@@ -110,15 +112,46 @@ class ControllerConfig:
         return ".".join(str(v) for v in self.version)
 
 
+#: What a cycle publishes, in the order of ``Snapshot.state``: each output's name and its
+#: number of scalars, then the four register banks (``output_int_register`` holds
+#: ``output_int_register_0`` to ``_47``). ``FakeController._build_snapshot`` fills it.
+SNAPSHOT_FIELDS: tuple[tuple[str, int], ...] = (
+    ("timestamp", 1),
+    ("target_q", 6), ("target_qd", 6), ("actual_q", 6), ("actual_qd", 6),
+    ("actual_TCP_pose", 6), ("target_TCP_pose", 6), ("actual_TCP_speed", 6), ("target_TCP_speed", 6),
+    ("robot_mode", 1), ("safety_mode", 1), ("safety_status", 1), ("runtime_state", 1),
+    ("robot_status_bits", 1), ("safety_status_bits", 1),
+    ("output_int_register", REGISTER_COUNT), ("output_double_register", REGISTER_COUNT),
+    ("input_int_register", REGISTER_COUNT), ("input_double_register", REGISTER_COUNT),
+)
+
+
+def _field_slices() -> dict[str, slice]:
+    slices: dict[str, slice] = {}
+    start = 0
+    for name, count in SNAPSHOT_FIELDS:
+        slices[name] = slice(start, start + count)
+        start += count
+    return slices
+
+
+#: Where each of ``SNAPSHOT_FIELDS`` lies in ``Snapshot.state``.
+SNAPSHOT_SLICES = _field_slices()
+
+
 @dataclass(frozen=True)
 class Snapshot:
-    """The controller state of one cycle, as RTDE publishes it."""
+    """The controller state of one cycle, as RTDE publishes it: every field of
+    ``SNAPSHOT_FIELDS`` flat in one tuple, built in one go each cycle (the RTDE server
+    picks a recipe's values from it by index)."""
 
-    values: dict[str, object]
-    out_int: tuple[int, ...]
-    out_double: tuple[float, ...]
-    in_int: tuple[int, ...]
-    in_double: tuple[float, ...]
+    state: tuple[float | int, ...]
+
+    @property
+    def values(self) -> dict[str, object]:
+        """Each field by name: a scalar, or a tuple for a vector or register bank."""
+        return {name: self.state[where] if (where.stop - where.start) > 1 else self.state[where.start]
+                for name, where in SNAPSHOT_SLICES.items()}
 
 
 def _limits_array() -> FloatArray:
@@ -133,11 +166,11 @@ class FakeController:
         self.config = config or ControllerConfig()
         self.lock = threading.RLock()
         self._limits = _limits_array()
-        self._q = np.array(self.config.start_q_rad, dtype=float)
-        self._qd = np.zeros(6)
         self._tcp_offset = np.array(self.config.tcp_offset_pose, dtype=float)
-        self._T_tcp = self._fk(self._q)
-        self._tcp_speed = np.zeros(6)
+        self._T_flange_tcp = pose_to_matrix(self._tcp_offset)
+        self._place_arm(np.array(self.config.start_q_rad, dtype=float))
+        self._qd: tuple[float, ...] = _AT_REST
+        self._tcp_speed: tuple[float, ...] = _AT_REST
         self._motion: Motion | None = None
         self._move_index = 0
         self._moves_completed = 0
@@ -168,8 +201,17 @@ class FakeController:
     # -- kinematics helpers (lock held) ---------------------------------------------------
 
     def _fk(self, q: FloatArray, tcp_offset: FloatArray | None = None) -> FloatArray:
-        offset = self._tcp_offset if tcp_offset is None else tcp_offset
-        return forward_kinematics(q, tcp_offset_pose=offset)
+        if tcp_offset is None:  # the TCP's own matrix, made once per set_tcp
+            return forward_kinematics(q) @ self._T_flange_tcp
+        return forward_kinematics(q, tcp_offset_pose=tcp_offset)
+
+    def _place_arm(self, q: FloatArray, T_tcp: FloatArray | None = None) -> None:
+        """Joints and TCP (forward kinematics of ``q`` unless given), with the tuples the
+        snapshot publishes made once here, not every cycle."""
+        self._q = q
+        self._T_tcp = self._fk(q) if T_tcp is None else T_tcp
+        self._q_published = tuple(q.tolist())
+        self._pose_published = pose_of(self._T_tcp)
 
     def _ik(self, T_tcp: FloatArray, q_near: FloatArray) -> FloatArray | None:
         return inverse_kinematics(T_tcp, q_near, tcp_offset_pose=self._tcp_offset, limits_rad=self._limits)
@@ -398,7 +440,8 @@ class FakeController:
 
     def set_tcp_offset(self, pose: FloatArray) -> None:
         self._tcp_offset = np.asarray(pose, dtype=float).copy()
-        self._T_tcp = self._fk(self._q)
+        self._T_flange_tcp = pose_to_matrix(self._tcp_offset)
+        self._place_arm(self._q)
 
     def tcp_offset(self) -> FloatArray:
         return self._tcp_offset.copy()
@@ -410,7 +453,7 @@ class FakeController:
         return matrix_to_pose(pose_to_matrix(p_from) @ pose_to_matrix(p_from_to))
 
     def is_steady(self) -> bool:
-        return self._motion is None and float(np.max(np.abs(self._qd))) < _STEADY_SPEED_RAD_S
+        return self._motion is None and max(abs(speed) for speed in self._qd) < _STEADY_SPEED_RAD_S
 
     def protective_stop(self, reason: str) -> None:
         """Protective stop with the lock held."""
@@ -435,8 +478,7 @@ class FakeController:
 
     def _stop_motion_now(self) -> None:
         self._motion = None
-        self._qd = np.zeros(6)
-        self._tcp_speed = np.zeros(6)
+        self._qd = self._tcp_speed = _AT_REST
 
     def _end_program(self) -> None:
         self._script = None
@@ -446,8 +488,7 @@ class FakeController:
     def _advance_motion(self, dt_s: float) -> None:
         motion = self._motion
         if motion is None:
-            self._qd = np.zeros(6)
-            self._tcp_speed = np.zeros(6)
+            self._qd = self._tcp_speed = _AT_REST
             return
         q = motion.advance(dt_s, self._q)
         if q is None or (dt_s > 0.0 and np.any(
@@ -456,10 +497,11 @@ class FakeController:
             return
         T_new = self._fk(q)
         if dt_s > 0.0:
-            self._qd = (q - self._q) / dt_s
-            rotation = matrix_to_pose(T_new @ invert_transform(self._T_tcp))[3:]
-            self._tcp_speed = np.concatenate([(T_new[:3, 3] - self._T_tcp[:3, 3]) / dt_s, rotation / dt_s])
-        self._q, self._T_tcp = q, T_new
+            self._qd = tuple(((q - self._q) / dt_s).tolist())
+            rotation = rotvec_of(T_new @ invert_transform(self._T_tcp))
+            translation = ((T_new[:3, 3] - self._T_tcp[:3, 3]) / dt_s).tolist()
+            self._tcp_speed = (*translation, *(angle / dt_s for angle in rotation))
+        self._place_arm(q, T_new)
         if motion.finished:
             if not motion.stopping:
                 self._moves_completed += 1
@@ -510,29 +552,25 @@ class FakeController:
             return self._snapshot
 
     def _build_snapshot(self) -> Snapshot:
-        q = tuple(self._q.tolist())
-        qd = tuple(self._qd.tolist())
-        pose = tuple(matrix_to_pose(self._T_tcp).tolist())
-        speed = tuple(self._tcp_speed.tolist())
+        """This cycle's ``Snapshot``, in the order of ``SNAPSHOT_FIELDS``."""
+        q, qd, pose, speed = self._q_published, self._qd, self._pose_published, self._tcp_speed
         status = _STATUS_POWER_ON if self.robot_mode >= 4 else 0
         if self.runtime_state == RUNTIME_PLAYING:
             status |= _STATUS_PROGRAM_RUNNING
-        values: dict[str, object] = {
-            "timestamp": self._time_s,
-            "target_q": q, "target_qd": qd, "actual_q": q, "actual_qd": qd,
-            "actual_TCP_pose": pose, "target_TCP_pose": pose,
-            "actual_TCP_speed": speed, "target_TCP_speed": speed,
-            "robot_mode": self.robot_mode,
-            "safety_mode": self.safety_mode,
-            "safety_status": self.safety_mode,
-            "runtime_state": self.runtime_state,
-            "robot_status_bits": status,
-            "safety_status_bits": _SAFETY_BITS.get(self.safety_mode, 0),
-        }
-        return Snapshot(values, tuple(self.out_int), tuple(self.out_double),
-                        tuple(self.in_int), tuple(self.in_double))
+        return Snapshot((
+            self._time_s, *q, *qd, *q, *qd, *pose, *pose, *speed, *speed,
+            self.robot_mode, self.safety_mode, self.safety_mode, self.runtime_state,
+            status, _SAFETY_BITS.get(self.safety_mode, 0),
+            *self.out_int, *self.out_double, *self.in_int, *self.in_double,
+        ))
 
     # -- the cycle thread -----------------------------------------------------------------
+
+    def cycle(self, dt_s: float) -> None:
+        """One controller cycle: ``step``, then the snapshot to every tick listener."""
+        snapshot = self.step(dt_s)
+        for listener in self._tick_listeners:
+            listener(snapshot)
 
     def run(self) -> None:
         """Run cycles at ``config.cycle_hz`` until ``stop``; absolute deadlines, so a late
@@ -542,10 +580,8 @@ class FakeController:
         last = next_deadline
         while not self._stop_event.is_set():
             now = time.monotonic()
-            snapshot = self.step(min(now - last, _MAX_CYCLE_DT_S))
+            self.cycle(min(now - last, _MAX_CYCLE_DT_S))
             last = now
-            for listener in self._tick_listeners:
-                listener(snapshot)
             next_deadline += period_s
             delay = next_deadline - time.monotonic()
             if delay > 0:

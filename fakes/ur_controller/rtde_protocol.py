@@ -236,6 +236,11 @@ class Recipe:
         """Packed size in bytes (without the recipe id byte)."""
         return self._struct.size
 
+    @property
+    def format(self) -> str:
+        """The ``struct`` format of the values (big-endian)."""
+        return self._struct.format
+
     def pack(self, values: Mapping[str, object]) -> bytes:
         """Pack the values named by the recipe; every name must be present."""
         return self.pack_in_order([values[name] for name in self.names])
@@ -262,6 +267,12 @@ class Recipe:
             values[name] = flat[pos:pos + count] if count > 1 else flat[pos]
             pos += count
         return values
+
+
+def data_package_struct(recipe: Recipe) -> struct.Struct:
+    """A whole output data package as one struct: the header (size, ``U``), the recipe id
+    byte, then the recipe's values."""
+    return struct.Struct(HEADER.format + "B" + recipe.format.removeprefix(">"))
 
 
 def resolve(names: Iterable[str], lookup: Callable[[str], str | None]) -> tuple[list[str], bool]:
