@@ -47,11 +47,16 @@ def require_scanner_pose(job: JobConfig) -> None:
 def job_waypoints(job: JobConfig, *, live: bool = False) -> FloatArray:
     """The job's waypoints as UR pose vectors (N, 6); ``live``: for a run on a real cell,
     which needs the job to say where the scanner is (``require_scanner_pose``). An adaptive
-    job's are those of its first design (``lasercal_hw.run.adaptive``)."""
+    job's are those of its first design (``lasercal_hw.run.adaptive``), a ``flute_phase_deg`` job's
+    its spin (``lasercal_hw.run.flute_spin``): the rest follows from what they measure."""
     if job.trajectory.adaptive:  # the first design; the rest follows from its estimate
         from lasercal_hw.run.adaptive import first_design
 
         return matrix_to_pose(waypoint_matrices(first_design(job).waypoints))
     if live:
         require_scanner_pose(job)
+    if job.trajectory.flute_phase_deg is not None:  # the spin; the rest turned to the phase it tells
+        from lasercal_hw.run.flute_spin import job_spin
+
+        return job_spin(job)
     return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))
