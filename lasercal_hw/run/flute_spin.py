@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -109,13 +109,19 @@ def tool_shift_deg(phase_deg: float, checked_phase_deg: float) -> float:
     return float((checked_phase_deg - phase_deg + 90.0) % 180.0 - 90.0)
 
 
-def _offset_basis(T_base_laser: FloatArray, poses: FloatArray, rod: RodLine) -> FloatArray:
-    """How the bit's offset from its nominal axis (two components square to it, tool frame)
-    moves each spin centre in the scan plane (N, 2, 2)."""
+def _square_to_bit(rod: RodLine) -> FloatArray:
+    """Two unit directions square to the bit's nominal axis, in the tool frame (3, 2)."""
     direction = np.asarray(rod.direction, dtype=float) / np.linalg.norm(rod.direction)
     first = np.cross(direction, [1.0, 0.0, 0.0] if abs(direction[0]) < 0.9 else [0.0, 1.0, 0.0])
     first /= np.linalg.norm(first)
-    square = np.column_stack([first, np.cross(direction, first)])
+    return np.column_stack([first, np.cross(direction, first)])
+
+
+def _offset_basis(T_base_laser: FloatArray, poses: FloatArray, rod: RodLine) -> FloatArray:
+    """How the bit's offset from its nominal axis (along ``_square_to_bit``, tool frame) moves
+    each spin centre in the scan plane (N, 2, 2)."""
+    direction = np.asarray(rod.direction, dtype=float) / np.linalg.norm(rod.direction)
+    square = _square_to_bit(rod)
     to_scanner = np.asarray(T_base_laser, dtype=float)[:3, :3].T
     basis = np.empty((len(poses), 2, 2))
     for k, pose in enumerate(poses):
@@ -152,14 +158,15 @@ def plain_spin_centres(
     )
 
 
-def _fit_cost(centres: FloatArray, weights: FloatArray, design: FloatArray) -> float:
-    """The capped chi-square of the best crossing and axis offset for ``centres`` (N, 2)."""
+def _fit(centres: FloatArray, weights: FloatArray, design: FloatArray) -> tuple[float, FloatArray]:
+    """The capped chi-square of the best crossing and axis offset for ``centres`` (N, 2), and
+    that solution (crossing, offset; m)."""
     normal = np.einsum("nji,njk,nkl->il", design, weights, design)
     rhs = np.einsum("nji,njk,nk->i", design, weights, centres)
     solution = np.linalg.lstsq(normal, rhs, rcond=None)[0]
     residual = centres - design @ solution
     squares = np.einsum("ni,nij,nj->n", residual, weights, residual)
-    return float(np.sum(np.minimum(squares, CAPPED_SQUARE)))
+    return float(np.sum(np.minimum(squares, CAPPED_SQUARE))), solution
 
 
 def phase_from_spin(
@@ -174,11 +181,18 @@ def phase_from_spin(
     weights = np.linalg.inv(covariances + allowance)
     crossing = np.broadcast_to(np.eye(2), (len(poses), 2, 2))
     design = np.concatenate([crossing, _offset_basis(T_base_laser, poses, rod)], axis=2)
+    square = _square_to_bit(rod)
+
+    def cost(phase_rad: float) -> float:
+        """The fit at a trial phase, its offsets taken again on the bit where the first fit puts
+        it: 2 mm off the nominal axis, the crossings lie a few degrees further along the helix."""
+        _, solution = _fit(centres - flute_offsets_m(phase_rad, T_base_laser, poses, rod), weights, design)
+        bit = replace(rod, origin_m=np.asarray(rod.origin_m, dtype=float) + square @ solution[2:])
+        return _fit(centres - flute_offsets_m(phase_rad, T_base_laser, poses, bit), weights, design)[0]
+
     phases = np.radians(np.arange(0.0, 180.0, PHASE_STEP_DEG))
-    costs = np.array(
-        [_fit_cost(centres - flute_offsets_m(p, T_base_laser, poses, rod), weights, design) for p in phases]
-    )
-    flat = _fit_cost(centres, weights, design)
+    costs = np.array([cost(p) for p in phases])
+    flat = _fit(centres, weights, design)[0]
     best = int(np.argmin(costs))
     gain = flat - costs[best]
     if gain < MIN_GAIN:

@@ -14,7 +14,7 @@ from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import load_job
 from lasercal_hw.models import Observation
 from lasercal_hw.run.flute_phase import estimate_flute_phase, profile_spread_rad
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.flute_spin import listed_waypoints
 
 DRILL_JOB = Path(__file__).resolve().parents[2] / "examples" / "drill.toml"
 SIGMA_M = 0.0003
@@ -25,7 +25,7 @@ def drill():
     """The drill job, its waypoints, its nominal pose as the truth and its solver options."""
     job = load_job(DRILL_JOB)
     options = SolverOptions(robot_sigma_m=0.0002, estimate_axis=False, estimate_range_offset=False)
-    return job.rod.rod_line(), job_waypoints(job), job.scanner.nominal.matrix(), options
+    return job.rod.rod_line(), listed_waypoints(job), job.scanner.nominal.matrix(), options
 
 
 def _centres(rod, poses, truth, phase_rad, rng, flutes=True):
