@@ -69,8 +69,7 @@ from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
 from lasercal_hw.models import RodLine
-from lasercal_hw.run.flute_spin import listed_waypoints
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 from lasercal_hw.ur_kinematics import UR5
 from trajectories.design import design, request_for_job
 

@@ -38,8 +38,8 @@ from fakes.scene import load_scene
 from lasercal_hw.calibration.flutes import facing_angles_rad, flute_offsets_m
 from lasercal_hw.geometry import matrix_to_rotvec, pose_to_matrix
 from lasercal_hw.models import RodLine
-from lasercal_hw.run.flute_spin import listed_waypoints
 from lasercal_hw.run.retract import retract_candidates
+from lasercal_hw.run.waypoints import listed_waypoints
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 
 #: The fake's flute middle lies along (bit axis x TCP x) where the bit starts: a turn of 90 deg

@@ -48,17 +48,18 @@ from lasercal_hw.run.records import (
 from lasercal_hw.run.resume import DESIGN_EVENT
 from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.two_pass import predict_rod
+from lasercal_hw.run.waypoints import listed_waypoints
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
-from trajectories.waypoint import waypoint_matrices
 
 #: The spin's tool turns about the bit, from the first waypoint's (deg), in the order visited: a
-#: whole turn, so that the bit's offset from its nominal axis (once a turn) stands apart from the
+#: whole turn (from the waypoint's own turn, so that the background is taken above the waypoint
+#: as for any job), so that the bit's offset from its nominal axis (once a turn) stands apart from the
 #: flutes' pattern (twice a turn), and its two halves 15 deg apart, so that the facings of the half
 #: turn come every 15 deg. Seeds 100-119 of ``drill-fluted-any-turn``: the phase within 4.1 deg
 #: (median; 95th percentile 15) against 6.4 (14.8) for nine turns -80..80 by 20, which left one
 #: spin of twenty not told.
-SPIN_TURNS_DEG = tuple(float(t) for t in (*range(-165, 0, 30), *range(0, 180, 30)))
+SPIN_TURNS_DEG = tuple(float(t) for t in (*range(0, 180, 30), *range(195, 360, 30)))
 #: Trial phases over the half turn (deg).
 PHASE_STEP_DEG = 2.0
 
@@ -206,13 +207,6 @@ def phase_from_spin(
     phase_deg, std_deg = float(np.degrees(phase)) % 180.0, float(np.degrees(std))
     shift_deg = tool_shift_deg(phase_deg, checked_phase_deg)
     return SpinPhase(phase_deg, std_deg, float(gain), shift_deg, len(centres))
-
-
-def listed_waypoints(job: JobConfig) -> FloatArray:
-    """The job's own waypoints (its file or preset), as checked: before any turn."""
-    from lasercal_hw.run.waypoints import job_waypoint_list
-
-    return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))
 
 
 def job_spin(job: JobConfig) -> FloatArray:

@@ -30,6 +30,12 @@ def job_waypoint_list(job: JobConfig) -> list[Waypoint]:
     return semicircle_waypoints(parameters, job.rod.rod_line())
 
 
+def listed_waypoints(job: JobConfig) -> FloatArray:
+    """The job's own waypoints (its file or preset) as UR pose vectors, as listed: without an
+    adaptive design or a twist drill's spin and turn (``job_waypoints`` gives what a run visits first)."""
+    return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))
+
+
 def require_scanner_pose(job: JobConfig) -> None:
     """Refuse a live run whose job says nothing about where the scanner is: a preset is laid
     out for one scanner placement (the fake cell's default scene), not for this cell."""
@@ -59,4 +65,4 @@ def job_waypoints(job: JobConfig, *, live: bool = False) -> FloatArray:
         from lasercal_hw.run.flute_spin import job_spin
 
         return job_spin(job)
-    return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))
+    return listed_waypoints(job)

@@ -12,9 +12,8 @@ import numpy as np
 
 from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.models import FloatArray, RodLine
-from lasercal_hw.run.flute_spin import listed_waypoints
 from lasercal_hw.run.outputs import ResultFile, read_result_file
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 
 #: Two waypoints are the same pose when they agree this closely (m, and rad of the rotation vector).
 SAME_POSE_TOLERANCE = 1e-6

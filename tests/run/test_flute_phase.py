@@ -14,7 +14,7 @@ from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import load_job
 from lasercal_hw.models import Observation
 from lasercal_hw.run.flute_phase import estimate_flute_phase, profile_spread_rad
-from lasercal_hw.run.flute_spin import listed_waypoints
+from lasercal_hw.run.waypoints import listed_waypoints
 
 DRILL_JOB = Path(__file__).resolve().parents[2] / "examples" / "drill.toml"
 SIGMA_M = 0.0003

@@ -16,7 +16,6 @@ from lasercal_hw.run import flute_spin
 from lasercal_hw.run.flute_spin import (
     SPIN_TURNS_DEG,
     SpinPhase,
-    listed_waypoints,
     phase_from_spin,
     run_turned_waypoints,
     spin_poses,
@@ -27,7 +26,7 @@ from lasercal_hw.run.replay import solve_recording
 from lasercal_hw.run.resume import recorded_job
 from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.two_pass import predict_rod
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
 from tests.doubles import semicircle_waypoints

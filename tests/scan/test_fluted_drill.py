@@ -17,8 +17,8 @@ from fakes.scene import load_scene
 from fakes.world import World
 from lasercal_hw.config import load_job
 from lasercal_hw.geometry import pose_to_matrix
-from lasercal_hw.run.flute_spin import listed_waypoints
 from lasercal_hw.run.retract import retract_candidates
+from lasercal_hw.run.waypoints import listed_waypoints
 from lasercal_hw.scan.extraction import ExtractionSettings, find_rod_centre
 
 ROOT = Path(__file__).resolve().parents[2]
