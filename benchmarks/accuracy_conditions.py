@@ -69,7 +69,7 @@ from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
 from lasercal_hw.models import RodLine
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 from lasercal_hw.ur_kinematics import UR5
 from trajectories.design import design, request_for_job
 
@@ -194,6 +194,9 @@ def run_case(
     ``model`` and print its distributions."""
     scene = load_scene(case.scene_path).model_copy(update={"model": model})
     waypoints = designed_waypoints(case.job, scene, choice) if case.designed else job_waypoints(case.job)
+    visited = len(waypoints)
+    if case.job.trajectory.flute_phase_deg is not None:  # the spin, then the job's waypoints turned
+        visited += len(listed_waypoints(case.job))
     scans = round(case.dwell_s / scene.scanner.scan_period_s)
     trials: list[Trial] = []
     failures = 0
@@ -208,14 +211,14 @@ def run_case(
             failures += 1
             print(f"  seed {seed}: failed: {exc}")
     print(
-        f"{case.name} ({model} scanner): {len(waypoints)} waypoints, {scans} scans each, "
+        f"{case.name} ({model} scanner): {visited} waypoints, {scans} scans each, "
         f"{time.perf_counter() - started:.0f} s"
     )
     if not trials:
         return
     found = np.array([t.found for t in trials])
     print(
-        f"  found: all {len(waypoints)} in {int(np.sum(found == len(waypoints)))} of {len(trials)} runs "
+        f"  found: all {visited} in {int(np.sum(found == visited))} of {len(trials)} runs "
         f"(min {found.min()}, median {np.median(found):.0f}); {failures} runs failed"
     )
     t_err = np.array([np.linalg.norm(t.error_translation_mm) for t in trials])

@@ -37,6 +37,7 @@ from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import matrix_to_rotvec, pose_to_matrix
 from lasercal_hw.models import LaserScan, RodLine
+from lasercal_hw.run.flute_spin import turn_waypoints
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.retract import retract_candidates
 from lasercal_hw.run.two_pass import predict_rod, solve_two_pass
@@ -145,8 +146,13 @@ def measure_waypoints(
 def simulate(
     job: JobConfig, waypoints: np.ndarray, world: World, scans: int, rng: np.random.Generator
 ) -> Trial:
-    """One offline run of the sequencer's measurement chain and its two-pass solve."""
+    """One offline run of the sequencer's measurement chain and its two-pass solve; a
+    ``flute_phase_deg`` job's ``waypoints`` are its spin, then its waypoints are turned to the
+    phase the spin tells (``run/flute_spin``) and measured, as the run does."""
     measurements, background = measure_waypoints(job, waypoints, world, scans, rng)
+    if job.trajectory.flute_phase_deg is not None:
+        rest = turn_waypoints(job, measurements, background).waypoints
+        measurements += measure(job, rest, world, scans, rng, background, first_index=len(waypoints))
     result = solve_two_pass(measurements, job, background).result
     dt_mm, de_deg = errors(result, world.ground_truth_T_base_laser)
     return Trial(result, dt_mm, de_deg, len(measurements))

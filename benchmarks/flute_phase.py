@@ -39,7 +39,7 @@ from lasercal_hw.calibration.flutes import facing_angles_rad, flute_offsets_m
 from lasercal_hw.geometry import matrix_to_rotvec, pose_to_matrix
 from lasercal_hw.models import RodLine
 from lasercal_hw.run.retract import retract_candidates
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import listed_waypoints
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 
 #: The fake's flute middle lies along (bit axis x TCP x) where the bit starts: a turn of 90 deg
@@ -59,7 +59,7 @@ def rows(seed: int, bias_off: bool, case_name: str = "drill-fluted") -> list[tup
     world = world_with(scene, case.true_rod, ROBOT_ERROR_SEED_BASE + seed)
     job = case.job
     rng = np.random.default_rng(seed)
-    waypoints = job_waypoints(job)
+    waypoints = listed_waypoints(job)
     scans = round(case.dwell_s / scene.scanner.scan_period_s)
     background = dwell(world, retract_candidates(job, waypoints)[0], job.background.scans, rng)
     T = world.ground_truth_T_base_laser

@@ -179,6 +179,14 @@ class TrajectoryConfig(_Strict):
     )
     first_waypoints: int = Field(8, ge=6, le=100, description="adaptive: waypoints of the first design")
     design_waypoints: int = Field(20, ge=6, le=200, description="adaptive: waypoints in all")
+    flute_phase_deg: float | None = Field(
+        None,
+        ge=0.0,
+        lt=180.0,
+        description="a twist drill (rod.fluted): the flute phase the waypoints were checked at (deg from the "
+        "tool's x axis); the run first spins the bit at the first waypoint to find its own phase in the "
+        "chuck, then turns every waypoint's tool about the bit by the difference (docs/solver.md)",
+    )
     pose_uncertainty: tuple[float, float] = Field(
         (0.05, 5.0),
         description="how far off scanner.nominal may be (m, deg): the designs (trajectory design, adaptive) "
@@ -202,6 +210,11 @@ class TrajectoryConfig(_Strict):
             raise ValueError("an adaptive run designs its own waypoints: leave out waypoints_file")
         if self.adaptive and self.first_waypoints >= self.design_waypoints:
             raise ValueError("first_waypoints must be fewer than design_waypoints")
+        if self.adaptive and self.flute_phase_deg is not None:
+            raise ValueError(
+                "flute_phase_deg turns a waypoint file's or preset's tool turns; an adaptive run designs "
+                "its own: leave out one of them"
+            )
         return self
 
     @property
@@ -375,6 +388,21 @@ class JobConfig(_Strict):
                     f"e.g. {re.sub('[^a-z0-9_]', '_', name.lower())!r})"
                 )
         return scanners
+
+    @model_validator(mode="after")
+    def _flute_phase_needs_a_fluted_rod(self) -> JobConfig:
+        if self.trajectory.flute_phase_deg is None:
+            return self
+        if not self.rod.fluted:
+            raise ValueError(
+                "trajectory.flute_phase_deg is for a twist drill: set rod.fluted = true or leave it out"
+            )
+        if self.scanner.nominal is None and not self.scanners:
+            raise ValueError(
+                "trajectory.flute_phase_deg needs [scanner.nominal]: the spin's fit uses the scanner's rough "
+                "pose to tell how the bit faces it"
+            )
+        return self
 
     @model_validator(mode="after")
     def _one_way_to_name_scanners(self) -> JobConfig:

@@ -29,6 +29,7 @@ from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
 from lasercal_hw.run.dry_run_cell import DryRunCell, start_fake_cell
 from lasercal_hw.run.events import EventSink, RunEvent, Stage
+from lasercal_hw.run.flute_spin import run_turned_waypoints
 from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
 from lasercal_hw.run.preflight import PreflightReport
@@ -227,10 +228,17 @@ def calibrate(
     cancel = cancel or CancelToken()
     started_s = time.monotonic()
     with open_sequencer(request, sink, cancel, confirm) as session:
-        outcome = solve_run(
-            session.sequencer.measure(), session.job, session.recorder,
-            waypoint_count=len(session.waypoints), on_progress=session.on_progress, cancel=cancel,
-        )
+        measured = session.sequencer.measure()
+        if session.job.trajectory.flute_phase_deg is not None:  # the rest turned to the spin's phase
+            outcome = run_turned_waypoints(
+                session.robot, session.scanner, session.recorder, session.job, session.waypoints, measured,
+                on_progress=session.on_progress, cancel=cancel,
+            )
+        else:
+            outcome = solve_run(
+                measured, session.job, session.recorder,
+                waypoint_count=len(session.waypoints), on_progress=session.on_progress, cancel=cancel,
+            )
         if session.job.trajectory.adaptive:  # design the rest from this estimate, measure it, solve all
             outcome = run_second_design(
                 session.robot, session.scanner, session.recorder, session.job, session.waypoints, outcome,

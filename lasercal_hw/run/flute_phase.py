@@ -102,7 +102,7 @@ def _shifted(
     return moved
 
 
-def _parabola_minimum(phases_rad: FloatArray, costs: FloatArray, best: int) -> tuple[float, float]:
+def parabola_minimum(phases_rad: FloatArray, costs: FloatArray, best: int) -> tuple[float, float]:
     """The profile's minimum by a parabola through the best trial and its neighbours (the grid
     wraps at the half turn), and the half-width at which it rises by one (rad)."""
     step = phases_rad[1] - phases_rad[0]
@@ -114,7 +114,7 @@ def _parabola_minimum(phases_rad: FloatArray, costs: FloatArray, best: int) -> t
     return float(phases_rad[best] + shift), float(np.sqrt(2.0 / curvature))
 
 
-def _profile_spread_rad(phases_rad: FloatArray, costs: FloatArray, phase_rad: float) -> float:
+def profile_spread_rad(phases_rad: FloatArray, costs: FloatArray, phase_rad: float) -> float:
     """The phase's std over the whole half turn: every trial weighted by its likelihood
     ``exp(-(cost - best) / 2)``, its distance to ``phase_rad`` taken the short way round the
     half turn. The section's offsets jump where a flute's edge meets a land, so the profile has
@@ -143,8 +143,8 @@ def estimate_flute_phase(
     if not np.isfinite(costs).any():
         return None
     best = int(np.argmin(costs))
-    phase, std = _parabola_minimum(phases, costs, best)
-    std = max(std, _profile_spread_rad(phases, costs, phase))
+    phase, std = parabola_minimum(phases, costs, best)
+    std = max(std, profile_spread_rad(phases, costs, phase))
     try:
         trial = solve(_shifted(plain, widened, rod, phase, 0.0), rod, options=options)
         std *= np.sqrt(max(1.0, trial.reduced_chi_square))

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ from lasercal_hw.run.resume import (
     recorded_background,
     recorded_centre,
     recorded_job,
+    recorded_turn_note,
     window_average,
 )
 from lasercal_hw.run.two_pass import TwoPassSolution, predict_rod, solve_two_pass
@@ -107,6 +108,9 @@ def solve_recording(
         if int(event["index"]) not in observed
     }
     solution = solve_two_pass(measurements, job, background)
+    turn_note = recorded_turn_note(recording)
+    if turn_note is not None:  # the live run's note on its spin, as it recorded it
+        solution = replace(solution, refinement=f"{turn_note}; {solution.refinement}")
     return RecordingSolution(
         job=job,
         solution=solution,

@@ -49,6 +49,15 @@ def recorded_job(recording: SessionRecording) -> tuple[JobConfig, FloatArray]:
     return job, waypoints
 
 
+def recorded_turn_note(recording: SessionRecording) -> str | None:
+    """What a spun run (``trajectory.flute_phase_deg``) said of its flute phase and the turn it
+    gave its waypoints, as recorded with them; None for any other run."""
+    for event in recording.events_of(DESIGN_EVENT):
+        if "tool_turn_shift_deg" in event:
+            return str(event["notes"][0])
+    return None
+
+
 #: What an ``observation`` event must hold for the waypoint to be rebuilt from the recording.
 OBSERVATION_FIELDS = (
     "index",

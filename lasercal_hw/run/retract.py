@@ -9,6 +9,7 @@ import numpy as np
 from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.preflight import rod_end_points_m
+from lasercal_hw.run.waypoints import listed_waypoints
 
 NOMINAL_CLEARANCE_M = 0.08
 
@@ -37,6 +38,8 @@ def retract_candidates(job: JobConfig, waypoints: FloatArray) -> list[FloatArray
     others nearest the robot base first (a far waypoint lifted may be out of reach)."""
     if job.background.pose is not None:
         return [np.asarray(job.background.pose, dtype=float)]
+    if job.trajectory.flute_phase_deg is not None:  # a spin stays at one crossing: the listed ones too
+        waypoints = np.vstack([waypoints, listed_waypoints(job)])
     order = sorted(range(len(waypoints)), key=lambda i: (i != 0, float(np.linalg.norm(waypoints[i][:3]))))
     candidates = []
     for i in order:

@@ -30,6 +30,12 @@ def job_waypoint_list(job: JobConfig) -> list[Waypoint]:
     return semicircle_waypoints(parameters, job.rod.rod_line())
 
 
+def listed_waypoints(job: JobConfig) -> FloatArray:
+    """The job's own waypoints (its file or preset) as UR pose vectors, as listed: without an
+    adaptive design or a twist drill's spin and turn (``job_waypoints`` gives what a run visits first)."""
+    return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))
+
+
 def require_scanner_pose(job: JobConfig) -> None:
     """Refuse a live run whose job says nothing about where the scanner is: a preset is laid
     out for one scanner placement (the fake cell's default scene), not for this cell."""
@@ -47,11 +53,16 @@ def require_scanner_pose(job: JobConfig) -> None:
 def job_waypoints(job: JobConfig, *, live: bool = False) -> FloatArray:
     """The job's waypoints as UR pose vectors (N, 6); ``live``: for a run on a real cell,
     which needs the job to say where the scanner is (``require_scanner_pose``). An adaptive
-    job's are those of its first design (``lasercal_hw.run.adaptive``)."""
+    job's are those of its first design (``lasercal_hw.run.adaptive``), a ``flute_phase_deg`` job's
+    its spin (``lasercal_hw.run.flute_spin``): the rest follows from what they measure."""
     if job.trajectory.adaptive:  # the first design; the rest follows from its estimate
         from lasercal_hw.run.adaptive import first_design
 
         return matrix_to_pose(waypoint_matrices(first_design(job).waypoints))
     if live:
         require_scanner_pose(job)
-    return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))
+    if job.trajectory.flute_phase_deg is not None:  # the spin; the rest turned to the phase it tells
+        from lasercal_hw.run.flute_spin import job_spin
+
+        return job_spin(job)
+    return listed_waypoints(job)

@@ -13,7 +13,7 @@ import numpy as np
 from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.outputs import ResultFile, read_result_file
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 
 #: Two waypoints are the same pose when they agree this closely (m, and rad of the rotation vector).
 SAME_POSE_TOLERANCE = 1e-6
@@ -39,8 +39,12 @@ class ActiveCalibration(ResultFile):
         return self.job.rod.rod_line() if self.job is not None else None
 
     def waypoints(self) -> FloatArray | None:
-        """The calibration's waypoints (UR poses), if its job was recorded."""
-        return job_waypoints(self.job) if self.job is not None else None
+        """The calibration's waypoints (UR poses) as its job lists them, if its job was recorded."""
+        if self.job is None:
+            return None
+        if self.job.trajectory.flute_phase_deg is not None:  # the waypoints, not the spin before them
+            return listed_waypoints(self.job)
+        return job_waypoints(self.job)
 
 
 def load_active_calibration(path: Path) -> ActiveCalibration:

@@ -73,11 +73,14 @@ class VerifyReport(ProcedureReport[VerifyOutcome]):
 
 def verify_job(job: JobConfig, T_base_laser: FloatArray) -> JobConfig:
     """The job with the calibration as the scanner's nominal pose, so that the extraction
-    looks for the rod where the calibration predicts it."""
+    looks for the rod where the calibration predicts it, and its waypoints as listed (a twist
+    drill's spin before them, ``trajectory.flute_phase_deg``, is the calibration's, not verify's)."""
     T = np.asarray(T_base_laser, dtype=float)
     euler_deg = np.degrees(matrix_to_euler_zyx(T[:3, :3]))
     nominal = {"translation_m": T[:3, 3].tolist(), "euler_zyx_deg": euler_deg.tolist()}
-    return with_overrides(job, {"scanner.nominal": nominal}, source="verify job")
+    checking = with_overrides(job, {"scanner.nominal": nominal}, source="verify job")
+    listed = checking.trajectory.model_copy(update={"flute_phase_deg": None})
+    return checking.model_copy(update={"trajectory": listed})
 
 
 def drift_model(T_base_laser: FloatArray, covariance: FloatArray, job: JobConfig) -> DriftModel:

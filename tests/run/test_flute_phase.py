@@ -13,8 +13,8 @@ from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import load_job
 from lasercal_hw.models import Observation
-from lasercal_hw.run.flute_phase import _profile_spread_rad, estimate_flute_phase
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.flute_phase import estimate_flute_phase, profile_spread_rad
+from lasercal_hw.run.waypoints import listed_waypoints
 
 DRILL_JOB = Path(__file__).resolve().parents[2] / "examples" / "drill.toml"
 SIGMA_M = 0.0003
@@ -25,7 +25,7 @@ def drill():
     """The drill job, its waypoints, its nominal pose as the truth and its solver options."""
     job = load_job(DRILL_JOB)
     options = SolverOptions(robot_sigma_m=0.0002, estimate_axis=False, estimate_range_offset=False)
-    return job.rod.rod_line(), job_waypoints(job), job.scanner.nominal.matrix(), options
+    return job.rod.rod_line(), listed_waypoints(job), job.scanner.nominal.matrix(), options
 
 
 def _centres(rod, poses, truth, phase_rad, rng, flutes=True):
@@ -83,6 +83,6 @@ def test_phase_std_spans_every_valley_of_the_profile():
     of that order, not the best valley's own width; one sharp valley keeps a small std."""
     phases = np.radians(np.arange(0.0, 180.0, 4.0))
     sharp = 5000.0 * ((phases - np.radians(80.0) + np.pi / 2) % np.pi - np.pi / 2) ** 2
-    assert np.degrees(_profile_spread_rad(phases, sharp, np.radians(80.0))) < 4.0
+    assert np.degrees(profile_spread_rad(phases, sharp, np.radians(80.0))) < 4.0
     jagged = np.minimum(sharp, 2.0 + 5000.0 * ((phases - np.radians(120.0)) ** 2))
-    assert np.degrees(_profile_spread_rad(phases, jagged, np.radians(80.0))) > 10.0
+    assert np.degrees(profile_spread_rad(phases, jagged, np.radians(80.0))) > 10.0

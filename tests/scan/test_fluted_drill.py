@@ -18,7 +18,7 @@ from fakes.world import World
 from lasercal_hw.config import load_job
 from lasercal_hw.geometry import pose_to_matrix
 from lasercal_hw.run.retract import retract_candidates
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import listed_waypoints
 from lasercal_hw.scan.extraction import ExtractionSettings, find_rod_centre
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -31,7 +31,7 @@ WAYPOINTS = (2, 3, 9, 7, 16)
 def drill_dwells() -> list[tuple[object, np.ndarray, np.ndarray, object]]:
     """(averaged scan, true centre, axis in the scanner, background) at each waypoint."""
     job = load_job(ROOT / "examples" / "drill.toml")
-    waypoints = job_waypoints(job)
+    waypoints = listed_waypoints(job)
     scene = load_scene(ROOT / "fakes" / "scenes" / "drill.toml")
     no_bias = {"unit_bias_m": 0.0, "near_bias_m": 0.0, "walk_m_per_efold": 0.0, "warm_at_start": True}
     exact_robot = {"robot_position_error_m": 0.0, "robot_rotation_error_deg": 0.0}
