@@ -109,8 +109,9 @@ def solve_recording(
     }
     solution = solve_two_pass(measurements, job, background)
     turn_note = recorded_turn_note(recording)
-    if turn_note is not None:  # the live run's note on its spin, as it recorded it
-        solution = replace(solution, refinement=f"{turn_note}; {solution.refinement}")
+    if turn_note is not None:  # the spin is not fitted again: its note is the live run's, named so
+        recorded = f"as the live run recorded it, not fitted again: {turn_note}"
+        solution = replace(solution, refinement=f"{recorded}; {solution.refinement}")
     return RecordingSolution(
         job=job,
         solution=solution,
