@@ -214,9 +214,14 @@ def test_both_scanners_calibrated_and_their_transform_within_its_std(
     assert np.all(np.linalg.eigvalsh(covariance) > 0)
     assert pair["ground_truth_error"]["max_axis_in_std"] < 4.0
     # 8 waypoints each: front sees the rod at rear's 0.8-1.2 m from it, beyond the distances its
-    # range error was calibrated at, or finds something that is not the rod: too few to test
+    # range error was calibrated at, or finds something that is not the rod: mostly too few to test
+    # (3 shared were seen once in a fresh-clone CI run: then the test runs and says so)
     agreement = pair["agreement"]
-    assert agreement["verdict"] == "inconclusive" and agreement["chi_square"] is None, agreement
+    if agreement["shared_waypoints"] < agreement["min_shared_waypoints"]:
+        assert agreement["verdict"] == "inconclusive" and agreement["chi_square"] is None, agreement
+    else:
+        within = agreement["chi_square"] <= agreement["threshold"]
+        assert agreement["verdict"] == ("agree" if within else "disagree"), agreement
     assert agreement["shared_waypoints"] + len(agreement.get("left_out", [])) >= 1, agreement
 
 
