@@ -5,7 +5,7 @@
 These functions take the same steps in the same order on Python floats (IEEE doubles,
 as numpy's element-wise arithmetic): Shepperd's quaternion, normalised, then the
 rotation vector, so the pose the fake streams is the same to the last bit
-(tests/drivers/ur/test_pose_floats.py holds them to the numpy functions).
+(tests/drivers/ur/test_fake_cycle.py holds them to the numpy functions).
 """
 
 from __future__ import annotations

@@ -90,7 +90,7 @@ def turned_about_bit(poses: FloatArray, rod: RodLine, turn_deg: float | FloatArr
     """``poses`` (UR vectors, N x 6) with the tool turned by ``turn_deg`` (one, or one per pose)
     about the bit's nominal axis, which stays where it was."""
     matrices = pose_to_matrix(np.atleast_2d(np.asarray(poses, dtype=float)))
-    direction = np.asarray(rod.direction, dtype=float) / np.linalg.norm(rod.direction)
+    direction = rod.unit_direction()
     origin = np.asarray(rod.origin_m, dtype=float)
     turns = np.broadcast_to(np.radians(np.asarray(turn_deg, dtype=float)), (len(matrices),))
     turned = np.empty_like(matrices)
@@ -116,7 +116,7 @@ def tool_shift_deg(phase_deg: float, checked_phase_deg: float) -> float:
 
 def _square_to_bit(rod: RodLine) -> FloatArray:
     """Two unit directions square to the bit's nominal axis, in the tool frame (3, 2)."""
-    direction = np.asarray(rod.direction, dtype=float) / np.linalg.norm(rod.direction)
+    direction = rod.unit_direction()
     first = np.cross(direction, [1.0, 0.0, 0.0] if abs(direction[0]) < 0.9 else [0.0, 1.0, 0.0])
     first /= np.linalg.norm(first)
     return np.column_stack([first, np.cross(direction, first)])
@@ -125,7 +125,7 @@ def _square_to_bit(rod: RodLine) -> FloatArray:
 def _offset_basis(T_base_laser: FloatArray, poses: FloatArray, rod: RodLine) -> FloatArray:
     """How the bit's offset from its nominal axis (along ``_square_to_bit``, tool frame) moves
     each spin centre in the scan plane (N, 2, 2)."""
-    direction = np.asarray(rod.direction, dtype=float) / np.linalg.norm(rod.direction)
+    direction = rod.unit_direction()
     square = _square_to_bit(rod)
     to_scanner = np.asarray(T_base_laser, dtype=float)[:3, :3].T
     basis = np.empty((len(poses), 2, 2))
