@@ -53,7 +53,7 @@ from lasercal_hw.verify.drift import (
     predictions,
     residual_covariance,
 )
-from lasercal_hw.verify.procedure import VerifyPlan, _noise_covariance, plan_verify, without_range_error
+from lasercal_hw.verify.procedure import VerifyPlan, dwell_noise_covariance, plan_verify, without_range_error
 
 SHIFT_M = 0.003
 TURN_RAD = float(np.radians(0.3))
@@ -128,7 +128,7 @@ def main() -> None:
             continue
         centres = without_range_error(np.array([m.centre.centre_uv_m for m in refitted]), plan.range_error)
         stated = np.array([m.centre.covariance_uv_m2 for m in refitted])
-        noise = np.array([_noise_covariance(m.centre) for m in refitted])
+        noise = np.array([dwell_noise_covariance(m.centre) for m in refitted])
         line = [f"seed {seed:3d}"]
         chosen, information_of = rules(plan, found, stated, noise, recorded, count, budget_s)
         for name, subset in chosen:

@@ -288,7 +288,7 @@ def refit_and_test(
         centres_uv_m,
         np.array([m.centre.covariance_uv_m2 for m in refitted]),
         plan.reference[job_index],
-        np.array([_noise_covariance(m.centre) for m in refitted]),
+        np.array([dwell_noise_covariance(m.centre) for m in refitted]),
     )
     return test, kept
 
@@ -305,7 +305,7 @@ def _scanner_job(job: JobConfig, active: ActiveCalibration) -> JobConfig:
     return job.for_scanner(active.scanner_name)
 
 
-def _noise_covariance(centre: RodCentre) -> FloatArray:
+def dwell_noise_covariance(centre: RodCentre) -> FloatArray:
     """The part of a centre's covariance another dwell draws anew: all of it where unknown,
     and where the extraction warns that the centre may be off by more than its noise (a rod
     blended with the surface behind it): which beams its fit keeps changes from dwell to dwell,

@@ -308,7 +308,7 @@ def test_a_warned_centre_is_not_taken_as_repeating_at_a_revisited_waypoint() -> 
     2-3 mm of noise std, and the unmoved scanner was flagged (chi-square 62.6): its blend
     moves with the beams the fit keeps, so nothing of a warned centre is known to repeat."""
     from lasercal_hw.scan.extraction import RodCentre, RodQuality
-    from lasercal_hw.verify.procedure import _noise_covariance
+    from lasercal_hw.verify.procedure import dwell_noise_covariance
 
     quality = RodQuality(3, 0.001, 20.0, None, 0)
     whole, noise = np.diag([0.06**2, 0.007**2]), np.eye(2) * 0.002**2
@@ -317,5 +317,5 @@ def test_a_warned_centre_is_not_taken_as_repeating_at_a_revisited_waypoint() -> 
         np.array([0.06, -1.2]), whole, quality, warnings=("blends with the wall",),
         noise_covariance_uv_m2=noise,
     )
-    np.testing.assert_array_equal(_noise_covariance(clean), noise)
-    np.testing.assert_array_equal(_noise_covariance(warned), whole)
+    np.testing.assert_array_equal(dwell_noise_covariance(clean), noise)
+    np.testing.assert_array_equal(dwell_noise_covariance(warned), whole)
