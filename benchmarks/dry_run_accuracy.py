@@ -40,7 +40,7 @@ from lasercal_hw.models import LaserScan, RodLine
 from lasercal_hw.run.flute_spin import turn_waypoints
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.retract import retract_candidates
-from lasercal_hw.run.two_pass import predict_rod, solve_two_pass
+from lasercal_hw.run.two_pass import SecondPassRefit, predict_rod, solve_two_pass
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
@@ -57,6 +57,8 @@ class Trial:
     error_translation_mm: np.ndarray
     error_rotation_deg: np.ndarray
     found: int
+    #: How its second pass fitted the centres (a verify of it fits its own so).
+    refit: SecondPassRefit
 
 
 def world_for(job: JobConfig, scene_path: Path | None, robot_error_seed: int) -> World:
@@ -153,9 +155,9 @@ def simulate(
     if job.trajectory.flute_phase_deg is not None:
         rest = turn_waypoints(job, measurements, background).waypoints
         measurements += measure(job, rest, world, scans, rng, background, first_index=len(waypoints))
-    result = solve_two_pass(measurements, job, background).result
-    dt_mm, de_deg = errors(result, world.ground_truth_T_base_laser)
-    return Trial(result, dt_mm, de_deg, len(measurements))
+    solution = solve_two_pass(measurements, job, background)
+    dt_mm, de_deg = errors(solution.result, world.ground_truth_T_base_laser)
+    return Trial(solution.result, dt_mm, de_deg, len(measurements), solution.refit)
 
 
 def job_robot_sigma_m(job: JobConfig) -> float:

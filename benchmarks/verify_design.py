@@ -7,7 +7,8 @@ Run from the repository root::
 Per seed, as ``benchmarks.verify_rates`` does: a calibration simulated in the fake world (the
 job's trajectory, the two-pass solve), the verify planned from it (``plan_verify``, the time
 budget), then one verify dwell at every job waypoint with the scanner unmoved, each centre
-re-fitted with the calibration's rod axes: the centre covariance the drift test states at each.
+re-fitted as the calibration's second pass fitted its own (``SecondPassRefit``): the centre
+covariance the drift test states at each.
 
 For a subset of waypoints the test's information is ``F = J^T S^-1 J`` (``drift.residual_covariance``).
 Printed per rule, each inside the time budget: the smallest shift / turn flagged 90 % of the
@@ -44,7 +45,7 @@ from lasercal_hw.config import load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.timing import visit_time_s
-from lasercal_hw.run.two_pass import refit_centres, solve_two_pass
+from lasercal_hw.run.two_pass import solve_two_pass
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify.drift import (
     DriftModel,
@@ -53,7 +54,7 @@ from lasercal_hw.verify.drift import (
     predictions,
     residual_covariance,
 )
-from lasercal_hw.verify.procedure import VerifyPlan, dwell_noise_covariance, plan_verify, without_range_error
+from lasercal_hw.verify.procedure import VerifyPlan, dwell_noise_covariance, plan_verify
 
 SHIFT_M = 0.003
 TURN_RAD = float(np.radians(0.3))
@@ -116,17 +117,18 @@ def main() -> None:
             count=count,
             budget_s=budget_s,
             range_error=result.range_offset,
+            refit=solution.refit,
         )
         recorded = np.full((len(poses), 2, 2), np.nan)
         for observation in solution.observations:
             recorded[observation.index] = observation.covariance_uv_m2
         seen, background = measure_waypoints(plan.job, plan.waypoints, world, scans, rng)
-        refitted, _ = refit_centres(seen, plan.model.T_base_laser, plan.job.rod.rod_line(), background)
+        refitted, _ = plan.refit.centres(seen, plan.job.rod.rod_line(), background)
         found = [m.index for m in refitted]
         if not set(plan.selection.indices) <= set(found):
             print(f"seed {seed}: the rod was not found at every chosen waypoint; left out")
             continue
-        centres = without_range_error(np.array([m.centre.centre_uv_m for m in refitted]), plan.range_error)
+        centres = np.array([m.centre.centre_uv_m for m in refitted])
         stated = np.array([m.centre.covariance_uv_m2 for m in refitted])
         noise = np.array([dwell_noise_covariance(m.centre) for m in refitted])
         line = [f"seed {seed:3d}"]
@@ -155,7 +157,7 @@ def main() -> None:
             )
             line.append(f"{name}: {sorted(found[k] for k in subset)} {np.degrees(weakest[3:].max()):.3f} deg")
         print(" | ".join(line), flush=True)
-        crossing, _, slope = predictions(plan.model.T_base_laser, plan.waypoints[found], plan.model.rod)
+        crossing, _, slope = predictions(plan.model, plan.waypoints[found])
         reference = plan.reference[found]
         visited = np.isfinite(reference).all(axis=1)
         residual = centres - crossing - np.where(visited[:, None], reference, 0.0)
@@ -193,7 +195,7 @@ def rules(
     """(name, subset as positions in ``found``) per rule, and a subset's information and dof."""
     model = plan.model
     poses = plan.waypoints[found]
-    _, jac, slope = predictions(model.T_base_laser, poses, model.rod)
+    _, jac, slope = predictions(model, poses)
     visited = np.isfinite(plan.reference[found]).all(axis=1)
 
     def information_of(subset: tuple[int, ...]) -> tuple[FloatArray, int]:

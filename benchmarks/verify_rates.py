@@ -12,8 +12,8 @@ error field per seed), then the verify's waypoints are chosen from the job's tra
 (``verify.procedure.plan_verify``, as ``lasercal verify`` does) and visited three times in
 the same robot's world: scanner unmoved, scanner shifted 3 mm in a random direction, scanner
 turned 0.3 deg about a random axis through its origin.  Each visit: a background at the
-retract pose, new noisy scans, ``find_rod_centre``, the re-fit with the active calibration's
-rod axes and the drift test (``verify.procedure.refit_and_test``), and the verdict
+retract pose, new noisy scans, ``find_rod_centre``, the re-fit as the calibration's second
+pass fitted its own centres and the drift test (``verify.procedure.refit_and_test``), and the verdict
 (``verify.verdict.decide``, the job's tolerance).
 
 Printed: per seed the chi-square values; the false-alarm rate (unmoved scanner flagged,
@@ -123,10 +123,11 @@ def main() -> None:
         rng = np.random.default_rng(seed)
         world = world_for(job, args.scene, robot_error_seed=1000 + seed)
         try:
-            calibration = simulate(job, poses, world, scans, rng).result
+            trial = simulate(job, poses, world, scans, rng)
         except LasercalError as exc:
             print(f"seed {seed}: calibration failed: {exc}")
             continue
+        calibration = trial.result
         plan = plan_verify(
             job,
             calibration.matrix(),
@@ -136,6 +137,7 @@ def main() -> None:
             count=count,
             budget_s=budget_s,
             range_error=calibration.range_offset,
+            refit=trial.refit,
         )
         selection = plan.selection
         shifted = moved_world(world, rng, SHIFT_M, 0.0)

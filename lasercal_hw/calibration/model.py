@@ -274,21 +274,34 @@ def extended_residuals_and_jacobian(
     curve = np.atleast_1d(np.asarray(range_offset_m, dtype=float))
     terms = int(with_offset)
     if curve.any() or terms:
-        distance = np.linalg.norm(crossing, axis=1)
-        unit = crossing / distance[:, None]
-        error, error_slope = range_error_m(curve, distance)
-        radial = unit[:, :, None] * unit[:, None, :]
-        stretch = (
-            np.eye(2)
-            + error[:, None, None] * (np.eye(2) - radial) / distance[:, None, None]
-            + error_slope[:, None, None] * radial
-        )
+        move, stretch = range_error_effect(crossing, curve)
         full = stretch @ full
-        residual = residual + error[:, None] * unit
+        residual = residual + move
         if terms:
+            distance = np.linalg.norm(crossing, axis=1)
+            unit = crossing / distance[:, None]
             basis = range_error_basis(distance, terms)
             full = np.concatenate([full, unit[:, :, None] * basis[:, None, :]], axis=2)
     return residual, full, slope
+
+
+def range_error_effect(
+    crossing_uv_m: FloatArray, curve: FloatArray, basis: RangeCurveBasis = RANGE_CURVE_BASIS
+) -> tuple[FloatArray, FloatArray]:
+    """What a range error curve does to crossings (N, 2): the move (N, 2) along each bearing
+    by the error at its distance (where the scanner reads the crossing, less the crossing),
+    and the stretch (N, 2, 2) its Jacobian takes (d read / d crossing). The solver's
+    prediction and the verify's drift test both read the crossings through it."""
+    distance = np.linalg.norm(crossing_uv_m, axis=1)
+    unit = crossing_uv_m / distance[:, None]
+    error, error_slope = range_error_m(curve, distance, basis)
+    radial = unit[:, :, None] * unit[:, None, :]
+    stretch = (
+        np.eye(2)
+        + error[:, None, None] * (np.eye(2) - radial) / distance[:, None, None]
+        + error_slope[:, None, None] * radial
+    )
+    return error[:, None] * unit, stretch
 
 
 def extended_fisher_information(

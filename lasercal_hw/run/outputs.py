@@ -111,6 +111,9 @@ class ResultFile:
     robot_calibration: dict[str, Any] | None = None
     #: A dry run's true ``T_base_laser`` (4x4 rows) as recorded, or None.
     ground_truth: list[list[float]] | None = None
+    #: The first pass's ``T_base_laser`` (4x4 rows), with which the second pass fitted every
+    #: centre again, or None where the file has none.
+    first_pass_transform: list[list[float]] | None = None
 
     @property
     def passed(self) -> bool:
@@ -161,6 +164,7 @@ def read_result_file(path: Path) -> ResultFile:
         scanner_name=run.get("scanner_name"),
         robot_calibration=_table(run, "robot_calibration"),
         ground_truth=(_table(document, "ground_truth") or {}).get("T_base_laser"),
+        first_pass_transform=(_table(run, "first_pass") or {}).get("T_base_laser"),
     )
 
 

@@ -59,14 +59,53 @@ def _typical_range_error_m(range_offset: RangeOffset | None) -> float:
     return float(np.median([point.error_mm for point in range_offset.curve])) / 1000.0
 
 
+def _moved_back(centre_uv_m: FloatArray, range_offset_m: float) -> FloatArray:
+    """A centre moved back along its bearing by the range offset (the solver's first-order
+    model of what the offset does to a centre)."""
+    centre = np.asarray(centre_uv_m, dtype=float)
+    return centre * (1.0 - range_offset_m / float(np.linalg.norm(centre)))
+
+
 def _without_range_offset(observation: Observation, range_offset_m: float) -> Observation:
-    """A first-pass centre moved back along its bearing by the range offset (the solver's
-    first-order model of what the offset does to a centre)."""
+    """A first-pass centre moved back along its bearing by the range offset."""
     if not range_offset_m:
         return observation
-    centre = np.asarray(observation.centre_uv_m, dtype=float)
-    moved = centre * (1.0 - range_offset_m / float(np.linalg.norm(centre)))
-    return replace(observation, centre_uv_m=moved)
+    return replace(observation, centre_uv_m=_moved_back(observation.centre_uv_m, range_offset_m))
+
+
+@dataclass(frozen=True)
+class SecondPassRefit:
+    """How the second pass fits every centre again: as the ellipse the rod axis that
+    ``T_base_laser`` (the first pass's transform) predicts cuts from the plane, with
+    ``range_offset_m`` (the first pass's typical range error) taken out of every range before
+    the fit; the solver's range error curve, less that offset, models the rest. The verify
+    fits its centres with the calibration's recorded refit, so the same averaged scan gives
+    it the calibration's centre to the last bit."""
+
+    T_base_laser: FloatArray
+    range_offset_m: float = 0.0
+
+    def centres(
+        self,
+        measurements: Sequence[WaypointMeasurement],
+        rod: RodLine,
+        background: AveragedScan | None,
+    ) -> tuple[list[WaypointMeasurement], list[tuple[int, str]]]:
+        """The measurements with their centres fitted again and freed of the range offset (a
+        centre the re-fit could not replace moved back along its bearing by it), and the
+        waypoints (index, reason) that kept their first centre."""
+        refitted, kept = refit_centres(
+            measurements, self.T_base_laser, rod, background, range_offset_m=self.range_offset_m
+        )
+        if not self.range_offset_m:
+            return refitted, kept
+        kept_indices = {index for index, _ in kept}
+        return [self._moved_back(m) if m.index in kept_indices else m for m in refitted], kept
+
+    def _moved_back(self, measurement: WaypointMeasurement) -> WaypointMeasurement:
+        """A first centre moved back along its bearing by the range offset."""
+        centre = _moved_back(measurement.centre.centre_uv_m, self.range_offset_m)
+        return replace(measurement, centre=replace(measurement.centre, centre_uv_m=centre))
 
 
 @dataclass(frozen=True)
@@ -84,6 +123,8 @@ class TwoPassSolution:
     settings: SolveSettings
     #: (waypoint, warning) for each solved centre that may be off by more than its covariance.
     centre_warnings: list[tuple[int, str]]
+    #: How the second pass fitted its centres (``result.json`` records it: the verify fits so).
+    refit: SecondPassRefit
 
 
 def solve_two_pass(
@@ -107,15 +148,10 @@ def solve_two_pass(
     first = solve([m.observation() for m in measurements], rod, options=options)
     if on_second_pass is not None:
         on_second_pass()
-    range_offset_m = _typical_range_error_m(first.range_offset)
-    refitted, kept = refit_centres(
-        measurements, first.matrix(), first.estimated_rod(rod), background, range_offset_m=range_offset_m
-    )
-    kept_indices = {index for index, _ in kept}
-    observations = [
-        _without_range_offset(m.observation(), range_offset_m) if m.index in kept_indices else m.observation()
-        for m in refitted
-    ]
+    refit = SecondPassRefit(first.matrix(), _typical_range_error_m(first.range_offset))
+    range_offset_m = refit.range_offset_m
+    refitted, kept = refit.centres(measurements, first.estimated_rod(rod), background)
+    observations = [m.observation() for m in refitted]
     # The second pass keeps estimating an offset the first one estimated (and removed above).
     estimate_offset = True if first.range_offset is not None else options.estimate_range_offset
     applied = options.model_copy(
@@ -142,7 +178,7 @@ def solve_two_pass(
             refinement += f"; {phase.note}"
     settings = SolveSettings(rod, applied, job.quality)
     warnings = [(m.index, warning) for m in refitted for warning in m.centre.warnings]
-    return TwoPassSolution(first, result, observations, refinement, kept, settings, warnings)
+    return TwoPassSolution(first, result, observations, refinement, kept, settings, warnings, refit)
 
 
 def refit_centres(

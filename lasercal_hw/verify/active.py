@@ -13,6 +13,7 @@ import numpy as np
 from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.outputs import ResultFile, read_result_file
+from lasercal_hw.run.two_pass import SecondPassRefit
 from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 
 #: Two waypoints are the same pose when they agree this closely (m, and rad of the rotation vector).
@@ -32,6 +33,14 @@ class ActiveCalibration(ResultFile):
     def covariance(self) -> FloatArray:
         """The calibration's 6x6 covariance of (dt, e)."""
         return np.asarray(self.result.covariance, dtype=float)
+
+    def refit(self) -> SecondPassRefit:
+        """How the calibration's second pass fitted its centres (its first pass's transform, the
+        range offset it took out of every range); a file without them (none recorded): the
+        calibrated transform and the raw ranges."""
+        T = self.T_base_laser if self.first_pass_transform is None else self.first_pass_transform
+        applied_m = self.result.provenance.solver_options.get("range_offset_applied_m") or 0.0
+        return SecondPassRefit(np.asarray(T, dtype=float), float(applied_m))
 
     @property
     def rod(self) -> RodLine | None:

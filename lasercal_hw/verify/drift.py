@@ -1,7 +1,9 @@
 """The drift test: are the rod centres measured now where the active calibration says?
 
 For waypoint i the active transform ``T`` predicts the crossing ``p_i`` (the solver's
-measurement model, ``calibration.model``); the scanner measured ``m_i``.  Where the
+measurement model, ``calibration.model``, read through the calibration's range error curve as
+the solver predicted its centres); the scanner measured ``m_i`` (fitted as the calibration's
+second pass fitted its centres: ``run.two_pass.SecondPassRefit``).  Where the
 calibration itself visited that waypoint, the prediction also carries the residual the
 calibration saw there (``b_i``: the robot's repeatable absolute-position error at that
 pose and what the fit left over), so it is the centre measured back then.  The residual
@@ -40,7 +42,7 @@ the tolerance, a test that flags nothing cannot say the scanner is within it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,7 +51,10 @@ from scipy.optimize import brentq
 from scipy.stats import chi2, ncx2
 
 from lasercal_hw.calibration.model import (
+    RANGE_CURVE_BASIS,
+    RangeCurveBasis,
     left_jacobian_so3,
+    range_error_effect,
     residuals_and_jacobian,
     rod_lines_in_base,
 )
@@ -73,6 +78,12 @@ class DriftModel:
     detection_probability: float = 0.9
     prior_shift_m: float = 0.02
     prior_turn_rad: float = float(np.radians(2.0))
+    #: The calibration's range error curve (its coefficients, m, in ``range_curve_basis``) less
+    #: the offset its centres were freed of before their fit (``run.two_pass.SecondPassRefit``):
+    #: the solver predicted every centre as the scanner reads it through this, and so does the
+    #: test (empty: no curve).
+    range_curve_m: FloatArray = field(default_factory=lambda: np.zeros(0))
+    range_curve_basis: RangeCurveBasis = RANGE_CURVE_BASIS
 
     def prior(self) -> FloatArray:
         """Prior covariance (6, 6) of the correction: how far a bump moves a scanner."""
@@ -186,14 +197,19 @@ def detectable_moves(
 
 
 def predictions(
-    T_base_laser: FloatArray, tcp_poses: FloatArray, rod: RodLine
+    model: DriftModel, tcp_poses: FloatArray, T_base_laser: FloatArray | None = None
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Predicted centres (N, 2), their Jacobian (N, 2, 6) in (dt, e) and the slopes (N, 2)
-    of the rod in the scan plane, for the transform ``T_base_laser``."""
-    T = np.asarray(T_base_laser, dtype=float)
-    origins, directions = rod_lines_in_base(np.asarray(tcp_poses, dtype=float).reshape(-1, 6), rod)
+    """Predicted centres (N, 2) as the scanner reads them (the crossings through the model's
+    range error curve, as the solver predicted them), their Jacobian (N, 2, 6) in (dt, e) and
+    the slopes (N, 2) of the rod in the scan plane, for ``T_base_laser`` (None: the model's)."""
+    T = np.asarray(model.T_base_laser if T_base_laser is None else T_base_laser, dtype=float)
+    origins, directions = rod_lines_in_base(np.asarray(tcp_poses, dtype=float).reshape(-1, 6), model.rod)
     zeros = np.zeros((len(origins), 2))
-    return residuals_and_jacobian(T[:3, :3], T[:3, 3], origins, directions, zeros)
+    crossing, jac, slope = residuals_and_jacobian(T[:3, :3], T[:3, 3], origins, directions, zeros)
+    if model.range_curve_m.any():
+        move, stretch = range_error_effect(crossing, model.range_curve_m, model.range_curve_basis)
+        crossing, jac = crossing + move, stretch @ jac
+    return crossing, jac, slope
 
 
 def noise_blocks(
@@ -255,7 +271,7 @@ def run_drift_test(
         np.full((n, 2), np.nan) if recorded_residual_uv_m is None else np.asarray(recorded_residual_uv_m)
     )
     visited = np.isfinite(recorded).all(axis=1)
-    crossing, jac, slope = predictions(model.T_base_laser, poses, model.rod)
+    crossing, jac, slope = predictions(model, poses)
     predicted = crossing + np.where(visited[:, None], recorded, 0.0)
     total = residual_covariance(model, jac, slope, covariance_uv_m2, visited, noise_covariance_uv_m2)
     factor = cho_factor(total)
@@ -308,7 +324,7 @@ def _correction(
 
     def linearised(x: FloatArray) -> tuple[FloatArray, FloatArray]:
         moved = make_transform(rotvec_to_matrix(x[3:]) @ T[:3, :3], T[:3, 3] + x[:3])
-        crossing, jac, _ = predictions(moved, poses, model.rod)
+        crossing, jac, _ = predictions(model, poses, moved)
         jac[:, :, 3:] = jac[:, :, 3:] @ left_jacobian_so3(x[3:])
         return (target_uv_m - crossing).reshape(-1), jac.reshape(-1, 6)
 

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from lasercal_hw.calibration.model import RANGE_CURVE_BASIS
 from lasercal_hw.calibration.result import RangeOffset, WaypointResidual
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import ConfigError
@@ -27,7 +28,7 @@ from lasercal_hw.run.engine import MotionPlan, ProcedureReport, RunRequest, open
 from lasercal_hw.run.events import EventSink, RunEvent, Stage
 from lasercal_hw.run.records import Measured, Timings, WaypointMeasurement
 from lasercal_hw.run.timing import visit_time_s
-from lasercal_hw.run.two_pass import refit_centres
+from lasercal_hw.run.two_pass import SecondPassRefit
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import RodCentre
@@ -83,9 +84,20 @@ def verify_job(job: JobConfig, T_base_laser: FloatArray) -> JobConfig:
     return checking.model_copy(update={"trajectory": listed})
 
 
-def drift_model(T_base_laser: FloatArray, covariance: FloatArray, job: JobConfig) -> DriftModel:
-    """The test's prior knowledge: the calibration and the job's noise settings."""
+def drift_model(
+    T_base_laser: FloatArray,
+    covariance: FloatArray,
+    job: JobConfig,
+    range_error: RangeOffset | None = None,
+    range_offset_applied_m: float = 0.0,
+) -> DriftModel:
+    """The test's prior knowledge: the calibration, its range error curve ``range_error``
+    less the ``range_offset_applied_m`` its second pass took out of every range (None: none),
+    and the job's noise settings."""
     settings = job.verify
+    curve_m = np.zeros(0) if range_error is None else np.array(range_error.coefficients_m())
+    if curve_m.size:
+        curve_m[0] -= range_offset_applied_m
     return DriftModel(
         T_base_laser=np.asarray(T_base_laser, dtype=float),
         covariance=np.asarray(covariance, dtype=float),
@@ -95,6 +107,8 @@ def drift_model(T_base_laser: FloatArray, covariance: FloatArray, job: JobConfig
         false_alarm_rate=settings.false_alarm_rate,
         prior_shift_m=settings.prior_shift_mm / 1000.0,
         prior_turn_rad=float(np.radians(settings.prior_turn_deg)),
+        range_curve_m=curve_m,
+        range_curve_basis=RANGE_CURVE_BASIS if range_error is None else range_error.basis,
     )
 
 
@@ -119,9 +133,8 @@ class VerifyPlan:
     waypoints: FloatArray
     reference: FloatArray
     selection: Selection
-    #: The scanner's range error the calibration estimated (None: none): taken out of the
-    #: measured centres as the calibration's solve did.
-    range_error: RangeOffset | None = None
+    #: How the calibration's second pass fitted its centres: the verify fits its own so.
+    refit: SecondPassRefit
 
 
 def plan_verify(
@@ -134,12 +147,16 @@ def plan_verify(
     count: int | None = None,
     budget_s: float | None = None,
     range_error: RangeOffset | None = None,
+    refit: SecondPassRefit | None = None,
 ) -> VerifyPlan:
-    """How to check the calibration ``T_base_laser`` (with its ``covariance``, and its
-    ``residuals`` at ``recorded_waypoints``, None: not recorded) with ``job``: ``count``
-    waypoints (None: the job's ``verify.waypoints``) chosen within ``budget_s``."""
+    """How to check the calibration ``T_base_laser`` (with its ``covariance``, its range error
+    curve ``range_error`` (None: none), its second pass's ``refit`` (None: none recorded; the
+    calibrated transform and the raw ranges), and its ``residuals`` at ``recorded_waypoints``,
+    None: not recorded) with ``job``: ``count`` waypoints (None: the job's ``verify.waypoints``)
+    chosen within ``budget_s``."""
     checking = verify_job(job, T_base_laser)
-    model = drift_model(T_base_laser, covariance, checking)
+    refit = refit or SecondPassRefit(np.asarray(T_base_laser, dtype=float))
+    model = drift_model(T_base_laser, covariance, checking, range_error, refit.range_offset_m)
     waypoints = job_waypoints(checking)
     reference = recorded_residuals(residuals, recorded_waypoints, waypoints)
     selection = select_waypoints(
@@ -150,7 +167,25 @@ def plan_verify(
         time_of=lambda indices: visit_time_s(checking, waypoints[indices]),
         budget_s=budget_s,
     )
-    return VerifyPlan(checking, model, waypoints, reference, selection, range_error)
+    return VerifyPlan(checking, model, waypoints, reference, selection, refit)
+
+
+def plan_active(
+    active: ActiveCalibration, job: JobConfig, *, count: int | None = None, budget_s: float | None = None
+) -> VerifyPlan:
+    """``plan_verify`` for the calibration ``active`` as its ``result.json`` records it (its
+    transform, covariance, residuals, waypoints, range error curve and second pass)."""
+    return plan_verify(
+        job,
+        active.T_base_laser,
+        active.covariance,
+        active.result.residuals,
+        active.waypoints(),
+        count=count,
+        budget_s=budget_s,
+        range_error=active.result.range_offset,
+        refit=active.refit(),
+    )
 
 
 def verify(
@@ -175,16 +210,8 @@ def verify(
             f"{active.path} does not record the job it was made with: give verify that job file"
         )
     chosen_job = _scanner_job(chosen_job, active)
-    plan = plan_verify(
-        chosen_job,
-        active.T_base_laser,
-        active.covariance,
-        active.result.residuals,
-        active.waypoints(),
-        count=request.waypoints,
-        budget_s=time_budget_s(active, chosen_job),
-        range_error=active.result.range_offset,
-    )
+    budget_s = time_budget_s(active, chosen_job)
+    plan = plan_active(active, chosen_job, count=request.waypoints, budget_s=budget_s)
     job, waypoints, selection = plan.job, plan.waypoints, plan.selection
     sink.emit(
         "stage",
@@ -260,32 +287,22 @@ def verify(
     return report
 
 
-def without_range_error(centres_uv_m: FloatArray, range_error: RangeOffset | None) -> FloatArray:
-    """Centres (N, 2) moved back along their bearing by the range error (measured minus true)
-    the calibration's curve gives at their distance, as the calibration's solve modelled it."""
-    centres_uv_m = np.asarray(centres_uv_m, dtype=float)
-    if range_error is None or not len(centres_uv_m):
-        return centres_uv_m
-    distance_m = np.linalg.norm(centres_uv_m, axis=1)
-    return centres_uv_m * (1.0 - range_error.error_m(distance_m) / distance_m)[:, None]
-
-
 def refit_and_test(
     plan: VerifyPlan, measurements: Sequence[WaypointMeasurement], background: AveragedScan | None
 ) -> tuple[DriftTest | None, list[tuple[int, str]]]:
     """The chosen waypoints' measurements (their ``index`` counts the chosen ones) fitted
-    again with the rod axes the calibration predicts, their drift test (None with fewer
-    than MIN_MEASURED), and the waypoints (index, reason) that kept their first centre."""
-    refitted, kept = refit_centres(measurements, plan.model.T_base_laser, plan.job.rod.rod_line(), background)
+    again as the calibration's second pass fitted its centres (``plan.refit``), their drift
+    test (None with fewer than MIN_MEASURED), and the waypoints (index, reason) that kept
+    their first centre."""
+    refitted, kept = plan.refit.centres(measurements, plan.job.rod.rod_line(), background)
     if len(refitted) < MIN_MEASURED:
         return None, kept
     job_index = [plan.selection.indices[m.index] for m in refitted]
-    centres_uv_m = without_range_error(np.array([m.centre.centre_uv_m for m in refitted]), plan.range_error)
     test = run_drift_test(
         plan.model,
         job_index,
         np.array([m.tcp_pose for m in refitted]),
-        centres_uv_m,
+        np.array([m.centre.centre_uv_m for m in refitted]),
         np.array([m.centre.covariance_uv_m2 for m in refitted]),
         plan.reference[job_index],
         np.array([dwell_noise_covariance(m.centre) for m in refitted]),

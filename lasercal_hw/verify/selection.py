@@ -63,7 +63,7 @@ def waypoint_information(
 ) -> FloatArray:
     """Fisher information (N, 6, 6) of the correction from each waypoint alone (the
     calibration's covariance, which correlates the waypoints it did not visit, left out)."""
-    _, jac, slope = predictions(model.T_base_laser, waypoints, model.rod)
+    _, jac, slope = predictions(model, waypoints)
     centre = np.broadcast_to(np.eye(2) * sigma_uv_m**2, (len(waypoints), 2, 2))
     white = whitening(noise_blocks(model, slope, centre, visited))
     whitened = white @ jac

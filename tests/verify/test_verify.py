@@ -49,7 +49,7 @@ def moved(T: np.ndarray, correction: np.ndarray) -> np.ndarray:
 
 
 def centres(model: DriftModel, poses: np.ndarray, correction: np.ndarray) -> np.ndarray:
-    return predictions(moved(model.T_base_laser, correction), poses, model.rod)[0]
+    return predictions(model, poses, moved(model.T_base_laser, correction))[0]
 
 
 def test_unchanged_centres_pass_and_a_move_is_found(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
@@ -74,7 +74,7 @@ def test_false_alarm_rate_is_the_stated_one(setup: tuple[DriftModel, np.ndarray,
     model = DriftModel(**{**model.__dict__, "false_alarm_rate": 0.3})
     chosen = poses[[0, 3, 6, 9]]
     cov = np.broadcast_to(np.eye(2) * SIGMA_UV_M**2, (4, 2, 2))
-    nominal, jac, slope = predictions(model.T_base_laser, chosen, model.rod)
+    nominal, jac, slope = predictions(model, chosen)
     visited = np.zeros(4, dtype=bool)
     j = jac.reshape(-1, 6)
     total = block_diag(*noise_blocks(model, slope, cov, visited)) + j @ model.covariance @ j.T
@@ -220,7 +220,7 @@ def test_the_stated_power_is_the_power(setup: tuple[DriftModel, np.ndarray, Path
     power = run_drift_test(model, list(range(5)), chosen, still, cov)
     assert power.detection_probability == 0.9
     assert np.all(power.detectable_shift_mm > 0) and np.all(power.detectable_turn_deg > 0)
-    _, jac, slope = predictions(model.T_base_laser, chosen, model.rod)
+    _, jac, slope = predictions(model, chosen)
     noise = residual_covariance(model, jac, slope, cov, np.zeros(5, dtype=bool))
     move = np.array([power.detectable_shift_mm[0] / 1e3, 0, 0, 0, 0, 0])
     rng = np.random.default_rng(7)
@@ -258,27 +258,32 @@ def test_a_verify_over_its_time_share_says_so() -> None:
     )
 
 
-def test_the_calibrations_range_error_is_taken_out_of_the_measured_centres() -> None:
+def test_the_prediction_carries_the_calibrations_range_error_less_the_offset_taken_out_of_the_ranges(
+    setup: tuple[DriftModel, np.ndarray, Path],
+) -> None:
     """A scanner that reads 10 mm long at 1 m and 20 mm more per e-fold of distance beyond (as
-    the calibration estimated) must not look moved to verify; nor one whose calibration was
-    solved before, with the curve's terms in metres of distance."""
+    the calibration estimated), 4 mm of it taken out of every range before the fit: the test
+    predicts each centre 6 + 20 ln(d / 1 m) mm farther along its bearing, as the solver did;
+    and a calibration solved before, with the curve's terms in metres of distance."""
     from lasercal_hw.calibration.result import RangeOffset
-    from lasercal_hw.verify.procedure import without_range_error
 
-    measured = np.array([[0.0, 1.52], [0.606, 0.808]])  # read at 1.52 m and 1.01 m
+    model, poses, path = setup
+    active = load_active_calibration(path)
+    job = active.job
+    assert job is not None
+    crossing = predictions(model, poses[:5])[0]
+    distance_m = np.linalg.norm(crossing, axis=1)
     log_curve = RangeOffset(
         offset_mm=10.0, std_mm=1.0, basis="log_distance", terms_mm=[10.0, 20.0], terms_std_mm=[1.0, 1.0]
     )
-    corrected = without_range_error(measured, log_curve)  # moved in by 10 + 20 ln(d / 1 m) mm
-    distance_m = np.array([1.52, 1.01])
-    expected_m = distance_m - 0.010 - 0.020 * np.log(distance_m)
-    np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), expected_m)
-    np.testing.assert_allclose(corrected[1] / np.linalg.norm(corrected[1]), [0.6, 0.8])  # same bearing
+    curved = drift_model(active.T_base_laser, active.covariance, job, log_curve, 0.004)
+    read = predictions(curved, poses[:5])[0]
+    np.testing.assert_allclose(np.linalg.norm(read, axis=1), distance_m + 0.006 + 0.020 * np.log(distance_m))
+    np.testing.assert_allclose(read / np.linalg.norm(read, axis=1)[:, None], crossing / distance_m[:, None])
     older = RangeOffset(offset_mm=10.0, std_mm=1.0, scale_mm_per_m=20.0, scale_std_mm_per_m=1.0)
     assert older.coefficients_m() == pytest.approx([0.010, 0.020])
-    corrected = without_range_error(measured, older)  # moved in by 10 + 20 * (d - 1 m) mm
-    np.testing.assert_allclose(np.linalg.norm(corrected, axis=1), [1.52 - 0.0204, 1.01 - 0.0102], atol=1e-9)
-    np.testing.assert_array_equal(without_range_error(measured, None), measured)
+    read = predictions(drift_model(active.T_base_laser, active.covariance, job, older), poses[:5])[0]
+    np.testing.assert_allclose(np.linalg.norm(read, axis=1), distance_m + 0.010 + 0.020 * (distance_m - 1.0))
 
 
 def test_at_a_visited_waypoint_only_what_a_dwell_draws_anew_is_counted_twice(
