@@ -66,13 +66,6 @@ def _moved_back(centre_uv_m: FloatArray, range_offset_m: float) -> FloatArray:
     return centre * (1.0 - range_offset_m / float(np.linalg.norm(centre)))
 
 
-def _without_range_offset(observation: Observation, range_offset_m: float) -> Observation:
-    """A first-pass centre moved back along its bearing by the range offset."""
-    if not range_offset_m:
-        return observation
-    return replace(observation, centre_uv_m=_moved_back(observation.centre_uv_m, range_offset_m))
-
-
 @dataclass(frozen=True)
 class SecondPassRefit:
     """How the second pass fits every centre again: as the ellipse the rod axis that
@@ -90,12 +83,15 @@ class SecondPassRefit:
         measurements: Sequence[WaypointMeasurement],
         rod: RodLine,
         background: AveragedScan | None,
+        settings: ExtractionSettings | None = None,
     ) -> tuple[list[WaypointMeasurement], list[tuple[int, str]]]:
-        """The measurements with their centres fitted again and freed of the range offset (a
-        centre the re-fit could not replace moved back along its bearing by it), and the
-        waypoints (index, reason) that kept their first centre."""
+        """The measurements with their centres fitted again (by ``settings``, None: the
+        extraction's defaults) and freed of the range offset (a centre the re-fit could not
+        replace moved back along its bearing by it), and the waypoints (index, reason) that
+        kept their first centre."""
         refitted, kept = refit_centres(
-            measurements, self.T_base_laser, rod, background, range_offset_m=self.range_offset_m
+            measurements, self.T_base_laser, rod, background, range_offset_m=self.range_offset_m,
+            settings=settings,
         )
         if not self.range_offset_m:
             return refitted, kept
@@ -163,11 +159,12 @@ def solve_two_pass(
         "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
     )
     if rod.fluted:
-        plain, _ = refit_centres(
-            measurements, result.matrix(), replace(result.estimated_rod(rod), fluted=False), background,
-            range_offset_m=range_offset_m, settings=PLAIN_EXTRACTION,
+        # The plain fits take the offset out of the ranges as the second pass did (only a
+        # centre the re-fit kept is moved back): once, not twice.
+        plain, _ = SecondPassRefit(result.matrix(), range_offset_m).centres(
+            measurements, replace(result.estimated_rod(rod), fluted=False), background, PLAIN_EXTRACTION
         )
-        plain_observations = [_without_range_offset(m.observation(), range_offset_m) for m in plain]
+        plain_observations = [m.observation() for m in plain]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)
         if phase is None:
             refinement += (

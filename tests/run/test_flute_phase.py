@@ -8,13 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.dry_run_accuracy import measure_waypoints, world_for
 from lasercal_hw.calibration.flutes import flute_offsets_m, glint_offsets
 from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import load_job
 from lasercal_hw.models import Observation
-from lasercal_hw.run.flute_phase import estimate_flute_phase, profile_spread_rad
-from lasercal_hw.run.waypoints import listed_waypoints
+from lasercal_hw.run import two_pass
+from lasercal_hw.run.flute_phase import PLAIN_EXTRACTION, estimate_flute_phase, profile_spread_rad
+from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 
 DRILL_JOB = Path(__file__).resolve().parents[2] / "examples" / "drill.toml"
 SIGMA_M = 0.0003
@@ -86,3 +88,37 @@ def test_phase_std_spans_every_valley_of_the_profile():
     assert np.degrees(profile_spread_rad(phases, sharp, np.radians(80.0))) < 4.0
     jagged = np.minimum(sharp, 2.0 + 5000.0 * ((phases - np.radians(120.0)) ** 2))
     assert np.degrees(profile_spread_rad(phases, jagged, np.radians(80.0))) > 10.0
+
+
+def test_the_phase_pass_gets_plain_centres_with_the_range_offset_out_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The flute phase pass's plain fits take the first pass's range offset out of the ranges as
+    the second pass did, and are not moved back by it a second time (which shifted every centre
+    by the offset, ~9 mm on the drill job, and the reported range curve with it)."""
+    job = load_job(DRILL_JOB)
+    rng = np.random.default_rng(100)
+    world = world_for(job, None, robot_error_seed=1100)
+    measurements, background = measure_waypoints(job, job_waypoints(job), world, 10, rng)
+    seen: dict[str, object] = {}
+
+    def capture(plain, widened, rod, options):
+        seen.update(plain=list(plain), widened=widened, rod=rod)
+        return None
+
+    monkeypatch.setattr(two_pass, "estimate_flute_phase", capture)
+    solution = two_pass.solve_two_pass(measurements, job, background)
+    applied_m = solution.refit.range_offset_m
+    assert abs(applied_m) > 0.002
+    plain_rod = replace(seen["widened"].estimated_rod(job.rod.rod_line()), fluted=False)
+    once, kept = two_pass.refit_centres(
+        measurements, seen["widened"].matrix(), plain_rod, background,
+        range_offset_m=applied_m, settings=PLAIN_EXTRACTION,
+    )
+    kept_indices = {index for index, _ in kept}
+    refitted = [m for m in once if m.index not in kept_indices]
+    assert len(refitted) >= 10
+    by_index = {o.index: o for o in seen["plain"]}
+    np.testing.assert_allclose(
+        [by_index[m.index].centre_uv_m for m in refitted], [m.centre.centre_uv_m for m in refitted], atol=1e-9
+    )
