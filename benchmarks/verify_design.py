@@ -14,9 +14,11 @@ For a subset of waypoints the test's information is ``F = J^T S^-1 J`` (``drift.
 Printed per rule, each inside the time budget: the smallest shift / turn flagged 90 % of the
 time along the weakest base axis (``test.detectable``), and the predicted share of random 3 mm
 shifts and 0.3 deg turns flagged (the non-central chi-square averaged over directions; what
-``verify_rates`` measures). Rules: the verify's choice (D-optimal, one assumed 0.5 mm centre
-noise at every waypoint), D-optimal with the centre covariance the calibration measured at each
-waypoint, and the subset with the smallest weakest-axis turn (exhaustive, the verify's own noise).
+``verify_rates`` measures). Rules: the verify's choice (D-optimal with the centre covariance the
+calibration's solver weighed each waypoint with, as ``result.json`` records it), the same with one
+assumed 0.5 mm centre noise at every waypoint (the choice before 2026-11-27, and that of an older
+``result.json``), and the subset with the smallest weakest-axis turn (exhaustive, the verify's own
+noise).
 
 Verify-only poses: a pose the calibration did not measure is compared with the calibration's
 prediction, whose error has the calibration's covariance, so its information about a turn about
@@ -55,6 +57,7 @@ from lasercal_hw.verify.drift import (
     residual_covariance,
 )
 from lasercal_hw.verify.procedure import VerifyPlan, dwell_noise_covariance, plan_verify
+from lasercal_hw.verify.selection import select_waypoints
 
 SHIFT_M = 0.003
 TURN_RAD = float(np.radians(0.3))
@@ -119,9 +122,6 @@ def main() -> None:
             range_error=result.range_offset,
             refit=solution.refit,
         )
-        recorded = np.full((len(poses), 2, 2), np.nan)
-        for observation in solution.observations:
-            recorded[observation.index] = observation.covariance_uv_m2
         seen, background = measure_waypoints(plan.job, plan.waypoints, world, scans, rng)
         refitted, _ = plan.refit.centres(seen, plan.job.rod.rod_line(), background)
         found = [m.index for m in refitted]
@@ -132,7 +132,7 @@ def main() -> None:
         stated = np.array([m.centre.covariance_uv_m2 for m in refitted])
         noise = np.array([dwell_noise_covariance(m.centre) for m in refitted])
         line = [f"seed {seed:3d}"]
-        chosen, information_of = rules(plan, found, stated, noise, recorded, count, budget_s)
+        chosen, information_of = rules(plan, found, stated, noise, count, budget_s)
         for name, subset in chosen:
             information, dof = information_of(subset)
             threshold = float(chi2.ppf(1.0 - plan.model.false_alarm_rate, dof))
@@ -188,7 +188,6 @@ def rules(
     found: list[int],
     stated: FloatArray,
     noise: FloatArray,
-    recorded: FloatArray,
     count: int,
     budget_s: float,
 ) -> tuple[list[tuple[str, tuple[int, ...]]], Callable[[tuple[int, ...]], tuple[FloatArray, int]]]:
@@ -217,18 +216,20 @@ def rules(
                 return subsets[k]
         raise LasercalError("no subset of the job's waypoints fits the verify's time budget")
 
-    prior = np.linalg.inv(model.prior())
-    cal = recorded[found]
-    known = np.isfinite(cal).all(axis=(1, 2))
-    cal = np.where(known[:, None, None], cal, np.eye(2) * 1.0)  # not measured there: no use
-    recorded_each, noise_each = alone(cal, cal), alone(stated, noise)
-    by_recorded = np.array([recorded_each[list(s)].sum(axis=0) for s in subsets])
+    noise_each = alone(stated, noise)
     by_noise = np.array([noise_each[list(s)].sum(axis=0) for s in subsets])
     weakest_turn = np.sqrt(1.0 / np.einsum("nkk->nk", by_noise)[:, 3:]).max(axis=1)
-    chosen = tuple(found.index(i) for i in plan.selection.indices)
+    assumed = select_waypoints(
+        model,
+        plan.waypoints,
+        count,
+        np.isfinite(plan.reference).all(axis=1),
+        time_of=lambda indices: visit_time_s(plan.job, plan.waypoints[indices]),
+        budget_s=budget_s,
+    )
+    named = [("verify's choice", plan.selection.indices), ("D-optimal, 0.5 mm assumed", assumed.indices)]
     return [
-        ("verify's choice", chosen),
-        ("D-optimal, recorded noise", first_in_budget(-np.linalg.slogdet(by_recorded + prior)[1])),
+        *((name, tuple(map(found.index, chosen))) for name, chosen in named if set(chosen) <= set(found)),
         ("smallest weakest turn", first_in_budget(weakest_turn)),
     ], information_of
 

@@ -30,6 +30,12 @@ class WaypointResidual(BaseModel):
     norm_mm: float
     whitened_norm: float = Field(description="Mahalanobis length under the noise model")
     used: bool
+    covariance_uv_mm2: list[list[float]] | None = Field(
+        default=None,
+        description="the centre covariance (2x2, mm^2) the solver weighed this waypoint with, robot "
+        "noise not included, in the scanner's frame (u along its x axis, v along its y axis, in the "
+        "scan plane); None in a file written before it was recorded",
+    )
 
 
 class Outlier(BaseModel):

@@ -668,12 +668,16 @@ def _result(
         norm_mm.tolist(),
         whitened_norm.tolist(),
         used.tolist(),
+        (data.covariance * 1e6).tolist(),
         strict=True,
     )
     residuals = _RESIDUALS.validate_python(  # one validation of plain dicts: twice as fast as
         [  # 10,000 model constructors, and faster than model_construct
-            {"index": i, "du_mm": du, "dv_mm": dv, "norm_mm": nm, "whitened_norm": wn, "used": u}
-            for i, du, dv, nm, wn, u in columns
+            {
+                "index": i, "du_mm": du, "dv_mm": dv, "norm_mm": nm, "whitened_norm": wn, "used": u,
+                "covariance_uv_mm2": c,
+            }
+            for i, du, dv, nm, wn, u, c in columns
         ]
     )
     transform = make_transform(rotation, translation)

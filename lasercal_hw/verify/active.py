@@ -63,20 +63,47 @@ def load_active_calibration(path: Path) -> ActiveCalibration:
     return ActiveCalibration(**{field.name: getattr(read, field.name) for field in fields(read)})
 
 
+def _recorded_at(
+    residuals: Sequence[WaypointResidual],
+    recorded_waypoints: FloatArray | None,
+    waypoints: FloatArray,
+    *,
+    used_only: bool,
+) -> list[WaypointResidual | None]:
+    """The calibration's residual row at each of ``waypoints`` (matched by pose), None where it
+    did not visit that pose (or, ``used_only``, left it out of its fit)."""
+    poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
+    if recorded_waypoints is None:
+        return [None] * len(poses)
+    recorded = np.asarray(recorded_waypoints, dtype=float).reshape(-1, 6)
+    by_index = {r.index: r for r in residuals if r.used or not used_only}
+    rows: list[WaypointResidual | None] = []
+    for pose in poses:
+        same = np.flatnonzero(np.max(np.abs(recorded - pose), axis=1) <= SAME_POSE_TOLERANCE)
+        rows.append(next((by_index[j] for j in same if j in by_index), None))
+    return rows
+
+
 def recorded_residuals(
     residuals: Sequence[WaypointResidual], recorded_waypoints: FloatArray | None, waypoints: FloatArray
 ) -> FloatArray:
     """The calibration's residual (measured minus predicted, m; (N, 2)) at each of
     ``waypoints``, NaN where it did not visit that pose or left it out of its fit."""
-    poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
-    out = np.full((len(poses), 2), np.nan)
-    if recorded_waypoints is None:
-        return out
-    recorded = np.asarray(recorded_waypoints, dtype=float).reshape(-1, 6)
-    by_index = {r.index: r for r in residuals if r.used}
-    for i, pose in enumerate(poses):
-        same = np.flatnonzero(np.max(np.abs(recorded - pose), axis=1) <= SAME_POSE_TOLERANCE)
-        hit = next((by_index[j] for j in same if j in by_index), None)
-        if hit is not None:
-            out[i] = (hit.du_mm / 1e3, hit.dv_mm / 1e3)
-    return out
+    rows = _recorded_at(residuals, recorded_waypoints, waypoints, used_only=True)
+    pairs = [(np.nan, np.nan) if r is None else (r.du_mm / 1e3, r.dv_mm / 1e3) for r in rows]
+    return np.array(pairs, dtype=float).reshape(-1, 2)
+
+
+def recorded_centre_covariances(
+    residuals: Sequence[WaypointResidual], recorded_waypoints: FloatArray | None, waypoints: FloatArray
+) -> FloatArray:
+    """The centre covariance (m^2, (N, 2, 2), scanner frame) the calibration's solver weighed
+    each of ``waypoints`` with, outliers too, NaN where it did not measure that pose or its
+    ``result.json`` predates the record (``WaypointResidual.covariance_uv_mm2``)."""
+    rows = _recorded_at(residuals, recorded_waypoints, waypoints, used_only=False)
+    unknown = np.full((2, 2), np.nan)
+    blocks = [
+        unknown if r is None or r.covariance_uv_mm2 is None else np.array(r.covariance_uv_mm2) / 1e6
+        for r in rows
+    ]
+    return np.array(blocks, dtype=float).reshape(-1, 2, 2)

@@ -32,7 +32,12 @@ from lasercal_hw.run.two_pass import SecondPassRefit
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import RodCentre
-from lasercal_hw.verify.active import ActiveCalibration, load_active_calibration, recorded_residuals
+from lasercal_hw.verify.active import (
+    ActiveCalibration,
+    load_active_calibration,
+    recorded_centre_covariances,
+    recorded_residuals,
+)
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
 from lasercal_hw.verify.identity import IdentityCheck, check_identity, robot_calibration_check
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
@@ -153,7 +158,8 @@ def plan_verify(
     curve ``range_error`` (None: none), its second pass's ``refit`` (None: none recorded; the
     calibrated transform and the raw ranges), and its ``residuals`` at ``recorded_waypoints``,
     None: not recorded) with ``job``: ``count`` waypoints (None: the job's ``verify.waypoints``)
-    chosen within ``budget_s``."""
+    chosen within ``budget_s``, each weighed with the centre covariance the calibration recorded
+    there."""
     checking = verify_job(job, T_base_laser)
     refit = refit or SecondPassRefit(np.asarray(T_base_laser, dtype=float))
     model = drift_model(T_base_laser, covariance, checking, range_error, refit.range_offset_m)
@@ -166,6 +172,7 @@ def plan_verify(
         np.isfinite(reference).all(axis=1),
         time_of=lambda indices: visit_time_s(checking, waypoints[indices]),
         budget_s=budget_s,
+        centre_covariance_uv_m2=recorded_centre_covariances(residuals, recorded_waypoints, waypoints),
     )
     return VerifyPlan(checking, model, waypoints, reference, selection, refit)
 

@@ -2,7 +2,12 @@
 
 The subset of ``count`` waypoints maximises ``log det(F_S + P^-1)`` (Bayesian D-optimal
 design): ``F_S`` is the Fisher information of the correction ``(dt, e)`` from the chosen
-waypoints under the verify's noise model, ``P`` the correction's prior (``drift``). A
+waypoints under the drift test's own noise model (``drift.noise_blocks``), with each
+waypoint's centre covariance as the calibration's solver weighed it there (recorded in
+``result.json``; a waypoint it has none for: ``DESIGN_SIGMA_UV_M``). A warned centre (a rod
+blended with the wall behind it, tens of mm of std) then counts for the little it tells,
+where one assumed noise for all made it a waypoint of every verify. ``P`` is the
+correction's prior (``drift``). A
 large determinant means a small confidence ellipsoid in every direction at once, so the
 chosen waypoints spread over the scan plane and the tool tilts by themselves: a subset
 that left one direction of the transform untested would have a near-zero factor there.
@@ -24,7 +29,8 @@ from lasercal_hw.errors import CalibrationError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.verify.drift import DriftModel, noise_blocks, predictions
 
-#: Centre noise the design assumes (a 20 mm rod over a 3 s dwell: about 0.5 mm per axis).
+#: Centre noise the design assumes where the calibration recorded none (a 20 mm rod over a
+#: 3 s dwell: about 0.5 mm per axis).
 DESIGN_SIGMA_UV_M = 0.0005
 MIN_INCIDENCE_DEG = 10.0
 MIN_WAYPOINTS = 2
@@ -40,6 +46,8 @@ class Selection:
     expected_std_shift_mm: list[float]
     expected_std_turn_deg: list[float]
     estimated_time_s: float | None = None
+    #: Which centre noise the choice weighed the candidates with (``centre_noise_note``).
+    centre_noise: str = ""
 
 
 def _crosses_plane(model: DriftModel, waypoints: FloatArray) -> np.ndarray:
@@ -59,15 +67,33 @@ def _crosses_plane(model: DriftModel, waypoints: FloatArray) -> np.ndarray:
 
 
 def waypoint_information(
-    model: DriftModel, waypoints: FloatArray, visited: NDArray[np.bool_], sigma_uv_m: float
+    model: DriftModel, waypoints: FloatArray, visited: NDArray[np.bool_], centre_covariance_uv_m2: FloatArray
 ) -> FloatArray:
-    """Fisher information (N, 6, 6) of the correction from each waypoint alone (the
-    calibration's covariance, which correlates the waypoints it did not visit, left out)."""
+    """Fisher information (N, 6, 6) of the correction from each waypoint alone, its centre
+    covariance (N, 2, 2) taken as the drift test takes a centre whose repeating part is unknown
+    (all of it drawn anew by a dwell: ``drift.noise_blocks`` without a noise part); the
+    calibration's covariance, which correlates the waypoints it did not visit, left out."""
     _, jac, slope = predictions(model, waypoints)
-    centre = np.broadcast_to(np.eye(2) * sigma_uv_m**2, (len(waypoints), 2, 2))
-    white = whitening(noise_blocks(model, slope, centre, visited))
+    white = whitening(noise_blocks(model, slope, np.asarray(centre_covariance_uv_m2, dtype=float), visited))
     whitened = white @ jac
     return np.swapaxes(whitened, 1, 2) @ whitened
+
+
+def centre_noise_note(known: NDArray[np.bool_]) -> str:
+    """Which centre noise the choice weighed ``known.size`` candidates with (``known``: the
+    calibration recorded the centre covariance there), for ``verify.json``'s selection."""
+    assumed = f"{DESIGN_SIGMA_UV_M * 1e3:g} mm per axis assumed"
+    if known.all():
+        return "the centre covariance the calibration's solver weighed each candidate with"
+    if not known.any():
+        return (
+            f"{assumed} at every candidate: the calibration's result.json records no centre covariance "
+            "(written before it did, or it measured none of these poses)"
+        )
+    return (
+        f"the centre covariance the calibration's solver weighed it with at {int(known.sum())} of "
+        f"{known.size} candidates; {assumed} at the rest (the calibration did not measure them)"
+    )
 
 
 def _log_det(matrix: FloatArray) -> float:
@@ -83,13 +109,14 @@ def select_waypoints(
     *,
     time_of: Callable[[list[int]], float | None] | None = None,
     budget_s: float | None = None,
-    sigma_uv_m: float = DESIGN_SIGMA_UV_M,
+    centre_covariance_uv_m2: FloatArray | None = None,
 ) -> Selection:
     """The D-optimal subset of ``count`` waypoints (all usable ones if fewer), visited in
     trajectory order; ``visited`` (N,) marks the waypoints the calibration measured (None:
-    none). With ``time_of`` (waypoint indices -> seconds, None if unknown) and
-    ``budget_s``, exchanges first bring the subset within the budget, then improve it
-    inside the budget only."""
+    none), ``centre_covariance_uv_m2`` (N, 2, 2; m^2) the centre covariance the calibration
+    weighed each with (NaN or None: unknown, ``DESIGN_SIGMA_UV_M`` assumed). With ``time_of``
+    (waypoint indices -> seconds, None if unknown) and ``budget_s``, exchanges first bring the
+    subset within the budget, then improve it inside the budget only."""
     poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     seen = np.zeros(len(poses), dtype=bool) if visited is None else np.asarray(visited, dtype=bool)
     usable = np.flatnonzero(_crosses_plane(model, poses))
@@ -98,7 +125,14 @@ def select_waypoints(
             f"only {len(usable)} of the trajectory's {len(poses)} waypoints put the rod through the scan "
             "plane the calibration describes: check that the job and the calibration belong to this cell"
         )
-    information = waypoint_information(model, poses[usable], seen[usable], sigma_uv_m)
+    recorded = (
+        np.full((len(poses), 2, 2), np.nan)
+        if centre_covariance_uv_m2 is None
+        else np.asarray(centre_covariance_uv_m2, dtype=float).reshape(-1, 2, 2)
+    )[usable]
+    known = np.isfinite(recorded).all(axis=(1, 2))
+    centre = np.where(known[:, None, None], recorded, np.eye(2) * DESIGN_SIGMA_UV_M**2)
+    information = waypoint_information(model, poses[usable], seen[usable], centre)
     base = np.linalg.inv(model.prior())
 
     def score(subset: list[int]) -> float:
@@ -137,4 +171,5 @@ def select_waypoints(
         expected_std_shift_mm=[float(v) for v in std[:3] * 1e3],
         expected_std_turn_deg=[float(v) for v in np.degrees(std[3:])],
         estimated_time_s=time_of(sorted(int(usable[k]) for k in chosen)) if time_of is not None else None,
+        centre_noise=centre_noise_note(known),
     )

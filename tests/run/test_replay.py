@@ -88,6 +88,24 @@ def test_cluster_of_2_from_step_90_replays_like_the_live_run(recorded: tuple[Pat
     np.testing.assert_allclose(replay.solution.result.matrix(), outcome.result.matrix(), rtol=0, atol=1e-12)
 
 
+def test_each_waypoints_centre_covariance_is_recorded_and_a_replay_computes_it_again(
+    recorded: tuple[Path, RunOutcome],
+) -> None:
+    """result.json records, with each residual, the centre covariance the solver weighed that
+    waypoint with (mm^2, the scanner's frame): the verify's choice weighs its candidates with it.
+    A replay computes it from its own re-extracted centres, and gets the live run's."""
+    path, outcome = recorded
+    replay = solve_recording(path).solution
+    weighed = {o.index: np.asarray(o.covariance_uv_m2) * 1e6 for o in replay.observations}
+    assert len(replay.result.residuals) == len(outcome.result.residuals) == len(weighed)
+    for live, again in zip(outcome.result.residuals, replay.result.residuals, strict=True):
+        assert live.covariance_uv_mm2 is not None and again.covariance_uv_mm2 is not None
+        np.testing.assert_allclose(again.covariance_uv_mm2, weighed[again.index], rtol=1e-12)
+        np.testing.assert_allclose(again.covariance_uv_mm2, live.covariance_uv_mm2, rtol=1e-9)
+    document = outcome.result.to_json_dict()["residuals"][0]
+    assert np.shape(document["covariance_uv_mm2"]) == (2, 2)
+
+
 def test_reversed_scans_fail_loudly(recorded: tuple[Path, RunOutcome], tmp_path: Path) -> None:
     path, _ = recorded
     recording = read_session(path)

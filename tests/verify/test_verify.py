@@ -16,6 +16,7 @@ from lasercal_hw.config import job_from_mapping
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.geometry import make_transform, rotvec_to_matrix
 from lasercal_hw.models import RobotIdentity, ScannerIdentity
+from lasercal_hw.run.records import Timings
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify import VerifyRequest, verify
 from lasercal_hw.verify.active import load_active_calibration, recorded_residuals
@@ -27,7 +28,8 @@ from lasercal_hw.verify.drift import (
     run_drift_test,
 )
 from lasercal_hw.verify.identity import check_identity
-from lasercal_hw.verify.procedure import drift_model
+from lasercal_hw.verify.outputs import VerifyOutcome, verify_document
+from lasercal_hw.verify.procedure import drift_model, plan_active
 from lasercal_hw.verify.selection import _log_det, select_waypoints, waypoint_information
 from lasercal_hw.verify.verdict import Verdict, decide, with_time_note
 from tests.cli_helpers import assert_one_line_error, run_cli
@@ -108,7 +110,8 @@ def test_chosen_waypoints_beat_random_subsets(setup: tuple[DriftModel, np.ndarra
     visited = np.ones(len(poses), dtype=bool)
     selection = select_waypoints(model, poses, 4, visited)
     assert len(selection.indices) == 4 and selection.indices == sorted(selection.indices)
-    information = waypoint_information(model, poses, visited, 0.0005)
+    assumed = np.broadcast_to(np.eye(2) * 0.0005**2, (len(poses), 2, 2))
+    information = waypoint_information(model, poses, visited, assumed)
     prior = np.linalg.inv(model.prior())
     best = _log_det(prior + information[selection.indices].sum(axis=0))
     rng = np.random.default_rng(3)
@@ -324,3 +327,48 @@ def test_a_warned_centre_is_not_taken_as_repeating_at_a_revisited_waypoint() -> 
     )
     np.testing.assert_array_equal(dwell_noise_covariance(clean), noise)
     np.testing.assert_array_equal(dwell_noise_covariance(warned), whole)
+
+
+def _calibration_with(folder: Path, covariance_of: dict[int, float] | None) -> Path:
+    """The test calibration's result.json with waypoint k's recorded centre std set to
+    ``covariance_of[k]`` mm (None: every residual's record removed, as an older file)."""
+    path = write_calibration(folder, fast_job())
+    document = json.loads(path.read_text(encoding="utf-8"))
+    for row in document["residuals"]:
+        if covariance_of is None:
+            del row["covariance_uv_mm2"]
+        elif row["index"] in covariance_of:
+            row["covariance_uv_mm2"] = (np.eye(2) * covariance_of[row["index"]] ** 2).tolist()
+    path.write_text(json.dumps(document), encoding="utf-8")
+    return path
+
+
+def test_the_choice_avoids_a_waypoint_whose_recorded_centre_is_vague(tmp_path: Path) -> None:
+    """The calibration's own centre covariance at each waypoint weighs the choice: a rod blended
+    with the wall behind it (60-170 mm of std on the physical scanner) tells the test nothing,
+    and an assumed 0.5 mm everywhere made it one of every verify's four waypoints."""
+    job = fast_job()
+    plain = plan_active(load_active_calibration(_calibration_with(tmp_path / "plain", {})), job)
+    vague = plain.selection.indices[0]
+    active = load_active_calibration(_calibration_with(tmp_path / "vague", {vague: 100.0}))
+    chosen = plan_active(active, job).selection
+    assert vague not in chosen.indices and len(chosen.indices) == len(plain.selection.indices)
+    assert chosen.centre_noise.startswith("the centre covariance the calibration's solver weighed")
+
+
+def test_an_older_calibration_without_centre_covariances_says_the_choice_assumed_them(tmp_path: Path) -> None:
+    """A result.json written before the centre covariances were recorded: the choice falls back to
+    0.5 mm at every waypoint, and verify.json's selection says so."""
+    job = fast_job()
+    older = load_active_calibration(_calibration_with(tmp_path / "older", None))
+    assert all(row.covariance_uv_mm2 is None for row in older.result.residuals)
+    plan = plan_active(older, job)
+    note = plan.selection.centre_noise
+    assert note.startswith("0.5 mm per axis assumed at every candidate")
+    assert "records no centre covariance" in note
+    # The test calibration was solved with 0.5 mm centres: recorded or assumed, the same choice.
+    recorded = plan_active(load_active_calibration(_calibration_with(tmp_path / "new", {})), job)
+    assert plan.selection.indices == recorded.selection.indices
+    verdict = Verdict("recalibrate", "r")
+    outcome = VerifyOutcome(older, plan.job, plan.selection, [], None, verdict, [], [], [], Timings())
+    assert verify_document(outcome)["selection"]["centre_noise"] == note
