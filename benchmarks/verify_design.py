@@ -121,9 +121,10 @@ def main() -> None:
             budget_s=budget_s,
             range_error=result.range_offset,
             refit=solution.refit,
+            rod=result.estimated_rod(job.rod.rod_line()),
         )
         seen, background = measure_waypoints(plan.job, plan.waypoints, world, scans, rng)
-        refitted, _ = plan.refit.centres(seen, plan.job.rod.rod_line(), background)
+        refitted, _ = plan.refit.centres(seen, background)
         found = [m.index for m in refitted]
         if not set(plan.selection.indices) <= set(found):
             print(f"seed {seed}: the rod was not found at every chosen waypoint; left out")

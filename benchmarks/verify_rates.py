@@ -3,12 +3,15 @@ calibration's (offline; not collected by pytest).
 
 Run from the repository root::
 
-    .venv/bin/python -m benchmarks.verify_rates [--config FILE] [--seeds 50] [--waypoints 5]
+    .venv/bin/python -m benchmarks.verify_rates [--config FILE] [--scene FILE] [--bit-off] [--seeds 50]
+        [--waypoints 5]
 
 Per seed, no devices and no sockets, all through the product's own code: a calibration is
 simulated in the fake world (``benchmarks.dry_run_accuracy.simulate``: the job's
 trajectory, averaged noisy scans, ``find_rod_centre``, the two-pass solve; a new robot
-error field per seed), then the verify's waypoints are chosen from the job's trajectory
+error field per seed; ``--bit-off``: the world's rod 2 mm off and 1 deg tilted from the job's
+axis, ``benchmarks.accuracy_conditions.real_bit``, for a job that estimates it), then the
+verify's waypoints are chosen from the job's trajectory
 (``verify.procedure.plan_verify``, as ``lasercal verify`` does) and visited three times in
 the same robot's world: scanner unmoved, scanner shifted 3 mm in a random direction, scanner
 turned 0.3 deg about a random axis through its origin.  Each visit: a background at the
@@ -16,7 +19,8 @@ retract pose, new noisy scans, ``find_rod_centre``, the re-fit as the calibratio
 pass fitted its own centres and the drift test (``verify.procedure.refit_and_test``), and the verdict
 (``verify.verdict.decide``, the job's tolerance).
 
-Printed: per seed the chi-square values; the false-alarm rate (unmoved scanner flagged,
+Printed: per seed the chi-square values; the unmoved chi-square's median and mean against its
+degrees of freedom; the false-alarm rate (unmoved scanner flagged,
 with a 95 % Clopper-Pearson interval) against the stated rate; the detection rates (the
 test flags the moved scanner); the smallest move the test detects 90 % of the time along
 its weakest direction (its power; above the tolerance the verdict is ``inconclusive``); the
@@ -35,7 +39,9 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import beta
 
-from benchmarks.dry_run_accuracy import measure_waypoints, simulate, world_for
+from benchmarks.accuracy_conditions import real_bit
+from benchmarks.dry_run_accuracy import measure_waypoints, simulate, world_with
+from fakes.scene import load_scene
 from fakes.world import World
 from lasercal_hw.config import load_job
 from lasercal_hw.errors import LasercalError
@@ -94,6 +100,9 @@ def main() -> None:
     parser.add_argument("--scene", type=Path, default=None, help="scene file (default: packaged default)")
     parser.add_argument("--seeds", type=int, default=50)
     parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument(
+        "--bit-off", action="store_true", help="the world's rod 2 mm off and 1 deg tilted from the job's axis"
+    )
     parser.add_argument("--waypoints", type=int, default=None, help="default: the job's verify.waypoints")
     parser.add_argument(
         "--no-reference",
@@ -121,7 +130,8 @@ def main() -> None:
     started = time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         rng = np.random.default_rng(seed)
-        world = world_for(job, args.scene, robot_error_seed=1000 + seed)
+        true_rod = real_bit(job.rod.rod_line()) if args.bit_off else job.rod.rod_line()
+        world = world_with(load_scene(args.scene), true_rod, robot_error_seed=1000 + seed)
         try:
             trial = simulate(job, poses, world, scans, rng)
         except LasercalError as exc:
@@ -138,6 +148,7 @@ def main() -> None:
             budget_s=budget_s,
             range_error=calibration.range_offset,
             refit=trial.refit,
+            rod=calibration.estimated_rod(job.rod.rod_line()),
         )
         selection = plan.selection
         shifted = moved_world(world, rng, SHIFT_M, 0.0)
@@ -168,6 +179,11 @@ def main() -> None:
         )
     measured = [t for t in outcomes["unmoved"] if t is not None]
     if measured:
+        chi_square = np.array([t.chi_square for t in measured])
+        print(
+            f"  unmoved chi-square: median {np.median(chi_square):.2f}, mean {chi_square.mean():.2f}, max "
+            f"{chi_square.max():.2f} on {measured[0].dof} dof (honest: mean {measured[0].dof})"
+        )
         shift = np.array([max(t.detectable_shift_mm) for t in measured])
         turn = np.array([max(t.detectable_turn_deg) for t in measured])
         print(

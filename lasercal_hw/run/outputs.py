@@ -64,10 +64,7 @@ def result_document(
         "skipped": [{"index": s.index, "reason": s.reason} for s in outcome.skipped],
         "centre_warnings": [{"index": i, "warning": warning} for i, warning in outcome.centre_warnings],
         "refinement": outcome.refinement,
-        "first_pass": {
-            "T_base_laser": outcome.first_pass.T_base_laser,
-            "rms_residual_mm": outcome.first_pass.rms_residual_mm,
-        },
+        "first_pass": first_pass_record(outcome.first_pass, job),
         "resumed_after_waypoints": outcome.resumed_from,
         "timings": {
             "wall_s": outcome.timings.wall_s,
@@ -93,6 +90,21 @@ def result_document(
     return document
 
 
+def first_pass_record(first_pass: CalibrationResult, job: JobConfig) -> dict[str, Any]:
+    """``result.json``'s ``run.first_pass``: the first pass's transform and residual, and the rod
+    line (TCP frame) with which the second pass fitted every centre again: the first pass's
+    estimate of it (``solve_two_pass``), the job's own when the job does not estimate the axis."""
+    rod = first_pass.estimated_rod(job.rod.rod_line())
+    return {
+        "T_base_laser": first_pass.T_base_laser,
+        "rms_residual_mm": first_pass.rms_residual_mm,
+        "rod": {
+            "origin_m": np.asarray(rod.origin_m, dtype=float).tolist(),
+            "direction": np.asarray(rod.direction, dtype=float).tolist(),
+        },
+    }
+
+
 @dataclass(frozen=True)
 class ResultFile:
     """A ``result.json`` read back: the calibration, the run's verdict and what the run
@@ -114,6 +126,10 @@ class ResultFile:
     #: The first pass's ``T_base_laser`` (4x4 rows), with which the second pass fitted every
     #: centre again, or None where the file has none.
     first_pass_transform: list[list[float]] | None = None
+    #: The rod line (TCP frame: ``origin_m``, ``direction``) with which the second pass fitted
+    #: every centre again (the first pass's estimate of it, or the job's), or None where the
+    #: file has none.
+    first_pass_rod: dict[str, list[float]] | None = None
 
     @property
     def passed(self) -> bool:
@@ -165,6 +181,7 @@ def read_result_file(path: Path) -> ResultFile:
         robot_calibration=_table(run, "robot_calibration"),
         ground_truth=(_table(document, "ground_truth") or {}).get("T_base_laser"),
         first_pass_transform=(_table(run, "first_pass") or {}).get("T_base_laser"),
+        first_pass_rod=_table(_table(run, "first_pass") or {}, "rod"),
     )
 
 

@@ -68,20 +68,21 @@ def _moved_back(centre_uv_m: FloatArray, range_offset_m: float) -> FloatArray:
 
 @dataclass(frozen=True)
 class SecondPassRefit:
-    """How the second pass fits every centre again: as the ellipse the rod axis that
-    ``T_base_laser`` (the first pass's transform) predicts cuts from the plane, with
-    ``range_offset_m`` (the first pass's typical range error) taken out of every range before
-    the fit; the solver's range error curve, less that offset, models the rest. The verify
-    fits its centres with the calibration's recorded refit, so the same averaged scan gives
-    it the calibration's centre to the last bit."""
+    """How the second pass fits every centre again: as the ellipse the axis of ``rod`` (the
+    first pass's estimate of it when the job estimates the axis) cuts from the plane as
+    ``T_base_laser`` (the first pass's transform) predicts it, with ``range_offset_m`` (the
+    first pass's typical range error) taken out of every range before the fit; the solver's
+    range error curve, less that offset, models the rest. The verify fits its centres with the
+    calibration's recorded refit, so the same averaged scan gives it the calibration's centre
+    to the last bit."""
 
     T_base_laser: FloatArray
+    rod: RodLine
     range_offset_m: float = 0.0
 
     def centres(
         self,
         measurements: Sequence[WaypointMeasurement],
-        rod: RodLine,
         background: AveragedScan | None,
         settings: ExtractionSettings | None = None,
     ) -> tuple[list[WaypointMeasurement], list[tuple[int, str]]]:
@@ -90,7 +91,7 @@ class SecondPassRefit:
         replace moved back along its bearing by it), and the waypoints (index, reason) that
         kept their first centre."""
         refitted, kept = refit_centres(
-            measurements, self.T_base_laser, rod, background, range_offset_m=self.range_offset_m,
+            measurements, self.T_base_laser, self.rod, background, range_offset_m=self.range_offset_m,
             settings=settings,
         )
         if not self.range_offset_m:
@@ -144,9 +145,11 @@ def solve_two_pass(
     first = solve([m.observation() for m in measurements], rod, options=options)
     if on_second_pass is not None:
         on_second_pass()
-    refit = SecondPassRefit(first.matrix(), _typical_range_error_m(first.range_offset))
+    refit = SecondPassRefit(
+        first.matrix(), first.estimated_rod(rod), _typical_range_error_m(first.range_offset)
+    )
     range_offset_m = refit.range_offset_m
-    refitted, kept = refit.centres(measurements, first.estimated_rod(rod), background)
+    refitted, kept = refit.centres(measurements, background)
     observations = [m.observation() for m in refitted]
     # The second pass keeps estimating an offset the first one estimated (and removed above).
     estimate_offset = True if first.range_offset is not None else options.estimate_range_offset
@@ -161,8 +164,9 @@ def solve_two_pass(
     if rod.fluted:
         # The plain fits take the offset out of the ranges as the second pass did (only a
         # centre the re-fit kept is moved back): once, not twice.
-        plain, _ = SecondPassRefit(result.matrix(), range_offset_m).centres(
-            measurements, replace(result.estimated_rod(rod), fluted=False), background, PLAIN_EXTRACTION
+        plain_rod = replace(result.estimated_rod(rod), fluted=False)
+        plain, _ = SecondPassRefit(result.matrix(), plain_rod, range_offset_m).centres(
+            measurements, background, PLAIN_EXTRACTION
         )
         plain_observations = [m.observation() for m in plain]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)

@@ -5,12 +5,13 @@ devices, the job (rod and trajectory) and the residual at every waypoint."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
 from lasercal_hw.calibration.result import WaypointResidual
+from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.outputs import ResultFile, read_result_file
 from lasercal_hw.run.two_pass import SecondPassRefit
@@ -34,13 +35,53 @@ class ActiveCalibration(ResultFile):
         """The calibration's 6x6 covariance of (dt, e)."""
         return np.asarray(self.result.covariance, dtype=float)
 
-    def refit(self) -> SecondPassRefit:
-        """How the calibration's second pass fitted its centres (its first pass's transform, the
-        range offset it took out of every range); a file without them (none recorded): the
-        calibrated transform and the raw ranges."""
+    def refit(self, nominal: RodLine) -> SecondPassRefit:
+        """How the calibration's second pass fitted its centres of the rod ``nominal`` (its first
+        pass's transform, the rod line it fitted with, the range offset it took out of every
+        range); what a file does not record: the calibrated transform, ``nominal``'s line and the
+        raw ranges (``rod_note`` says which rod)."""
         T = self.T_base_laser if self.first_pass_transform is None else self.first_pass_transform
         applied_m = self.result.provenance.solver_options.get("range_offset_applied_m") or 0.0
-        return SecondPassRefit(np.asarray(T, dtype=float), float(applied_m))
+        return SecondPassRefit(np.asarray(T, dtype=float), self._refit_rod(nominal), float(applied_m))
+
+    def rod_note(self) -> str:
+        """Which rod line the verify fits its centres with and which predicts them (``verify.json``)."""
+        axis = self.result.rod_axis
+        estimated = axis is not None and axis.estimated
+        predicted = "the rod the calibration estimated (rod_axis)" if estimated else "the job's rod"
+        if self.first_pass_rod is not None:
+            return (
+                "centres fitted again with the rod line the calibration's second pass used "
+                f"(run.first_pass.rod), predicted with {predicted}"
+            )
+        note = (
+            "result.json does not record the rod line its second pass used (written before 2026-11-27): "
+            f"centres fitted again with the job's nominal rod, predicted with {predicted}"
+        )
+        if estimated:
+            offset_mm = float(np.linalg.norm(axis.crossing_offset_mm))
+            note += f"; the estimate is {offset_mm:.1f} mm off it at the plane, which may stay in residuals"
+        return note
+
+    def _refit_rod(self, nominal: RodLine) -> RodLine:
+        """``nominal`` on the recorded line of the second pass (``run.first_pass.rod``), if any."""
+        if self.first_pass_rod is None:
+            return nominal
+        try:
+            origin_m = np.asarray(self.first_pass_rod["origin_m"], dtype=float).reshape(3)
+            direction = np.asarray(self.first_pass_rod["direction"], dtype=float).reshape(3)
+        except (KeyError, TypeError, ValueError):
+            raise ConfigError(
+                f"{self.path}: run.first_pass.rod is not a rod line (origin_m and direction, 3 numbers "
+                "each); pass the result.json that `lasercal run` wrote"
+            ) from None
+        finite = np.isfinite(origin_m).all() and np.isfinite(direction).all()
+        if not finite or np.linalg.norm(direction) == 0.0:
+            raise ConfigError(
+                f"{self.path}: run.first_pass.rod has a non-finite origin or a zero direction; pass the "
+                "result.json that `lasercal run` wrote"
+            )
+        return replace(nominal, origin_m=origin_m, direction=direction)
 
     @property
     def rod(self) -> RodLine | None:

@@ -22,7 +22,7 @@ from lasercal_hw.calibration.result import RangeOffset, WaypointResidual
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_euler_zyx
-from lasercal_hw.models import FloatArray
+from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.engine import MotionPlan, ProcedureReport, RunRequest, open_sequencer
 from lasercal_hw.run.events import EventSink, RunEvent, Stage
@@ -95,10 +95,11 @@ def drift_model(
     job: JobConfig,
     range_error: RangeOffset | None = None,
     range_offset_applied_m: float = 0.0,
+    rod: RodLine | None = None,
 ) -> DriftModel:
     """The test's prior knowledge: the calibration, its range error curve ``range_error``
     less the ``range_offset_applied_m`` its second pass took out of every range (None: none),
-    and the job's noise settings."""
+    the rod it estimated (None: the job's) and the job's noise settings."""
     settings = job.verify
     curve_m = np.zeros(0) if range_error is None else np.array(range_error.coefficients_m())
     if curve_m.size:
@@ -106,7 +107,7 @@ def drift_model(
     return DriftModel(
         T_base_laser=np.asarray(T_base_laser, dtype=float),
         covariance=np.asarray(covariance, dtype=float),
-        rod=job.rod.rod_line(),
+        rod=job.rod.rod_line() if rod is None else rod,
         robot_sigma_m=job.robot.position_accuracy_mm / 1000.0,
         repeatability_m=settings.repeatability_mm / 1000.0,
         false_alarm_rate=settings.false_alarm_rate,
@@ -153,16 +154,18 @@ def plan_verify(
     budget_s: float | None = None,
     range_error: RangeOffset | None = None,
     refit: SecondPassRefit | None = None,
+    rod: RodLine | None = None,
 ) -> VerifyPlan:
     """How to check the calibration ``T_base_laser`` (with its ``covariance``, its range error
     curve ``range_error`` (None: none), its second pass's ``refit`` (None: none recorded; the
-    calibrated transform and the raw ranges), and its ``residuals`` at ``recorded_waypoints``,
+    calibrated transform, the job's rod and the raw ranges), the rod it estimated, which
+    predicts the crossings (None: the job's), and its ``residuals`` at ``recorded_waypoints``,
     None: not recorded) with ``job``: ``count`` waypoints (None: the job's ``verify.waypoints``)
     chosen within ``budget_s``, each weighed with the centre covariance the calibration recorded
     there."""
     checking = verify_job(job, T_base_laser)
-    refit = refit or SecondPassRefit(np.asarray(T_base_laser, dtype=float))
-    model = drift_model(T_base_laser, covariance, checking, range_error, refit.range_offset_m)
+    refit = refit or SecondPassRefit(np.asarray(T_base_laser, dtype=float), checking.rod.rod_line())
+    model = drift_model(T_base_laser, covariance, checking, range_error, refit.range_offset_m, rod)
     waypoints = job_waypoints(checking)
     reference = recorded_residuals(residuals, recorded_waypoints, waypoints)
     selection = select_waypoints(
@@ -181,7 +184,9 @@ def plan_active(
     active: ActiveCalibration, job: JobConfig, *, count: int | None = None, budget_s: float | None = None
 ) -> VerifyPlan:
     """``plan_verify`` for the calibration ``active`` as its ``result.json`` records it (its
-    transform, covariance, residuals, waypoints, range error curve and second pass)."""
+    transform, covariance, residuals, waypoints, range error curve, second pass and estimated
+    rod) checked with ``job``'s rod."""
+    nominal = job.rod.rod_line()
     return plan_verify(
         job,
         active.T_base_laser,
@@ -191,7 +196,8 @@ def plan_active(
         count=count,
         budget_s=budget_s,
         range_error=active.result.range_offset,
-        refit=active.refit(),
+        refit=active.refit(nominal),
+        rod=active.result.estimated_rod(nominal),
     )
 
 
@@ -301,7 +307,7 @@ def refit_and_test(
     again as the calibration's second pass fitted its centres (``plan.refit``), their drift
     test (None with fewer than MIN_MEASURED), and the waypoints (index, reason) that kept
     their first centre."""
-    refitted, kept = plan.refit.centres(measurements, plan.job.rod.rod_line(), background)
+    refitted, kept = plan.refit.centres(measurements, background)
     if len(refitted) < MIN_MEASURED:
         return None, kept
     job_index = [plan.selection.indices[m.index] for m in refitted]
