@@ -6,6 +6,7 @@ Run from the repository root::
     .venv/bin/python -m benchmarks.accuracy_conditions [--seeds 20] [--first-seed 0]
         [--cases default-3s,drill-estimated]
         [--model physical|ideal] [--design-seed 0] [--design-range-terms K] [--design-waypoints 20]
+        [--noise-stream K] [--waypoints-file FILE]
 
 Each case runs the sequencer's measurement chain (``benchmarks.dry_run_accuracy.simulate``:
 noisy scans of the world at every waypoint, averaging, extraction with the background,
@@ -49,6 +50,11 @@ The default (5 seeds) is a quick look; the figures in docs/solver.md use ``--see
 footprint, echoes and range error; or ``ideal``, the reference). ``--design-seed``,
 ``--design-range-terms`` and ``--design-waypoints``: another design of the ``designed-*``
 cases (one design is one draw: docs/trajectory-design.md compares several).
+``--noise-stream K``: the scanner noise of every seed drawn from stream K (0, the default: the
+figures published so far, to the digit; the worlds, robot error fields and chuck turns unchanged),
+so that a 95th percentile can be given over several streams of the same seeds.
+``--waypoints-file``: the cases that visit a job's waypoint file (the drill cases) visit this
+file instead (a new design tried before it is shipped).
 """
 
 from __future__ import annotations
@@ -147,6 +153,19 @@ def cases() -> list[Case]:
     ]
 
 
+def with_waypoints_file(case: Case, path: Path) -> Case:
+    """``case`` with its job visiting ``path`` where the job visits a waypoint file (a case on a
+    preset or a design is returned as it is)."""
+    if case.job.trajectory.waypoints_file is None:
+        return case
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"waypoints file {path} does not exist; give a CSV from `lasercal trajectory design`"
+        )
+    trajectory = case.job.trajectory.model_copy(update={"waypoints_file": path.resolve()})
+    return replace(case, job=case.job.model_copy(update={"trajectory": trajectory}))
+
+
 @dataclass(frozen=True)
 class DesignChoice:
     """How the ``designed-*`` cases' waypoints are laid out: the design's seed, how many
@@ -172,6 +191,16 @@ def designed_waypoints(job: JobConfig, scene: Scene, choice: DesignChoice = Desi
     return np.array([w.tcp_pose for w in result.waypoints])
 
 
+def noise_rng(seed: int, stream: int = 0) -> np.random.Generator:
+    """The scanner noise of ``seed`` in draw stream ``stream``: stream 0 is
+    ``default_rng(seed)``, the benchmarks' own draws; stream K > 0 is seeded from the first draw
+    of that generator and K, a stream independent of the others."""
+    if stream < 0:
+        raise ValueError(f"noise stream {stream} is negative; give 0 (the published draws) or more")
+    rng = np.random.default_rng(seed)
+    return rng if stream == 0 else np.random.default_rng([int(rng.integers(2**62)), stream])
+
+
 def seeded_scene(scene: Scene, case: Case, seed: int) -> Scene:
     """The scene of ``seed``: with the bit turned in its chuck by a drawn angle where the case
     asks for it, else ``scene`` itself."""
@@ -188,10 +217,15 @@ def axis_truth(case: Case) -> np.ndarray:
 
 
 def run_case(
-    case: Case, seeds: int, model: str, first_seed: int = 0, choice: DesignChoice = DesignChoice()
+    case: Case,
+    seeds: int,
+    model: str,
+    first_seed: int = 0,
+    choice: DesignChoice = DesignChoice(),
+    noise_stream: int = 0,
 ) -> None:
     """Run one case over ``seeds`` seeds from ``first_seed`` on its scene with the scanner
-    ``model`` and print its distributions."""
+    ``model``, the scanner noise from ``noise_stream``, and print its distributions."""
     scene = load_scene(case.scene_path).model_copy(update={"model": model})
     waypoints = designed_waypoints(case.job, scene, choice) if case.designed else job_waypoints(case.job)
     visited = len(waypoints)
@@ -206,12 +240,13 @@ def run_case(
         seeded = seeded_scene(scene, case, seed)
         world = world_with(seeded, case.true_rod, ROBOT_ERROR_SEED_BASE + seed, **bias)
         try:
-            trials.append(simulate(case.job, waypoints, world, scans, np.random.default_rng(seed)))
+            trials.append(simulate(case.job, waypoints, world, scans, noise_rng(seed, noise_stream)))
         except LasercalError as exc:
             failures += 1
             print(f"  seed {seed}: failed: {exc}")
     print(
-        f"{case.name} ({model} scanner): {visited} waypoints, {scans} scans each, "
+        f"{case.name} ({model} scanner, noise stream {noise_stream}): {visited} waypoints, "
+        f"{scans} scans each, "
         f"{time.perf_counter() - started:.0f} s"
     )
     if not trials:
@@ -343,7 +378,23 @@ def main() -> None:
     parser.add_argument(
         "--design-waypoints", type=int, default=20, help="the designed-* cases' waypoints (default 20)"
     )
+    parser.add_argument(
+        "--noise-stream",
+        type=int,
+        default=0,
+        help="draw stream of the scanner noise (default 0: the published draws; the worlds unchanged)",
+    )
+    parser.add_argument(
+        "--waypoints-file",
+        type=Path,
+        default=None,
+        help="visit this file in the cases that visit a waypoint file",
+    )
     args = parser.parse_args()
+    if args.waypoints_file is not None and not args.waypoints_file.is_file():
+        parser.error(f"--waypoints-file {args.waypoints_file} does not exist; give a CSV of waypoints")
+    if args.noise_stream < 0:
+        parser.error(f"--noise-stream {args.noise_stream} is negative; give 0 (the published draws) or more")
     choice = DesignChoice(args.design_seed, args.design_range_terms, args.design_waypoints)
     chosen = cases()
     if args.cases:
@@ -354,8 +405,10 @@ def main() -> None:
                 f"unknown case(s) {', '.join(sorted(unknown))}; known: {', '.join(c.name for c in chosen)}"
             )
         chosen = [c for c in chosen if c.name in names]
+    if args.waypoints_file is not None:
+        chosen = [with_waypoints_file(c, args.waypoints_file) for c in chosen]
     for case in chosen:
-        run_case(case, args.seeds, args.model, args.first_seed, choice)
+        run_case(case, args.seeds, args.model, args.first_seed, choice, args.noise_stream)
 
 
 if __name__ == "__main__":

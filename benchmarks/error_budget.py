@@ -33,7 +33,12 @@ away with the variant (``1 - RMS^2 / RMS^2(as-is)``; negative: the variant is wo
 First, per case, the trajectory's own limit: the 95th percentile of the pose error an
 efficient estimator would reach (the Cramér-Rao bound, the solver's Fisher information at
 the truth) with the robot's error alone (0.58 mm per axis, taken independent per waypoint),
-the centres' alone (0.5 mm per axis) and both, for 0 to 4 terms of the range error curve.
+the centres' alone (0.5 mm per axis) and both, for 0 to 4 terms of the range error curve; for
+a job that estimates the rod's axis (the drill cases) with the axis's 4 parameters unknown too,
+and for a twist drill (``rod.fluted``) also with the flute phase pass's allowance in every
+centre (0.25 r per axis, ``run/flute_phase``). ``--waypoints-file``: the drill cases on another
+waypoint file, its bound and variants (a design's, before it is shipped). Variant ``axis-known``
+(the drill cases): the solver told the real bit's axis, not estimating it.
 """
 
 from __future__ import annotations
@@ -42,16 +47,25 @@ import argparse
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from benchmarks.accuracy_conditions import ROBOT_ERROR_SEED_BASE, Case, cases, designed_waypoints
+from benchmarks.accuracy_conditions import (
+    ROBOT_ERROR_SEED_BASE,
+    Case,
+    cases,
+    designed_waypoints,
+    with_waypoints_file,
+)
 from benchmarks.dry_run_accuracy import Trial, simulate, world_with
 from fakes.scene import Scene, load_scene
 from lasercal_hw.calibration.model import extended_fisher_information
 from lasercal_hw.config import JobConfig, with_overrides
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import pose_to_matrix
+from lasercal_hw.models import RodLine
+from lasercal_hw.run.flute_phase import MODEL_ALLOWANCE_RADIUS_FRACTION
 from lasercal_hw.run.waypoints import job_waypoints
 
 #: The dry run's robot error field per axis (``NoiseSettings.robot_position_error_m``), in mm.
@@ -101,6 +115,20 @@ def _all(*changes: Callable) -> Callable:
     return apply
 
 
+def _told(rod: RodLine) -> Callable[[JobConfig], JobConfig]:
+    """The job told ``rod`` (the real bit) as its rod's axis, not estimating it."""
+
+    def change(job: JobConfig) -> JobConfig:
+        told = {
+            "rod.origin_m": np.asarray(rod.origin_m, dtype=float).tolist(),
+            "rod.direction": np.asarray(rod.direction, dtype=float).tolist(),
+            "rod.estimate_axis": False,
+        }
+        return with_overrides(job, told)
+
+    return change
+
+
 VARIANTS = (
     Variant("as-is"),
     Variant("robot-off", scene=_robot_off),
@@ -115,13 +143,20 @@ VARIANTS = (
     ),
     Variant("robot-only", scene=_all(_bias_off, _quiet), job=_no_curve),
     Variant("floor", scene=_all(_bias_off, _quiet, _robot_off), job=_no_curve),
+    Variant("axis-known"),
 )
+
+
+def case_job(case: Case, variant: Variant) -> JobConfig:
+    """The job ``variant`` solves on ``case`` (``axis-known``: told the case's real rod)."""
+    job = _told(case.true_rod)(case.job) if variant.name == "axis-known" else case.job
+    return variant.job(job)
 
 
 def run_variant(case: Case, variant: Variant, seeds: range) -> tuple[np.ndarray, np.ndarray, int]:
     """Translation (mm) and rotation (deg) error norms over ``seeds``, and the runs refused."""
     scene = variant.scene(load_scene(case.scene_path).model_copy(update={"model": "physical"}))
-    job = variant.job(case.job)
+    job = case_job(case, variant)
     waypoints = designed_waypoints(case.job, scene) if case.designed else job_waypoints(case.job)
     scans = round(case.dwell_s * variant.dwell_factor / scene.scanner.scan_period_s)
     trials: list[Trial] = []
@@ -145,12 +180,13 @@ def bound_p95(
     case: Case, waypoints: np.ndarray, T_base_laser: np.ndarray, centre_m: float, robot_m: float, terms: int
 ) -> tuple[float, float]:
     """95th percentile of the translation (mm) and rotation (deg) error norms under the
-    Cramér-Rao bound of ``waypoints`` with ``terms`` range curve terms (sampled: 200000 draws)."""
+    Cramér-Rao bound of ``waypoints`` with ``terms`` range curve terms and, when the case's job
+    estimates it, the rod's axis unknown too (at the case's real rod; sampled: 200000 draws)."""
     tcp = pose_to_matrix(np.asarray(waypoints, dtype=float))
     covariance = np.broadcast_to(np.eye(2) * max(centre_m, 1e-6) ** 2, (len(tcp), 2, 2)).copy()
     fisher = extended_fisher_information(
-        T_base_laser[:3, :3], T_base_laser[:3, 3], tcp, case.job.rod.rod_line(), covariance, robot_m,
-        np.zeros(max(terms, 1)) if terms else 0.0, with_axis=False, with_offset=terms,
+        T_base_laser[:3, :3], T_base_laser[:3, 3], tcp, case.true_rod, covariance, robot_m,
+        np.zeros(max(terms, 1)) if terms else 0.0, with_axis=estimates_axis(case.job), with_offset=terms,
     )
     pose = np.linalg.inv(fisher)[:6, :6]
     draws = np.random.default_rng(0).normal(size=(200_000, 3))
@@ -159,20 +195,40 @@ def bound_p95(
     return float(np.percentile(t, 95)) * 1e3, float(np.degrees(np.percentile(r, 95)))
 
 
+def estimates_axis(job: JobConfig) -> bool:
+    """Whether the job estimates the rod's axis with the pose (``rod.estimate_axis``)."""
+    return job.rod.estimate_axis is not False
+
+
+def bound_rows(job: JobConfig) -> list[tuple[str, float, float]]:
+    """The bound's noise rows: label, centre sigma per axis (m), robot sigma per axis (m)."""
+    robot_m = FIELD_PER_AXIS_MM / 1e3
+    rows = [
+        ("robot 0.58 mm alone", 0.0, robot_m),
+        ("centres 0.5 mm alone", BOUND_CENTRE_SIGMA_M, 0.0),
+        ("both", BOUND_CENTRE_SIGMA_M, robot_m),
+    ]
+    if job.rod.fluted:
+        allowance_m = MODEL_ALLOWANCE_RADIUS_FRACTION * job.rod.radius_m
+        widened_m = float(np.hypot(BOUND_CENTRE_SIGMA_M, allowance_m))
+        rows.append((f"both, centres {widened_m * 1e3:.2f} mm (the flute allowance)", widened_m, robot_m))
+    return rows
+
+
 def print_bound(case: Case) -> None:
     """The trajectory's Cramér-Rao limit (the module docstring) as a table."""
     scene = load_scene(case.scene_path)
     waypoints = designed_waypoints(case.job, scene) if case.designed else job_waypoints(case.job)
     truth = world_with(scene, case.true_rod, 0).ground_truth_T_base_laser
-    print(f"\n{case.name}: Cramér-Rao 95th percentile, translation (mm) / rotation (deg), by curve terms")
+    unknowns = "the pose and the rod's axis" if estimates_axis(case.job) else "the pose"
+    source = case.job.trajectory.waypoints_file or ("designed" if case.designed else "the preset")
+    print(
+        f"\n{case.name}: Cramér-Rao 95th percentile of {len(waypoints)} waypoints ({source}), {unknowns} "
+        "unknown, translation (mm) / rotation (deg), by curve terms"
+    )
     print("| noise | " + " | ".join(f"{k} terms" for k in range(5)) + " |")
     print("| --- |" + " ---: |" * 5)
-    robot_m = FIELD_PER_AXIS_MM / 1e3
-    for label, centre_m, robot in (
-        ("robot 0.58 mm alone", 0.0, robot_m),
-        ("centres 0.5 mm alone", BOUND_CENTRE_SIGMA_M, 0.0),
-        ("both", BOUND_CENTRE_SIGMA_M, robot_m),
-    ):
+    for label, centre_m, robot in bound_rows(case.job):
         cells = [bound_p95(case, waypoints, truth, centre_m, robot, k) for k in range(5)]
         print(f"| {label} | " + " | ".join(f"{t:.2f} / {r:.3f}" for t, r in cells) + " |")
 
@@ -210,8 +266,15 @@ def main() -> None:
     parser.add_argument("--cases", default="default-3s,designed-1s", help="accuracy_conditions case names")
     parser.add_argument("--variants", default=None, help="comma-separated variant names (default: all)")
     parser.add_argument("--bound-only", action="store_true", help="print the Cramér-Rao limit alone")
+    parser.add_argument(
+        "--waypoints-file", type=Path, default=None, help="the drill cases visit this file, not the job's"
+    )
     args = parser.parse_args()
+    if args.waypoints_file is not None and not args.waypoints_file.is_file():
+        parser.error(f"--waypoints-file {args.waypoints_file} does not exist; give a CSV of waypoints")
     known_cases = {c.name: c for c in cases()}
+    if args.waypoints_file is not None:
+        known_cases = {n: with_waypoints_file(c, args.waypoints_file) for n, c in known_cases.items()}
     known_variants = {v.name: v for v in VARIANTS}
     names = args.cases.split(",")
     wanted = args.variants.split(",") if args.variants else list(known_variants)

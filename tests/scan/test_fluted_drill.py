@@ -22,9 +22,9 @@ from lasercal_hw.run.waypoints import listed_waypoints
 from lasercal_hw.scan.extraction import ExtractionSettings, find_rod_centre
 
 ROOT = Path(__file__).resolve().parents[2]
-#: Waypoints of examples/drill.toml where a flute's hollow faces the scanner (2, 3, 9) or a
-#: land (7, 16).
-WAYPOINTS = (2, 3, 9, 7, 16)
+#: Waypoints of examples/drill.toml where a flute's hollow faces the scanner (37, 8, 13) or a
+#: land (3, 22).
+WAYPOINTS = (37, 8, 13, 3, 22)
 
 
 @pytest.fixture(scope="module")
