@@ -82,6 +82,8 @@ class Variant:
     scene: Callable[[Scene], Scene] = lambda s: s
     job: Callable[[JobConfig], JobConfig] = lambda j: j
     dwell_factor: float = 1.0
+    #: The job told the case's real rod as its axis (not estimating it), before ``job``.
+    tells_axis: bool = False
 
 
 def _robot_off(scene: Scene) -> Scene:
@@ -143,13 +145,13 @@ VARIANTS = (
     ),
     Variant("robot-only", scene=_all(_bias_off, _quiet), job=_no_curve),
     Variant("floor", scene=_all(_bias_off, _quiet, _robot_off), job=_no_curve),
-    Variant("axis-known"),
+    Variant("axis-known", tells_axis=True),
 )
 
 
 def case_job(case: Case, variant: Variant) -> JobConfig:
-    """The job ``variant`` solves on ``case`` (``axis-known``: told the case's real rod)."""
-    job = _told(case.true_rod)(case.job) if variant.name == "axis-known" else case.job
+    """The job ``variant`` solves on ``case`` (told the case's real rod where it ``tells_axis``)."""
+    job = _told(case.true_rod)(case.job) if variant.tells_axis else case.job
     return variant.job(job)
 
 
