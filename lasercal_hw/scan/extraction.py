@@ -1305,8 +1305,9 @@ def _along_the_spot(
     wider than the spot (a 10 mm rod at 0.3 m wandered 16 mm sideways), so the ray fit keeps it.
     The spot fit's centre is moved sideways to the ray fit's and along by what its normal
     matrix couples to that move; the covariance is the spot fit's along the bearing given the
-    side, the ray fit's across it, and their coupling. A spot of no width, or a spot fit that
-    fails, leaves the ray fit.
+    side, the ray fit's across it, and their coupling. A spot fit that wanders sideways past the
+    rod's semi-axis is fitted again along the bearing only (``_spot_fit_along``); a spot of no
+    width, or a spot fit that fails both ways, leaves the ray fit.
 
     A scanner whose beams are rays (the ideal fake's exact ray casts) shows it: its edge beams
     read the grazing surface, where a spot's read several millimetres short, and the rays fit
