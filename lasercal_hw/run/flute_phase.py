@@ -59,6 +59,8 @@ class FlutePhase:
     observations: list[Observation]
     phase_deg: float
     phase_std_deg: float
+    #: The move of the plain centres that gave ``observations`` (the verify's re-fit repeats it).
+    shift: FluteShift
     #: How much better in chi-square the phase fits than no flute offsets (the gate).
     gain: float
     note: str
@@ -69,6 +71,69 @@ def _cost(result: CalibrationResult) -> float:
     return float(sum(min(r.whitened_norm**2, CAPPED_SQUARE) for r in result.residuals))
 
 
+@dataclass(frozen=True)
+class FluteShift:
+    """The section's offset at every waypoint's turn taken out of plain fits: the offsets at
+    ``phase_rad`` (times ``depth``: 0 for none) as ``T_base_laser`` and the bit's line ``rod``
+    put each waypoint's crossing, each centre's covariance widened by the model's allowance and
+    the phase's std. The pass and the verify's re-fit (``SecondPassRefit``) both move their
+    centres through ``moved``."""
+
+    T_base_laser: FloatArray
+    rod: RodLine
+    phase_rad: float
+    phase_std_rad: float
+    depth: float = 1.0
+
+    def _offsets(self, tcp_poses: FloatArray, phase_rad: float) -> FloatArray:
+        """The section's offset at each pose (N, 2), m, for the phase ``phase_rad``."""
+        settings = ExtractionSettings()
+        return flute_offsets_m(
+            phase_rad,
+            self.T_base_laser,
+            tcp_poses,
+            self.rod,
+            web_fraction=settings.flute_web_fraction,
+            opening_deg=settings.flute_opening_deg,
+        )
+
+    def moved(
+        self,
+        tcp_poses: FloatArray,
+        centres_uv_m: Sequence[FloatArray],
+        covariances_uv_m2: Sequence[FloatArray],
+    ) -> list[tuple[FloatArray, FloatArray]]:
+        """Each plain centre (m) with the offset taken out, and its covariance (m^2) widened."""
+        poses = np.asarray(tcp_poses, dtype=float)
+        offset = self.depth * self._offsets(poses, self.phase_rad)
+        spread = 0.5 * self.depth * (
+            self._offsets(poses, self.phase_rad + self.phase_std_rad)
+            - self._offsets(poses, self.phase_rad - self.phase_std_rad)
+        )
+        allowance = np.eye(2) * (MODEL_ALLOWANCE_RADIUS_FRACTION * self.rod.radius_m) ** 2
+        return [
+            (
+                np.asarray(centre, dtype=float) - shift,
+                np.asarray(covariance, dtype=float) + allowance + np.outer(dphase, dphase),
+            )
+            for centre, covariance, shift, dphase in zip(
+                centres_uv_m, covariances_uv_m2, offset, spread, strict=True
+            )
+        ]
+
+    def observations(self, plain: Sequence[Observation]) -> list[Observation]:
+        """The plain centres moved (``moved``)."""
+        moved = self.moved(
+            np.array([o.tcp_pose for o in plain], dtype=float),
+            [o.centre_uv_m for o in plain],
+            [o.covariance_uv_m2 for o in plain],
+        )
+        return [
+            replace(o, centre_uv_m=centre, covariance_uv_m2=covariance)
+            for o, (centre, covariance) in zip(plain, moved, strict=True)
+        ]
+
+
 def _shifted(
     plain: Sequence[Observation],
     result: CalibrationResult,
@@ -77,29 +142,10 @@ def _shifted(
     phase_std_rad: float,
     depth: float = 1.0,
 ) -> list[Observation]:
-    """The plain centres with the section's offset at ``phase_rad`` (times ``depth``: 0 for
-    none) taken out, their covariance widened by the model's allowance and the phase's std."""
-    settings = ExtractionSettings()
-    poses = np.array([o.tcp_pose for o in plain], dtype=float)
-
-    def offsets(phase: float) -> FloatArray:
-        return flute_offsets_m(
-            phase,
-            result.matrix(),
-            poses,
-            result.estimated_rod(rod),
-            web_fraction=settings.flute_web_fraction,
-            opening_deg=settings.flute_opening_deg,
-        )
-
-    offset = depth * offsets(phase_rad)
-    spread = 0.5 * depth * (offsets(phase_rad + phase_std_rad) - offsets(phase_rad - phase_std_rad))
-    allowance = np.eye(2) * (MODEL_ALLOWANCE_RADIUS_FRACTION * rod.radius_m) ** 2
-    moved = []
-    for o, shift, dphase in zip(plain, offset, spread, strict=True):
-        covariance = np.asarray(o.covariance_uv_m2, dtype=float) + allowance + np.outer(dphase, dphase)
-        moved.append(replace(o, centre_uv_m=np.asarray(o.centre_uv_m) - shift, covariance_uv_m2=covariance))
-    return moved
+    """The plain centres moved by the section's offset at ``phase_rad`` as ``result`` puts the
+    bit (``FluteShift``)."""
+    shift = FluteShift(result.matrix(), result.estimated_rod(rod), phase_rad, phase_std_rad, depth)
+    return shift.observations(plain)
 
 
 def parabola_minimum(phases_rad: FloatArray, costs: FloatArray, best: int) -> tuple[float, float]:
@@ -148,7 +194,8 @@ def estimate_flute_phase(
     try:
         trial = solve(_shifted(plain, widened, rod, phase, 0.0), rod, options=options)
         std *= np.sqrt(max(1.0, trial.reduced_chi_square))
-        observations = _shifted(plain, trial, rod, phase, std)
+        shift = FluteShift(trial.matrix(), trial.estimated_rod(rod), phase, std)
+        observations = shift.observations(plain)
         result = solve(observations, rod, options=options)
         flat = _cost(solve(_shifted(plain, widened, rod, 0.0, 0.0, depth=0.0), rod, options=options))
     except LasercalError:
@@ -161,4 +208,4 @@ def estimate_flute_phase(
         f"flute phase {phase_deg:.0f} +- {std_deg:.0f} deg from the tool's x axis (the bit's section "
         f"modelled at every waypoint's turn; chi-square {gain:.0f} below no flutes)"
     )
-    return FlutePhase(result, observations, phase_deg, std_deg, gain, note)
+    return FlutePhase(result, observations, phase_deg, std_deg, shift, gain, note)

@@ -100,6 +100,7 @@ def solve_run(
         background=measured.background,
         solve_settings=solution.settings,
         centre_warnings=solution.centre_warnings,
+        refit=solution.refit,
     )
 
 

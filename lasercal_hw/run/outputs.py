@@ -19,10 +19,11 @@ from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.config import JobConfig, job_from_mapping
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import rotation_angle_rad
-from lasercal_hw.models import FloatArray, RobotCalibration
+from lasercal_hw.models import FloatArray, RobotCalibration, RodLine
 from lasercal_hw.outputs.exports import exports, scanner_frame, static_transform_publisher_args, urdf_joint
 from lasercal_hw.outputs.report import ReportData, render_report
 from lasercal_hw.run.records import RunOutcome
+from lasercal_hw.run.two_pass import SecondPassRefit
 
 logger = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ def result_document(
         "skipped": [{"index": s.index, "reason": s.reason} for s in outcome.skipped],
         "centre_warnings": [{"index": i, "warning": warning} for i, warning in outcome.centre_warnings],
         "refinement": outcome.refinement,
-        "first_pass": first_pass_record(outcome.first_pass, job),
+        "first_pass": first_pass_record(outcome.first_pass, job, outcome.refit),
         "resumed_after_waypoints": outcome.resumed_from,
         "timings": {
             "wall_s": outcome.timings.wall_s,
@@ -90,18 +91,50 @@ def result_document(
     return document
 
 
-def first_pass_record(first_pass: CalibrationResult, job: JobConfig) -> dict[str, Any]:
-    """``result.json``'s ``run.first_pass``: the first pass's transform and residual, and the rod
+def first_pass_record(
+    first_pass: CalibrationResult, job: JobConfig, refit: SecondPassRefit
+) -> dict[str, Any]:
+    """``result.json``'s ``run.first_pass``: the first pass's transform and residual, the rod
     line (TCP frame) with which the second pass fitted every centre again: the first pass's
-    estimate of it (``solve_two_pass``), the job's own when the job does not estimate the axis."""
-    rod = first_pass.estimated_rod(job.rod.rod_line())
-    return {
+    estimate of it (``solve_two_pass``), the job's own when the job does not estimate the axis;
+    and for a fluted rod the flute phase pass's outcome (``flute_phase_record``)."""
+    record = {
         "T_base_laser": first_pass.T_base_laser,
         "rms_residual_mm": first_pass.rms_residual_mm,
-        "rod": {
-            "origin_m": np.asarray(rod.origin_m, dtype=float).tolist(),
-            "direction": np.asarray(rod.direction, dtype=float).tolist(),
-        },
+        "rod": _line_record(first_pass.estimated_rod(job.rod.rod_line())),
+    }
+    if job.rod.fluted:
+        record["flute_phase"] = flute_phase_record(refit)
+    return record
+
+
+def flute_phase_record(refit: SecondPassRefit) -> dict[str, Any]:
+    """``run.first_pass.flute_phase``: whether the flute phase pass was kept and, where it was,
+    the phase (deg from the tool's x axis, over the half turn) and its std, the transform and
+    plain rod line of its plain fits (``plain_fit``) and those its section offsets were taken
+    with (``offsets``): what the verify's re-fit needs to move the plain fits as the pass did."""
+    shift = refit.flutes
+    if shift is None:
+        return {"kept": False}
+    return {
+        "kept": True,
+        "phase_deg": float(np.degrees(shift.phase_rad)) % 180.0,
+        "phase_std_deg": float(np.degrees(shift.phase_std_rad)),
+        "plain_fit": _fit_record(refit.T_base_laser, refit.rod),
+        "offsets": _fit_record(shift.T_base_laser, shift.rod),
+    }
+
+
+def _fit_record(T_base_laser: FloatArray, rod: RodLine) -> dict[str, Any]:
+    """A transform and rod line a fit was made with, as ``result.json`` records them."""
+    return {"T_base_laser": np.asarray(T_base_laser, dtype=float).tolist(), "rod": _line_record(rod)}
+
+
+def _line_record(rod: RodLine) -> dict[str, list[float]]:
+    """A rod line as ``result.json`` records it (TCP frame)."""
+    return {
+        "origin_m": np.asarray(rod.origin_m, dtype=float).tolist(),
+        "direction": np.asarray(rod.direction, dtype=float).tolist(),
     }
 
 
@@ -130,6 +163,9 @@ class ResultFile:
     #: every centre again (the first pass's estimate of it, or the job's), or None where the
     #: file has none.
     first_pass_rod: dict[str, list[float]] | None = None
+    #: The flute phase pass's outcome as recorded (``run.first_pass.flute_phase``), or None where
+    #: the file has none (a rod without flutes, or a file written before 2026-11-27).
+    flute_phase: dict[str, Any] | None = None
 
     @property
     def passed(self) -> bool:
@@ -182,6 +218,7 @@ def read_result_file(path: Path) -> ResultFile:
         ground_truth=(_table(document, "ground_truth") or {}).get("T_base_laser"),
         first_pass_transform=(_table(run, "first_pass") or {}).get("T_base_laser"),
         first_pass_rod=_table(_table(run, "first_pass") or {}, "rod"),
+        flute_phase=_table(_table(run, "first_pass") or {}, "flute_phase"),
     )
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from lasercal_hw.models import FloatArray, LaserScan, Observation
 from lasercal_hw.run.preflight import PreflightReport
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import RodCentre
+
+if TYPE_CHECKING:
+    from lasercal_hw.run.two_pass import SecondPassRefit
 
 
 class RunRecorder(Protocol):
@@ -137,6 +140,8 @@ class RunOutcome:
     solve_settings: SolveSettings
     #: (waypoint, warning) for each solved centre that may be off by more than its covariance.
     centre_warnings: list[tuple[int, str]]
+    #: How the solved centres were fitted (``TwoPassSolution.refit``; ``result.json`` records it).
+    refit: SecondPassRefit
 
 
 @dataclass(frozen=True)

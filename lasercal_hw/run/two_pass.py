@@ -18,7 +18,7 @@ from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray, Observation, RodLine
-from lasercal_hw.run.flute_phase import PLAIN_EXTRACTION, estimate_flute_phase
+from lasercal_hw.run.flute_phase import PLAIN_EXTRACTION, FluteShift, estimate_flute_phase
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import ExtractionSettings, RodNotFoundError, find_rod_centre
@@ -74,11 +74,19 @@ class SecondPassRefit:
     first pass's typical range error) taken out of every range before the fit; the solver's
     range error curve, less that offset, models the rest. The verify fits its centres with the
     calibration's recorded refit, so the same averaged scan gives it the calibration's centre
-    to the last bit."""
+    to the last bit.
+
+    Where a twist drill's flute phase pass was kept (``flutes``), the centres are the pass's:
+    plain fits (``PLAIN_EXTRACTION``) of ``rod`` (then the second pass's estimate, made plain,
+    as the second pass's solution ``T_base_laser`` predicts it), moved by the section's offset at
+    each waypoint's turn (``FluteShift``)."""
 
     T_base_laser: FloatArray
     rod: RodLine
     range_offset_m: float = 0.0
+    #: The flute phase pass's move of the plain fits, where the pass was kept; None: the fits as
+    #: ``rod`` says (a fluted one with the section's mean offset).
+    flutes: FluteShift | None = None
 
     def centres(
         self,
@@ -89,7 +97,18 @@ class SecondPassRefit:
         """The measurements with their centres fitted again (by ``settings``, None: the
         extraction's defaults) and freed of the range offset (a centre the re-fit could not
         replace moved back along its bearing by it), and the waypoints (index, reason) that
-        kept their first centre."""
+        kept their first centre (the flute phase pass moves those too, as it did)."""
+        if self.flutes is not None:
+            plain, kept = replace(self, flutes=None).centres(measurements, background, PLAIN_EXTRACTION)
+            moved = self.flutes.moved(
+                np.array([m.tcp_pose for m in plain], dtype=float),
+                [m.centre.centre_uv_m for m in plain],
+                [m.centre.covariance_uv_m2 for m in plain],
+            )
+            return [
+                replace(m, centre=replace(m.centre, centre_uv_m=centre, covariance_uv_m2=covariance))
+                for m, (centre, covariance) in zip(plain, moved, strict=True)
+            ], kept
         refitted, kept = refit_centres(
             measurements, self.T_base_laser, self.rod, background, range_offset_m=self.range_offset_m,
             settings=settings,
@@ -120,7 +139,8 @@ class TwoPassSolution:
     settings: SolveSettings
     #: (waypoint, warning) for each solved centre that may be off by more than its covariance.
     centre_warnings: list[tuple[int, str]]
-    #: How the second pass fitted its centres (``result.json`` records it: the verify fits so).
+    #: How the solved centres were fitted (``result.json`` records it: the verify fits so): the
+    #: second pass's re-fit, or where the flute phase pass was kept, its plain fits and move.
     refit: SecondPassRefit
 
 
@@ -164,10 +184,10 @@ def solve_two_pass(
     if rod.fluted:
         # The plain fits take the offset out of the ranges as the second pass did (only a
         # centre the re-fit kept is moved back): once, not twice.
-        plain_rod = replace(result.estimated_rod(rod), fluted=False)
-        plain, _ = SecondPassRefit(result.matrix(), plain_rod, range_offset_m).centres(
-            measurements, background, PLAIN_EXTRACTION
+        plain_refit = SecondPassRefit(
+            result.matrix(), replace(result.estimated_rod(rod), fluted=False), range_offset_m
         )
+        plain, _ = plain_refit.centres(measurements, background, PLAIN_EXTRACTION)
         plain_observations = [m.observation() for m in plain]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)
         if phase is None:
@@ -176,6 +196,7 @@ def solve_two_pass(
             )
         else:
             result, observations = phase.result, phase.observations
+            refit = replace(plain_refit, flutes=phase.shift)
             refinement += f"; {phase.note}"
     settings = SolveSettings(rod, applied, job.quality)
     warnings = [(m.index, warning) for m in refitted for warning in m.centre.warnings]

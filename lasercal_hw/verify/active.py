@@ -7,12 +7,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, RodLine
+from lasercal_hw.run.flute_phase import FluteShift
 from lasercal_hw.run.outputs import ResultFile, read_result_file
 from lasercal_hw.run.two_pass import SecondPassRefit
 from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
@@ -36,13 +38,90 @@ class ActiveCalibration(ResultFile):
         return np.asarray(self.result.covariance, dtype=float)
 
     def refit(self, nominal: RodLine) -> SecondPassRefit:
-        """How the calibration's second pass fitted its centres of the rod ``nominal`` (its first
-        pass's transform, the rod line it fitted with, the range offset it took out of every
-        range); what a file does not record: the calibrated transform, ``nominal``'s line and the
-        raw ranges (``rod_note`` says which rod)."""
+        """How the calibration fitted its solved centres of the rod ``nominal``: its second pass
+        (its first pass's transform, the rod line it fitted with, the range offset it took out of
+        every range) or, where its flute phase pass was kept, the pass's plain fits and their move
+        (``run.first_pass.flute_phase``); what a file does not record: the calibrated transform,
+        ``nominal``'s line and the raw ranges (``rod_note`` says which rod), the fluted section's
+        mean offset (``flute_note`` says so)."""
+        applied_m = float(self.result.provenance.solver_options.get("range_offset_applied_m") or 0.0)
+        kept = self._kept_flute_phase()
+        if kept is not None:
+            plain_fit, offsets = self._fit_table(kept, "plain_fit"), self._fit_table(kept, "offsets")
+            shift = FluteShift(
+                self._matrix(offsets, "offsets"),
+                self._recorded_line(nominal, offsets.get("rod"), "flute_phase.offsets.rod"),
+                float(np.radians(self._number(kept, "phase_deg"))),
+                float(np.radians(self._number(kept, "phase_std_deg"))),
+            )
+            plain_rod = self._recorded_line(nominal, plain_fit.get("rod"), "flute_phase.plain_fit.rod")
+            return SecondPassRefit(
+                self._matrix(plain_fit, "plain_fit"), replace(plain_rod, fluted=False), applied_m, shift
+            )
         T = self.T_base_laser if self.first_pass_transform is None else self.first_pass_transform
-        applied_m = self.result.provenance.solver_options.get("range_offset_applied_m") or 0.0
-        return SecondPassRefit(np.asarray(T, dtype=float), self._refit_rod(nominal), float(applied_m))
+        rod = nominal
+        if self.first_pass_rod is not None:
+            rod = self._recorded_line(nominal, self.first_pass_rod, "rod")
+        return SecondPassRefit(np.asarray(T, dtype=float), rod, applied_m)
+
+    def flute_note(self) -> str | None:
+        """How the verify fits a fluted bit's centres (``verify.json``; None: the job's rod has no
+        flutes)."""
+        if self.job is None or not self.job.rod.fluted:
+            return None
+        if self.flute_phase is None:
+            return (
+                "result.json does not record its flute phase pass (written before 2026-11-27): centres "
+                "fitted with the fluted section's mean offset, which may stay in residuals where the pass "
+                "was kept"
+            )
+        kept = self._kept_flute_phase()
+        if kept is None:
+            return "the calibration's flute phase pass was not kept: centres fitted with the mean offset"
+        return (
+            "centres fitted as the calibration's flute phase pass did (run.first_pass.flute_phase): "
+            f"plain fits moved by the section's offset at {kept['phase_deg']:.0f} "
+            f"+- {kept['phase_std_deg']:.0f} deg"
+        )
+
+    def _kept_flute_phase(self) -> dict[str, Any] | None:
+        """``run.first_pass.flute_phase`` where it says the pass was kept (a fluted job's), else None."""
+        if self.flute_phase is None or self.job is None or not self.job.rod.fluted:
+            return None
+        kept = self.flute_phase.get("kept")
+        if not isinstance(kept, bool):
+            raise self._malformed("flute_phase.kept is not true or false")
+        return self.flute_phase if kept else None
+
+    def _malformed(self, what: str) -> ConfigError:
+        """A one-line error naming the malformed field of ``run.first_pass``."""
+        return ConfigError(
+            f"{self.path}: run.first_pass.{what}; pass the result.json that `lasercal run` wrote"
+        )
+
+    def _number(self, table: dict[str, Any], key: str) -> float:
+        """``run.first_pass.flute_phase.<key>``, a finite number."""
+        value = table.get(key)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+            raise self._malformed(f"flute_phase.{key} is not a finite number")
+        return float(value)
+
+    def _fit_table(self, kept: dict[str, Any], key: str) -> dict[str, Any]:
+        """``run.first_pass.flute_phase.<key>``: a transform and a rod line."""
+        table = kept.get(key)
+        if not isinstance(table, dict):
+            raise self._malformed(f"flute_phase.{key} is missing (T_base_laser and rod)")
+        return table
+
+    def _matrix(self, table: dict[str, Any], key: str) -> FloatArray:
+        """``run.first_pass.flute_phase.<key>.T_base_laser``, a finite 4x4 transform."""
+        try:
+            matrix = np.asarray(table.get("T_base_laser"), dtype=float).reshape(4, 4)
+        except (TypeError, ValueError):
+            raise self._malformed(f"flute_phase.{key}.T_base_laser is not a 4x4 transform") from None
+        if not np.isfinite(matrix).all():
+            raise self._malformed(f"flute_phase.{key}.T_base_laser is not finite")
+        return matrix
 
     def rod_note(self) -> str:
         """Which rod line the verify fits its centres with and which predicts them (``verify.json``)."""
@@ -63,24 +142,18 @@ class ActiveCalibration(ResultFile):
             note += f"; the estimate is {offset_mm:.1f} mm off it at the plane, which may stay in residuals"
         return note
 
-    def _refit_rod(self, nominal: RodLine) -> RodLine:
-        """``nominal`` on the recorded line of the second pass (``run.first_pass.rod``), if any."""
-        if self.first_pass_rod is None:
-            return nominal
+    def _recorded_line(self, nominal: RodLine, line: Any, name: str) -> RodLine:
+        """``nominal`` on a recorded line (``run.first_pass.<name>``: origin_m, direction)."""
         try:
-            origin_m = np.asarray(self.first_pass_rod["origin_m"], dtype=float).reshape(3)
-            direction = np.asarray(self.first_pass_rod["direction"], dtype=float).reshape(3)
+            origin_m = np.asarray(line["origin_m"], dtype=float).reshape(3)
+            direction = np.asarray(line["direction"], dtype=float).reshape(3)
         except (KeyError, TypeError, ValueError):
-            raise ConfigError(
-                f"{self.path}: run.first_pass.rod is not a rod line (origin_m and direction, 3 numbers "
-                "each); pass the result.json that `lasercal run` wrote"
+            raise self._malformed(
+                f"{name} is not a rod line (origin_m and direction, 3 numbers each)"
             ) from None
         finite = np.isfinite(origin_m).all() and np.isfinite(direction).all()
         if not finite or np.linalg.norm(direction) == 0.0:
-            raise ConfigError(
-                f"{self.path}: run.first_pass.rod has a non-finite origin or a zero direction; pass the "
-                "result.json that `lasercal run` wrote"
-            )
+            raise self._malformed(f"{name} has a non-finite origin or a zero direction")
         return replace(nominal, origin_m=origin_m, direction=direction)
 
     @property

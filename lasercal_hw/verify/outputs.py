@@ -117,6 +117,7 @@ def verify_document(outcome: VerifyOutcome, *, ground_truth: FloatArray | None =
             "std_translation_mm": outcome.calibration.result.std_translation_mm,
             "std_rotation_deg": outcome.calibration.result.std_rotation_deg,
             "rod": outcome.calibration.rod_note(),
+            "flute_phase": outcome.calibration.flute_note(),
         },
         "tolerance": {"mm": outcome.job.verify.tolerance_mm, "deg": outcome.job.verify.tolerance_deg},
         "identity": [

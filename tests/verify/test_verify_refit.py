@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.accuracy_conditions import DRILL_JOB, real_bit
+from benchmarks.accuracy_conditions import DRILL_JOB, DRILL_SCENE, real_bit
 from benchmarks.dry_run_accuracy import measure_waypoints, world_with
 from fakes.scene import load_scene
 from lasercal_hw.config import JobConfig, load_job, with_overrides
@@ -38,16 +38,19 @@ class Calibrated:
     path: Path
 
 
-def calibrate(job: JobConfig, true_rod: RodLine, seed: int, folder: Path) -> Calibrated:
-    """``job`` calibrated in the default scene's fake world holding ``true_rod``, and its
-    result.json with what ``lasercal run`` records of the run (the first pass, the job)."""
+def calibrate(
+    job: JobConfig, true_rod: RodLine, seed: int, folder: Path, scene: Path | None = None, scans: int = SCANS
+) -> Calibrated:
+    """``job`` calibrated in ``scene``'s fake world (None: the default scene) holding ``true_rod``
+    with ``scans`` scans a waypoint, and its result.json with what ``lasercal run`` records of the
+    run (the first pass, the job)."""
     rng = np.random.default_rng(seed)
-    world = world_with(load_scene(None), true_rod, robot_error_seed=1000 + seed)
-    measurements, background = measure_waypoints(job, job_waypoints(job), world, SCANS, rng)
+    world = world_with(load_scene(scene), true_rod, robot_error_seed=1000 + seed)
+    measurements, background = measure_waypoints(job, job_waypoints(job), world, scans, rng)
     solution = solve_two_pass(measurements, job, background)
     document = solution.result.to_json_dict()
     document["run"] = {
-        "first_pass": first_pass_record(solution.first_pass, job),
+        "first_pass": first_pass_record(solution.first_pass, job, solution.refit),
         "job": job.model_dump(mode="json"),
     }
     path = folder / "result.json"
@@ -76,6 +79,19 @@ def drill_calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
     return calibrate(job, true_rod, 100, tmp_path_factory.mktemp("drill"))
 
 
+@pytest.fixture(scope="module")
+def fluted_calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
+    """The drill job as shipped: the drill scene's fluted 10 mm bit, 2 mm off its nominal axis and
+    tilted 1 deg, axis estimated; seed 103 at 10 scans a waypoint keeps its flute phase pass (38 of
+    the 40 waypoints measured, none an outlier of the solve)."""
+    job = load_job(DRILL_JOB)
+    assert job.rod.fluted and job.rod.estimate_axis
+    true_rod = real_bit(job.rod.rod_line())
+    calibration = calibrate(job, true_rod, 103, tmp_path_factory.mktemp("fluted"), DRILL_SCENE, scans=10)
+    assert calibration.solution.refit.flutes is not None
+    return calibration
+
+
 def assert_verify_gives_the_calibration_back(calibration: Calibrated) -> None:
     """The calibration's averaged scans through the verify's processing (the recorded second
     pass: its transform, its rod line, the range offset out of every range; the prediction
@@ -86,13 +102,24 @@ def assert_verify_gives_the_calibration_back(calibration: Calibrated) -> None:
     )
     active = load_active_calibration(calibration.path)
     assert active.refit(active.job.rod.rod_line()).range_offset_m == solution.refit.range_offset_m
-    plan = plan_active(active, active.job, count=len(measurements))
-    assert plan.selection.indices == [m.index for m in measurements]
-    chosen = [WaypointMeasurement(k, m.tcp_pose, m.averaged, m.centre) for k, m in enumerate(measurements)]
+    plan = plan_active(active, active.job, count=len(active.waypoints()))
+    chosen_indices = plan.selection.indices
+    by_index = {m.index: m for m in measurements}
+    chosen = [  # the job's waypoints the calibration measured (a skipped one has no scans)
+        WaypointMeasurement(k, by_index[i].tcp_pose, by_index[i].averaged, by_index[i].centre)
+        for k, i in enumerate(chosen_indices)
+        if i in by_index
+    ]
+    assert sorted(chosen_indices[m.index] for m in chosen) == [m.index for m in measurements]
     refitted, kept = plan.refit.centres(chosen, background)
-    assert kept == solution.kept_first_pass
+    if solution.refit.flutes is None:  # the flute phase pass's plain fits keep their own
+        expected = [(i, reason) for i, reason in solution.kept_first_pass if i in chosen_indices]
+        assert [(chosen_indices[k], reason) for k, reason in kept] == expected
+    solved = {o.index: o.centre_uv_m for o in solution.observations}
     np.testing.assert_allclose(
-        [m.centre.centre_uv_m for m in refitted], [o.centre_uv_m for o in solution.observations], atol=1e-9
+        [m.centre.centre_uv_m for m in refitted],
+        [solved[chosen_indices[m.index]] for m in refitted],
+        atol=1e-9,
     )
     test, _ = refit_and_test(plan, chosen, background)
     assert test is not None
@@ -150,3 +177,55 @@ def test_a_malformed_recorded_rod_is_refused_naming_the_field(
     active = load_active_calibration(broken)
     with pytest.raises(ConfigError, match=r"run\.first_pass\.rod is not a rod line"):
         active.refit(active.job.rod.rod_line())
+
+
+def test_a_fluted_drill_whose_phase_pass_was_kept_is_refitted_as_the_pass_did(
+    fluted_calibrated: Calibrated,
+) -> None:
+    """The shipped drill job's fluted bit, its flute phase pass kept: the verify fits plain
+    centres and moves each by the section's offset at its waypoint's turn, as the pass did, so the
+    calibration's own scans give its centres and a zero residual (with the section's mean offset,
+    main left median 2.4 mm)."""
+    active = load_active_calibration(fluted_calibrated.path)
+    assert active.flute_phase is not None and active.flute_phase["kept"] is True
+    shift = fluted_calibrated.solution.refit.flutes
+    assert shift is not None
+    assert np.radians(active.flute_phase["phase_deg"]) == pytest.approx(shift.phase_rad % np.pi, abs=1e-12)
+    assert "run.first_pass.flute_phase" in (active.flute_note() or "")
+    assert_verify_gives_the_calibration_back(fluted_calibrated)
+
+
+def test_a_fluted_calibration_without_a_recorded_phase_pass_is_refitted_as_before(
+    fluted_calibrated: Calibrated, tmp_path: Path
+) -> None:
+    """A fluted job's result.json written before the phase pass was recorded: the second pass's
+    re-fit (the section's mean offset), and ``verify.json``'s note says so."""
+    document = json.loads(fluted_calibrated.path.read_text(encoding="utf-8"))
+    del document["run"]["first_pass"]["flute_phase"]
+    older = tmp_path / "result.json"
+    older.write_text(json.dumps(document), encoding="utf-8")
+    active = load_active_calibration(older)
+    refit = active.refit(active.job.rod.rod_line())
+    assert refit.flutes is None and refit.rod.fluted
+    np.testing.assert_array_equal(refit.T_base_laser, np.array(document["run"]["first_pass"]["T_base_laser"]))
+    assert "does not record its flute phase pass" in (active.flute_note() or "")
+
+
+def test_a_malformed_recorded_phase_is_refused_naming_the_field(
+    fluted_calibrated: Calibrated, tmp_path: Path
+) -> None:
+    """A ``run.first_pass.flute_phase`` whose phase is not a number: a one-line error naming it."""
+    document = json.loads(fluted_calibrated.path.read_text(encoding="utf-8"))
+    document["run"]["first_pass"]["flute_phase"]["phase_deg"] = "ninety"
+    broken = tmp_path / "result.json"
+    broken.write_text(json.dumps(document), encoding="utf-8")
+    active = load_active_calibration(broken)
+    with pytest.raises(ConfigError, match=r"run\.first_pass\.flute_phase\.phase_deg is not a finite number"):
+        active.refit(active.job.rod.rod_line())
+
+
+def test_a_rod_without_flutes_records_no_phase_pass(drill_calibrated: Calibrated) -> None:
+    """A plain rod's result.json has no ``flute_phase`` and its verify no flute note."""
+    document = json.loads(drill_calibrated.path.read_text(encoding="utf-8"))
+    assert "flute_phase" not in document["run"]["first_pass"]
+    assert load_active_calibration(drill_calibrated.path).flute_note() is None
