@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.errors import ConfigError
@@ -186,16 +187,36 @@ def _recorded_at(
 ) -> list[WaypointResidual | None]:
     """The calibration's residual row at each of ``waypoints`` (matched by pose), None where it
     did not visit that pose (or, ``used_only``, left it out of its fit)."""
+    by_index = {r.index: r for r in residuals if r.used or not used_only}
+    return [
+        next((by_index[j] for j in same if j in by_index), None)
+        for same in _same_poses(recorded_waypoints, waypoints)
+    ]
+
+
+def _same_poses(recorded_waypoints: FloatArray | None, waypoints: FloatArray) -> list[NDArray[np.int64]]:
+    """For each of ``waypoints``, the indices of the calibration's waypoints at that pose (none
+    when they were not recorded)."""
     poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     if recorded_waypoints is None:
-        return [None] * len(poses)
+        return [np.zeros(0, dtype=np.int64)] * len(poses)
     recorded = np.asarray(recorded_waypoints, dtype=float).reshape(-1, 6)
-    by_index = {r.index: r for r in residuals if r.used or not used_only}
-    rows: list[WaypointResidual | None] = []
-    for pose in poses:
-        same = np.flatnonzero(np.max(np.abs(recorded - pose), axis=1) <= SAME_POSE_TOLERANCE)
-        rows.append(next((by_index[j] for j in same if j in by_index), None))
-    return rows
+    return [np.flatnonzero(np.max(np.abs(recorded - pose), axis=1) <= SAME_POSE_TOLERANCE) for pose in poses]
+
+
+def unusable_waypoints(
+    residuals: Sequence[WaypointResidual], recorded_waypoints: FloatArray | None, waypoints: FloatArray
+) -> NDArray[np.bool_]:
+    """True at each of ``waypoints`` (N,) that the calibration visited without a centre it used:
+    the rod was not found there, or its centre was left out of the fit as an outlier. A verify
+    meets there what the calibration did (fluted drill job, seeds 100-109: every false alarm was
+    an outlier waypoint the choice took, its centre 8-12 mm off the prediction at every dwell,
+    docs/verify.md). False everywhere when the file records no waypoints or no residuals."""
+    if not residuals:
+        return np.zeros(len(np.asarray(waypoints).reshape(-1, 6)), dtype=bool)
+    used = {r.index for r in residuals if r.used}
+    visits = _same_poses(recorded_waypoints, waypoints)
+    return np.array([same.size > 0 and not used.intersection(same.tolist()) for same in visits], dtype=bool)
 
 
 def recorded_residuals(

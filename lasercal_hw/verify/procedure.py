@@ -37,6 +37,7 @@ from lasercal_hw.verify.active import (
     load_active_calibration,
     recorded_centre_covariances,
     recorded_residuals,
+    unusable_waypoints,
 )
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
 from lasercal_hw.verify.identity import IdentityCheck, check_identity, robot_calibration_check
@@ -176,6 +177,7 @@ def plan_verify(
         time_of=lambda indices: visit_time_s(checking, waypoints[indices]),
         budget_s=budget_s,
         centre_covariance_uv_m2=recorded_centre_covariances(residuals, recorded_waypoints, waypoints),
+        unusable=unusable_waypoints(residuals, recorded_waypoints, waypoints),
     )
     return VerifyPlan(checking, model, waypoints, reference, selection, refit)
 

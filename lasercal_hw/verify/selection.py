@@ -19,7 +19,7 @@ by ``run.timing``), the exchanges keep the subset inside it.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,6 +48,9 @@ class Selection:
     estimated_time_s: float | None = None
     #: Which centre noise the choice weighed the candidates with (``centre_noise_note``).
     centre_noise: str = ""
+    #: Waypoints through the plane that were no candidates: the calibration visited them without
+    #: a centre it used (no rod found, or an outlier).
+    left_out: list[int] = field(default_factory=list)
 
 
 def _crosses_plane(model: DriftModel, waypoints: FloatArray) -> np.ndarray:
@@ -110,20 +113,26 @@ def select_waypoints(
     time_of: Callable[[list[int]], float | None] | None = None,
     budget_s: float | None = None,
     centre_covariance_uv_m2: FloatArray | None = None,
+    unusable: NDArray[np.bool_] | None = None,
 ) -> Selection:
     """The D-optimal subset of ``count`` waypoints (all usable ones if fewer), visited in
     trajectory order; ``visited`` (N,) marks the waypoints the calibration measured (None:
     none), ``centre_covariance_uv_m2`` (N, 2, 2; m^2) the centre covariance the calibration
-    weighed each with (NaN or None: unknown, ``DESIGN_SIGMA_UV_M`` assumed). With ``time_of``
+    weighed each with (NaN or None: unknown, ``DESIGN_SIGMA_UV_M`` assumed), ``unusable`` (N,)
+    the waypoints that are no candidates (``active.unusable_waypoints``; None: none). With ``time_of``
     (waypoint indices -> seconds, None if unknown) and ``budget_s``, exchanges first bring the
     subset within the budget, then improve it inside the budget only."""
     poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     seen = np.zeros(len(poses), dtype=bool) if visited is None else np.asarray(visited, dtype=bool)
-    usable = np.flatnonzero(_crosses_plane(model, poses))
+    crossing = _crosses_plane(model, poses)
+    refused = crossing & (False if unusable is None else np.asarray(unusable, dtype=bool))
+    usable = np.flatnonzero(crossing & ~refused)
     if len(usable) < MIN_WAYPOINTS:
+        unused = f" ({int(refused.sum())} more that the calibration could not use)" if refused.any() else ""
         raise CalibrationError(
             f"only {len(usable)} of the trajectory's {len(poses)} waypoints put the rod through the scan "
-            "plane the calibration describes: check that the job and the calibration belong to this cell"
+            f"plane the calibration describes{unused}: check that the job and the calibration belong to "
+            "this cell"
         )
     recorded = (
         np.full((len(poses), 2, 2), np.nan)
@@ -172,4 +181,5 @@ def select_waypoints(
         expected_std_turn_deg=[float(v) for v in np.degrees(std[3:])],
         estimated_time_s=time_of(sorted(int(usable[k]) for k in chosen)) if time_of is not None else None,
         centre_noise=centre_noise_note(known),
+        left_out=[int(i) for i in np.flatnonzero(refused)],
     )

@@ -19,7 +19,7 @@ from lasercal_hw.models import RobotIdentity, ScannerIdentity
 from lasercal_hw.run.records import Timings
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify import VerifyRequest, verify
-from lasercal_hw.verify.active import load_active_calibration, recorded_residuals
+from lasercal_hw.verify.active import load_active_calibration, recorded_residuals, unusable_waypoints
 from lasercal_hw.verify.drift import (
     DriftModel,
     noise_blocks,
@@ -29,8 +29,8 @@ from lasercal_hw.verify.drift import (
 )
 from lasercal_hw.verify.identity import check_identity
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document
-from lasercal_hw.verify.procedure import drift_model, plan_active
-from lasercal_hw.verify.selection import _log_det, select_waypoints, waypoint_information
+from lasercal_hw.verify.procedure import drift_model, plan_active, plan_verify
+from lasercal_hw.verify.selection import Selection, _log_det, select_waypoints, waypoint_information
 from lasercal_hw.verify.verdict import Verdict, decide, with_time_note
 from tests.cli_helpers import assert_one_line_error, run_cli
 from tests.verify_helpers import calibration_document, fast_job, write_calibration
@@ -119,6 +119,36 @@ def test_chosen_waypoints_beat_random_subsets(setup: tuple[DriftModel, np.ndarra
         other = rng.choice(len(poses), 4, replace=False)
         assert _log_det(prior + information[other].sum(axis=0)) <= best + 1e-9
     assert max(selection.expected_std_shift_mm) < 5.0 and max(selection.expected_std_turn_deg) < 0.5
+
+
+def test_waypoints_the_calibration_could_not_use_are_no_candidates(
+    setup: tuple[DriftModel, np.ndarray, Path],
+) -> None:
+    """A waypoint where the calibration found no rod, or whose centre it left out as an
+    outlier, is not chosen, however informative it looks: the verify would meet there what the
+    calibration did (fluted drill job: an outlier's 8-12 mm at every dwell, a false alarm)."""
+    model, poses, _ = setup
+    job = fast_job()
+
+    def residual(i: int, used: bool, sigma_mm: float) -> WaypointResidual:
+        covariance = (np.eye(2) * sigma_mm**2).tolist()
+        return WaypointResidual(
+            index=i, du_mm=0.0, dv_mm=0.0, norm_mm=0.0, whitened_norm=0.0, used=used,
+            covariance_uv_mm2=covariance,
+        )
+
+    def choice(residuals: list[WaypointResidual]) -> Selection:
+        return plan_verify(job, model.T_base_laser, model.covariance, residuals, poses, count=4).selection
+
+    outlier, not_found = choice([residual(i, True, 2.0) for i in range(len(poses))]).indices[:2]
+    # The outlier's recorded covariance tight, the missing one's assumed 0.5 mm: both look best.
+    residuals = [
+        residual(i, i != outlier, 0.05 if i == outlier else 2.0) for i in range(len(poses)) if i != not_found
+    ]
+    chosen = choice(residuals)
+    assert outlier not in chosen.indices and not_found not in chosen.indices
+    assert chosen.left_out == sorted([outlier, not_found]) and len(chosen.indices) == 4
+    assert not unusable_waypoints(residuals, None, poses).any()  # no recorded waypoints: all candidates
 
 
 def test_waypoints_that_miss_the_calibrated_plane_are_refused(
