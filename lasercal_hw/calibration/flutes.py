@@ -1,12 +1,10 @@
 """Where a twist drill's echo puts its centre, as a function of the drill's turn (docs/solver.md,
 "Flute phase").
 
-A beam's spot is wider than a drill bit, and a polished bit sends the beam back mostly from where
-its surface faces the scanner square (a land's front, the flute's hollow, the wall where the
-hollow meets the land), faintly from the rest. The pulse is far longer than the bit, so every part
-the beam sees merges into one echo at their power-weighted range; a known-radius fit puts the
-circle one radius behind it, in the middle of the bit's silhouette (the extraction centres a thin
-rod's fit in its halo), so the centre lies off the axis by the echo's depth along the bearing.
+A beam's spot is wider than a drill bit, and a polished bit sends the beam back from where its
+surface faces the scanner square: a land's front (on the circle) or, when a flute faces the
+scanner, the bottom of the flute's hollow, deeper and aside. A known-radius fit puts the circle
+one radius behind that point, so the centre lies off the axis by ``glint + r * bearing``.
 
 The bit turns with the tool (it is in the chuck), and along its helix: at a crossing ``s``
 metres down the bit, a flute's middle points along ``cos(b) x + sin(b) (axis x x)`` with ``b =
@@ -18,8 +16,6 @@ twist drill's; the helix is right-handed (a standard drill), ``lead = 2 pi r / t
 """
 
 from __future__ import annotations
-
-from functools import lru_cache
 
 import numpy as np
 
@@ -45,104 +41,6 @@ def _flute_arc(web_fraction: float, half_opening_rad: float) -> tuple[float, flo
     return float(distance), float(distance - h)
 
 
-#: Ground steel's specular lobe half-width (rad) and its diffuse part over its specular part:
-#: the ``steel_drill`` material of docs/scanner-model.md (a microfacet lobe, Torrance and Sparrow
-#: 1967; Li and Torrance 2005 for ground steel's spread).
-LOBE_WIDTH_RAD = 0.06
-DIFFUSE_OVER_SPECULAR = 0.01
-#: The facings (deg from a flute's middle, 0-90) at which the echo is computed once.
-_TABLE_STEP_DEG = 0.25
-#: Normals per radian along a curved surface, points along a flat wall, steps along a ray.
-_NORMALS_PER_RAD = 600
-_WALL_POINTS = 60
-_RAY_STEPS = 96
-
-
-def _near_branch_radius(polar_rad: FloatArray, distance: float, rho: float) -> FloatArray:
-    """How far from the axis a ray leaving it at ``polar_rad`` (from a flute's middle) meets
-    the flute's arc first (inf where it misses it): the section is star-shaped about the axis."""
-    along = distance * np.cos(polar_rad)
-    disc = along**2 - distance**2 + rho**2
-    near = along - np.sqrt(np.fmax(disc, 0.0))
-    return np.where((disc >= 0.0) & (along > 0.0), near, np.inf)
-
-
-def _section_radius(polar_rad: FloatArray, distance: float, rho: float) -> FloatArray:
-    """The section's edge at ``polar_rad`` (radii): the land's circle or either flute's arc."""
-    return np.minimum(
-        1.0,
-        np.minimum(
-            _near_branch_radius(polar_rad, distance, rho),
-            _near_branch_radius(polar_rad - np.pi, distance, rho),
-        ),
-    )
-
-
-def _surface(distance: float, rho: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The section's surface as points (P, 2), their outward normals' angles (P,) and the
-    length each stands for (P,), radii, for the flute whose middle is the x axis and its
-    lands (the other flute is the same turned half a turn): the flute's arc from its deepest
-    point out to where a ray from the axis grazes it, the straight wall from there out to the
-    land, and the land's circle."""
-    graze = float(np.arccos(np.sqrt(1.0 - (rho / distance) ** 2)))  # polar angle of the wall
-    graze_normal = np.pi / 2.0 - graze  # the arc's normal where it is grazed, and the wall's
-    graze_radius = distance * np.cos(graze)
-    n_arc = np.linspace(-graze_normal, graze_normal, int(2 * graze_normal * _NORMALS_PER_RAD) + 1)
-    arc = np.array([distance, 0.0]) - rho * np.stack([np.cos(n_arc), np.sin(n_arc)], -1)
-    n_land = np.linspace(graze, np.pi - graze, int((np.pi - 2 * graze) * _NORMALS_PER_RAD) + 1)
-    land = np.stack([np.cos(n_land), np.sin(n_land)], -1)
-    s = graze_radius + (1.0 - graze_radius) * (np.arange(_WALL_POINTS) + 0.5) / _WALL_POINTS
-    wall = s[:, None] * np.array([np.cos(graze), np.sin(graze)])
-    half = np.concatenate([arc, land, wall, wall * [1.0, -1.0]])
-    normals = np.concatenate(
-        [n_arc, n_land, np.full(_WALL_POINTS, -graze_normal), np.full(_WALL_POINTS, graze_normal)]
-    )
-    lengths = np.concatenate(
-        [
-            np.full(n_arc.size, rho * (n_arc[1] - n_arc[0])),
-            np.full(n_land.size, n_land[1] - n_land[0]),
-            np.full(2 * _WALL_POINTS, (1.0 - graze_radius) / _WALL_POINTS),
-        ]
-    )
-    return (
-        np.concatenate([half, -half]),
-        np.concatenate([normals, normals + np.pi]),
-        np.concatenate([lengths, lengths]),
-    )
-
-
-@lru_cache(maxsize=8)
-def _echo_table(web_fraction: float, opening_deg: float) -> tuple[FloatArray, FloatArray]:
-    """The fitted centre's offset (N, 2) at facings 0-90 deg (N,) from a flute's middle."""
-    distance, rho = _flute_arc(web_fraction, np.radians(opening_deg) / 2.0)
-    points, normals, lengths = _surface(distance, rho)
-    facings = np.radians(np.arange(0.0, 90.0 + _TABLE_STEP_DEG / 2, _TABLE_STEP_DEG))
-    steps = np.linspace(1e-3, 2.0, _RAY_STEPS)
-    offsets = np.empty((facings.size, 2))
-    for k, gamma in enumerate(facings):
-        f = np.array([np.cos(gamma), np.sin(gamma)])
-        incidence = np.angle(np.exp(1j * (normals - gamma)))
-        lit = np.cos(incidence) > 0.0
-        ray = points[lit, None, :] + steps[None, :, None] * f
-        inside = (
-            np.hypot(ray[..., 0], ray[..., 1])
-            < _section_radius(np.arctan2(ray[..., 1], ray[..., 0]), distance, rho) - 1e-6
-        )
-        seen = np.flatnonzero(lit)[~inside.any(axis=1)]
-        cos = np.cos(incidence[seen])
-        power = (
-            lengths[seen]
-            * cos
-            * (np.exp(-((incidence[seen] / LOBE_WIDTH_RAD) ** 2)) + DIFFUSE_OVER_SPECULAR * cos)
-        )
-        echo = power @ points[seen] / power.sum()  # the pulse merges every part into one lobe
-        across = np.array([-f[1], f[0]])
-        sideways = points @ across
-        middle = 0.5 * (sideways.max() + sideways.min())  # the silhouette's middle
-        offsets[k] = (echo @ f - 1.0) * f + middle * across
-    return np.degrees(facings), offsets
-
-
 def glint_offsets(
     facing_rad: FloatArray,
     web_fraction: float = WEB_FRACTION,
@@ -150,16 +48,24 @@ def glint_offsets(
 ) -> FloatArray:
     """The fitted centre's offset from the axis (N, 2), in radii, in the section frame whose
     x axis is a flute's middle, for the scanner's direction (seen from the bit) at
-    ``facing_rad`` in that frame: one radius behind the echo, the power-weighted mean of every
-    part of the section the scanner sees (``_echo_table``)."""
+    ``facing_rad`` in that frame. A land facing the scanner: 0. A flute facing it: its arc's
+    point whose normal points at the scanner, if the lands do not hide it; else the land's
+    edge next to it (the surface nearest to square)."""
+    half = np.radians(opening_deg) / 2.0
     facing = np.asarray(facing_rad, dtype=float)
     flip = np.cos(facing) < 0.0  # the other flute: the section is point-symmetric
-    gamma = np.angle(np.exp(1j * np.where(flip, facing - np.pi, facing)))
-    table_deg, table = _echo_table(float(web_fraction), float(opening_deg))
-    at = np.degrees(np.abs(gamma))
-    offset = np.stack(
-        [np.interp(at, table_deg, table[:, 0]), np.sign(gamma) * np.interp(at, table_deg, table[:, 1])], -1
-    )
+    gamma = np.where(flip, facing - np.pi, facing)
+    gamma = np.angle(np.exp(1j * gamma))
+    f = np.stack([np.cos(gamma), np.sin(gamma)], -1)
+    distance, rho = _flute_arc(web_fraction, half)
+    q = np.array([distance, 0.0]) - rho * f  # the arc's normal there points at the scanner
+    qf = np.einsum("ij,ij->i", q, f)
+    exit_t = -qf + np.sqrt(np.fmax(qf**2 - np.einsum("ij,ij->i", q, q) + 1.0, 0.0))
+    exit_point = q + exit_t[:, None] * f
+    seen = np.abs(np.arctan2(exit_point[:, 1], exit_point[:, 0])) <= half
+    edge = np.stack([np.full_like(gamma, np.cos(half)), np.copysign(np.sin(half), gamma)], -1)
+    offset = np.where(seen[:, None], q, edge) - f
+    offset = np.where((np.abs(gamma) < half)[:, None], offset, 0.0)
     return np.where(flip[:, None], -offset, offset)
 
 
