@@ -54,6 +54,8 @@ from lasercal_hw.scan.average import AveragedScan
 logger = logging.getLogger(__name__)
 
 _Z_AXIS = np.array([0.0, 0.0, 1.0])
+#: Mean-shift steps of ``_tail_pull_m`` (a share under a half converges in a few).
+_TAIL_PULL_STEPS = 30
 
 
 class RodNotFoundError(CalibrationError):
@@ -175,6 +177,12 @@ class ExtractionSettings:
     #: spot's part beside the rod; with intensities, weighted by the background's power
     #: against the beam's) times the depth behind.
     echo_merge_m: float = 0.85
+    #: ... and farther behind, the surface returns its own lobe, whose flank still pulls the
+    #: rod's peak towards it: a gaussian pulse this long (FWHM, in range: the scanner model's
+    #: 6.7 ns, docs/scanner-model.md) moves it by ``_tail_pull_m``. A polished 10 mm drill bit
+    #: at 0.54 m, the floor 0.99 m behind at 11-20 % of each echo, read 10-20 mm long and its
+    #: centre lay 14 mm long against 1.8 mm std (docs/extraction.md, ``drilloutlier``).
+    pulse_fwhm_m: float = 1.0
     #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
     max_blend_share: float = 0.5
     #: An edge beam under this share reads the rod cleanly (``_drop_blended_edges``: the other
@@ -1681,12 +1689,13 @@ def _blend(
 
     The share is the part of the spot passing beside the rod (a gaussian spot across the
     rod's silhouette); with intensities it is weighted by the background's power against
-    the beam's (the UTM's intensity grows like the square root of the power).  It counts
-    only where the background merges into the rod's echo (less than ``echo_merge_m``
-    behind): a surface farther behind returns its own echo, and a beam that reads the rod
-    reads the rod alone (a 4 mm rod at 0.1 m before a wall 2.5 m behind was refused as
-    "every beam blends it" though each of its 18 beams read the rod's range).  The
-    allowance is the share times the depth behind."""
+    the beam's (the UTM's intensity grows like the square root of the power).  Where the
+    background merges into the rod's echo (less than ``echo_merge_m`` behind) the allowance is
+    the share times the depth behind.  A surface farther behind returns its own echo, whose
+    flank still pulls the rod's a little (``_tail_pull_m``; none from 2.5 m: a 4 mm rod at
+    0.1 m before a wall 2.5 m behind was refused as "every beam blends it" though each of its
+    18 beams read the rod's range); its share is then the part of the depth the reading may
+    move, the allowance over the depth."""
     ranges = scan.ranges_m[beams]
     angles = scan.angles_rad[beams]
     offset = np.sin(angles) * centre[0] - np.cos(angles) * centre[1]
@@ -1704,9 +1713,29 @@ def _blend(
         share = np.fmin(share * ratio**2, 1.0)
     with np.errstate(invalid="ignore"):
         depth = behind.ranges_m[beams] - ranges
-        merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
-    share = np.where(merged, share, 0.0)
-    return share, share * np.where(merged, depth, 0.0)
+        behind_rod = np.isfinite(depth) & (depth > 0.0)
+        merged = behind_rod & (depth < settings.echo_merge_m)
+    depth = np.where(behind_rod, depth, 0.0)
+    # Beyond the merge the scanner reports the strongest lobe, and the beam reads the rod: the
+    # surface's lobe was no stronger than the rod's (a share of at most a half).
+    tail_share = np.where(behind_rod, np.fmin(share, 0.5), 0.0)
+    bound_m = np.where(merged, share * depth, _tail_pull_m(tail_share, depth, settings))
+    return np.where(behind_rod, bound_m / np.fmax(depth, 1e-12), 0.0), bound_m
+
+
+def _tail_pull_m(share: FloatArray, depth_m: FloatArray, settings: ExtractionSettings) -> FloatArray:
+    """How far a surface ``depth_m`` behind the rod, with ``share`` of the beam's power, moves
+    the rod's echo peak towards it: the peak of the two gaussian pulses (``pulse_fwhm_m``) found
+    by mean shift from the rod's range, as the scanner finds its lobes. About ``share * depth``
+    where the two merge, ``share * depth * exp(-depth^2 / 2 sigma^2)`` where the surface is
+    several pulse widths behind (nothing at 2.5 m)."""
+    sigma_m = settings.pulse_fwhm_m / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    pull = np.zeros_like(depth_m)
+    for _ in range(_TAIL_PULL_STEPS):
+        rod = (1.0 - share) * np.exp(-0.5 * (pull / sigma_m) ** 2)
+        surface = share * np.exp(-0.5 * ((depth_m - pull) / sigma_m) ** 2)
+        pull = depth_m * surface / np.fmax(rod + surface, 1e-300)
+    return pull
 
 
 def _drop_blended_edges(
