@@ -335,6 +335,16 @@ def test_a_polished_bit_before_a_surface_a_pulse_length_behind_is_warned_or_cove
     assert _mahalanobis2(found, truth) <= THREE_STD_M2 or found.warnings
 
 
+@pytest.mark.parametrize("bearing_deg", [10.0, -31.0])
+def test_a_polished_bits_pull_from_a_surface_a_pulse_length_behind_is_taken_out(bearing_deg: float) -> None:
+    # The same bit 1.1 m before the wall: its ramps show the spot, the intensities weigh the
+    # wall's share, and half the pull the pulse model gives is taken out of each beam's range:
+    # 2.5 mm off where the centre sat 13.4-13.5 mm long.
+    found, truth = _extract(0.54, bearing_deg, 0.005, "steel_drill", 1.1)
+    assert isinstance(found, RodCentre)
+    assert np.linalg.norm(found.centre_uv_m - truth) < 0.005
+
+
 def _benchmark_dwell(
     range_m: float, bearing_deg: float, radius_m: float, material: str, background_m: float
 ) -> tuple[RodCentre | RodNotFoundError, np.ndarray]:
