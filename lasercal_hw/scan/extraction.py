@@ -186,7 +186,7 @@ class ExtractionSettings:
     #: Where the scan shows the spot and the share is weighed by intensities against a
     #: background scan, the fit takes this part of each beam's tail pull out of its range and
     #: keeps the rest as its allowance: the pull lies between none and the estimate (which the
-    #: spot model's share puts at 1.0-1.9 times the scanner model's own pull on the drill job's
+    #: spot model's share puts at 0.9-2.0 times the scanner model's own pull on the drill job's
     #: bit), so half is the middle. Without intensities the share is the spot's geometry alone,
     #: and the whole pull stays the allowance.
     tail_pull_taken_out: float = 0.5

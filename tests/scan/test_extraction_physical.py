@@ -328,7 +328,7 @@ def test_a_polished_bit_before_a_surface_a_pulse_length_behind_is_warned_or_cove
     # The drill job's outliers (docs/extraction.md, ``drilloutlier``): a polished 10 mm bit at
     # 0.54 m returns little light, and a wall 0.9-1.1 m behind (beyond the 0.85 m where echoes
     # merge) still pulls the rod's echo peak 10-50 mm long through its own pulse's flank. These
-    # were found 12.6-51 mm off against 0.7-4.5 mm std, without a warning.
+    # were found 12.6-50 mm off against 1.5-3.5 mm std, without a warning.
     found, truth = _extract(0.54, bearing_deg, 0.005, "steel_drill", background_m)
     if isinstance(found, RodNotFoundError):
         return
