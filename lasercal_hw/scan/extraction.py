@@ -54,8 +54,6 @@ from lasercal_hw.scan.average import AveragedScan
 logger = logging.getLogger(__name__)
 
 _Z_AXIS = np.array([0.0, 0.0, 1.0])
-#: Mean-shift steps of ``_tail_pull_m`` (a share under a half converges in a few).
-_TAIL_PULL_STEPS = 30
 
 
 class RodNotFoundError(CalibrationError):
@@ -177,19 +175,6 @@ class ExtractionSettings:
     #: spot's part beside the rod; with intensities, weighted by the background's power
     #: against the beam's) times the depth behind.
     echo_merge_m: float = 0.85
-    #: ... and farther behind, the surface returns its own lobe, whose flank still pulls the
-    #: rod's peak towards it: a gaussian pulse this long (FWHM, in range: the scanner model's
-    #: 6.7 ns, docs/scanner-model.md) moves it by ``_tail_pull_m``. A polished 10 mm drill bit
-    #: at 0.54 m, the floor 0.99 m behind at 11-20 % of each echo, read 10-20 mm long and its
-    #: centre lay 14 mm long against 1.8 mm std (docs/extraction.md, ``drilloutlier``).
-    pulse_fwhm_m: float = 1.0
-    #: Where the scan shows the spot and the share is weighed by intensities against a
-    #: background scan, the fit takes this part of each beam's tail pull out of its range and
-    #: keeps the rest as its allowance: the pull lies between none and the estimate (which the
-    #: spot model's share puts at 0.9-2.0 times the scanner model's own pull on the drill job's
-    #: bit), so half is the middle. Without intensities the share is the spot's geometry alone,
-    #: and the whole pull stays the allowance.
-    tail_pull_taken_out: float = 0.5
     #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
     max_blend_share: float = 0.5
     #: An edge beam under this share reads the rod cleanly (``_drop_blended_edges``: the other
@@ -1541,7 +1526,6 @@ def _fit_segment(
             f"too few beams on the rod: {beams.size} at {range_m:.2f} m (need {settings.min_beams}); "
             "move the rod closer or use a thicker rod"
         )
-    given = scan
     points = scan.points_m()[beams]
     sigma = sigma_all[beams]
     keep, fit = _drop_mixed_edges(points, sigma, section, settings)
@@ -1551,15 +1535,9 @@ def _fit_segment(
         >= settings.spot_shown_ramp_beams
     )
     bound_in_fit = False
-    tail_taken_out = False
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
-        if spot_shown and behind.intensities is not None:
-            scan, tail_taken_out = _without_tail_pull(scan, beams, fit.centre_uv_m, section, behind, settings)
-            if tail_taken_out:
-                points = scan.points_m()[beams]
-                keep, fit = _drop_mixed_edges(points, sigma, section, settings)
         keep, fit, share, bound_m = _drop_blended_edges(
-            scan, beams, points, sigma, keep, fit, section, behind, settings, tail_taken_out
+            scan, beams, points, sigma, keep, fit, section, behind, settings
         )
         # Where no beam reads the rod cleanly the echo may be merged and still look like an arc:
         # the covariance takes every beam's whole bound. Where some do, the blended edge beams
@@ -1615,7 +1593,7 @@ def _fit_segment(
             raise refusal
         try:
             return _fit_segment(
-                given, sigma_all, inner, section, settings,
+                scan, sigma_all, inner, section, settings,
                 ramp_beams=ramp_beams + beams.size - inner.size, behind=behind,
             )
         except RodNotFoundError:
@@ -1696,43 +1674,19 @@ def _blend(
     settings: ExtractionSettings,
     *,
     halo: bool = True,
-    tail_taken_out: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     """Per beam, the background's share of the returned echo and the blend allowance (m);
     ``halo``: with the spot's faint halo (False: its core alone, which tells the edge beams
     apart; the halo adds about the same to every beam).
 
-    Where the background merges into the rod's echo (less than ``echo_merge_m`` behind,
-    ``_background_share``) the allowance is the share times the depth behind.  A surface
-    farther behind returns its own echo, whose flank still pulls the rod's a little
-    (``_tail_pulls_m``; none from 2.5 m: a 4 mm rod at 0.1 m before a wall 2.5 m behind was
-    refused as "every beam blends it" though each of its 18 beams read the rod's range): the
-    allowance is that pull, or with ``tail_taken_out`` (the fit took its middle out of the
-    ranges) the part left; the share is then the part of the depth the reading may move."""
-    share, depth, behind_rod, merged = _background_share(scan, beams, centre, section, behind, settings, halo)
-    left = 1.0 - settings.tail_pull_taken_out if tail_taken_out else 1.0
-    bound_m = np.where(merged, share * depth, left * _tail_pull_m(share, depth, settings))
-    return np.where(behind_rod, bound_m / np.fmax(depth, 1e-12), 0.0), bound_m
-
-
-def _background_share(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    centre: FloatArray,
-    section: _Section,
-    behind: _Behind,
-    settings: ExtractionSettings,
-    halo: bool = True,
-) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], NDArray[np.bool_]]:
-    """Per beam, the background's share of its power, its depth behind the beam's reading (m;
-    0 where nothing lies behind), whether something does, and whether that merges into the
-    rod's echo (``echo_merge_m``).
-
     The share is the part of the spot passing beside the rod (a gaussian spot across the
     rod's silhouette); with intensities it is weighted by the background's power against
-    the beam's (the UTM's intensity grows like the square root of the power).  Beyond the
-    merge the scanner reports the strongest lobe, and the beam reads the rod: the surface's
-    lobe was no stronger than the rod's, a share of at most a half."""
+    the beam's (the UTM's intensity grows like the square root of the power).  It counts
+    only where the background merges into the rod's echo (less than ``echo_merge_m``
+    behind): a surface farther behind returns its own echo, and a beam that reads the rod
+    reads the rod alone (a 4 mm rod at 0.1 m before a wall 2.5 m behind was refused as
+    "every beam blends it" though each of its 18 beams read the rod's range).  The
+    allowance is the share times the depth behind."""
     ranges = scan.ranges_m[beams]
     angles = scan.angles_rad[beams]
     offset = np.sin(angles) * centre[0] - np.cos(angles) * centre[1]
@@ -1750,57 +1704,9 @@ def _background_share(
         share = np.fmin(share * ratio**2, 1.0)
     with np.errstate(invalid="ignore"):
         depth = behind.ranges_m[beams] - ranges
-        behind_rod = np.isfinite(depth) & (depth > 0.0)
-        merged = behind_rod & (depth < settings.echo_merge_m)
-    share = np.where(behind_rod, np.where(merged, share, np.fmin(share, 0.5)), 0.0)
-    return share, np.where(behind_rod, depth, 0.0), behind_rod, merged
-
-
-def _tail_pulls_m(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    centre: FloatArray,
-    section: _Section,
-    behind: _Behind,
-    settings: ExtractionSettings,
-) -> FloatArray:
-    """Per beam, how far a surface beyond the merge behind it pulls its reading long
-    (``_tail_pull_m``; 0 where the surface merges, or nothing lies behind)."""
-    share, depth, behind_rod, merged = _background_share(scan, beams, centre, section, behind, settings)
-    return np.where(behind_rod & ~merged, _tail_pull_m(share, depth, settings), 0.0)
-
-
-def _without_tail_pull(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    centre: FloatArray,
-    section: _Section,
-    behind: _Behind,
-    settings: ExtractionSettings,
-) -> tuple[AveragedScan, bool]:
-    """The scan with ``tail_pull_taken_out`` of each beam's tail pull (``_tail_pulls_m``, by
-    the fit's ``centre``) taken out of its range, and whether any was."""
-    pull_m = settings.tail_pull_taken_out * _tail_pulls_m(scan, beams, centre, section, behind, settings)
-    if not np.any(pull_m > 0.0):
-        return scan, False
-    ranges = scan.ranges_m.copy()
-    ranges[beams] -= pull_m
-    return replace(scan, ranges_m=ranges), True
-
-
-def _tail_pull_m(share: FloatArray, depth_m: FloatArray, settings: ExtractionSettings) -> FloatArray:
-    """How far a surface ``depth_m`` behind the rod, with ``share`` of the beam's power, moves
-    the rod's echo peak towards it: the peak of the two gaussian pulses (``pulse_fwhm_m``) found
-    by mean shift from the rod's range, as the scanner finds its lobes. About ``share * depth``
-    where the two merge, ``share * depth * exp(-depth^2 / 2 sigma^2)`` where the surface is
-    several pulse widths behind (nothing at 2.5 m)."""
-    sigma_m = settings.pulse_fwhm_m / (2.0 * np.sqrt(2.0 * np.log(2.0)))
-    pull = np.zeros_like(depth_m)
-    for _ in range(_TAIL_PULL_STEPS):
-        rod = (1.0 - share) * np.exp(-0.5 * (pull / sigma_m) ** 2)
-        surface = share * np.exp(-0.5 * ((depth_m - pull) / sigma_m) ** 2)
-        pull = depth_m * surface / np.fmax(rod + surface, 1e-300)
-    return pull
+        merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
+    share = np.where(merged, share, 0.0)
+    return share, share * np.where(merged, depth, 0.0)
 
 
 def _drop_blended_edges(
@@ -1813,7 +1719,6 @@ def _drop_blended_edges(
     section: _Section,
     behind: _Behind,
     settings: ExtractionSettings,
-    tail_taken_out: bool = False,
 ) -> tuple[NDArray[np.int64], _Fit, FloatArray, FloatArray]:
     """The fit without an edge beam that is more background than rod by its centre (its spot
     passes mostly beside the rod and the surface behind merges into its echo) while the other
@@ -1827,17 +1732,13 @@ def _drop_blended_edges(
     sides are left to the blend bounds (the ideal scanner's silhouette edges, which read the
     rod's own surface: dropping them cost its median error 0.40 -> 0.47 mm)."""
     while True:
-        share, bound_m = _blend(
-            scan, beams, fit.centre_uv_m, section, behind, settings, tail_taken_out=tail_taken_out
-        )
+        share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
         if keep.size <= settings.min_beams:
             return keep, fit, share, bound_m
         # The edges compared by the spot's core: its halo, much the same on both sides, lifted
         # the clean edge of a dark 45 mm rod at 0.1 m before a bright wall over 5 %, and the
         # blends kept on the other side pulled it 10.9 mm sideways.
-        core, _ = _blend(
-            scan, beams, fit.centre_uv_m, section, behind, settings, halo=False, tail_taken_out=tail_taken_out
-        )
+        core, _ = _blend(scan, beams, fit.centre_uv_m, section, behind, settings, halo=False)
         first, last = core[keep[0]], core[keep[-1]]
         if max(first, last) <= settings.max_blend_share or min(first, last) > settings.doubtful_blend_share:
             return keep, fit, share, bound_m

@@ -321,30 +321,6 @@ def test_a_rod_blended_with_a_near_wall_is_never_found_silently_off_on_a_part_of
     assert _mahalanobis2(found, truth) <= THREE_STD_M2 or found.warnings
 
 
-@pytest.mark.parametrize(("background_m", "bearing_deg"), [(0.9, 10.0), (1.0, -31.0), (1.1, 23.0)])
-def test_a_polished_bit_before_a_surface_a_pulse_length_behind_is_warned_or_covered(
-    background_m: float, bearing_deg: float
-) -> None:
-    # The drill job's outliers (docs/extraction.md, ``drilloutlier``): a polished 10 mm bit at
-    # 0.54 m returns little light, and a wall 0.9-1.1 m behind (beyond the 0.85 m where echoes
-    # merge) still pulls the rod's echo peak 10-50 mm long through its own pulse's flank. These
-    # were found 12.6-50 mm off against 1.5-3.5 mm std, without a warning.
-    found, truth = _extract(0.54, bearing_deg, 0.005, "steel_drill", background_m)
-    if isinstance(found, RodNotFoundError):
-        return
-    assert _mahalanobis2(found, truth) <= THREE_STD_M2 or found.warnings
-
-
-@pytest.mark.parametrize("bearing_deg", [10.0, -31.0])
-def test_a_polished_bits_pull_from_a_surface_a_pulse_length_behind_is_taken_out(bearing_deg: float) -> None:
-    # The same bit 1.1 m before the wall: its ramps show the spot, the intensities weigh the
-    # wall's share, and half the pull the pulse model gives is taken out of each beam's range:
-    # 2.5 mm off where the centre sat 13.4-13.5 mm long.
-    found, truth = _extract(0.54, bearing_deg, 0.005, "steel_drill", 1.1)
-    assert isinstance(found, RodCentre)
-    assert np.linalg.norm(found.centre_uv_m - truth) < 0.005
-
-
 def _benchmark_dwell(
     range_m: float, bearing_deg: float, radius_m: float, material: str, background_m: float
 ) -> tuple[RodCentre | RodNotFoundError, np.ndarray]:
