@@ -81,8 +81,8 @@ class ActiveCalibration(ResultFile):
             return "the calibration's flute phase pass was not kept: centres fitted with the mean offset"
         return (
             "centres fitted as the calibration's flute phase pass did (run.first_pass.flute_phase): "
-            f"plain fits moved by the section's offset at {kept['phase_deg']:.0f} "
-            f"+- {kept['phase_std_deg']:.0f} deg"
+            f"plain fits moved by the section's offset at {self._number(kept, 'phase_deg'):.0f} "
+            f"+- {self._number(kept, 'phase_std_deg'):.0f} deg"
         )
 
     def _kept_flute_phase(self) -> dict[str, Any] | None:
