@@ -79,6 +79,9 @@ logger = logging.getLogger(__name__)
 _RESIDUALS = TypeAdapter(list[WaypointResidual])
 
 MIN_WAYPOINTS = 5
+MAX_RANGE_ERROR_M = 0.3
+"""Ten times a UTM-30LX-EW's data-sheet range accuracy (+-30 mm to 10 m): a fit whose range
+error curve needs more at a used crossing has diverged, not found the scanner's error."""
 _MEDIAN_CHI2_2DOF = 2.0 * np.log(2.0)
 
 
@@ -258,6 +261,7 @@ def solve(
             evaluations += more
         outliers += _rejected(rotation, translation, data, usable & ~used, opts)
         converged, message = True, "converged"
+    _check_not_diverged(rotation, translation, data, used)
     try:
         result = _result(rotation, translation, data, used, outliers, opts, robust, extras)
     except DegenerateDataError as exc:
@@ -487,6 +491,35 @@ def _refine(
     rod, offset = line(fit.x)
     moved = data.with_line(rod, offset) if extras.count else data
     return rotvec_to_matrix(fit.x[3:6]) @ rotation0, translation0 + fit.x[:3], moved, int(fit.nfev)
+
+
+def _check_not_diverged(rotation: FloatArray, translation: FloatArray, data: _Data, used: np.ndarray) -> None:
+    """``CalibrationError`` when the fit ended where no working cell can be: a pose or a
+    prediction that is not finite, or a range error beyond any working scanner's at a used
+    crossing (seen: a range error curve that ran away with the pose on a fluted bit's centres
+    under a wrong section model, -16 m, which then failed inside LAPACK)."""
+    advice = (
+        "the centres do not fit one rod line seen by one scanner; check the rod definition "
+        "(--axis-origin/--axis-direction) and the centres' noise (sigma_u, sigma_v)"
+    )
+    with np.errstate(all="ignore"):
+        crossing, slope = data.predicted(rotation, translation)
+    if not (np.isfinite(rotation).all() and np.isfinite(translation).all()):
+        raise CalibrationError(f"the fit diverged to a pose that is not finite: {advice}")
+    if not (np.isfinite(crossing[used]).all() and np.isfinite(slope[used]).all()):
+        raise CalibrationError(f"the fit diverged: its predicted crossings are not finite; {advice}")
+    if not data.range_curve_m.any():
+        return
+    distance_m = np.linalg.norm(crossing[used], axis=1)
+    with np.errstate(all="ignore"):
+        error_m = range_error_m(data.range_curve_m, distance_m)[0]
+    worst = int(np.argmax(np.nan_to_num(np.abs(error_m), nan=np.inf)))
+    if not abs(error_m[worst]) <= MAX_RANGE_ERROR_M:
+        raise CalibrationError(
+            f"the fit's range error curve reads {error_m[worst] * 1e3:+.0f} mm at {distance_m[worst]:.2f} m, "
+            f"beyond any working scanner's ({MAX_RANGE_ERROR_M * 1e3:.0f} mm): the fit ran away with the "
+            f"pose, or the scanner is faulty (compare a tape-measured distance with its reading); {advice}"
+        )
 
 
 def _whitened(rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions) -> FloatArray:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import lasercal_hw.calibration.solver as solver_module
 from fakes.scene import load_scene
 from fakes.world import World
 from lasercal_hw.calibration.model import (
@@ -408,3 +409,25 @@ def test_a_short_job_whose_curve_terms_all_fail_their_test_keeps_every_waypoint(
     truth = euler_zyx_to_matrix(*np.radians([5.0, 7.0, 3.0]))
     turned_deg = np.degrees(np.linalg.norm(matrix_to_rotvec(result.matrix()[:3, :3] @ truth.T)))
     assert turned_deg < 3.0 * float(np.linalg.norm(result.std_rotation_deg))
+
+
+def test_a_range_error_beyond_any_working_scanners_is_refused_not_reported() -> None:
+    obs = _observations(NOMINAL, range_offset_m=0.5)
+    with pytest.raises(CalibrationError, match=r"range error curve reads \+5\d\d mm .* beyond any working"):
+        solve(obs, NOMINAL, options=OPTIONS.model_copy(update={"estimate_range_offset": True}))
+
+
+def test_a_fit_that_diverges_is_a_calibration_error_not_a_linear_algebra_failure(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A pose the fit cannot bring back finite (a stand-in for LAPACK's failure seen on a
+    diverged fluted-bit solve) gives the one-line error the CLI and the service show."""
+    fit = solver_module._fit
+
+    def diverging(*args: object) -> tuple[object, ...]:
+        rotation, translation, data, used, evaluations = fit(*args)
+        return rotation, translation * np.nan, data, used, evaluations
+
+    monkeypatch.setattr(solver_module, "_fit", diverging)
+    with pytest.raises(CalibrationError, match="not finite"):
+        solve(_observations(NOMINAL), NOMINAL, options=OPTIONS)
