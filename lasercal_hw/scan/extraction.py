@@ -193,13 +193,9 @@ class ExtractionSettings:
     #: ones beyond read the wall pulled towards the bit. An exact ray shows none.)
     tail_pull_shown_beams: int = 1
     #: ... and taken out of its range where that share is at most this: up to a share of 0.35
-    #: the estimate is 1.0-1.4 times the scanner model's own pull (the drill job's bit before
-    #: the floor, a wall behind a bit); near a half (equal lobes) it is steep, 1.4-1.8 times
-    #: (docs/extraction.md, "The pull a pulse length behind") ...
-    max_tail_share_taken_out: float = 0.4
-    #: ... this part of it (about the estimate's excess; the rest is left in, as above that
-    #: share) ...
-    tail_pull_taken_out: float = 0.75
+    #: the estimate is 1.0-1.3 times the scanner model's own pull; near a half (equal lobes) it
+    #: is steep, 1.25-1.7 times (docs/extraction.md, "The pull a pulse length behind") ...
+    max_tail_share_taken_out: float = 0.0
     #: ... keeping this part of what that moved the centre in its covariance; ...
     tail_pull_doubt: float = 0.3
     #: ... and a centre that the pull left in its beams moves by more than this many std
@@ -1577,8 +1573,7 @@ def _fit_segment(
         pull_m, tail_share = _tail_pulls_m(scan, beams, fit.centre_uv_m, section, behind, settings)
         if np.any(pull_m > 0.0):
             tail_depth_m = float(np.median((behind.ranges_m[beams] - scan.ranges_m[beams])[pull_m > 0.0]))
-        vouched = tail_share <= settings.max_tail_share_taken_out
-        taken_m = np.where(vouched, settings.tail_pull_taken_out * pull_m, 0.0)
+        taken_m = np.where(tail_share <= settings.max_tail_share_taken_out, pull_m, 0.0)
         if np.any(taken_m > 0.0):
             ranges = scan.ranges_m.copy()
             ranges[beams] -= taken_m
