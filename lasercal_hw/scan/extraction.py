@@ -186,7 +186,7 @@ class ExtractionSettings:
     pulse_fwhm_m: float = 1.0
     #: Only on a rod narrower than the spot, whose every beam is such a blend: on a wider rod the
     #: estimate is 1.5-2.6 times the model's own pull in its edge beams (the default job's 40 mm
-    #: rod about 1 m before the floor), and the centres it called 21-27 mm long lay 1-2 mm long.
+    #: rod about 1 m before the floor), and centres it called 2-27 mm long lay 0.5-2.2 mm long.
     #: (The spot shows for this by one steady beam beside the rod, flipping beams stepped over,
     #: or one cut off its segment, where ``spot_shown_ramp_beams`` asks three: a polished bit
     #: before a far wall shows no ramp, the beams beside it flip between the two, and the steady
