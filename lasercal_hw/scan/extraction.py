@@ -50,6 +50,7 @@ from scipy.special import ndtr
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.scan.average import AveragedScan
+from lasercal_hw.scan.echo_pull import surface_share, tail_pull_m
 
 logger = logging.getLogger(__name__)
 
@@ -175,6 +176,26 @@ class ExtractionSettings:
     #: spot's part beside the rod; with intensities, weighted by the background's power
     #: against the beam's) times the depth behind.
     echo_merge_m: float = 0.85
+    #: ... and a surface farther behind returns its own lobe, whose flank still pulls the rod's
+    #: echo peak towards it through the laser pulse (gaussian, this long: FWHM in range, the
+    #: scanner model's 6.7 ns; ``echo_pull``): a polished 10 mm bit at 0.54 m before a wall 1.0
+    #: m behind read 24-39 mm long, its centre 28 mm long against 1.8-4.5 mm std, silent. Where
+    #: the scan shows the spot and both scans carry intensities, each beam's pull is estimated
+    #: from its share of the surface's power (the spot's part beside the rod, the surface's
+    #: intensity in the background scan against the beam's own) ...
+    pulse_fwhm_m: float = 1.0
+    #: Only on a rod narrower than the spot, whose every beam is such a blend: on a wider rod the
+    #: estimate is 1.5-2.6 times the model's own pull in its edge beams (the default job's 40 mm
+    #: rod about 1 m before the floor), and centres it called 2-27 mm long lay 0.5-2.2 mm long.
+    #: (The spot shows for this by one steady beam beside the rod, flipping beams stepped over,
+    #: or one cut off its segment, where ``spot_shown_ramp_beams`` asks three: a polished bit
+    #: before a far wall shows no ramp, the beams beside it flip between the two, and the steady
+    #: ones beyond read the wall pulled towards the bit. An exact ray shows none.)
+    tail_pull_shown_beams: int = 1
+    #: A centre that this pull moves by more than this many std (Mahalanobis) carries a
+    #: warning. (Taking it out of the ranges was tried and not kept: docs/extraction.md, "The
+    #: pull a pulse length behind".)
+    warn_tail_pull_std: float = 2.0
     #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
     max_blend_share: float = 0.5
     #: An edge beam under this share reads the rod cleanly (``_drop_blended_edges``: the other
@@ -1535,6 +1556,16 @@ def _fit_segment(
         >= settings.spot_shown_ramp_beams
     )
     bound_in_fit = False
+    pull_m = np.zeros(beams.size)
+    tail_depth_m = float("nan")
+    if behind is not None and _narrower_than_spot(scan, beams, section, settings) and (
+        max(ramp_beams, _steady_beams_beside(scan, sigma_all, beams, behind, settings, over_flips=True))
+        >= settings.tail_pull_shown_beams
+    ):
+        # A surface a pulse length behind pulls each beam long: the centre is warned below.
+        pull_m = _tail_pulls_m(scan, beams, fit.centre_uv_m, section, behind, settings)
+        if np.any(pull_m > 0.0):
+            tail_depth_m = float(np.median((behind.ranges_m[beams] - scan.ranges_m[beams])[pull_m > 0.0]))
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         keep, fit, share, bound_m = _drop_blended_edges(
             scan, beams, points, sigma, keep, fit, section, behind, settings
@@ -1577,6 +1608,7 @@ def _fit_segment(
         # which measure their excess against the covariance before it: added before, it took
         # their share away across and left a 20 mm rod at 0.75 m 5.9 std off, 1.1 before.
         fit = _with_shared_push(used, sigma[keep], np.zeros(keep.size), bound_m[keep], fit, section, settings)
+    pull_shift_m = _pull_shift_m(used, sigma[keep], pull_m[keep], section, settings)
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies off the surface by up to its bound, and the arc's range error by up
     # to its own: that part is no misfit.
@@ -1614,12 +1646,20 @@ def _fit_segment(
         span,
         dropped,
     )
-    warnings = ()
+    warnings: tuple[str, ...] = ()
     if fit.blend_shift_m > settings.warn_blend_std_m:
         warnings = (
             f"the rod's beams blend it with the background behind it: centre uncertain by "
             f"{fit.blend_shift_m * 1000:.0f} mm; a thicker or brighter rod, or a background farther "
             "behind, helps",
+        )
+    pull_std = float(np.sqrt(pull_shift_m @ np.linalg.solve(fit.covariance_uv_m2, pull_shift_m)))
+    if pull_std > settings.warn_tail_pull_std:
+        warnings += (
+            f"the surface {tail_depth_m:.2f} m behind the rod pulls its echo long through the laser pulse: "
+            f"centre about {np.linalg.norm(pull_shift_m) * 1000:.0f} mm long ({pull_std:.1f} std); "
+            f"a background farther than {2.5 * settings.pulse_fwhm_m:g} m behind the rod, or a brighter "
+            "rod, helps",
         )
     return RodCentre(
         centre_uv_m=fit.centre_uv_m,
@@ -1685,8 +1725,33 @@ def _blend(
     only where the background merges into the rod's echo (less than ``echo_merge_m``
     behind): a surface farther behind returns its own echo, and a beam that reads the rod
     reads the rod alone (a 4 mm rod at 0.1 m before a wall 2.5 m behind was refused as
-    "every beam blends it" though each of its 18 beams read the rod's range).  The
-    allowance is the share times the depth behind."""
+    "every beam blends it" though each of its 18 beams read the rod's range; its pull on the
+    rod's echo peak is ``_tail_pulls_m``'s).  The allowance is the share times the depth
+    behind."""
+    ranges = scan.ranges_m[beams]
+    share = _beside_share(scan, beams, centre, section, settings, halo=halo)
+    if behind.intensities is not None and scan.intensities is not None:
+        own = np.fmax(scan.intensities[beams], 1.0)
+        ratio = np.where(np.isfinite(behind.intensities[beams]), behind.intensities[beams] / own, 1.0)
+        share = np.fmin(share * ratio**2, 1.0)
+    with np.errstate(invalid="ignore"):
+        depth = behind.ranges_m[beams] - ranges
+        merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
+    share = np.where(merged, share, 0.0)
+    return share, share * np.where(merged, depth, 0.0)
+
+
+def _beside_share(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    centre: FloatArray,
+    section: _Section,
+    settings: ExtractionSettings,
+    *,
+    halo: bool = True,
+) -> FloatArray:
+    """Per beam, the part of its spot passing beside the rod (a gaussian spot across the rod's
+    silhouette, with its faint halo where ``halo``)."""
     ranges = scan.ranges_m[beams]
     angles = scan.angles_rad[beams]
     offset = np.sin(angles) * centre[0] - np.cos(angles) * centre[1]
@@ -1697,16 +1762,67 @@ def _blend(
         return 1.0 - (ndtr((half - offset) / sigma_m) - ndtr((-half - offset) / sigma_m))
 
     halo_fraction = settings.spot_halo_fraction if halo else 0.0
-    share = (1.0 - halo_fraction) * beside(spot) + halo_fraction * beside(settings.spot_halo_scale * spot)
-    if behind.intensities is not None and scan.intensities is not None:
-        own = np.fmax(scan.intensities[beams], 1.0)
-        ratio = np.where(np.isfinite(behind.intensities[beams]), behind.intensities[beams] / own, 1.0)
-        share = np.fmin(share * ratio**2, 1.0)
+    return (1.0 - halo_fraction) * beside(spot) + halo_fraction * beside(settings.spot_halo_scale * spot)
+
+
+def _tail_pulls_m(
+    scan: AveragedScan,
+    beams: NDArray[np.int64],
+    centre: FloatArray,
+    section: _Section,
+    behind: _Behind,
+    settings: ExtractionSettings,
+) -> FloatArray:
+    """Per beam, how far a surface beyond the merge behind it pulls its reading long
+    (``echo_pull``; 0 where the surface merges, nothing lies behind, or either scan has no
+    intensities)."""
+    zero = np.zeros(beams.size)
+    if behind.intensities is None or scan.intensities is None:
+        return zero
     with np.errstate(invalid="ignore"):
-        depth = behind.ranges_m[beams] - ranges
-        merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
-    share = np.where(merged, share, 0.0)
-    return share, share * np.where(merged, depth, 0.0)
+        depth = behind.ranges_m[beams] - scan.ranges_m[beams]
+        beyond = np.isfinite(depth) & (depth >= settings.echo_merge_m)
+    beyond &= np.isfinite(behind.intensities[beams])
+    if not np.any(beyond):
+        return zero
+    depth = np.where(beyond, depth, 0.0)
+    share = surface_share(
+        _beside_share(scan, beams, centre, section, settings),
+        np.fmax(scan.intensities[beams], 1.0),
+        np.where(beyond, behind.intensities[beams], 0.0),
+        depth,
+        settings.pulse_fwhm_m,
+    )
+    return np.where(beyond, tail_pull_m(np.where(beyond, share, 0.0), depth, settings.pulse_fwhm_m), 0.0)
+
+
+def _narrower_than_spot(
+    scan: AveragedScan, beams: NDArray[np.int64], section: _Section, settings: ExtractionSettings
+) -> bool:
+    """Whether the rod is narrower than the beam's spot (1/e^2) at its range: every beam's spot
+    passes partly beside it."""
+    range_m = float(np.min(scan.ranges_m[beams]))
+    return 2.0 * section.radius_m < settings.spot_width_at_scanner_m + settings.spot_divergence_rad * range_m
+
+
+def _nearer(points: FloatArray, pull_m: FloatArray) -> FloatArray:
+    """The points moved ``pull_m`` nearer the scanner along their beams."""
+    return points * (1.0 - pull_m / np.linalg.norm(points, axis=1))[:, None]
+
+
+def _pull_shift_m(
+    points: FloatArray, sigma: FloatArray, pull_m: FloatArray, section: _Section, settings: ExtractionSettings
+) -> FloatArray:
+    """How far the fitted centre lies from where it would without each point's ``pull_m`` (a
+    fit that fails without it: about the mean pull along the arc's bearing)."""
+    if not np.any(pull_m > 0.0):
+        return np.zeros(2)
+    try:
+        moved = _fit_centre(_nearer(points, pull_m), sigma, section, settings).centre_uv_m
+    except RodNotFoundError:
+        bearing = np.mean(points, axis=0)
+        return float(np.mean(pull_m)) * bearing / float(np.linalg.norm(bearing))
+    return _fit_centre(points, sigma, section, settings).centre_uv_m - moved
 
 
 def _drop_blended_edges(
@@ -1755,17 +1871,26 @@ def _steady_beams_beside(
     beams: NDArray[np.int64],
     behind: _Behind,
     settings: ExtractionSettings,
+    *,
+    over_flips: bool = False,
 ) -> int:
     """How many beams beside the rod (both sides, up to ``max_ramp_beams`` each) read
     steadily between its edge and the surface behind: the beam's spot straddling the two
     (a far rod's ramps, split off its segment by their range jumps). An exact ray reads one
-    surface or flips between them (unstable: ``_unstable_beams``), so it counts none."""
+    surface or flips between them (unstable: ``_unstable_beams``), so it counts none.
+    ``over_flips``: the count steps over flipping beams (a polished bit's flanks flip between
+    it and the wall, and the steady beams beyond read the wall pulled towards it)."""
     ranges = scan.ranges_m
     unstable = _unstable_beams(scan, settings)
     count = 0
     for edge, step in ((int(beams[0]), -1), (int(beams[-1]), 1)):
         i = edge + step
-        while 0 <= i < ranges.size and abs(i - edge) <= settings.max_ramp_beams and not unstable[i]:
+        while 0 <= i < ranges.size and abs(i - edge) <= settings.max_ramp_beams:
+            if unstable[i]:
+                if not over_flips:
+                    break
+                i += step
+                continue
             margin = max(settings.min_depth_below_background_m, settings.background_sigmas * float(sigma[i]))
             if not ranges[edge] < ranges[i] < behind.ranges_m[i] - margin:  # NaN: False
                 break
