@@ -186,15 +186,24 @@ class ExtractionSettings:
     pulse_fwhm_m: float = 1.0
     #: Only on a rod narrower than the spot, whose every beam is such a blend: on a wider rod the
     #: estimate is 1.5-2.6 times the model's own pull in its edge beams (the default job's 40 mm
-    #: rod about 1 m before the floor), and centres it called 2-27 mm long lay 0.5-2.2 mm long.
+    #: rod about 1 m before the floor), and the centres it called 21-27 mm long lay 1-2 mm long.
     #: (The spot shows for this by one steady beam beside the rod, flipping beams stepped over,
     #: or one cut off its segment, where ``spot_shown_ramp_beams`` asks three: a polished bit
     #: before a far wall shows no ramp, the beams beside it flip between the two, and the steady
     #: ones beyond read the wall pulled towards the bit. An exact ray shows none.)
     tail_pull_shown_beams: int = 1
-    #: A centre that this pull moves by more than this many std (Mahalanobis) carries a
-    #: warning. (Taking it out of the ranges was tried and not kept: docs/extraction.md, "The
-    #: pull a pulse length behind".)
+    #: ... and taken out of its range where that share is at most this: up to a share of 0.35
+    #: the estimate is 1.0-1.4 times the scanner model's own pull (the drill job's bit before
+    #: the floor, a wall behind a bit); near a half (equal lobes) it is steep, 1.4-1.8 times
+    #: (docs/extraction.md, "The pull a pulse length behind") ...
+    max_tail_share_taken_out: float = 0.4
+    #: ... this part of it (about the estimate's excess; the rest is left in, as above that
+    #: share) ...
+    tail_pull_taken_out: float = 0.75
+    #: ... keeping this part of what that moved the centre in its covariance; ...
+    tail_pull_doubt: float = 0.3
+    #: ... and a centre that the whole estimated pull (taken out or not) moves by more than this
+    #: many std (Mahalanobis) carries a warning.
     warn_tail_pull_std: float = 2.0
     #: A rod whose every beam is more background than rod is refused: none reads the rod itself ...
     max_blend_share: float = 0.5
@@ -1556,16 +1565,26 @@ def _fit_segment(
         >= settings.spot_shown_ramp_beams
     )
     bound_in_fit = False
-    pull_m = np.zeros(beams.size)
+    given = scan
+    pull_m = taken_m = np.zeros(beams.size)
     tail_depth_m = float("nan")
     if behind is not None and _narrower_than_spot(scan, beams, section, settings) and (
         max(ramp_beams, _steady_beams_beside(scan, sigma_all, beams, behind, settings, over_flips=True))
         >= settings.tail_pull_shown_beams
     ):
-        # A surface a pulse length behind pulls each beam long: the centre is warned below.
-        pull_m = _tail_pulls_m(scan, beams, fit.centre_uv_m, section, behind, settings)
+        # A surface a pulse length behind pulls each beam long: taken out where the beam's share
+        # of its power is low enough for the estimate to hold, the rest left to the warning.
+        pull_m, tail_share = _tail_pulls_m(scan, beams, fit.centre_uv_m, section, behind, settings)
         if np.any(pull_m > 0.0):
             tail_depth_m = float(np.median((behind.ranges_m[beams] - scan.ranges_m[beams])[pull_m > 0.0]))
+        vouched = tail_share <= settings.max_tail_share_taken_out
+        taken_m = np.where(vouched, settings.tail_pull_taken_out * pull_m, 0.0)
+        if np.any(taken_m > 0.0):
+            ranges = scan.ranges_m.copy()
+            ranges[beams] -= taken_m
+            scan = replace(scan, ranges_m=ranges)
+            points = scan.points_m()[beams]
+            keep, fit = _drop_mixed_edges(points, sigma, section, settings)
     if behind is not None and settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
         keep, fit, share, bound_m = _drop_blended_edges(
             scan, beams, points, sigma, keep, fit, section, behind, settings
@@ -1608,7 +1627,14 @@ def _fit_segment(
         # which measure their excess against the covariance before it: added before, it took
         # their share away across and left a 20 mm rod at 0.75 m 5.9 std off, 1.1 before.
         fit = _with_shared_push(used, sigma[keep], np.zeros(keep.size), bound_m[keep], fit, section, settings)
-    pull_shift_m = _pull_shift_m(used, sigma[keep], pull_m[keep], section, settings)
+    taken_shift_m = _pull_shift_m(used, sigma[keep], taken_m[keep], section, settings)
+    doubt_m = settings.tail_pull_doubt * taken_shift_m
+    fit = replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(doubt_m, doubt_m))
+    # The warning judges the whole estimated pull, taken out or not: the correction is only as
+    # good as the estimate (the pulse row of the extraction benchmark: judged on what was left,
+    # a bit 2.6 mm off went silent).
+    left_shift_m = _pull_shift_m(used, sigma[keep], (pull_m - taken_m)[keep], section, settings)
+    pull_shift_m = taken_shift_m + left_shift_m
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies off the surface by up to its bound, and the arc's range error by up
     # to its own: that part is no misfit.
@@ -1625,7 +1651,7 @@ def _fit_segment(
             raise refusal
         try:
             return _fit_segment(
-                scan, sigma_all, inner, section, settings,
+                given, sigma_all, inner, section, settings,
                 ramp_beams=ramp_beams + beams.size - inner.size, behind=behind,
             )
         except RodNotFoundError:
@@ -1657,7 +1683,8 @@ def _fit_segment(
     if pull_std > settings.warn_tail_pull_std:
         warnings += (
             f"the surface {tail_depth_m:.2f} m behind the rod pulls its echo long through the laser pulse: "
-            f"centre about {np.linalg.norm(pull_shift_m) * 1000:.0f} mm long ({pull_std:.1f} std); "
+            f"centre about {np.linalg.norm(pull_shift_m) * 1000:.0f} mm long ({pull_std:.1f} std, "
+            f"{np.linalg.norm(taken_shift_m) * 1000:.0f} mm of it taken out); "
             f"a background farther than {2.5 * settings.pulse_fwhm_m:g} m behind the rod, or a brighter "
             "rod, helps",
         )
@@ -1772,19 +1799,19 @@ def _tail_pulls_m(
     section: _Section,
     behind: _Behind,
     settings: ExtractionSettings,
-) -> FloatArray:
-    """Per beam, how far a surface beyond the merge behind it pulls its reading long
-    (``echo_pull``; 0 where the surface merges, nothing lies behind, or either scan has no
-    intensities)."""
+) -> tuple[FloatArray, FloatArray]:
+    """Per beam, how far a surface beyond the merge behind it pulls its reading long and that
+    surface's share of the beam's power (``echo_pull``; both 0 where the surface merges,
+    nothing lies behind, or either scan has no intensities)."""
     zero = np.zeros(beams.size)
     if behind.intensities is None or scan.intensities is None:
-        return zero
+        return zero, zero
     with np.errstate(invalid="ignore"):
         depth = behind.ranges_m[beams] - scan.ranges_m[beams]
         beyond = np.isfinite(depth) & (depth >= settings.echo_merge_m)
     beyond &= np.isfinite(behind.intensities[beams])
     if not np.any(beyond):
-        return zero
+        return zero, zero
     depth = np.where(beyond, depth, 0.0)
     share = surface_share(
         _beside_share(scan, beams, centre, section, settings),
@@ -1793,7 +1820,8 @@ def _tail_pulls_m(
         depth,
         settings.pulse_fwhm_m,
     )
-    return np.where(beyond, tail_pull_m(np.where(beyond, share, 0.0), depth, settings.pulse_fwhm_m), 0.0)
+    share = np.where(beyond, share, 0.0)
+    return np.where(beyond, tail_pull_m(share, depth, settings.pulse_fwhm_m), 0.0), share
 
 
 def _narrower_than_spot(
@@ -1813,16 +1841,16 @@ def _nearer(points: FloatArray, pull_m: FloatArray) -> FloatArray:
 def _pull_shift_m(
     points: FloatArray, sigma: FloatArray, pull_m: FloatArray, section: _Section, settings: ExtractionSettings
 ) -> FloatArray:
-    """How far the fitted centre lies from where it would without each point's ``pull_m`` (a
-    fit that fails without it: about the mean pull along the arc's bearing)."""
+    """How far the fitted centre moves when each point's ``pull_m`` is taken out of its range
+    (a fit that fails so: about the mean pull along the arc's bearing, towards the scanner)."""
     if not np.any(pull_m > 0.0):
         return np.zeros(2)
     try:
         moved = _fit_centre(_nearer(points, pull_m), sigma, section, settings).centre_uv_m
     except RodNotFoundError:
         bearing = np.mean(points, axis=0)
-        return float(np.mean(pull_m)) * bearing / float(np.linalg.norm(bearing))
-    return _fit_centre(points, sigma, section, settings).centre_uv_m - moved
+        return -float(np.mean(pull_m)) * bearing / float(np.linalg.norm(bearing))
+    return moved - _fit_centre(points, sigma, section, settings).centre_uv_m
 
 
 def _drop_blended_edges(
