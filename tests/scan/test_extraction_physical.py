@@ -337,6 +337,19 @@ def test_a_polished_bit_a_pulse_length_before_a_wall_is_never_silently_long(
     assert _mahalanobis2(found, truth) <= THREE_STD_M2 or found.warnings
 
 
+@pytest.mark.parametrize(
+    ("background_m", "bearing_deg"), [(0.9, 10.0), (1.0, 23.0), (1.1, -31.0), (1.2, 10.0)]
+)
+def test_most_of_the_pull_a_pulse_length_behind_a_polished_bit_is_taken_out(
+    background_m: float, bearing_deg: float
+) -> None:
+    # The same bits: with three quarters of each beam's estimated pull out of its range they lie
+    # 1.0-4.4 mm from the truth (8-51 mm with the pull left in).
+    found, truth = _extract(0.54, bearing_deg, 0.005, "steel_drill", background_m)
+    assert not isinstance(found, RodNotFoundError)
+    assert np.linalg.norm(np.asarray(found.centre_uv_m) - truth) < 0.005
+
+
 def _benchmark_dwell(
     range_m: float, bearing_deg: float, radius_m: float, material: str, background_m: float
 ) -> tuple[RodCentre | RodNotFoundError, np.ndarray]:
