@@ -1627,13 +1627,14 @@ def _fit_segment(
         # which measure their excess against the covariance before it: added before, it took
         # their share away across and left a 20 mm rod at 0.75 m 5.9 std off, 1.1 before.
         fit = _with_shared_push(used, sigma[keep], np.zeros(keep.size), bound_m[keep], fit, section, settings)
-    taken_shift_m = _pull_shift_m(used, sigma[keep], taken_m[keep], section, settings)
+    taken_shift_m, left_shift_m = _pull_shifts_m(
+        used, sigma[keep], (taken_m[keep], (pull_m - taken_m)[keep]), section, settings
+    )
     doubt_m = settings.tail_pull_doubt * taken_shift_m
     fit = replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(doubt_m, doubt_m))
     # The warning judges the whole estimated pull, taken out or not: the correction is only as
     # good as the estimate (the pulse row of the extraction benchmark: judged on what was left,
     # a bit 2.6 mm off went silent).
-    left_shift_m = _pull_shift_m(used, sigma[keep], (pull_m - taken_m)[keep], section, settings)
     pull_shift_m = taken_shift_m + left_shift_m
     rms = float(np.sqrt(np.mean(fit.residuals_m**2)))
     # A blended beam lies off the surface by up to its bound, and the arc's range error by up
@@ -1838,19 +1839,32 @@ def _nearer(points: FloatArray, pull_m: FloatArray) -> FloatArray:
     return points * (1.0 - pull_m / np.linalg.norm(points, axis=1))[:, None]
 
 
-def _pull_shift_m(
-    points: FloatArray, sigma: FloatArray, pull_m: FloatArray, section: _Section, settings: ExtractionSettings
-) -> FloatArray:
-    """How far the fitted centre moves when each point's ``pull_m`` is taken out of its range
-    (a fit that fails so: about the mean pull along the arc's bearing, towards the scanner)."""
-    if not np.any(pull_m > 0.0):
-        return np.zeros(2)
-    try:
-        moved = _fit_centre(_nearer(points, pull_m), sigma, section, settings).centre_uv_m
-    except RodNotFoundError:
-        bearing = np.mean(points, axis=0)
-        return -float(np.mean(pull_m)) * bearing / float(np.linalg.norm(bearing))
-    return moved - _fit_centre(points, sigma, section, settings).centre_uv_m
+def _pull_shifts_m(
+    points: FloatArray,
+    sigma: FloatArray,
+    pulls_m: tuple[FloatArray, ...],
+    section: _Section,
+    settings: ExtractionSettings,
+) -> list[FloatArray]:
+    """For each of ``pulls_m``, how far the fitted centre moves when each point's pull is taken
+    out of its range (a fit that fails so: about the mean pull along the arc's bearing, towards
+    the scanner); the points' own fit is made once, when a shift needs it."""
+    base: FloatArray | None = None
+    shifts = []
+    for pull_m in pulls_m:
+        if not np.any(pull_m > 0.0):
+            shifts.append(np.zeros(2))
+            continue
+        try:
+            moved = _fit_centre(_nearer(points, pull_m), sigma, section, settings).centre_uv_m
+        except RodNotFoundError:
+            bearing = np.mean(points, axis=0)
+            shifts.append(-float(np.mean(pull_m)) * bearing / float(np.linalg.norm(bearing)))
+            continue
+        if base is None:
+            base = _fit_centre(points, sigma, section, settings).centre_uv_m
+        shifts.append(moved - base)
+    return shifts
 
 
 def _drop_blended_edges(
