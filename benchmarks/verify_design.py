@@ -56,7 +56,7 @@ from lasercal_hw.verify.drift import (
     predictions,
     residual_covariance,
 )
-from lasercal_hw.verify.procedure import VerifyPlan, dwell_noise_covariance, plan_verify
+from lasercal_hw.verify.procedure import VerifyPlan, plan_verify
 from lasercal_hw.verify.selection import select_waypoints
 
 SHIFT_M = 0.003
@@ -131,7 +131,7 @@ def main() -> None:
             continue
         centres = np.array([m.centre.centre_uv_m for m in refitted])
         stated = np.array([m.centre.covariance_uv_m2 for m in refitted])
-        noise = np.array([dwell_noise_covariance(m.centre) for m in refitted])
+        noise = np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted])
         line = [f"seed {seed:3d}"]
         chosen, information_of = rules(plan, found, stated, noise, count, budget_s)
         for name, subset in chosen:

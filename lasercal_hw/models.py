@@ -144,6 +144,9 @@ class Observation:
     tcp_pose: FloatArray
     centre_uv_m: FloatArray
     covariance_uv_m2: FloatArray | None = None
+    #: The part of ``covariance_uv_m2`` another dwell at this pose draws anew
+    #: (``RodCentre.dwell_noise_covariance_uv_m2``); None: unknown.
+    noise_covariance_uv_m2: FloatArray | None = None
 
 
 @dataclass(frozen=True)

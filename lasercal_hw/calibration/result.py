@@ -36,6 +36,13 @@ class WaypointResidual(BaseModel):
         "noise not included, in the scanner's frame (u along its x axis, v along its y axis, in the "
         "scan plane); None in a file written before it was recorded",
     )
+    noise_covariance_uv_mm2: list[list[float]] | None = Field(
+        default=None,
+        description="the part of that centre covariance (2x2, mm^2, same frame) another dwell at this "
+        "pose draws anew: the dwell's noise through the fit (all of it where the extraction warned of "
+        "the centre); the verify weighs the waypoint with it. None where unknown (centres read from a "
+        "CSV, or a file written before it was recorded)",
+    )
 
 
 class Outlier(BaseModel):

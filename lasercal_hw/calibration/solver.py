@@ -164,6 +164,9 @@ class _Data:
     rod: RodLine
     nominal_rod: RodLine
     range_curve_m: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: The part of each centre's covariance another dwell draws anew (N, 2, 2), NaN where the
+    #: observation did not say (``Observation.noise_covariance_uv_m2``): recorded, not weighed.
+    noise_covariance: FloatArray = field(default_factory=lambda: np.zeros((0, 2, 2)))
 
     def with_line(self, rod: RodLine, range_curve_m: FloatArray) -> _Data:
         """The same observations for another rod line and range error curve."""
@@ -329,7 +332,14 @@ def _arrays(
         )
     transforms = pose_to_matrix(poses)
     origins, directions = rod_lines_of_transforms(transforms, rod)
-    return _Data(index, origins, directions, centres, covariance, transforms, rod, rod)
+    unknown = np.full((2, 2), np.nan)
+    noise = np.array(
+        [unknown if o.noise_covariance_uv_m2 is None else o.noise_covariance_uv_m2 for o in observations],
+        dtype=float,
+    ).reshape(n, 2, 2)
+    return _Data(
+        index, origins, directions, centres, covariance, transforms, rod, rod, noise_covariance=noise
+    )
 
 
 def _check_rod_directions(directions: FloatArray, opts: SolverOptions) -> None:
@@ -702,15 +712,16 @@ def _result(
         whitened_norm.tolist(),
         used.tolist(),
         (data.covariance * 1e6).tolist(),
+        [None if np.isnan(c).any() else c.tolist() for c in data.noise_covariance * 1e6],
         strict=True,
     )
     residuals = _RESIDUALS.validate_python(  # one validation of plain dicts: twice as fast as
         [  # 10,000 model constructors, and faster than model_construct
             {
                 "index": i, "du_mm": du, "dv_mm": dv, "norm_mm": nm, "whitened_norm": wn, "used": u,
-                "covariance_uv_mm2": c,
+                "covariance_uv_mm2": c, "noise_covariance_uv_mm2": noise,
             }
-            for i, du, dv, nm, wn, u, c in columns
+            for i, du, dv, nm, wn, u, c, noise in columns
         ]
     )
     transform = make_transform(rotation, translation)

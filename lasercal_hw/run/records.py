@@ -76,6 +76,7 @@ class WaypointMeasurement:
             tcp_pose=np.asarray(self.tcp_pose, dtype=float),
             centre_uv_m=np.asarray(self.centre.centre_uv_m, dtype=float),
             covariance_uv_m2=np.asarray(self.centre.covariance_uv_m2, dtype=float),
+            noise_covariance_uv_m2=np.asarray(self.centre.dwell_noise_covariance_uv_m2(), dtype=float),
         )
 
 

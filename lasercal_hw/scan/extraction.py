@@ -87,6 +87,17 @@ class RodCentre:
     #: the arc) repeats at the same pose and view. None: unknown, take the whole covariance.
     noise_covariance_uv_m2: FloatArray | None = None
 
+    def dwell_noise_covariance_uv_m2(self) -> FloatArray:
+        """The part of the covariance another dwell at this pose draws anew: all of it where
+        unknown, and where the extraction warns that the centre may be off by more than its
+        noise (a rod blended with the surface behind it): which beams its fit keeps changes
+        from dwell to dwell, and the blend moves with them, so nothing of it is known to repeat
+        at the pose (verify seed 6: a 20 mm rod at 1.2 m whose 3 beams were 192-194 at the
+        calibration and 191-193 at the verify, 11.7 mm apart sideways against 2-3 mm of noise
+        std: an unmoved scanner flagged at chi-square 62.6)."""
+        noise = self.noise_covariance_uv_m2
+        return self.covariance_uv_m2 if noise is None or self.warnings else noise
+
 
 @dataclass(frozen=True)
 class ExtractionSettings:

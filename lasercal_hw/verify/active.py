@@ -231,14 +231,19 @@ def recorded_residuals(
 
 def recorded_centre_covariances(
     residuals: Sequence[WaypointResidual], recorded_waypoints: FloatArray | None, waypoints: FloatArray
-) -> FloatArray:
+) -> tuple[FloatArray, FloatArray]:
     """The centre covariance (m^2, (N, 2, 2), scanner frame) the calibration's solver weighed
-    each of ``waypoints`` with, outliers too, NaN where it did not measure that pose or its
-    ``result.json`` predates the record (``WaypointResidual.covariance_uv_mm2``)."""
+    each of ``waypoints`` with, outliers too, and the part of it another dwell draws anew; NaN
+    where it did not measure that pose or its ``result.json`` predates the record
+    (``WaypointResidual.covariance_uv_mm2``, ``noise_covariance_uv_mm2``)."""
     rows = _recorded_at(residuals, recorded_waypoints, waypoints, used_only=False)
     unknown = np.full((2, 2), np.nan)
-    blocks = [
-        unknown if r is None or r.covariance_uv_mm2 is None else np.array(r.covariance_uv_mm2) / 1e6
-        for r in rows
-    ]
-    return np.array(blocks, dtype=float).reshape(-1, 2, 2)
+
+    def blocks(matrices: list[list[list[float]] | None]) -> FloatArray:
+        known = [unknown if m is None else np.array(m) / 1e6 for m in matrices]
+        return np.array(known, dtype=float).reshape(-1, 2, 2)
+
+    return (
+        blocks([None if r is None else r.covariance_uv_mm2 for r in rows]),
+        blocks([None if r is None else r.noise_covariance_uv_mm2 for r in rows]),
+    )

@@ -31,7 +31,6 @@ from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.two_pass import SecondPassRefit
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
-from lasercal_hw.scan.extraction import RodCentre
 from lasercal_hw.verify.active import (
     ActiveCalibration,
     load_active_calibration,
@@ -169,6 +168,9 @@ def plan_verify(
     model = drift_model(T_base_laser, covariance, checking, range_error, refit.range_offset_m, rod)
     waypoints = job_waypoints(checking)
     reference = recorded_residuals(residuals, recorded_waypoints, waypoints)
+    centre_covariance, noise_covariance = recorded_centre_covariances(
+        residuals, recorded_waypoints, waypoints
+    )
     selection = select_waypoints(
         model,
         waypoints,
@@ -176,7 +178,8 @@ def plan_verify(
         np.isfinite(reference).all(axis=1),
         time_of=lambda indices: visit_time_s(checking, waypoints[indices]),
         budget_s=budget_s,
-        centre_covariance_uv_m2=recorded_centre_covariances(residuals, recorded_waypoints, waypoints),
+        centre_covariance_uv_m2=centre_covariance,
+        noise_covariance_uv_m2=noise_covariance,
         unusable=unusable_waypoints(residuals, recorded_waypoints, waypoints),
     )
     return VerifyPlan(checking, model, waypoints, reference, selection, refit)
@@ -320,7 +323,7 @@ def refit_and_test(
         np.array([m.centre.centre_uv_m for m in refitted]),
         np.array([m.centre.covariance_uv_m2 for m in refitted]),
         plan.reference[job_index],
-        np.array([dwell_noise_covariance(m.centre) for m in refitted]),
+        np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted]),
     )
     return test, kept
 
@@ -335,18 +338,6 @@ def _scanner_job(job: JobConfig, active: ActiveCalibration) -> JobConfig:
             f"(scanners {', '.join(job.scanners)}): give the job file it was made with"
         )
     return job.for_scanner(active.scanner_name)
-
-
-def dwell_noise_covariance(centre: RodCentre) -> FloatArray:
-    """The part of a centre's covariance another dwell draws anew: all of it where unknown,
-    and where the extraction warns that the centre may be off by more than its noise (a rod
-    blended with the surface behind it): which beams its fit keeps changes from dwell to dwell,
-    and the blend moves with them, so nothing of it is known to repeat at the pose (verify
-    seed 6: a 20 mm rod at 1.2 m whose 3 beams were 192-194 at the calibration and 191-193
-    at the verify, 11.7 mm apart sideways against 2-3 mm of noise std: an unmoved scanner
-    flagged at chi-square 62.6)."""
-    noise = centre.noise_covariance_uv_m2
-    return centre.covariance_uv_m2 if noise is None or centre.warnings else noise
 
 
 class _OtherDevicesError(Exception):

@@ -3,11 +3,14 @@
 The subset of ``count`` waypoints maximises ``log det(F_S + P^-1)`` (Bayesian D-optimal
 design): ``F_S`` is the Fisher information of the correction ``(dt, e)`` from the chosen
 waypoints under the drift test's own noise model (``drift.noise_blocks``), with each
-waypoint's centre covariance as the calibration's solver weighed it there (recorded in
-``result.json``; a waypoint it has none for: ``DESIGN_SIGMA_UV_M``). A warned centre (a rod
-blended with the wall behind it, tens of mm of std) then counts for the little it tells,
-where one assumed noise for all made it a waypoint of every verify. ``P`` is the
-correction's prior (``drift``). A
+waypoint's centre covariance as the calibration's solver weighed it there and the part of it
+a dwell draws anew (both recorded in ``result.json``; a waypoint it has none for:
+``DESIGN_SIGMA_UV_M``, all of it drawn anew). At a waypoint the calibration measured, the test
+takes only what a dwell draws anew (the rest repeats and cancels), and so does the choice: a
+centre whose covariance is mostly the rod's shape or a pull that repeats at the pose is as good
+a test as its noise says. A warned centre (a rod blended with the wall behind it, tens of mm of
+std, all of it drawn anew) counts for the little it tells, where one assumed noise for all made
+it a waypoint of every verify. ``P`` is the correction's prior (``drift``). A
 large determinant means a small confidence ellipsoid in every direction at once, so the
 chosen waypoints spread over the scan plane and the tool tilts by themselves: a subset
 that left one direction of the transform untested would have a near-zero factor there.
@@ -70,24 +73,32 @@ def _crosses_plane(model: DriftModel, waypoints: FloatArray) -> np.ndarray:
 
 
 def waypoint_information(
-    model: DriftModel, waypoints: FloatArray, visited: NDArray[np.bool_], centre_covariance_uv_m2: FloatArray
+    model: DriftModel,
+    waypoints: FloatArray,
+    visited: NDArray[np.bool_],
+    centre_covariance_uv_m2: FloatArray,
+    noise_covariance_uv_m2: FloatArray | None = None,
 ) -> FloatArray:
     """Fisher information (N, 6, 6) of the correction from each waypoint alone, its centre
-    covariance (N, 2, 2) taken as the drift test takes a centre whose repeating part is unknown
-    (all of it drawn anew by a dwell: ``drift.noise_blocks`` without a noise part); the
-    calibration's covariance, which correlates the waypoints it did not visit, left out."""
+    covariance (N, 2, 2) and the part of it a dwell draws anew (N, 2, 2; None: all of it) taken
+    as the drift test takes them (``drift.noise_blocks``); the calibration's covariance, which
+    correlates the waypoints it did not visit, left out."""
     _, jac, slope = predictions(model, waypoints)
-    white = whitening(noise_blocks(model, slope, np.asarray(centre_covariance_uv_m2, dtype=float), visited))
+    centre = np.asarray(centre_covariance_uv_m2, dtype=float)
+    white = whitening(noise_blocks(model, slope, centre, visited, noise_covariance_uv_m2))
     whitened = white @ jac
     return np.swapaxes(whitened, 1, 2) @ whitened
 
 
-def centre_noise_note(known: NDArray[np.bool_]) -> str:
+def centre_noise_note(known: NDArray[np.bool_], noise_known: NDArray[np.bool_] | None = None) -> str:
     """Which centre noise the choice weighed ``known.size`` candidates with (``known``: the
-    calibration recorded the centre covariance there), for ``verify.json``'s selection."""
+    calibration recorded the centre covariance there; ``noise_known``: and the part of it a
+    dwell draws anew, None: nowhere), for ``verify.json``'s selection."""
     assumed = f"{DESIGN_SIGMA_UV_M * 1e3:g} mm per axis assumed"
+    drawn = int(0 if noise_known is None else (noise_known & known).sum())
     if known.all():
-        return "the centre covariance the calibration's solver weighed each candidate with"
+        part = f" (of it only what a dwell draws anew, at {drawn} of them)" if drawn else ""
+        return f"the centre covariance the calibration's solver weighed each candidate with{part}"
     if not known.any():
         return (
             f"{assumed} at every candidate: the calibration's result.json records no centre covariance "
@@ -113,12 +124,15 @@ def select_waypoints(
     time_of: Callable[[list[int]], float | None] | None = None,
     budget_s: float | None = None,
     centre_covariance_uv_m2: FloatArray | None = None,
+    noise_covariance_uv_m2: FloatArray | None = None,
     unusable: NDArray[np.bool_] | None = None,
 ) -> Selection:
     """The D-optimal subset of ``count`` waypoints (all usable ones if fewer), visited in
     trajectory order; ``visited`` (N,) marks the waypoints the calibration measured (None:
     none), ``centre_covariance_uv_m2`` (N, 2, 2; m^2) the centre covariance the calibration
-    weighed each with (NaN or None: unknown, ``DESIGN_SIGMA_UV_M`` assumed), ``unusable`` (N,)
+    weighed each with (NaN or None: unknown, ``DESIGN_SIGMA_UV_M`` assumed),
+    ``noise_covariance_uv_m2`` (N, 2, 2; m^2) the part of it a dwell draws anew (NaN or None:
+    unknown, all of it), ``unusable`` (N,)
     the waypoints that are no candidates (``active.unusable_waypoints``; None: none). With ``time_of``
     (waypoint indices -> seconds, None if unknown) and ``budget_s``, exchanges first bring the
     subset within the budget, then improve it inside the budget only."""
@@ -134,14 +148,16 @@ def select_waypoints(
             f"plane the calibration describes{unused}: check that the job and the calibration belong to "
             "this cell"
         )
-    recorded = (
-        np.full((len(poses), 2, 2), np.nan)
-        if centre_covariance_uv_m2 is None
-        else np.asarray(centre_covariance_uv_m2, dtype=float).reshape(-1, 2, 2)
-    )[usable]
-    known = np.isfinite(recorded).all(axis=(1, 2))
-    centre = np.where(known[:, None, None], recorded, np.eye(2) * DESIGN_SIGMA_UV_M**2)
-    information = waypoint_information(model, poses[usable], seen[usable], centre)
+    def recorded(matrices: FloatArray | None) -> FloatArray:
+        unknown = np.full((len(poses), 2, 2), np.nan)
+        return (unknown if matrices is None else np.asarray(matrices, dtype=float).reshape(-1, 2, 2))[usable]
+
+    whole, drawn = recorded(centre_covariance_uv_m2), recorded(noise_covariance_uv_m2)
+    known = np.isfinite(whole).all(axis=(1, 2))
+    noise_known = np.isfinite(drawn).all(axis=(1, 2)) & known
+    centre = np.where(known[:, None, None], whole, np.eye(2) * DESIGN_SIGMA_UV_M**2)
+    noise = np.where(noise_known[:, None, None], drawn, centre)
+    information = waypoint_information(model, poses[usable], seen[usable], centre, noise)
     base = np.linalg.inv(model.prior())
 
     def score(subset: list[int]) -> float:
@@ -180,6 +196,6 @@ def select_waypoints(
         expected_std_shift_mm=[float(v) for v in std[:3] * 1e3],
         expected_std_turn_deg=[float(v) for v in np.degrees(std[3:])],
         estimated_time_s=time_of(sorted(int(usable[k]) for k in chosen)) if time_of is not None else None,
-        centre_noise=centre_noise_note(known),
+        centre_noise=centre_noise_note(known, noise_known),
         left_out=[int(i) for i in np.flatnonzero(refused)],
     )

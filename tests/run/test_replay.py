@@ -92,18 +92,23 @@ def test_each_waypoints_centre_covariance_is_recorded_and_a_replay_computes_it_a
     recorded: tuple[Path, RunOutcome],
 ) -> None:
     """result.json records, with each residual, the centre covariance the solver weighed that
-    waypoint with (mm^2, the scanner's frame): the verify's choice weighs its candidates with it.
-    A replay computes it from its own re-extracted centres, and gets the live run's."""
+    waypoint with (mm^2, the scanner's frame) and the part of it a dwell draws anew: the
+    verify's choice weighs its candidates with them. A replay computes both from its own
+    re-extracted centres, and gets the live run's."""
     path, outcome = recorded
     replay = solve_recording(path).solution
     weighed = {o.index: np.asarray(o.covariance_uv_m2) * 1e6 for o in replay.observations}
+    drawn = {o.index: np.asarray(o.noise_covariance_uv_m2) * 1e6 for o in replay.observations}
     assert len(replay.result.residuals) == len(outcome.result.residuals) == len(weighed)
     for live, again in zip(outcome.result.residuals, replay.result.residuals, strict=True):
         assert live.covariance_uv_mm2 is not None and again.covariance_uv_mm2 is not None
         np.testing.assert_allclose(again.covariance_uv_mm2, weighed[again.index], rtol=1e-12)
         np.testing.assert_allclose(again.covariance_uv_mm2, live.covariance_uv_mm2, rtol=1e-9)
+        assert live.noise_covariance_uv_mm2 is not None and again.noise_covariance_uv_mm2 is not None
+        np.testing.assert_allclose(again.noise_covariance_uv_mm2, drawn[again.index], rtol=1e-12)
+        np.testing.assert_allclose(again.noise_covariance_uv_mm2, live.noise_covariance_uv_mm2, rtol=1e-9)
     document = outcome.result.to_json_dict()["residuals"][0]
-    assert np.shape(document["covariance_uv_mm2"]) == (2, 2)
+    assert np.shape(document["covariance_uv_mm2"]) == np.shape(document["noise_covariance_uv_mm2"]) == (2, 2)
 
 
 def test_reversed_scans_fail_loudly(recorded: tuple[Path, RunOutcome], tmp_path: Path) -> None:
