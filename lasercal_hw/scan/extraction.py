@@ -1234,17 +1234,16 @@ def _fit_centre(
         raise RodNotFoundError(
             "fitted centre lies in front of the arc (fit diverged); the segment is not a rod"
         )
-    rays = _rays(settings)
-    ray_noise, ray_covariance, _ = _fit_covariances_m2(points, sigma, centre, normal, section, rays)
+    ray_noise, ray_covariance = _fit_covariances_m2(points, sigma, centre, normal, section, _rays(settings))
     spot_centre, spot_normal, spot, spot_along_m, choice_m2 = _along_the_spot(
         points, sigma, centre, normal, ray_whitened, section, settings
     )
-    model = settings if spot else rays
+    model = settings if spot else _rays(settings)
     noise_covariance, covariance = ray_noise, ray_covariance
     if spot:
         # Each direction keeps the covariance of the fit it came from (what that fit's residuals
         # leave unexplained included): along the bearing the spot's, across it the rays'.
-        spot_noise, spot_covariance, spot_factor = _fit_covariances_m2(
+        spot_noise, spot_covariance = _fit_covariances_m2(
             points, sigma, spot_centre, spot_normal, section, settings
         )
         bearing = centre / float(np.linalg.norm(centre))
@@ -1257,26 +1256,9 @@ def _fit_centre(
         along_m2 = float(bearing @ spot_covariance @ bearing) + doubt_m**2
         missing_m2 = max(float(bearing @ ray_covariance @ bearing) - along_m2, 0.0)
         spot_covariance = spot_covariance + (doubt_m**2 + missing_m2) * np.outer(bearing, bearing)
-        halo_width_m = settings.spot_halo_scale * 4.0 * float(_spot_sigma_m(np.linalg.norm(centre), settings))
-        if 2.0 * section.radius_m > halo_width_m:
-            # Across the bearing, on a rod wider than the spot's halo, the ray fit's noise scaled
-            # by the spot fit's reduced chi-square, not its own: the ray fit's counts the spot's
-            # blur (its edge beams read 5-17 mm short), which the spot fit explains, which repeats
-            # at the pose and which, symmetric about the rod, does not move it sideways (its
-            # antisymmetric part stays in the ray fit's systematic term). On a narrower rod the
-            # edge beams fall unevenly on a silhouette the spot blurs whole, and a bright rod
-            # lights the halo too; the centre takes up what that moves sideways, and the ray
-            # fit's own factor is what covers it. With the spot fit's factor on every rod, issue
-            # 18's benchmark (physical model, seeds 0 and 1) had 4-20 mm rods 0.4-3 mm sideways
-            # against 0.13-0.45 mm std (5 and 3 centres silently beyond 3 std); on rods over 1.5
-            # spot widths (seed 100), retro-reflective 20 and 45 mm rods at 0.15 and 2 m (1.9 and
-            # 2.1 widths) 0.6 and 1.3 mm sideways against 0.17 and 0.41 mm.
-            ray_noise, ray_covariance, _ = _fit_covariances_m2(
-                points, sigma, centre, normal, section, rays, variance_factor=spot_factor
-            )
         noise_covariance = _along_and_across_m2(spot_noise, ray_noise, bearing)
         covariance = _along_and_across_m2(spot_covariance, ray_covariance, bearing)
-        centre = spot_centre
+        centre, normal = spot_centre, spot_normal
     # Which of the two fits this dwell keeps is drawn anew by the next (``_along_the_spot``):
     # the covariance holds their difference already (``spot_model_doubt``, or the disagreement
     # where the rays win), the noise did not.
@@ -1286,11 +1268,11 @@ def _fit_centre(
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
     whitened = residuals / residual_sigma
     covariance = covariance + np.eye(2) * _unknown_tilt_variance_m2(section, settings)
-    mismatch = _range_error_mismatch(points, sigma, centre, section, settings, spot)
+    mismatch = _range_error_mismatch(points, centre, normals, residual_sigma, normal)
     covariance += np.outer(mismatch, mismatch) * settings.typical_range_error_m**2
     blend_shift = np.zeros(2)
     if blend_m is not None:
-        blend_shift = _pushed_centre_shift(points, sigma, centre, section, settings, spot, blend_m)
+        blend_shift = _centre_shift(points, normals, residual_sigma, normal, blend_m)
         covariance += np.outer(blend_shift, blend_shift)
     blend_m = float(np.linalg.norm(blend_shift))
     disagreement_m = 0.0 if spot else spot_along_m
@@ -1304,18 +1286,16 @@ def _fit_covariances_m2(
     normal: FloatArray,
     section: _Section,
     model: ExtractionSettings,
-    variance_factor: float | None = None,
-) -> tuple[FloatArray, FloatArray, float]:
+) -> tuple[FloatArray, FloatArray]:
     """A fit's noise covariance (its normal matrix's, scaled up by the reduced chi-square
-    above 1, or by ``variance_factor`` where given) and that plus what its residuals leave
-    unexplained (``_systematic_covariance_m2``), against the spot or rays as ``model`` says;
-    and its own reduced chi-square above 1."""
+    above 1) and that plus what its residuals leave unexplained (``_systematic_covariance_m2``),
+    against the spot or rays as ``model`` says."""
     residuals, normals, _ = _fit_residuals(points, centre, section, model)
     residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
     whitened = residuals / residual_sigma
-    own_factor = max(1.0, float(whitened @ whitened) / max(points.shape[0] - 2, 1))
-    noise = np.linalg.inv(normal) * (own_factor if variance_factor is None else variance_factor)
-    return noise, noise + _systematic_covariance_m2(residuals, residual_sigma, normals, normal), own_factor
+    variance_factor = max(1.0, float(whitened @ whitened) / max(points.shape[0] - 2, 1))
+    noise = np.linalg.inv(normal) * variance_factor
+    return noise, noise + _systematic_covariance_m2(residuals, residual_sigma, normals, normal)
 
 
 def _along_and_across_m2(along_m2: FloatArray, across_m2: FloatArray, bearing: FloatArray) -> FloatArray:
@@ -1466,51 +1446,17 @@ def _centre_shift(
     return np.linalg.solve(normal, (normals[:, :2] / residual_sigma[:, None]).T @ push)
 
 
-def _pushed_centre_shift(
-    points: FloatArray,
-    sigma: FloatArray,
-    centre: FloatArray,
-    section: _Section,
-    settings: ExtractionSettings,
-    spot: bool,
-    push_m: FloatArray,
-) -> FloatArray:
-    """How the fitted centre moves when every point is pushed ``push_m`` along its beam
-    (``sigma``: the beams' range sigmas the fit weighed them by).
-
-    A ray fit's centre moves through the ray fit's gain. A spot fit's centre takes each
-    direction from its own fit (``_along_the_spot``): along the bearing the spot fit's, across
-    it the ray fit's, so it moves along through the spot fit's gain and across through the
-    ray fit's. (Through the spot fit's normals and the normal matrix that carries the ray fit's
-    sideways variance, as until 2026-11-26, the sideways move came out 5 times what a fit of
-    the beams pushed 12 mm long shows, median over the 147 spot fits of issue 18's benchmark
-    on the physical model; along it, and both ways for ray fits, it matched: 1.02-1.12.)"""
-
-    def shift(model: ExtractionSettings) -> FloatArray:
-        _, normals, _ = _fit_residuals(points, centre, section, model)
-        residual_sigma = _residual_sigma(points, sigma, normals, section.radius_m, model)
-        jac = -normals[:, :2] / residual_sigma[:, None]
-        return _centre_shift(points, normals, residual_sigma, jac.T @ jac, push_m)
-
-    rays = shift(_rays(settings))
-    if not spot:
-        return rays
-    bearing = centre / float(np.linalg.norm(centre))
-    return np.outer(bearing, bearing) @ shift(settings) + (np.eye(2) - np.outer(bearing, bearing)) @ rays
-
-
 def _range_error_mismatch(
     points: FloatArray,
-    sigma: FloatArray,
     centre: FloatArray,
-    section: _Section,
-    settings: ExtractionSettings,
-    spot: bool,
+    normals: FloatArray,
+    residual_sigma: FloatArray,
+    normal: FloatArray,
 ) -> FloatArray:
     """How the fitted centre moves for a range error of 1 (every point pushed 1 along its
     beam) minus how the solver's model moves it (1 along its bearing): zero for a far rod
     whose beams are parallel, a few per cent for a thick rod near the scanner."""
-    moved = _pushed_centre_shift(points, sigma, centre, section, settings, spot, np.ones(points.shape[0]))
+    moved = _centre_shift(points, normals, residual_sigma, normal, np.ones(points.shape[0]))
     return moved - centre / np.linalg.norm(centre)
 
 
@@ -2076,10 +2022,12 @@ def _with_shared_push(
     in the beams' sigmas."""
     if not np.any(push_m > 0.0):
         return fit
+    model = settings if fit.spot else _rays(settings)
+    _, normals, _ = _fit_residuals(points, fit.centre_uv_m, section, model)
+    residual_sigma = _residual_sigma(points, np.hypot(sigma, blend_m), normals, section.radius_m, settings)
+    jac = -normals[:, :2] / residual_sigma[:, None]
     try:
-        shift = _pushed_centre_shift(
-            points, np.hypot(sigma, blend_m), fit.centre_uv_m, section, settings, fit.spot, push_m
-        )
+        shift = _centre_shift(points, normals, residual_sigma, jac.T @ jac, push_m)
     except np.linalg.LinAlgError:
         return fit
     return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))
