@@ -5,7 +5,7 @@ Each centre the final solve took is compared with where the rod really crossed t
 (the world's true transform and the TCP where the robot really was: the robot's own error is
 taken out), along and across the bearing, beside the covariance it was reported with. Over the
 seeds a waypoint whose error has a mean much larger than its scatter repeats at the pose: an
-error of the extraction there, which the solver takes as often as the waypoint is visited.
+error of the extraction there, which every run through that pose carries into its solve.
 Along the bearing the error includes the scanner's range error, which the solver's range curve
 takes; across it, nothing in the solve does.
 """
