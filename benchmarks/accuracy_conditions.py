@@ -6,7 +6,7 @@ Run from the repository root::
     .venv/bin/python -m benchmarks.accuracy_conditions [--seeds 20] [--first-seed 0]
         [--cases default-3s,drill-estimated]
         [--model physical|ideal] [--design-seed 0] [--design-range-terms K] [--design-waypoints 20]
-        [--noise-stream K] [--waypoints-file FILE]
+        [--noise-stream K] [--waypoints-file FILE] [--per-waypoint]
 
 Each case runs the sequencer's measurement chain (``benchmarks.dry_run_accuracy.simulate``:
 noisy scans of the world at every waypoint, averaging, extraction with the background,
@@ -54,7 +54,10 @@ cases (one design is one draw: docs/trajectory-design.md compares several).
 figures published so far, to the digit; the worlds, robot error fields and chuck turns unchanged),
 so that a 95th percentile can be given over several streams of the same seeds.
 ``--waypoints-file``: the cases that visit a job's waypoint file (the drill cases) visit this
-file instead (a new design tried before it is shipped).
+file instead (a new design tried before it is shipped). ``--per-waypoint``: also every
+waypoint's solved centre against the rod's true crossing over the seeds, along and across the
+bearing, beside its reported std (``benchmarks.waypoint_errors``): a waypoint whose error repeats
+at every seed is an extraction error at that pose.
 """
 
 from __future__ import annotations
@@ -67,6 +70,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.dry_run_accuracy import Trial, simulate, world_with
+from benchmarks.waypoint_errors import WaypointError, print_waypoint_errors, waypoint_errors
 from fakes.scene import Scene, load_scene
 from lasercal_hw.calibration.model import extended_fisher_information, moved_rod
 from lasercal_hw.calibration.result import RangeOffset, RodAxisEstimate
@@ -223,9 +227,11 @@ def run_case(
     first_seed: int = 0,
     choice: DesignChoice = DesignChoice(),
     noise_stream: int = 0,
+    per_waypoint: bool = False,
 ) -> None:
     """Run one case over ``seeds`` seeds from ``first_seed`` on its scene with the scanner
-    ``model``, the scanner noise from ``noise_stream``, and print its distributions."""
+    ``model``, the scanner noise from ``noise_stream``, and print its distributions (and with
+    ``per_waypoint``, each waypoint's centres against the truth)."""
     scene = load_scene(case.scene_path).model_copy(update={"model": model})
     waypoints = designed_waypoints(case.job, scene, choice) if case.designed else job_waypoints(case.job)
     visited = len(waypoints)
@@ -233,6 +239,7 @@ def run_case(
         visited += len(listed_waypoints(case.job))
     scans = round(case.dwell_s / scene.scanner.scan_period_s)
     trials: list[Trial] = []
+    centres: list[list[WaypointError]] = []
     failures = 0
     started = time.perf_counter()
     for seed in range(first_seed, first_seed + seeds):
@@ -244,6 +251,9 @@ def run_case(
         except LasercalError as exc:
             failures += 1
             print(f"  seed {seed}: failed: {exc}")
+            continue
+        if per_waypoint:
+            centres.append(waypoint_errors(trials[-1].observations, world, case.true_rod))
     print(
         f"{case.name} ({model} scanner, noise stream {noise_stream}): {visited} waypoints, "
         f"{scans} scans each, "
@@ -303,6 +313,8 @@ def run_case(
             f"{np.median(values):.2f} mm (std reported {np.median([o.std_mm for o in offsets]):.2f} mm), "
             f"within 2.5 std {np.mean(np.abs(z) < 2.5):.1%}"
         )
+    if centres:
+        print_waypoint_errors(centres)
 
 
 def print_curve_errors(offsets: list[RangeOffset], bias: dict[str, float]) -> None:
@@ -390,6 +402,11 @@ def main() -> None:
         default=None,
         help="visit this file in the cases that visit a waypoint file",
     )
+    parser.add_argument(
+        "--per-waypoint",
+        action="store_true",
+        help="also each waypoint's centres against the true crossing over the seeds",
+    )
     args = parser.parse_args()
     if args.waypoints_file is not None and not args.waypoints_file.is_file():
         parser.error(f"--waypoints-file {args.waypoints_file} does not exist; give a CSV of waypoints")
@@ -408,7 +425,7 @@ def main() -> None:
     if args.waypoints_file is not None:
         chosen = [with_waypoints_file(c, args.waypoints_file) for c in chosen]
     for case in chosen:
-        run_case(case, args.seeds, args.model, args.first_seed, choice, args.noise_stream)
+        run_case(case, args.seeds, args.model, args.first_seed, choice, args.noise_stream, args.per_waypoint)
 
 
 if __name__ == "__main__":

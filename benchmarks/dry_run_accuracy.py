@@ -36,7 +36,7 @@ from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import matrix_to_rotvec, pose_to_matrix
-from lasercal_hw.models import LaserScan, RodLine
+from lasercal_hw.models import LaserScan, Observation, RodLine
 from lasercal_hw.run.flute_spin import turn_waypoints
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.retract import retract_candidates
@@ -59,6 +59,8 @@ class Trial:
     found: int
     #: How its second pass fitted the centres (a verify of it fits its own so).
     refit: SecondPassRefit
+    #: The centres the final solve took (``benchmarks.waypoint_errors`` judges them one by one).
+    observations: tuple[Observation, ...] = ()
 
 
 def world_for(job: JobConfig, scene_path: Path | None, robot_error_seed: int) -> World:
@@ -157,7 +159,9 @@ def simulate(
         measurements += measure(job, rest, world, scans, rng, background, first_index=len(waypoints))
     solution = solve_two_pass(measurements, job, background)
     dt_mm, de_deg = errors(solution.result, world.ground_truth_T_base_laser)
-    return Trial(solution.result, dt_mm, de_deg, len(measurements), solution.refit)
+    return Trial(
+        solution.result, dt_mm, de_deg, len(measurements), solution.refit, tuple(solution.observations)
+    )
 
 
 def job_robot_sigma_m(job: JobConfig) -> float:
