@@ -8,7 +8,8 @@
     dwell.world.scan_ranges_m(dwell.T_base_tcp)   # the same view without random parts
 
 The scanner is level, the rod crosses the scan plane at ``centre_uv_m`` (scanner frame)
-along ``axis``; an optional wall faces the scanner ``background_m`` behind the rod.
+along ``axis``; an optional wall faces the scanner ``background_m`` behind the rod, and
+further walls (``walls``: a background not square to the bearing) stand where they are put.
 Everything else (beam layout, physics) is a scene (``fakes/scene.py``) built here, so the
 scans come from the same world the fake cell serves.
 """
@@ -61,6 +62,7 @@ def simulate_dwell(
     spindle_deg: float = 0.0,
     background_m: float | None = 0.5,
     wall_material: Material = "matte",
+    walls: Sequence[tuple[tuple[float, float], tuple[float, float]]] = (),
     posts: Sequence[tuple[float, float, float]] = (),
     post_material: Material = "painted",
     scan_count: int = 40,
@@ -73,18 +75,23 @@ def simulate_dwell(
     """``scan_count`` scans (40 per second) of a rod of ``radius_m`` crossing the scan plane
     at ``centre_uv_m``; ``shape`` is ``cylinder`` or ``twist_drill`` (turned by
     ``spindle_deg`` about its axis); ``background_m``: distance from the rod's centre to a
-    wall behind it (None: open space); ``posts``: other vertical cylinders ``(u, v, radius)``
-    in the scanner frame, of ``post_material`` (clutter the size of a rod); ``elapsed_s``:
-    time since power-on at the first scan (None: warm).  Seeded by ``seed``: the same
-    arguments give the same scans."""
+    wall behind it (None: open space); ``walls``: further walls ``((u, v), (u, v))`` from
+    end to end in the scanner frame, of ``wall_material``; ``posts``: other vertical
+    cylinders ``(u, v, radius)`` in the scanner frame, of ``post_material`` (clutter the size
+    of a rod); ``elapsed_s``: time since power-on at the first scan (None: warm).  Seeded by
+    ``seed``: the same arguments give the same scans."""
     centre = np.array([float(centre_uv_m[0]), float(centre_uv_m[1]), 0.0])
     post_list = [
         {"name": f"post {k}", "centre_m": [u, v], "radius_m": r, "material": post_material}
         for k, (u, v, r) in enumerate(posts)
     ]
-    world = World(
-        _scene(centre, radius_m, material, shape, background_m, wall_material, post_list, model, physics)
-    )
+    wall_list = [
+        {"name": f"wall {k}", "start_m": list(start), "end_m": list(end)}
+        for k, (start, end) in enumerate(walls)
+    ]
+    world = World(_scene(
+        centre, radius_m, material, shape, background_m, wall_material, wall_list, post_list, model, physics
+    ))
     z = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
     x = np.cross([0.0, 1.0, 0.0], z) if abs(z[1]) < 0.9 else np.cross(z, [1.0, 0.0, 0.0])
     x /= np.linalg.norm(x)
@@ -111,11 +118,15 @@ def _scene(
     shape: str,
     background_m: float | None,
     wall_material: str,
+    placed_walls: list[dict[str, object]],
     posts: list[dict[str, object]],
     model: str,
     physics: PhysicsSettings | None,
 ) -> Scene:
-    walls = []
+    walls = [
+        {**wall, "z_min_m": 0.0, "z_max_m": 2.0 * _SCANNER_HEIGHT_M, "material": wall_material}
+        for wall in placed_walls
+    ]
     if background_m is not None:
         distance = float(np.linalg.norm(centre[:2])) + background_m
         direction = centre[:2] / np.linalg.norm(centre[:2])
