@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fakes.scanner_model.dwell import SimulatedDwell, simulate_dwell
+from fakes.scanner_model.dwell import Segment, SimulatedDwell, oblique_wall, simulate_dwell, step_behind_edge
 from lasercal_hw.errors import CalibrationError
 from lasercal_hw.scan.average import average_scans
 from lasercal_hw.scan.extraction import find_rod_centre
@@ -90,9 +90,6 @@ OBLIQUE_TURN_DEG = (20.0, 35.0)
 OBLIQUE_BEHIND_M = (1.5, 2.5)
 STEP_NEAR_BEHIND_M = (0.5, 1.0)
 STEP_FAR_BEHIND_M = 2.0
-UNEVEN_WALL_HALF_WIDTH_M = 2.0
-
-Segment = tuple[tuple[float, float], tuple[float, float]]
 
 
 @dataclass(frozen=True)
@@ -277,31 +274,15 @@ def uneven_walls(
 ) -> tuple[list[Segment], str]:
     """The walls of an uneven background of ``kind`` (``UNEVEN_KINDS``) behind a rod at
     ``range_m`` and ``bearing_rad``, drawn from ``rng``, and what they are in words."""
-    along = np.array([np.cos(bearing_rad), np.sin(bearing_rad)])
-    across = np.array([-along[1], along[0]])
-    side = float(rng.choice((-1.0, 1.0)))
-    half = UNEVEN_WALL_HALF_WIDTH_M
+    centre = range_m * np.array([np.cos(bearing_rad), np.sin(bearing_rad)])
+    side = int(rng.choice((-1, 1)))
     if kind == "oblique":
-        turn_rad = side * np.radians(rng.uniform(*OBLIQUE_TURN_DEG))
+        turn_deg = side * float(rng.uniform(*OBLIQUE_TURN_DEG))
         behind_m = float(rng.uniform(*OBLIQUE_BEHIND_M))
-        middle = (range_m + behind_m) * along
-        direction = np.cos(turn_rad) * across + np.sin(turn_rad) * along
-        walls = [_segment(middle - half * direction, middle + half * direction)]
-        return walls, f"wall {behind_m:.2f} m behind, {np.degrees(turn_rad):+3.0f} deg"
+        return oblique_wall(centre, behind_m, turn_deg), f"wall {behind_m:.2f} m behind, {turn_deg:+3.0f} deg"
     behind_m = float(rng.uniform(*STEP_NEAR_BEHIND_M))
-    edge_rad = bearing_rad + side * np.arcsin(radius_m / range_m)
-    ray = np.array([np.cos(edge_rad), np.sin(edge_rad)])
-    corner = (range_m + behind_m) / float(ray @ along) * ray
-    far_middle = (range_m + STEP_FAR_BEHIND_M) * along
-    walls = [
-        _segment(corner, corner + side * half * across),
-        _segment(far_middle - half * across, far_middle + half * across),
-    ]
-    return walls, f"step {behind_m:.2f} / {STEP_FAR_BEHIND_M:.2f} m behind, near on {side:+.0f}"
-
-
-def _segment(start: np.ndarray, end: np.ndarray) -> Segment:
-    return (float(start[0]), float(start[1])), (float(end[0]), float(end[1]))
+    walls = step_behind_edge(centre, radius_m, side, behind_m, STEP_FAR_BEHIND_M)
+    return walls, f"step {behind_m:.2f} / {STEP_FAR_BEHIND_M:.2f} m behind, near on {side:+d}"
 
 
 def sideways_line(outcome: Outcome, bearing_rad: float) -> str:

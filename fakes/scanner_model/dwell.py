@@ -30,6 +30,9 @@ _SCANNER_HEIGHT_M = 1.0
 _ROD_LENGTH_M = 0.3
 _WALL_HALF_WIDTH_M = 3.0
 _AWAY_M = 5.0
+_PLACED_WALL_HALF_WIDTH_M = 2.0
+
+Segment = tuple[tuple[float, float], tuple[float, float]]
 
 
 @dataclass(frozen=True)
@@ -62,7 +65,7 @@ def simulate_dwell(
     spindle_deg: float = 0.0,
     background_m: float | None = 0.5,
     wall_material: Material = "matte",
-    walls: Sequence[tuple[tuple[float, float], tuple[float, float]]] = (),
+    walls: Sequence[Segment] = (),
     posts: Sequence[tuple[float, float, float]] = (),
     post_material: Material = "painted",
     scan_count: int = 40,
@@ -109,6 +112,44 @@ def simulate_dwell(
         world=world,
         T_base_tcp=at_rod,
     )
+
+
+def oblique_wall(centre_uv_m: Sequence[float], behind_m: float, turn_deg: float) -> list[Segment]:
+    """A wall ``behind_m`` behind a rod at ``centre_uv_m`` (along its bearing), seen ``turn_deg``
+    from its normal (positive: its far end on the side counterclockwise of the bearing)."""
+    along, across = _bearing_frame(centre_uv_m)
+    middle = (float(np.linalg.norm(centre_uv_m)) + behind_m) * along
+    turn = np.radians(turn_deg)
+    direction = np.cos(turn) * across + np.sin(turn) * along
+    reach = _PLACED_WALL_HALF_WIDTH_M * direction
+    return [_segment(middle - reach, middle + reach)]
+
+
+def step_behind_edge(
+    centre_uv_m: Sequence[float], radius_m: float, side: int, near_behind_m: float, far_behind_m: float
+) -> list[Segment]:
+    """A step in the background behind one edge of a rod at ``centre_uv_m``: a wall
+    ``near_behind_m`` behind it whose end lies on the ray past the rod's edge on ``side`` (+1:
+    counterclockwise of the bearing, -1: clockwise) and runs away from the rod, and a wall
+    ``far_behind_m`` behind across the whole view."""
+    along, across = _bearing_frame(centre_uv_m)
+    range_m = float(np.linalg.norm(centre_uv_m))
+    edge = np.arctan2(along[1], along[0]) + side * np.arcsin(radius_m / range_m)
+    ray = np.array([np.cos(edge), np.sin(edge)])
+    corner = (range_m + near_behind_m) / float(ray @ along) * ray
+    far = (range_m + far_behind_m) * along
+    reach = _PLACED_WALL_HALF_WIDTH_M * across
+    return [_segment(corner, corner + side * reach), _segment(far - reach, far + reach)]
+
+
+def _bearing_frame(centre_uv_m: Sequence[float]) -> tuple[FloatArray, FloatArray]:
+    """Unit vectors along a rod's bearing and across it (counterclockwise)."""
+    along = np.asarray(centre_uv_m, dtype=float)[:2] / float(np.linalg.norm(np.asarray(centre_uv_m)[:2]))
+    return along, np.array([-along[1], along[0]])
+
+
+def _segment(start: FloatArray, end: FloatArray) -> Segment:
+    return (float(start[0]), float(start[1])), (float(end[0]), float(end[1]))
 
 
 def _scene(
