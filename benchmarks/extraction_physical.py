@@ -1,7 +1,7 @@
 """Rod extraction on the physical scanner model, beside the ideal model in the same run.
 
     .venv/bin/python -m benchmarks.extraction_physical [--seeds 1] [--first-seed 0] [--scans 40]
-        [--quick] [--misses]
+        [--quick] [--misses] [--sideways]
 
 Rods of radius 4 mm (a twist drill and cylinders), 10, 20 and 45 mm, of every material,
 0.1 to 3 m from the scanner at random bearings, with a wall 0.3 m (near) or 2.5 m (far)
@@ -22,7 +22,9 @@ it; the solver's estimated curve (one to three terms) leaves some of it, not jud
 A last row, apart from the table (its own bearings): a polished 10 mm steel rod at
 0.4-0.6 m before a wall 0.9-1.2 m behind (three bearings each), a pulse length, where the
 wall's echo no longer merges with the rod's but its pulse still pulls the rod's echo long (the
-drill job's floor).
+drill job's floor).  Another, also apart: rods before a background that is not square to the
+bearing (``UNEVEN_*``; the dry run's waypoint 18), different beside the rod's two edges;
+``--sideways`` prints each of its positions' sideways error against the reported sideways std.
 
 Per rod and material, and per range: the positions judged, how many were found, the
 fraction of error components within 2.5 reported std (90-99 % when the covariance is
@@ -43,11 +45,12 @@ import re
 import sys
 import time
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from fakes.scanner_model.dwell import SimulatedDwell, simulate_dwell
+from fakes.scanner_model.dwell import Segment, SimulatedDwell, oblique_wall, simulate_dwell, step_behind_edge
 from lasercal_hw.errors import CalibrationError
 from lasercal_hw.scan.average import average_scans
 from lasercal_hw.scan.extraction import find_rod_centre
@@ -74,6 +77,19 @@ PULSE_BACKGROUNDS_M = (0.9, 1.0, 1.1, 1.2)
 PULSE_ROD = ("rod 5 mm", 0.005, "cylinder", "steel_drill")
 PULSE_BEARINGS = 3
 MIN_OWN_TOLERANCE_M = 0.005
+#: A background not square to the bearing, so different beside the rod's two edges (the dry
+#: run's waypoint 18: docs/extraction.md, "Why the dry run got worse"): the dry run's 20 mm
+#: painted rod and a 10 mm steel rod at 0.3-0.6 m before a wall seen 20-35 deg from its normal
+#: 1.5-2.5 m behind ("oblique"), or before a step ("step"): a near wall 0.5-1 m behind, its edge
+#: on the ray past one edge of the rod, running away from the rod, and a far wall 2 m behind.
+UNEVEN_RODS = (("rod 20 mm", 0.020, "painted"), ("rod 10 mm", 0.010, "steel_drill"))
+UNEVEN_RANGES_M = (0.3, 0.4, 0.5, 0.6)
+UNEVEN_KINDS = ("oblique", "step")
+UNEVEN_BEARINGS = 3
+OBLIQUE_TURN_DEG = (20.0, 35.0)
+OBLIQUE_BEHIND_M = (1.5, 2.5)
+STEP_NEAR_BEHIND_M = (0.5, 1.0)
+STEP_FAR_BEHIND_M = 2.0
 
 
 @dataclass(frozen=True)
@@ -188,12 +204,14 @@ def measure(
     shape: str,
     material: str,
     range_m: float,
-    background_m: float,
+    background_m: float | None,
     bearing_rad: float,
     seed: int,
     scans: int,
+    walls: Sequence[Segment] = (),
 ) -> Outcome:
-    """One extraction against the truth, with the model's range error at the rod removed."""
+    """One extraction against the truth, with the model's range error at the rod removed;
+    ``walls``: more background (``simulate_dwell``'s)."""
     centre = range_m * np.array([np.cos(bearing_rad), np.sin(bearing_rad)])
     dwell = simulate_dwell(
         centre,
@@ -201,6 +219,7 @@ def measure(
         material=material,  # type: ignore[arg-type]
         shape=shape,
         background_m=background_m,
+        walls=walls,
         scan_count=scans,
         background_count=scans,
         seed=seed,
@@ -250,6 +269,66 @@ def pulse_length_behind(first_seed: int, seeds: int, scans: int, misses: bool) -
     return tallies
 
 
+def uneven_walls(
+    kind: str, range_m: float, radius_m: float, bearing_rad: float, rng: np.random.Generator
+) -> tuple[list[Segment], str]:
+    """The walls of an uneven background of ``kind`` (``UNEVEN_KINDS``) behind a rod at
+    ``range_m`` and ``bearing_rad``, drawn from ``rng``, and what they are in words."""
+    centre = range_m * np.array([np.cos(bearing_rad), np.sin(bearing_rad)])
+    side = int(rng.choice((-1, 1)))
+    if kind == "oblique":
+        turn_deg = side * float(rng.uniform(*OBLIQUE_TURN_DEG))
+        behind_m = float(rng.uniform(*OBLIQUE_BEHIND_M))
+        return oblique_wall(centre, behind_m, turn_deg), f"wall {behind_m:.2f} m behind, {turn_deg:+3.0f} deg"
+    behind_m = float(rng.uniform(*STEP_NEAR_BEHIND_M))
+    walls = step_behind_edge(centre, radius_m, side, behind_m, STEP_FAR_BEHIND_M)
+    return walls, f"step {behind_m:.2f} / {STEP_FAR_BEHIND_M:.2f} m behind, near on {side:+d}"
+
+
+def sideways_line(outcome: Outcome, bearing_rad: float) -> str:
+    """An outcome's error across the bearing against its reported std there, its whole error
+    in reported std, and whether it warned (or, > 3 std without, is silent)."""
+    if outcome.error_m is None or outcome.covariance is None:
+        return f"not found ({outcome.own_beams} own beams): {outcome.reason}"
+    across = np.array([-np.sin(bearing_rad), np.cos(bearing_rad)])
+    error_m = float(across @ outcome.error_m)
+    std_m = float(np.sqrt(across @ outcome.covariance @ across))
+    off = float(np.linalg.norm(outcome.whitened()))
+    flag = "warned" if outcome.warned else ("SILENT" if off > OFF_STD else "")
+    return (
+        f"{1000 * error_m:+6.2f} mm across, std {1000 * std_m:5.2f} mm ({error_m / std_m:+5.1f}), "
+        f"{off:4.1f} std in all {flag:6s}"
+    )
+
+
+def uneven_background(first_seed: int, seeds: int, scans: int, sideways: bool) -> dict[str, Tally]:
+    """The rods before an uneven background (``UNEVEN_*``), per model; with ``sideways`` every
+    position's sideways error printed for both models."""
+    tallies = {model: Tally() for model in ("physical", "ideal")}
+    rng = np.random.default_rng(1900 + first_seed)
+    for label, radius_m, material in UNEVEN_RODS:
+        for range_m in UNEVEN_RANGES_M:
+            for kind in UNEVEN_KINDS:
+                for seed in range(first_seed, first_seed + seeds):
+                    for _ in range(UNEVEN_BEARINGS):
+                        bearing = float(rng.uniform(-1.2, 1.2))
+                        walls, where = uneven_walls(kind, range_m, radius_m, bearing, rng)
+                        lines = []
+                        for model, tally in tallies.items():
+                            outcome = measure(
+                                model, radius_m, "cylinder", material, range_m, None, bearing, seed, scans,
+                                walls,
+                            )
+                            tally.add(outcome)
+                            lines.append(f"{model} {sideways_line(outcome, bearing)}")
+                        if sideways:
+                            print(
+                                f"{label} {material:11s} {range_m} m, {where}, bearing {bearing:+.3f} rad, "
+                                f"seed {seed}: {' | '.join(lines)}"
+                            )
+    return tallies
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=1, help="random bearings per position (default 1)")
@@ -260,6 +339,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scans", type=int, default=40, help="scans per dwell (default 40, 1 s)")
     parser.add_argument("--quick", action="store_true", help="every other range, near background only")
     parser.add_argument("--misses", action="store_true", help="print every miss and silent wrong centre")
+    parser.add_argument(
+        "--sideways", action="store_true",
+        help="print every uneven-background position's sideways error against its reported std",
+    )
     args = parser.parse_args(argv)
     ranges = RANGES_M[::2] if args.quick else RANGES_M
     backgrounds = {"near": BACKGROUNDS_M["near"]} if args.quick else BACKGROUNDS_M
@@ -316,6 +399,10 @@ def main(argv: list[str] | None = None) -> int:
     pulse = pulse_length_behind(args.first_seed, args.seeds, args.scans, args.misses)
     print(
         f"{'polished 10 mm, wall 0.9-1.2 m':32s}{pulse['physical'].row()}   | {pulse['ideal'].row()}"
+    )
+    uneven = uneven_background(args.first_seed, args.seeds, args.scans, args.sideways)
+    print(
+        f"{'uneven background, 0.3-0.6 m':32s}{uneven['physical'].row()}   | {uneven['ideal'].row()}"
     )
     print(
         "find_rod_centre per dwell (median / 95th percentile): "

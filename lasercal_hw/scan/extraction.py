@@ -171,6 +171,15 @@ class ExtractionSettings:
     #: against 0.6 mm std, where the core alone gave a share of 0.03 %.
     spot_halo_fraction: float = 0.015
     spot_halo_scale: float = 2.5
+    #: Where the backgrounds just outside the rod's two edges differ (a step behind one edge),
+    #: the spot blends or pulls the edge beams unequally and the fit's centre moves sideways,
+    #: the same at every dwell of the pose (a step 0.5-1 m / 2 m behind: 2-5 mm against
+    #: 0.6-1.6 mm std, docs/extraction.md "Backgrounds not square to the bearing"). Each side's
+    #: reach into the rod's echo is its depth behind the rod times the pulse's overlap there
+    #: (``exp(-depth^2 / 2 sigma_pulse^2)``: nothing from 2 m); the covariance across the bearing
+    #: gets this many spot sigmas of std per pulse sigma between the two sides' reaches
+    #: (``_with_uneven_background``).
+    uneven_background_doubt: float = 1.5
     #: The spot fit weights its spot's power by a diffuse surface's cosine (``_spot_readings_m``);
     #: a glossy or retro-reflective surface weights the middle more. On the physical model a
     #: retro-reflective rod's noise-free readings differ from that prediction by 1-2.5 mm RMS
@@ -1620,6 +1629,8 @@ def _fit_segment(
     narrow = _size_mismatch(scan, beams[keep], section, settings) is None
     if keep.size <= settings.symmetry_check_max_beams or narrow:
         fit = _with_symmetry_doubt(scan, beams[keep], fit, section)
+    if behind is not None:
+        fit = _with_uneven_background(scan, beams[keep], fit, behind, settings)
     if spot_shown and not fit.spot and fit.spot_disagreement_m:
         # The rays fit these beams better than the spot on a scanner whose spot shows: the spot
         # model does not describe them (a wall close behind merged into the edge beams, which
@@ -2091,6 +2102,35 @@ def _with_edge_doubt(
     if excess_m2 <= 0.0:
         return fit
     return _with_sideways_doubt(fit, excess_m2 * np.outer(across, across))
+
+
+def _with_uneven_background(
+    scan: AveragedScan, beams: NDArray[np.int64], fit: _Fit, behind: _Behind, settings: ExtractionSettings
+) -> _Fit:
+    """The fit with a sideways variance where the backgrounds just outside its two edges (the
+    beams within the spot's halo of each edge, what ``behind`` says lies there) reach into the
+    rod's echo unequally (``uneven_background_doubt``), where that exceeds the fit's sideways std
+    (smaller, it left the dry runs' p95 0.001-0.005 mm worse). It repeats at the pose, so it stays
+    out of the noise."""
+    range_m = float(np.min(scan.ranges_m[beams]))
+    spot_m = float(_spot_sigma_m(np.array([range_m]), settings)[0])
+    pulse_sigma_m = settings.pulse_fwhm_m / (2.0 * np.sqrt(2.0 * np.log(2.0)))
+    reach = max(int(np.ceil(settings.spot_halo_scale * spot_m / (range_m * _beam_step_rad(scan)))), 1)
+    reaches_m = []
+    for edge, step in ((int(beams[0]), -1), (int(beams[-1]), 1)):
+        outside = edge + step * np.arange(1, reach + 1)
+        outside = outside[(outside >= 0) & (outside < scan.ranges_m.size)]
+        depth_m = behind.ranges_m[outside] - range_m
+        depth_m = depth_m[np.isfinite(depth_m) & (depth_m > 0.0)]
+        if depth_m.size == 0:
+            return fit
+        depth = float(np.median(depth_m))
+        reaches_m.append(depth * np.exp(-0.5 * (depth / pulse_sigma_m) ** 2))
+    std_m = settings.uneven_background_doubt * spot_m * abs(reaches_m[0] - reaches_m[1]) / pulse_sigma_m
+    across = np.array([-fit.centre_uv_m[1], fit.centre_uv_m[0]]) / float(np.linalg.norm(fit.centre_uv_m))
+    if std_m**2 <= float(across @ fit.covariance_uv_m2 @ across):
+        return fit
+    return _with_sideways_doubt(fit, std_m**2 * np.outer(across, across), np.zeros((2, 2)))
 
 
 def _symmetry_bearing_rad(scan: AveragedScan, beams: NDArray[np.int64], section: _Section) -> float | None:
