@@ -2055,6 +2055,11 @@ def _with_shared_push(
     return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))
 
 
+def _across_bearing(centre_uv_m: FloatArray) -> FloatArray:
+    """The unit vector across the bearing of ``centre_uv_m`` (counterclockwise)."""
+    return np.array([-centre_uv_m[1], centre_uv_m[0]]) / float(np.linalg.norm(centre_uv_m))
+
+
 def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray, noise_doubt_m2: FloatArray | None = None) -> _Fit:
     """The fit with a sideways check's variance in its covariance (``doubt_m2``) and in its
     noise (``noise_doubt_m2``, default the same): which beams are the silhouette's edges
@@ -2096,7 +2101,7 @@ def _with_edge_doubt(
         difference_m2 = np.linalg.inv(inner[1]) - np.linalg.inv(full[1])
     except np.linalg.LinAlgError:
         return fit
-    across = np.array([-fit.centre_uv_m[1], fit.centre_uv_m[0]]) / float(np.linalg.norm(fit.centre_uv_m))
+    across = _across_bearing(fit.centre_uv_m)
     sideways_m = float(across @ (inner[0][:2] - full[0][:2]))
     excess_m2 = sideways_m**2 - max(float(across @ difference_m2 @ across), 0.0)
     if excess_m2 <= 0.0:
@@ -2127,7 +2132,7 @@ def _with_uneven_background(
         depth = float(np.median(depth_m))
         reaches_m.append(depth * np.exp(-0.5 * (depth / pulse_sigma_m) ** 2))
     std_m = settings.uneven_background_doubt * spot_m * abs(reaches_m[0] - reaches_m[1]) / pulse_sigma_m
-    across = np.array([-fit.centre_uv_m[1], fit.centre_uv_m[0]]) / float(np.linalg.norm(fit.centre_uv_m))
+    across = _across_bearing(fit.centre_uv_m)
     if std_m**2 <= float(across @ fit.covariance_uv_m2 @ across):
         return fit
     return _with_sideways_doubt(fit, std_m**2 * np.outer(across, across), np.zeros((2, 2)))
@@ -2173,7 +2178,7 @@ def _with_symmetry_doubt(
     if bearing is None:
         return fit
     distance_m = float(np.linalg.norm(fit.centre_uv_m))
-    across = np.array([-fit.centre_uv_m[1], fit.centre_uv_m[0]]) / distance_m
+    across = _across_bearing(fit.centre_uv_m)
     fitted = float(np.arctan2(fit.centre_uv_m[1], fit.centre_uv_m[0]))
     sideways_m = distance_m * float(np.angle(np.exp(1j * (bearing - fitted))))
     quantisation_m2 = (distance_m * _beam_step_rad(scan)) ** 2 / 12.0
