@@ -295,12 +295,15 @@ def squared_residuals(
 def rules(
     plan: VerifyPlan, candidates: Candidates, count: int, budget_s: float | None
 ) -> list[tuple[str, list[int]]]:
-    """(name, job waypoint indices) per rule of the module docstring, each inside the budget."""
+    """(name, job waypoint indices) per rule of the module docstring, each inside the budget; the
+    searches take the waypoints where the calibration used its centre (an outlier or a waypoint
+    without a rod is no candidate of the verify's either)."""
     model, found = plan.model, candidates.found
+    usable = [k for k, i in enumerate(found) if np.isfinite(plan.reference[i]).all()]
     subsets = np.fromiter(
-        itertools.chain.from_iterable(itertools.combinations(range(len(found)), count)),
+        itertools.chain.from_iterable(itertools.combinations(usable, count)),
         dtype=np.int16,
-        count=math.comb(len(found), count) * count,
+        count=math.comb(len(usable), count) * count,
     ).reshape(-1, count)
 
     def first_in_budget(score: FloatArray) -> list[int]:
