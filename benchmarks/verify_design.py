@@ -11,20 +11,23 @@ the verify planned from it (``plan_verify``, the time budget), then one verify d
 waypoint with the scanner unmoved, each centre re-fitted as the calibration's second pass fitted
 its own (``SecondPassRefit``): the centre covariance the drift test states at each.
 
-For a subset of waypoints the test's information is ``F = J^T S^-1 J`` (``drift.residual_covariance``).
-Printed per rule, each inside the time budget: the smallest shift / turn flagged 90 % of the
-time along the weakest base axis (``test.detectable``), the turn about each base axis, and the
-predicted share of random 3 mm shifts and 0.3 deg turns flagged (the non-central chi-square
-averaged over directions; what ``verify_rates`` measures). Rules: the verify's choice (D-optimal
-with the centre covariance the calibration's solver weighed each waypoint with, as ``result.json``
-records it), the same with one assumed 0.5 mm centre noise at every waypoint (the choice before
-2026-11-27, and that of an older ``result.json``), and, over every subset of the verify's size
-(the verify's own noise), the one with the smallest weakest-axis turn and the one that flags the
-most random 0.3 deg turns. ``--slack-dwell``: also the verify's choice with its dwell lengthened
-until the verify takes its whole time budget, measured at that dwell: the test then counts that
-dwell's noise and the calibration's recorded one (``noise_covariance_uv_mm2``) where it counts the
-verify's twice, and its mean squared whitened residual (2 where honest) is printed beside the
-3 s dwell's at the same waypoints.
+For a subset of waypoints the test's information is ``F = J^T S^-1 J``
+(``drift.residual_covariance``). Printed per rule, each inside the time budget: the smallest shift
+/ turn flagged 90 % of the time along the weakest base axis (``test.detectable``), the turn about
+each base axis, and the predicted share of random 3 mm shifts and 0.3 deg turns flagged (the
+non-central chi-square averaged over directions; what ``verify_rates`` measures) and that share
+again if the noise is as large as the unmoved dwells at those waypoints show (their chi-square's
+mean over its dof: a test whose stated noise is too large flags more than the stated noise
+predicts). Rules: the verify's choice (D-optimal with the centre covariance the calibration's
+solver weighed each waypoint with, as ``result.json`` records it), the same with one assumed 0.5
+mm centre noise at every waypoint (the choice before 2026-11-27, and that of an older
+``result.json``), and, over every subset of the verify's size (the verify's own noise), the one
+with the smallest weakest-axis turn and the one that flags the most random 0.3 deg turns.
+``--slack-dwell``: also the verify's choice with its dwell lengthened until the verify takes its
+whole time budget, measured at that dwell: the test then counts that dwell's noise and the
+calibration's recorded one (``noise_covariance_uv_mm2``) where it counts the verify's twice, and
+its mean squared whitened residual (2 where honest) is printed beside the 3 s dwell's at the same
+waypoints.
 
 Verify-only poses: a pose the calibration did not measure is compared with the calibration's
 prediction, whose error has the calibration's covariance, so its information about a turn about
@@ -115,6 +118,12 @@ class Judged:
     flagged_turn: float
     time_share: float
     with_verify_only_deg: float
+    #: The test's information (6, 6), degrees of freedom and threshold.
+    information: FloatArray
+    dof: int
+    threshold: float
+    #: The unmoved verify dwell's chi-square at these waypoints.
+    unmoved_chi_square: float
 
 
 def judge(
@@ -125,8 +134,10 @@ def judge(
     model: DriftModel,
     time_share: float,
     directions: FloatArray,
+    unmoved_chi_square: float,
 ) -> Judged:
-    """``information`` (6, 6) of a test on ``dof`` values judged as the module docstring says."""
+    """``information`` (6, 6) of a test on ``dof`` values judged as the module docstring says
+    (``unmoved_chi_square``: of the unmoved verify dwell at those waypoints)."""
     threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
     needed = needed_noncentrality(dof, model)
     weakest = np.sqrt(needed / np.diag(information))
@@ -141,7 +152,23 @@ def judge(
         p_turn,
         time_share,
         float(np.degrees(bound.max())),
+        information,
+        dof,
+        threshold,
+        unmoved_chi_square,
     )
+
+
+def scaled_turn_share(outcomes: list[Judged], directions: FloatArray) -> tuple[float, float]:
+    """The unmoved chi-square's mean over its dof (``k``, 1 where the stated noise is right)
+    and the predicted share of 0.3 deg turns flagged if the noise is ``k`` times the stated
+    variance: the statistic is then ``k`` times a non-central chi-square of ``lambda / k``."""
+    k = float(np.mean([o.unmoved_chi_square for o in outcomes]) / np.mean([o.dof for o in outcomes]))
+    shares = []
+    for o in outcomes:
+        turn = np.einsum("ni,ij,nj->n", directions, o.information[3:, 3:], directions) * TURN_RAD**2
+        shares.append(float(ncx2.sf(o.threshold / k, o.dof, turn / k).mean()))
+    return k, float(np.mean(shares))
 
 
 def main() -> None:
@@ -183,7 +210,10 @@ def main() -> None:
         for name, subset in rules(plan, candidates, bench.count, bench.budget_s):
             information = candidates.information_of(subset)
             share = (visit_time_s(plan.job, plan.waypoints[subset]) or np.nan) / bench.calibration_s
-            outcome = judge(name, subset, information, 2 * len(subset), plan.model, share, directions)
+            unmoved = float(candidates.whitened_squares()[[found.index(i) for i in subset]].sum())
+            outcome = judge(
+                name, subset, information, 2 * len(subset), plan.model, share, directions, unmoved
+            )
             judged.setdefault(name, []).append(outcome)
             line.append(f"{name}: {outcome.waypoints} {outcome.turn_deg.max():.3f} deg")
         if args.slack_dwell:
@@ -212,12 +242,14 @@ def main() -> None:
         shift = np.array([o.weakest_shift_mm for o in outcomes])
         shares = np.array([o.time_share for o in outcomes])
         axis = np.median(turn, axis=0)
+        k, scaled = scaled_turn_share(outcomes, directions)
         print(
             f"  {name}: weakest shift median {np.median(shift):.2f} mm, weakest turn median "
             f"{np.median(weakest):.3f} deg (max {weakest.max():.3f}; about base x / y / z median "
             f"{axis[0]:.3f} / {axis[1]:.3f} / {axis[2]:.3f}); predicted flagged: 3 mm shift "
             f"{np.mean([o.flagged_shift for o in outcomes]):.1%}, 0.3 deg turn "
-            f"{np.mean([o.flagged_turn for o in outcomes]):.1%}; time share median {np.median(shares):.3f} "
+            f"{np.mean([o.flagged_turn for o in outcomes]):.1%} (unmoved chi-square / dof {k:.2f}, at that "
+            f"noise {scaled:.1%}); time share median {np.median(shares):.3f} "
             f"(max {shares.max():.3f}); with any number of verify-only poses at best "
             f"{np.median([o.with_verify_only_deg for o in outcomes]):.3f} deg"
         )
@@ -390,11 +422,11 @@ def slack_dwell(
     share = (visit_time_s(job, poses) or np.nan) / bench.calibration_s
     centres = np.array([m.centre.centre_uv_m for m in refitted])
     at = [candidates.found.index(i) for i in chosen]
+    squares = squared_residuals(plan, chosen, centres, stated, both)
     outcome = judge(
         "verify's choice, dwell filling the budget", chosen, information, 2 * len(chosen), plan.model,
-        share, directions,
+        share, directions, float(squares.sum()),
     )
-    squares = squared_residuals(plan, chosen, centres, stated, both)
     ratio = np.trace(noise, axis1=1, axis2=2) / np.trace(candidates.noise[at], axis1=1, axis2=2)
     return outcome, job.dwell_s, candidates.whitened_squares()[at], squares, ratio
 
