@@ -196,23 +196,6 @@ def detectable_moves(
         return np.sqrt(noncentrality / information)
 
 
-def flagged_shares(
-    information: FloatArray,
-    threshold: float,
-    dof: int,
-    directions: FloatArray,
-    shift_m: float,
-    turn_rad: float,
-) -> tuple[float, float]:
-    """The share of shifts of ``shift_m`` and of turns of ``turn_rad`` along the unit
-    ``directions`` (K, 3) that the test with the information ``information`` (6, 6) flags at
-    ``threshold`` on ``dof`` values (a move ``x`` makes the statistic non-central chi-square with
-    non-centrality ``x^T F x``; module docstring)."""
-    shift = np.einsum("ni,ij,nj->n", directions, information[:3, :3], directions) * shift_m**2
-    turn = np.einsum("ni,ij,nj->n", directions, information[3:, 3:], directions) * turn_rad**2
-    return float(ncx2.sf(threshold, dof, shift).mean()), float(ncx2.sf(threshold, dof, turn).mean())
-
-
 def predictions(
     model: DriftModel, tcp_poses: FloatArray, T_base_laser: FloatArray | None = None
 ) -> tuple[FloatArray, FloatArray, FloatArray]:

@@ -41,7 +41,7 @@ from lasercal_hw.verify.active import (
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
 from lasercal_hw.verify.identity import IdentityCheck, check_identity, robot_calibration_check
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
-from lasercal_hw.verify.selection import POWER_MOVE, Selection, select_waypoints
+from lasercal_hw.verify.selection import Selection, select_waypoints
 from lasercal_hw.verify.verdict import Verdict, decide, with_time_note
 
 MIN_MEASURED = 2
@@ -181,7 +181,6 @@ def plan_verify(
         centre_covariance_uv_m2=centre_covariance,
         noise_covariance_uv_m2=noise_covariance,
         unusable=unusable_waypoints(residuals, recorded_waypoints, waypoints),
-        power_move=POWER_MOVE,
     )
     return VerifyPlan(checking, model, waypoints, reference, selection, refit)
 

@@ -26,32 +26,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base, whitening
 from lasercal_hw.errors import CalibrationError
 from lasercal_hw.models import FloatArray
-from lasercal_hw.verify.drift import DriftModel, flagged_shares, noise_blocks, predictions
+from lasercal_hw.verify.drift import DriftModel, noise_blocks, predictions
 
 #: Centre noise the design assumes where the calibration recorded none (a 20 mm rod over a
 #: 3 s dwell: about 0.5 mm per axis).
 DESIGN_SIGMA_UV_M = 0.0005
 MIN_INCIDENCE_DEG = 10.0
 MIN_WAYPOINTS = 2
-#: Directions of the moves a subset's power is judged by (``power_move``): a Fibonacci sphere.
-POWER_DIRECTIONS = 64
-#: The moves the choice makes the test flag as often as it can (``power_move``): a shift (m) and a
-#: turn (rad) issue 18 asks a verify to see, each in any direction.
-POWER_MOVE = (0.003, float(np.radians(0.3)))
-
-
-def _sphere(count: int) -> FloatArray:
-    """``count`` unit vectors (count, 3) spread evenly over the sphere (a Fibonacci lattice)."""
-    k = np.arange(count) + 0.5
-    z = 1.0 - 2.0 * k / count
-    azimuth = np.pi * (1.0 + np.sqrt(5.0)) * k
-    ring = np.sqrt(1.0 - z**2)
-    return np.column_stack([ring * np.cos(azimuth), ring * np.sin(azimuth), z])
 
 
 @dataclass(frozen=True)
@@ -141,7 +126,6 @@ def select_waypoints(
     centre_covariance_uv_m2: FloatArray | None = None,
     noise_covariance_uv_m2: FloatArray | None = None,
     unusable: NDArray[np.bool_] | None = None,
-    power_move: tuple[float, float] | None = None,
 ) -> Selection:
     """The D-optimal subset of ``count`` waypoints (all usable ones if fewer), visited in
     trajectory order; ``visited`` (N,) marks the waypoints the calibration measured (None:
@@ -151,10 +135,7 @@ def select_waypoints(
     unknown, all of it), ``unusable`` (N,)
     the waypoints that are no candidates (``active.unusable_waypoints``; None: none). With ``time_of``
     (waypoint indices -> seconds, None if unknown) and ``budget_s``, exchanges first bring the
-    subset within the budget, then improve it inside the budget only. With ``power_move`` (shift
-    m, turn rad), further exchanges then raise the share of such shifts plus the share of such
-    turns, in ``POWER_DIRECTIONS`` directions, that the drift test would flag (its power
-    against every direction of a move of that size, where the determinant weighs all at once)."""
+    subset within the budget, then improve it inside the budget only."""
     poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     seen = np.zeros(len(poses), dtype=bool) if visited is None else np.asarray(visited, dtype=bool)
     crossing = _crosses_plane(model, poses)
@@ -186,42 +167,27 @@ def select_waypoints(
         if time_of is None or budget_s is None:
             return 0.0
         value = time_of(sorted(int(usable[k]) for k in subset))
-        return np.inf if value is None else value  # a pose out of the model's reach: not in budget
+        return 0.0 if value is None else value
 
-    def exchanged(chosen: list[int], objective: Callable[[list[int]], float]) -> list[int]:
+    def better(trial: list[int], current: list[int]) -> bool:
         limit = np.inf if budget_s is None else budget_s
-
-        def better(trial: list[int], current: list[int]) -> bool:
-            trial_s, current_s = seconds(trial), seconds(current)
-            if current_s > limit:  # over budget: any faster subset is better
-                return trial_s < current_s - 1e-9
-            return trial_s <= limit and objective(trial) > objective(current) + 1e-9
-
-        improved = True
-        while improved:
-            improved = False
-            for slot in range(len(chosen)):
-                for k in sorted(set(range(len(usable))) - set(chosen)):
-                    trial = [*chosen[:slot], k, *chosen[slot + 1:]]
-                    if better(trial, chosen):
-                        chosen, improved = trial, True
-        return chosen
+        trial_s, current_s = seconds(trial), seconds(current)
+        if current_s > limit:  # over budget: any faster subset is better
+            return trial_s < current_s - 1e-9
+        return trial_s <= limit and score(trial) > score(current) + 1e-9
 
     chosen: list[int] = []
     for _ in range(min(count, len(usable))):
         scores = [-np.inf if k in chosen else score([*chosen, k]) for k in range(len(usable))]
         chosen.append(int(np.argmax(scores)))
-    chosen = exchanged(chosen, score)
-    if power_move is not None:
-        directions = _sphere(POWER_DIRECTIONS)
-
-        def power(subset: list[int]) -> float:
-            dof = 2 * len(subset)
-            threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
-            summed = information[subset].sum(axis=0)
-            return sum(flagged_shares(summed, threshold, dof, directions, *power_move))
-
-        chosen = exchanged(chosen, power)
+    improved = True
+    while improved:
+        improved = False
+        for slot in range(len(chosen)):
+            for k in sorted(set(range(len(usable))) - set(chosen)):
+                trial = [*chosen[:slot], k, *chosen[slot + 1:]]
+                if better(trial, chosen):
+                    chosen, improved = trial, True
     covariance = np.linalg.inv(base + information[chosen].sum(axis=0))
     std = np.sqrt(np.diag(covariance))
     return Selection(
