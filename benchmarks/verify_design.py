@@ -17,12 +17,14 @@ For a subset of waypoints the test's information is ``F = J^T S^-1 J``
 each base axis, and the predicted share of random 3 mm shifts and 0.3 deg turns flagged (the
 non-central chi-square averaged over directions; what ``verify_rates`` measures) and that share
 again if the noise is as large as the unmoved dwells at those waypoints show (their chi-square's
-mean over its dof: a test whose stated noise is too large flags more than the stated noise
-predicts). Rules: the verify's choice (D-optimal with the centre covariance the calibration's
-solver weighed each waypoint with, as ``result.json`` records it), the same with one assumed 0.5
-mm centre noise at every waypoint (the choice before 2026-11-27, and that of an older
-``result.json``), and, over every subset of the verify's size (the verify's own noise), the one
-with the smallest weakest-axis turn and the one that flags the most random 0.3 deg turns.
+mean over its dof ``k``: the statistic is then ``k`` times a non-central chi-square of ``lambda /
+k``; a noise stated too large costs power). Rules: the verify's choice (D-optimal with the centre
+covariance the calibration's solver weighed each waypoint with, as ``result.json`` records it),
+the same with one assumed 0.5 mm centre noise at every waypoint (the choice before 2026-11-27, and
+that of an older ``result.json``), and, over every subset of the verify's size (the verify's own
+noise), the one with the smallest weakest-axis turn and the one that flags the most random 0.3 deg
+turns, and that last search again on the centre covariance the calibration recorded (what the
+verify knows when it chooses; the verify dwell's own noise is known only after it).
 ``--slack-dwell``: also the verify's choice with its dwell lengthened until the verify takes its
 whole time budget, measured at that dwell: the test then counts that dwell's noise and the
 calibration's recorded one (``noise_covariance_uv_mm2``) where it counts the verify's twice, and
@@ -207,7 +209,9 @@ def main() -> None:
         noise = np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted])
         candidates = Candidates.of(plan, found, centres, stated, noise)
         line = [f"seed {seed:3d}"]
-        for name, subset in rules(plan, candidates, bench.count, bench.budget_s):
+        whole, drawn = recorded_centre_covariances(trial.result.residuals, bench.poses, plan.waypoints)
+        recorded = np.nan_to_num(Candidates.of(plan, found, centres, whole[found], drawn[found]).alone)
+        for name, subset in rules(plan, candidates, recorded, bench.count, bench.budget_s):
             information = candidates.information_of(subset)
             share = (visit_time_s(plan.job, plan.waypoints[subset]) or np.nan) / bench.calibration_s
             unmoved = float(candidates.whitened_squares()[[found.index(i) for i in subset]].sum())
@@ -325,11 +329,14 @@ def squared_residuals(
 
 
 def rules(
-    plan: VerifyPlan, candidates: Candidates, count: int, budget_s: float | None
+    plan: VerifyPlan, candidates: Candidates, recorded: FloatArray, count: int, budget_s: float | None
 ) -> list[tuple[str, list[int]]]:
     """(name, job waypoint indices) per rule of the module docstring, each inside the budget; the
     searches take the waypoints where the calibration used its centre (an outlier or a waypoint
-    without a rod is no candidate of the verify's either)."""
+    without a rod is no candidate of the verify's either). ``recorded`` (n, 6, 6): each
+    candidate's information from the centre covariance the calibration recorded there, which is
+    what the verify knows when it chooses (the other searches know the verify dwell's own noise,
+    which a verify learns only after its dwells)."""
     model, found = plan.model, candidates.found
     usable = [k for k, i in enumerate(found) if np.isfinite(plan.reference[i]).all()]
     subsets = np.fromiter(
@@ -361,6 +368,7 @@ def rules(
         *((name, list(chosen)) for name, chosen in named if set(chosen) <= set(found)),
         ("smallest weakest turn", first_in_budget(weakest_turn)),
         ("most 0.3 deg turns", first_in_budget(-turns_flagged(candidates.alone, subsets, model))),
+        ("most 0.3 deg turns by the record", first_in_budget(-turns_flagged(recorded, subsets, model))),
     ]
 
 
