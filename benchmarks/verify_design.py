@@ -2,53 +2,67 @@
 
 Run from the repository root::
 
-    .venv/bin/python -m benchmarks.verify_design [--seeds 20] [--first-seed 100] [--waypoints 4]
+    .venv/bin/python -m benchmarks.verify_design [--config FILE] [--scene FILE] [--bit-off]
+        [--seeds 20] [--first-seed 100] [--waypoints 4] [--slack-dwell]
 
-Per seed, as ``benchmarks.verify_rates`` does: a calibration simulated in the fake world (the
-job's trajectory, the two-pass solve), the verify planned from it (``plan_verify``, the time
-budget), then one verify dwell at every job waypoint with the scanner unmoved, each centre
-re-fitted as the calibration's second pass fitted its own (``SecondPassRefit``): the centre
-covariance the drift test states at each.
+Per seed, as ``benchmarks.verify_rates`` does (``benchmarks.verify_trials``, the same job, scene
+and world): a calibration simulated in the fake world (the job's trajectory, the two-pass solve),
+the verify planned from it (``plan_verify``, the time budget), then one verify dwell at every job
+waypoint with the scanner unmoved, each centre re-fitted as the calibration's second pass fitted
+its own (``SecondPassRefit``): the centre covariance the drift test states at each.
 
-For a subset of waypoints the test's information is ``F = J^T S^-1 J`` (``drift.residual_covariance``).
-Printed per rule, each inside the time budget: the smallest shift / turn flagged 90 % of the
-time along the weakest base axis (``test.detectable``), and the predicted share of random 3 mm
-shifts and 0.3 deg turns flagged (the non-central chi-square averaged over directions; what
-``verify_rates`` measures). Rules: the verify's choice (D-optimal with the centre covariance the
-calibration's solver weighed each waypoint with, as ``result.json`` records it), the same with one
-assumed 0.5 mm centre noise at every waypoint (the choice before 2026-11-27, and that of an older
-``result.json``), and the subset with the smallest weakest-axis turn (exhaustive, the verify's own
-noise).
+For a subset of waypoints the test's information is ``F = J^T S^-1 J``
+(``drift.residual_covariance``). Printed per rule, each inside the time budget: the smallest shift
+/ turn flagged 90 % of the time along the weakest base axis (``test.detectable``), the turn about
+each base axis, and the predicted share of random 3 mm shifts and 0.3 deg turns flagged (the
+non-central chi-square averaged over directions; what ``verify_rates`` measures) and that share
+again if the noise is as large as the unmoved dwells at those waypoints show (their chi-square's
+mean over its dof ``k``: the statistic is then ``k`` times a non-central chi-square of ``lambda /
+k``; a noise stated too large costs power). Rules: the verify's choice (D-optimal with the centre
+covariance the calibration's solver weighed each waypoint with, as ``result.json`` records it),
+the same with one assumed 0.5 mm centre noise at every waypoint (the choice before 2026-11-27, and
+that of an older ``result.json``), and, over every subset of the verify's size (the verify's own
+noise), the one with the smallest weakest-axis turn and the one that flags the most random 0.3 deg
+turns, and that last search again on the centre covariance the calibration recorded (what the
+verify knows when it chooses; the verify dwell's own noise is known only after it).
+``--slack-dwell``: also the verify's choice with its dwell lengthened until the verify takes its
+whole time budget, measured at that dwell: the test then counts that dwell's noise and the
+calibration's recorded one (``noise_covariance_uv_mm2``) where it counts the verify's twice, and
+its mean squared whitened residual (2 where honest) is printed beside the 3 s dwell's at the same
+waypoints.
 
 Verify-only poses: a pose the calibration did not measure is compared with the calibration's
 prediction, whose error has the calibration's covariance, so its information about a turn about
 base axis k is at most ``(Sigma_cal^-1)_kk``, however steep its rod and with no robot error at
 all. Printed per rule: the weakest-axis turn its subset plus that bound would reach.
 
-Last, each waypoint's mean squared whitened residual of the unmoved scanner over the seeds
-(2 where the test's stated noise is right).
+Last, per waypoint over the seeds: its mean squared whitened residual of the unmoved scanner (2
+where the test's stated noise is right) and the turn about base x, y and z it alone would see 9
+times in 10 in a 4-waypoint test (median; which waypoints see which turn).
 """
 
 from __future__ import annotations
 
 import argparse
 import itertools
+import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.stats import chi2, ncx2
 
-from benchmarks.dry_run_accuracy import measure_waypoints, world_for
+from benchmarks.dry_run_accuracy import measure_waypoints
+from benchmarks.verify_trials import VerifyBench, add_job_arguments
 from fakes.world import World
 from lasercal_hw.calibration.model import whitening
-from lasercal_hw.config import load_job
+from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.timing import visit_time_s
-from lasercal_hw.run.two_pass import solve_two_pass
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.verify.active import recorded_centre_covariances
 from lasercal_hw.verify.drift import (
     DriftModel,
     detectable_moves,
@@ -56,12 +70,17 @@ from lasercal_hw.verify.drift import (
     predictions,
     residual_covariance,
 )
-from lasercal_hw.verify.procedure import VerifyPlan, plan_verify
+from lasercal_hw.verify.procedure import VerifyPlan
 from lasercal_hw.verify.selection import select_waypoints
 
 SHIFT_M = 0.003
 TURN_RAD = float(np.radians(0.3))
 DIRECTIONS = 2000
+#: Random turn axes the subset search scores with (the printed share takes ``DIRECTIONS``).
+SEARCH_DIRECTIONS = 200
+SEARCH_CHUNK = 20000
+#: The per-waypoint table's turns are those a test of this many waypoints would see.
+TABLE_WAYPOINTS = 4
 
 
 def needed_noncentrality(dof: int, model: DriftModel) -> float:
@@ -74,6 +93,12 @@ def needed_noncentrality(dof: int, model: DriftModel) -> float:
     )
 
 
+def unit_directions(count: int, seed: int) -> FloatArray:
+    """``count`` random unit vectors (3,)."""
+    drawn = np.random.default_rng(seed).normal(size=(count, 3))
+    return drawn / np.linalg.norm(drawn, axis=1)[:, None]
+
+
 def flagged_share(
     information: FloatArray, threshold: float, dof: int, directions: FloatArray
 ) -> tuple[float, float]:
@@ -83,47 +108,97 @@ def flagged_share(
     return float(ncx2.sf(threshold, dof, shift).mean()), float(ncx2.sf(threshold, dof, turn).mean())
 
 
+@dataclass(frozen=True)
+class Judged:
+    """One rule's subset judged by the test's information (mm, deg, shares, time share)."""
+
+    name: str
+    waypoints: list[int]
+    weakest_shift_mm: float
+    turn_deg: FloatArray
+    flagged_shift: float
+    flagged_turn: float
+    time_share: float
+    with_verify_only_deg: float
+    #: The test's information (6, 6), degrees of freedom and threshold.
+    information: FloatArray
+    dof: int
+    threshold: float
+    #: The unmoved verify dwell's chi-square at these waypoints.
+    unmoved_chi_square: float
+
+
+def judge(
+    name: str,
+    waypoints: list[int],
+    information: FloatArray,
+    dof: int,
+    model: DriftModel,
+    time_share: float,
+    directions: FloatArray,
+    unmoved_chi_square: float,
+) -> Judged:
+    """``information`` (6, 6) of a test on ``dof`` values judged as the module docstring says
+    (``unmoved_chi_square``: of the unmoved verify dwell at those waypoints)."""
+    threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
+    needed = needed_noncentrality(dof, model)
+    weakest = np.sqrt(needed / np.diag(information))
+    p_shift, p_turn = flagged_share(information, threshold, dof, directions)
+    bound = np.sqrt(needed / (np.diag(information)[3:] + np.diag(np.linalg.inv(model.covariance))[3:]))
+    return Judged(
+        name,
+        sorted(waypoints),
+        float(weakest[:3].max() * 1e3),
+        np.degrees(weakest[3:]),
+        p_shift,
+        p_turn,
+        time_share,
+        float(np.degrees(bound.max())),
+        information,
+        dof,
+        threshold,
+        unmoved_chi_square,
+    )
+
+
+def scaled_turn_share(outcomes: list[Judged], directions: FloatArray) -> tuple[float, float]:
+    """The unmoved chi-square's mean over its dof (``k``, 1 where the stated noise is right)
+    and the predicted share of 0.3 deg turns flagged if the noise is ``k`` times the stated
+    variance: the statistic is then ``k`` times a non-central chi-square of ``lambda / k``."""
+    k = float(np.mean([o.unmoved_chi_square for o in outcomes]) / np.mean([o.dof for o in outcomes]))
+    shares = []
+    for o in outcomes:
+        turn = np.einsum("ni,ij,nj->n", directions, o.information[3:, 3:], directions) * TURN_RAD**2
+        shares.append(float(ncx2.sf(o.threshold / k, o.dof, turn / k).mean()))
+    return k, float(np.mean(shares))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_job_arguments(parser)
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--first-seed", type=int, default=100)
-    parser.add_argument("--waypoints", type=int, default=None, help="default: the job's verify.waypoints")
+    parser.add_argument(
+        "--slack-dwell", action="store_true", help="also the verify's choice at a dwell that fills the budget"
+    )
     args = parser.parse_args()
 
-    job = load_job(None)
-    poses = job_waypoints(job)
-    count = args.waypoints or job.verify.waypoints
-    scans = round(job.dwell_s / World.from_scene(None).geometry.scan_period_s)
-    calibration_s = visit_time_s(job, poses) or np.nan
-    budget_s = job.verify.max_time_fraction * calibration_s
-    rng_directions = np.random.default_rng(0).normal(size=(DIRECTIONS, 3))
-    directions = rng_directions / np.linalg.norm(rng_directions, axis=1)[:, None]
-    rows: dict[str, list[list[float]]] = {}
+    bench = VerifyBench.from_args(args)
+    directions = unit_directions(DIRECTIONS, 0)
+    judged: dict[str, list[Judged]] = {}
     whitened: list[FloatArray] = []
+    alone_turns: list[FloatArray] = []
+    honesty: dict[str, list[float]] = {"job": [], "slack": [], "ratio": [], "dwell": []}
     started = time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         rng = np.random.default_rng(seed)
-        world = world_for(job, None, robot_error_seed=1000 + seed)
-        measurements, background = measure_waypoints(job, poses, world, scans, rng)
+        world = bench.world(seed)
         try:
-            solution = solve_two_pass(measurements, job, background)
+            trial, plan = bench.calibrate_and_plan(world, rng)
         except LasercalError as exc:
             print(f"seed {seed}: calibration failed: {exc}")
             continue
-        result = solution.result
-        plan = plan_verify(
-            job,
-            result.matrix(),
-            np.asarray(result.covariance),
-            result.residuals,
-            poses,
-            count=count,
-            budget_s=budget_s,
-            range_error=result.range_offset,
-            refit=solution.refit,
-            rod=result.estimated_rod(job.rod.rod_line()),
-        )
-        seen, background = measure_waypoints(plan.job, plan.waypoints, world, scans, rng)
+        seen, background = measure_waypoints(plan.job, plan.waypoints, world, bench.scans, rng)
         refitted, _ = plan.refit.centres(seen, background)
         found = [m.index for m in refitted]
         if not set(plan.selection.indices) <= set(found):
@@ -132,94 +207,154 @@ def main() -> None:
         centres = np.array([m.centre.centre_uv_m for m in refitted])
         stated = np.array([m.centre.covariance_uv_m2 for m in refitted])
         noise = np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted])
+        candidates = Candidates.of(plan, found, centres, stated, noise)
         line = [f"seed {seed:3d}"]
-        chosen, information_of = rules(plan, found, stated, noise, count, budget_s)
-        for name, subset in chosen:
-            information, dof = information_of(subset)
-            threshold = float(chi2.ppf(1.0 - plan.model.false_alarm_rate, dof))
-            needed = needed_noncentrality(dof, plan.model)
-            weakest = np.sqrt(needed / np.diag(information))
-            p_shift, p_turn = flagged_share(information, threshold, dof, directions)
-            share = (
-                visit_time_s(plan.job, plan.waypoints[[found[k] for k in subset]]) or np.nan
-            ) / calibration_s
-            bound = np.sqrt(
-                needed / (np.diag(information)[3:] + np.diag(np.linalg.inv(plan.model.covariance))[3:])
+        whole, drawn = recorded_centre_covariances(trial.result.residuals, bench.poses, plan.waypoints)
+        recorded = np.nan_to_num(Candidates.of(plan, found, centres, whole[found], drawn[found]).alone)
+        for name, subset in rules(plan, candidates, recorded, bench.count, bench.budget_s):
+            information = candidates.information_of(subset)
+            share = (visit_time_s(plan.job, plan.waypoints[subset]) or np.nan) / bench.calibration_s
+            unmoved = float(candidates.whitened_squares()[[found.index(i) for i in subset]].sum())
+            outcome = judge(
+                name, subset, information, 2 * len(subset), plan.model, share, directions, unmoved
             )
-            rows.setdefault(name, []).append(
-                [
-                    weakest[:3].max() * 1e3,
-                    np.degrees(weakest[3:].max()),
-                    p_shift,
-                    p_turn,
-                    share,
-                    np.degrees(bound.max()),
-                ]
-            )
-            line.append(f"{name}: {sorted(found[k] for k in subset)} {np.degrees(weakest[3:].max()):.3f} deg")
+            judged.setdefault(name, []).append(outcome)
+            line.append(f"{name}: {outcome.waypoints} {outcome.turn_deg.max():.3f} deg")
+        if args.slack_dwell:
+            slack = slack_dwell(bench, plan, trial.result.residuals, world, rng, candidates, directions)
+            if slack is not None:
+                outcome, dwell_s, white_3s, white_slack, ratio = slack
+                judged.setdefault(outcome.name, []).append(outcome)
+                honesty["job"].extend(white_3s)
+                honesty["slack"].extend(white_slack)
+                honesty["ratio"].extend(ratio)
+                honesty["dwell"].append(dwell_s)
+                line.append(f"{outcome.name} ({dwell_s:.1f} s): {outcome.turn_deg.max():.3f} deg")
         print(" | ".join(line), flush=True)
-        crossing, _, slope = predictions(plan.model, plan.waypoints[found])
-        reference = plan.reference[found]
-        visited = np.isfinite(reference).all(axis=1)
-        residual = centres - crossing - np.where(visited[:, None], reference, 0.0)
-        blocks = noise_blocks(plan.model, slope, stated, visited, noise)
-        per_waypoint = np.full(len(poses), np.nan)
-        per_waypoint[found] = [
-            float(r @ np.linalg.solve(b, r)) for r, b in zip(residual, blocks, strict=True)
-        ]
+        per_waypoint = np.full(len(plan.waypoints), np.nan)
+        per_waypoint[found] = candidates.whitened_squares()
         whitened.append(per_waypoint)
+        turns = np.full((len(plan.waypoints), 3), np.nan)
+        needed = needed_noncentrality(2 * TABLE_WAYPOINTS, plan.model)
+        turns[found] = np.degrees(np.sqrt(needed / np.einsum("nkk->nk", candidates.alone)[:, 3:]))
+        alone_turns.append(turns)
 
-    print(f"\n{len(whitened)} seeds in {time.perf_counter() - started:.0f} s, {count} verify waypoints")
-    for name, values in rows.items():
-        a = np.array(values)
+    print(f"\n{len(whitened)} seeds in {time.perf_counter() - started:.0f} s, {bench.count} verify waypoints")
+    for name, outcomes in judged.items():
+        turn = np.array([o.turn_deg for o in outcomes])
+        weakest = turn.max(axis=1)
+        shift = np.array([o.weakest_shift_mm for o in outcomes])
+        shares = np.array([o.time_share for o in outcomes])
+        axis = np.median(turn, axis=0)
+        k, scaled = scaled_turn_share(outcomes, directions)
         print(
-            f"  {name}: weakest shift median {np.median(a[:, 0]):.2f} mm, weakest turn median "
-            f"{np.median(a[:, 1]):.3f} deg (max {a[:, 1].max():.3f}); predicted flagged: 3 mm shift "
-            f"{a[:, 2].mean():.1%}, 0.3 deg turn {a[:, 3].mean():.1%}; time share median "
-            f"{np.median(a[:, 4]):.3f} (max {a[:, 4].max():.3f}); with any number of verify-only poses "
-            f"at best {np.median(a[:, 5]):.3f} deg"
+            f"  {name}: weakest shift median {np.median(shift):.2f} mm, weakest turn median "
+            f"{np.median(weakest):.3f} deg (max {weakest.max():.3f}; about base x / y / z median "
+            f"{axis[0]:.3f} / {axis[1]:.3f} / {axis[2]:.3f}); predicted flagged: 3 mm shift "
+            f"{np.mean([o.flagged_shift for o in outcomes]):.1%}, 0.3 deg turn "
+            f"{np.mean([o.flagged_turn for o in outcomes]):.1%} (unmoved chi-square / dof {k:.2f}, at that "
+            f"noise {scaled:.1%}); time share median {np.median(shares):.3f} "
+            f"(max {shares.max():.3f}); with any number of verify-only poses at best "
+            f"{np.median([o.with_verify_only_deg for o in outcomes]):.3f} deg"
+        )
+    if honesty["slack"]:
+        print(
+            "  the verify's choice, unmoved, mean squared whitened residual per waypoint (2 if honest): "
+            f"the job's dwell {np.mean(honesty['job']):.2f}, filling the budget "
+            f"{np.mean(honesty['slack']):.2f} "
+            f"({len(honesty['slack'])} waypoint visits); dwell median {np.median(honesty['dwell']):.1f} s, "
+            f"its noise variance over the job's dwell's median {np.median(honesty['ratio']):.2f}"
         )
     means = np.nanmean(np.array(whitened), axis=0)
     print("  unmoved, mean squared whitened residual per waypoint (2 if the stated noise is right):")
     print("   ", " ".join(f"{i}:{m:.1f}" for i, m in enumerate(means)))
+    table = np.nanmedian(np.array(alone_turns), axis=0)
+    print(f"  turn (deg) about base x / y / z one waypoint alone sees in a {TABLE_WAYPOINTS}-waypoint test:")
+    for row in range(0, len(table), 4):
+        cells = enumerate(table[row : row + 4], row)
+        print("   ", "  ".join(f"{i:2d}: {x:5.2f} {y:5.2f} {z:5.2f}" for i, (x, y, z) in cells))
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """The waypoints where the unmoved verify dwell found the rod (``found``: job indices), and
+    the unmoved centres measured there and what the drift test states: each alone's information
+    (n, 6, 6)."""
+
+    plan: VerifyPlan
+    found: list[int]
+    centres: FloatArray
+    stated: FloatArray
+    noise: FloatArray
+    alone: FloatArray
+
+    @classmethod
+    def of(
+        cls, plan: VerifyPlan, found: list[int], centres: FloatArray, stated: FloatArray, noise: FloatArray
+    ) -> Candidates:
+        """The candidates of ``plan``: the verify dwell's ``centres`` (n, 2) at ``found``, their
+        covariance ``stated`` and the part of it a dwell draws anew, ``noise`` (n, 2, 2)."""
+        _, jac, slope = predictions(plan.model, plan.waypoints[found])
+        visited = np.isfinite(plan.reference[found]).all(axis=1)
+        white = whitening(noise_blocks(plan.model, slope, stated, visited, noise)) @ jac
+        return cls(plan, found, centres, stated, noise, np.swapaxes(white, 1, 2) @ white)
+
+    def information_of(self, subset: list[int], noise: FloatArray | None = None) -> FloatArray:
+        """The test's information (6, 6) from the job's waypoints ``subset`` (all candidates), with
+        the verify dwell's ``noise`` there (None: the candidates')."""
+        at = [self.found.index(i) for i in subset]
+        _, jac, slope = predictions(self.plan.model, self.plan.waypoints[subset])
+        visited = np.isfinite(self.plan.reference[subset]).all(axis=1)
+        drawn = self.noise[at] if noise is None else noise
+        total = cho_factor(residual_covariance(self.plan.model, jac, slope, self.stated[at], visited, drawn))
+        j = jac.reshape(-1, 6)
+        return j.T @ cho_solve(total, j)
+
+    def whitened_squares(self) -> FloatArray:
+        """Each candidate's squared whitened residual (n,) of the unmoved verify."""
+        return squared_residuals(self.plan, self.found, self.centres, self.stated, self.noise)
+
+
+def squared_residuals(
+    plan: VerifyPlan, indices: list[int], centres: FloatArray, stated: FloatArray, noise: FloatArray
+) -> FloatArray:
+    """``d_i^T (C_i + R_i)^-1 d_i`` at the job's waypoints ``indices`` for ``centres`` (n, 2)
+    measured with the centre covariance ``stated`` and the part a dwell draws anew ``noise``."""
+    crossing, _, slope = predictions(plan.model, plan.waypoints[indices])
+    reference = plan.reference[indices]
+    visited = np.isfinite(reference).all(axis=1)
+    residual = centres - crossing - np.where(visited[:, None], reference, 0.0)
+    blocks = noise_blocks(plan.model, slope, stated, visited, noise)
+    return np.array([float(r @ np.linalg.solve(b, r)) for r, b in zip(residual, blocks, strict=True)])
 
 
 def rules(
-    plan: VerifyPlan,
-    found: list[int],
-    stated: FloatArray,
-    noise: FloatArray,
-    count: int,
-    budget_s: float,
-) -> tuple[list[tuple[str, tuple[int, ...]]], Callable[[tuple[int, ...]], tuple[FloatArray, int]]]:
-    """(name, subset as positions in ``found``) per rule, and a subset's information and dof."""
-    model = plan.model
-    poses = plan.waypoints[found]
-    _, jac, slope = predictions(model, poses)
-    visited = np.isfinite(plan.reference[found]).all(axis=1)
+    plan: VerifyPlan, candidates: Candidates, recorded: FloatArray, count: int, budget_s: float | None
+) -> list[tuple[str, list[int]]]:
+    """(name, job waypoint indices) per rule of the module docstring, each inside the budget; the
+    searches take the waypoints where the calibration used its centre (an outlier or a waypoint
+    without a rod is no candidate of the verify's either). ``recorded`` (n, 6, 6): each
+    candidate's information from the centre covariance the calibration recorded there, which is
+    what the verify knows when it chooses (the other searches know the verify dwell's own noise,
+    which a verify learns only after its dwells)."""
+    model, found = plan.model, candidates.found
+    usable = [k for k, i in enumerate(found) if np.isfinite(plan.reference[i]).all()]
+    subsets = np.fromiter(
+        itertools.chain.from_iterable(itertools.combinations(usable, count)),
+        dtype=np.int16,
+        count=math.comb(len(usable), count) * count,
+    ).reshape(-1, count)
 
-    def information_of(subset: tuple[int, ...]) -> tuple[FloatArray, int]:
-        s = list(subset)
-        total = cho_factor(residual_covariance(model, jac[s], slope[s], stated[s], visited[s], noise[s]))
-        j = jac[s].reshape(-1, 6)
-        return j.T @ cho_solve(total, j), 2 * len(s)
-
-    def alone(centre: FloatArray, drawn: FloatArray) -> FloatArray:
-        white = whitening(noise_blocks(model, slope, centre, visited, drawn)) @ jac
-        return np.swapaxes(white, 1, 2) @ white
-
-    subsets = list(itertools.combinations(range(len(found)), count))
-
-    def first_in_budget(score: FloatArray) -> tuple[int, ...]:
-        for k in np.argsort(score):
-            seconds = visit_time_s(plan.job, poses[list(subsets[k])])
-            if seconds is not None and seconds <= budget_s:
-                return subsets[k]
+    def first_in_budget(score: FloatArray) -> list[int]:
+        for k in np.argsort(score, kind="stable"):
+            chosen = [found[i] for i in subsets[k]]
+            seconds = visit_time_s(plan.job, plan.waypoints[chosen])
+            if seconds is not None and (budget_s is None or seconds <= budget_s):
+                return chosen
         raise LasercalError("no subset of the job's waypoints fits the verify's time budget")
 
-    noise_each = alone(stated, noise)
-    by_noise = np.array([noise_each[list(s)].sum(axis=0) for s in subsets])
-    weakest_turn = np.sqrt(1.0 / np.einsum("nkk->nk", by_noise)[:, 3:]).max(axis=1)
+    turn_information = np.einsum("nkk->nk", candidates.alone)[:, 3:]
+    weakest_turn = over_subsets(turn_information, subsets, lambda summed: np.max(1.0 / summed, axis=1))
     assumed = select_waypoints(
         model,
         plan.waypoints,
@@ -230,9 +365,78 @@ def rules(
     )
     named = [("verify's choice", plan.selection.indices), ("D-optimal, 0.5 mm assumed", assumed.indices)]
     return [
-        *((name, tuple(map(found.index, chosen))) for name, chosen in named if set(chosen) <= set(found)),
+        *((name, list(chosen)) for name, chosen in named if set(chosen) <= set(found)),
         ("smallest weakest turn", first_in_budget(weakest_turn)),
-    ], information_of
+        ("most 0.3 deg turns", first_in_budget(-turns_flagged(candidates.alone, subsets, model))),
+        ("most 0.3 deg turns by the record", first_in_budget(-turns_flagged(recorded, subsets, model))),
+    ]
+
+
+def turns_flagged(alone: FloatArray, subsets: FloatArray, model: DriftModel) -> FloatArray:
+    """Each subset's (m, count) predicted share of random 0.3 deg turns flagged
+    (``SEARCH_DIRECTIONS`` axes; the waypoints' information ``alone`` (n, 6, 6) added)."""
+    dof = 2 * subsets.shape[1]
+    threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
+    axes = unit_directions(SEARCH_DIRECTIONS, 1)
+    per_waypoint = (np.einsum("di,nij,dj->nd", axes, alone[:, 3:, 3:], axes) * TURN_RAD**2).astype(np.float32)
+    grid = np.linspace(0.0, float(per_waypoint.max()) * subsets.shape[1], 4000)
+    flagged = ncx2.sf(threshold, dof, grid)
+    return over_subsets(per_waypoint, subsets, lambda summed: np.interp(summed, grid, flagged).mean(axis=1))
+
+
+def over_subsets(
+    per_waypoint: FloatArray, subsets: FloatArray, score: Callable[[FloatArray], FloatArray]
+) -> FloatArray:
+    """``score`` (chunk, k) -> (chunk,) of each subset's (m, count) sum of ``per_waypoint`` (n, k),
+    in chunks of ``SEARCH_CHUNK`` subsets."""
+    scores = np.empty(len(subsets))
+    for first in range(0, len(subsets), SEARCH_CHUNK):
+        chunk = subsets[first : first + SEARCH_CHUNK]
+        scores[first : first + SEARCH_CHUNK] = score(per_waypoint[chunk].sum(axis=1))
+    return scores
+
+
+def slack_dwell(
+    bench: VerifyBench,
+    plan: VerifyPlan,
+    residuals: Sequence[WaypointResidual],
+    world: World,
+    rng: np.random.Generator,
+    candidates: Candidates,
+    directions: FloatArray,
+) -> tuple[Judged, float, FloatArray, FloatArray, FloatArray] | None:
+    """The verify's choice at the longest dwell inside the budget, measured there: judged with that
+    dwell's noise plus the calibration's recorded one at each waypoint, that dwell (s), and the
+    unmoved residuals' squares (the job's dwell's, the long one's) whitened by the noise each is
+    tested with, and each waypoint's noise variance at the long dwell over the job's (trace)."""
+    chosen = plan.selection.indices
+    poses = plan.waypoints[chosen]
+    base_s = visit_time_s(plan.job, poses)
+    if base_s is None or bench.budget_s is None:
+        return None
+    period_s = world.geometry.scan_period_s
+    scans = int((plan.job.dwell_s + (bench.budget_s - base_s) / len(chosen)) / period_s)
+    job = plan.job.model_copy(update={"dwell_s": scans * period_s})
+    measured, background = measure_waypoints(job, poses, world, scans, rng)
+    refitted, _ = plan.refit.centres(measured, background)
+    if len(refitted) < len(chosen):
+        return None
+    stated = np.array([m.centre.covariance_uv_m2 for m in refitted])
+    noise = np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted])
+    _, calibration_noise = recorded_centre_covariances(residuals, bench.poses, plan.waypoints)
+    # noise_blocks counts a revisited waypoint's drawn noise twice: half of the two dwells' sum.
+    both = 0.5 * (noise + calibration_noise[chosen])
+    information = candidates.information_of(chosen, both)
+    share = (visit_time_s(job, poses) or np.nan) / bench.calibration_s
+    centres = np.array([m.centre.centre_uv_m for m in refitted])
+    at = [candidates.found.index(i) for i in chosen]
+    squares = squared_residuals(plan, chosen, centres, stated, both)
+    outcome = judge(
+        "verify's choice, dwell filling the budget", chosen, information, 2 * len(chosen), plan.model,
+        share, directions, float(squares.sum()),
+    )
+    ratio = np.trace(noise, axis1=1, axis2=2) / np.trace(candidates.noise[at], axis1=1, axis2=2)
+    return outcome, job.dwell_s, candidates.whitened_squares()[at], squares, ratio
 
 
 if __name__ == "__main__":

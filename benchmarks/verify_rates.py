@@ -34,22 +34,17 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 from scipy.stats import beta
 
-from benchmarks.accuracy_conditions import real_bit
-from benchmarks.dry_run_accuracy import measure_waypoints, simulate, world_with
-from fakes.scene import load_scene
+from benchmarks.dry_run_accuracy import measure_waypoints
+from benchmarks.verify_trials import VerifyBench, add_job_arguments
 from fakes.world import World
-from lasercal_hw.config import load_job
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_to_matrix
-from lasercal_hw.run.timing import visit_time_s
-from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.verify.drift import DriftTest
-from lasercal_hw.verify.procedure import VerifyPlan, plan_verify, refit_and_test
+from lasercal_hw.verify.procedure import VerifyPlan, refit_and_test
 from lasercal_hw.verify.verdict import decide
 
 SHIFT_M = 0.003
@@ -96,14 +91,9 @@ def clopper_pearson(hits: int, trials: int) -> tuple[float, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--config", type=Path, default=None, help="job file (default: built-in defaults)")
-    parser.add_argument("--scene", type=Path, default=None, help="scene file (default: packaged default)")
+    add_job_arguments(parser)
     parser.add_argument("--seeds", type=int, default=50)
     parser.add_argument("--first-seed", type=int, default=0)
-    parser.add_argument(
-        "--bit-off", action="store_true", help="the world's rod 2 mm off and 1 deg tilted from the job's axis"
-    )
-    parser.add_argument("--waypoints", type=int, default=None, help="default: the job's verify.waypoints")
     parser.add_argument(
         "--no-reference",
         action="store_true",
@@ -111,10 +101,8 @@ def main() -> None:
     )
     args = parser.parse_args()
 
-    job = load_job(args.config)
-    count = args.waypoints or job.verify.waypoints
-    poses = job_waypoints(job)
-    scans = round(job.dwell_s / World.from_scene(args.scene).geometry.scan_period_s)
+    bench = VerifyBench.from_args(args)
+    job, poses, count, scans = bench.job, bench.poses, bench.count, bench.scans
     settings = job.verify
     print(
         f"{len(poses)} calibration waypoints, verify with {count}, {scans} scans per waypoint, "
@@ -125,31 +113,15 @@ def main() -> None:
     truths: dict[str, list[np.ndarray]] = {name: [] for name in outcomes}
     verdicts: dict[str, dict[str, int]] = {name: {} for name in outcomes}
     ratios = []
-    calibration_s = visit_time_s(job, poses)
-    budget_s = None if calibration_s is None else settings.max_time_fraction * calibration_s
     started = time.perf_counter()
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         rng = np.random.default_rng(seed)
-        true_rod = real_bit(job.rod.rod_line()) if args.bit_off else job.rod.rod_line()
-        world = world_with(load_scene(args.scene), true_rod, robot_error_seed=1000 + seed)
+        world = bench.world(seed)
         try:
-            trial = simulate(job, poses, world, scans, rng)
+            _, plan = bench.calibrate_and_plan(world, rng, reference=not args.no_reference)
         except LasercalError as exc:
             print(f"seed {seed}: calibration failed: {exc}")
             continue
-        calibration = trial.result
-        plan = plan_verify(
-            job,
-            calibration.matrix(),
-            np.asarray(calibration.covariance),
-            calibration.residuals,
-            None if args.no_reference else poses,
-            count=count,
-            budget_s=budget_s,
-            range_error=calibration.range_offset,
-            refit=trial.refit,
-            rod=calibration.estimated_rod(job.rod.rod_line()),
-        )
         selection = plan.selection
         shifted = moved_world(world, rng, SHIFT_M, 0.0)
         turned = moved_world(world, rng, 0.0, TURN_DEG)
@@ -164,7 +136,7 @@ def main() -> None:
             before = plan.model.T_base_laser if args.no_reference else world.ground_truth_T_base_laser
             truths[name].append(move_between(before, case_world.ground_truth_T_base_laser))
             line.append(f"{name} chi2 {test.chi_square:6.1f}" if test else f"{name} not measured")
-        ratios.append((selection.estimated_time_s or np.nan) / (calibration_s or np.nan))
+        ratios.append((selection.estimated_time_s or np.nan) / bench.calibration_s)
         print(" | ".join(line), f"| time ratio {ratios[-1]:.3f}")
 
     print(f"\n{len(outcomes['unmoved'])} seeds in {time.perf_counter() - started:.0f} s")
