@@ -135,7 +135,8 @@ def select_waypoints(
     unknown, all of it), ``unusable`` (N,)
     the waypoints that are no candidates (``active.unusable_waypoints``; None: none). With ``time_of``
     (waypoint indices -> seconds, None if unknown) and ``budget_s``, exchanges first bring the
-    subset within the budget, then improve it inside the budget only."""
+    subset within the budget (a subset of unknown time is not within it), then improve it inside
+    the budget only."""
     poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     seen = np.zeros(len(poses), dtype=bool) if visited is None else np.asarray(visited, dtype=bool)
     crossing = _crosses_plane(model, poses)
@@ -164,10 +165,12 @@ def select_waypoints(
         return _log_det(base + information[subset].sum(axis=0))
 
     def seconds(subset: list[int]) -> float:
+        """The subset's motion and dwell; a subset whose time is unknown (a pose the UR5 model
+        cannot reach) counts as over any budget, never as free."""
         if time_of is None or budget_s is None:
             return 0.0
         value = time_of(sorted(int(usable[k]) for k in subset))
-        return 0.0 if value is None else value
+        return np.inf if value is None else value
 
     def better(trial: list[int], current: list[int]) -> bool:
         limit = np.inf if budget_s is None else budget_s

@@ -121,6 +121,23 @@ def test_chosen_waypoints_beat_random_subsets(setup: tuple[DriftModel, np.ndarra
     assert max(selection.expected_std_shift_mm) < 5.0 and max(selection.expected_std_turn_deg) < 0.5
 
 
+def test_a_waypoint_of_unknown_time_is_not_taken_as_inside_the_budget(
+    setup: tuple[DriftModel, np.ndarray, Path],
+) -> None:
+    model, poses, _ = setup
+    visited = np.ones(len(poses), dtype=bool)
+    best = select_waypoints(model, poses, 4, visited).indices
+    unreachable = best[0]
+
+    def time_of(indices: list[int]) -> float | None:
+        # 10 s a waypoint, but the UR5 model cannot reach the D-optimal choice's first one
+        return None if unreachable in indices else 10.0 * len(indices)
+
+    selection = select_waypoints(model, poses, 4, visited, time_of=time_of, budget_s=60.0)
+    assert unreachable not in selection.indices
+    assert selection.estimated_time_s == pytest.approx(40.0)
+
+
 def test_waypoints_the_calibration_could_not_use_are_no_candidates(
     setup: tuple[DriftModel, np.ndarray, Path],
 ) -> None:
