@@ -180,6 +180,12 @@ class ExtractionSettings:
     #: gets this many spot sigmas of std per pulse sigma between the two sides' reaches
     #: (``_with_uneven_background``).
     uneven_background_doubt: float = 1.5
+    #: Where a segment reaches further from its centre on one side than the other by more than a
+    #: beam step (the spot's echo outshines a dark background further out than a bright one),
+    #: the centre's position across the bearing rests on the beams whose rays cross the rod's
+    #: silhouette within the shorter side's reach (``_across_from_silhouette``), if at least
+    #: this many: a thick rod far away keeps its few beams.
+    silhouette_min_beams: int = 8
     #: The spot fit weights its spot's power by a diffuse surface's cosine (``_spot_readings_m``);
     #: a glossy or retro-reflective surface weights the middle more. On the physical model a
     #: retro-reflective rod's noise-free readings differ from that prediction by 1-2.5 mm RMS
@@ -1621,6 +1627,7 @@ def _fit_segment(
         if float(np.min(share[keep])) > settings.max_blend_share:
             raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
     used = points[keep]
+    fit = _across_from_silhouette(used, sigma[keep], fit, section, settings)
     fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
     fit = _with_edge_doubt(used, sigma[keep], fit, section, settings)
     # Beams narrower than the rod (a dark rod before a far wall shows only its middle; a core
@@ -2058,6 +2065,75 @@ def _with_shared_push(
 def _across_bearing(centre_uv_m: FloatArray) -> FloatArray:
     """The unit vector across the bearing of ``centre_uv_m`` (counterclockwise)."""
     return np.array([-centre_uv_m[1], centre_uv_m[0]]) / float(np.linalg.norm(centre_uv_m))
+
+
+def _silhouette_offsets_m(points: FloatArray, centre_uv_m: FloatArray, section: _Section) -> FloatArray:
+    """Each beam's ray's signed distance from the centre (m, positive counterclockwise of the
+    centre's bearing) over the section's half-width across that ray: beyond 1 the ray misses
+    the silhouette."""
+    rays = points / np.linalg.norm(points, axis=1)[:, None]
+    offset_m = rays[:, 0] * centre_uv_m[1] - rays[:, 1] * centre_uv_m[0]
+    across = np.column_stack([-rays[:, 1], rays[:, 0]])
+    major = section.major_dir()
+    minor = np.array([-major[1], major[0]])
+    half_m = np.hypot(section.semi_major_m * (across @ major), section.radius_m * (across @ minor))
+    return -offset_m / half_m
+
+
+def _across_from_silhouette(
+    points: FloatArray, sigma: FloatArray, fit: _Fit, section: _Section, settings: ExtractionSettings
+) -> _Fit:
+    """The fit with its position across the bearing from the beams whose rays cross the
+    silhouette no further out than the segment reaches on its shorter side, where it reaches
+    further on one side than the other by more than a beam step.
+
+    A beam whose ray misses the rod still reads it where its spot touches the rod and the rod's
+    echo outshines the background's beside it; how far out that holds is set by the background
+    on each side, and the segment (the widest rod-sized core, centred in that halo) follows it.
+    At the dry run's waypoint 18 (a wall's foot one side, the floor at grazing incidence the
+    other) the segment reached 0.8 of the rod's half-width on the wall's side and 1.0-1.2 on the
+    floor's, and the known-radius fit moved 1.4 mm towards the longer side at every seed. The
+    beams inside the silhouette read the rod's own echo on both sides alike, and taken as far
+    out on both sides they weigh the two edges alike. The selection is made once, about the
+    whole fit's centre (repeated about each new centre, it ran away: a ray fit follows the
+    middle of its beams). Along the bearing the fit keeps its centre, moved by its covariance's
+    coupling to the sideways move; the covariance and the noise take the sideways variance the
+    dropped beams carried (nested fits: the smaller one's less the larger one's)."""
+    if not settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
+        return fit
+    full = _gauss_newton(points, sigma, fit.centre_uv_m, section, settings, free_radius=False, spot=False)
+    if full is None:
+        return fit
+    offsets = _silhouette_offsets_m(points, full[0][:2], section)
+    beam_step = float(np.median(np.abs(np.diff(offsets))))
+    if abs(float(offsets[0] + offsets[-1])) <= beam_step:
+        return fit
+    inner = np.abs(offsets) <= min(-float(offsets[0]), float(offsets[-1]), 1.0)
+    if np.sum(inner) < settings.silhouette_min_beams:
+        return fit
+    solved = _gauss_newton(
+        points[inner], sigma[inner], full[0][:2], section, settings, free_radius=False, spot=False
+    )
+    if solved is None:
+        return fit
+    centre = solved[0][:2]
+    model = _rays(settings)
+    full_noise, full_covariance = _fit_covariances_m2(points, sigma, full[0][:2], full[1], section, model)
+    inner_noise, inner_covariance = _fit_covariances_m2(
+        points[inner], sigma[inner], centre, solved[1], section, model
+    )
+    across = _across_bearing(fit.centre_uv_m)
+    bearing = fit.centre_uv_m / float(np.linalg.norm(fit.centre_uv_m))
+    sideways_m = float(across @ (centre - full[0][:2]))
+    side_m2 = float(across @ fit.covariance_uv_m2 @ across)
+    coupling = float(bearing @ fit.covariance_uv_m2 @ across) / side_m2 if side_m2 > 0.0 else 0.0
+    moved = fit.centre_uv_m + sideways_m * (across + coupling * bearing)
+    added_m2 = max(float(across @ (inner_covariance - full_covariance) @ across), 0.0)
+    added_noise_m2 = max(float(across @ (inner_noise - full_noise) @ across), 0.0)
+    doubted = _with_sideways_doubt(
+        fit, added_m2 * np.outer(across, across), added_noise_m2 * np.outer(across, across)
+    )
+    return replace(doubted, centre_uv_m=moved)
 
 
 def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray, noise_doubt_m2: FloatArray | None = None) -> _Fit:
