@@ -438,7 +438,7 @@ def test_a_rod_with_a_wall_behind_one_edge_and_open_space_beside_the_other_is_no
     # surface whose echo outshines the rod's spot sooner than what lies behind the other (there:
     # a wall's foot and the floor at grazing incidence; here a wall 1.5 m behind and nothing),
     # so the rod's echo wins further out on the dark side, the segment reaches further there, and
-    # the known-radius fit followed it: 2.5-5.9 mm sideways (0.7-2.5 reported std), every time.
+    # the known-radius fit followed it: 2.5-5.6 mm sideways (0.5-2.5 reported std), no warning.
     bearing = np.radians(bearing_deg)
     centre = 0.32 * np.array([np.cos(bearing), np.sin(bearing)])
     found, truth = _extract(
