@@ -180,15 +180,6 @@ class ExtractionSettings:
     #: gets this many spot sigmas of std per pulse sigma between the two sides' reaches
     #: (``_with_uneven_background``).
     uneven_background_doubt: float = 1.5
-    #: Where a segment reaches further from its centre on one side than the other by more than a
-    #: beam step (the spot's echo outshines a dark background further out than a bright one),
-    #: the centre's position across the bearing rests on the beams whose rays cross the rod's
-    #: silhouette within the shorter side's reach (``_across_from_silhouette``), if at least
-    #: this many: a thick rod far away keeps its few beams.
-    silhouette_min_beams: int = 8
-    #: Fractions of the brightest beam's intensity where the rod's echo strength is read for its
-    #: symmetry (``_echo_symmetry_bearing_rad``): on the rod's flanks, short of its halo's ends.
-    echo_symmetry_levels: tuple[float, ...] = (0.6, 0.7, 0.8, 0.9)
     #: The spot fit weights its spot's power by a diffuse surface's cosine (``_spot_readings_m``);
     #: a glossy or retro-reflective surface weights the middle more. On the physical model a
     #: retro-reflective rod's noise-free readings differ from that prediction by 1-2.5 mm RMS
@@ -1630,8 +1621,6 @@ def _fit_segment(
         if float(np.min(share[keep])) > settings.max_blend_share:
             raise RodNotFoundError(_blend_refusal(scan, beams[keep], section, behind, settings))
     used = points[keep]
-    if behind is not None:
-        fit = _across_from_silhouette(scan, beams[keep], used, sigma[keep], fit, section, behind, settings)
     fit = _with_arc_bias(scan, beams[keep], used, sigma[keep], bound_m[keep], fit, section, settings)
     fit = _with_edge_doubt(used, sigma[keep], fit, section, settings)
     # Beams narrower than the rod (a dark rod before a far wall shows only its middle; a core
@@ -2069,127 +2058,6 @@ def _with_shared_push(
 def _across_bearing(centre_uv_m: FloatArray) -> FloatArray:
     """The unit vector across the bearing of ``centre_uv_m`` (counterclockwise)."""
     return np.array([-centre_uv_m[1], centre_uv_m[0]]) / float(np.linalg.norm(centre_uv_m))
-
-
-def _silhouette_offsets_m(points: FloatArray, centre_uv_m: FloatArray, section: _Section) -> FloatArray:
-    """Each beam's ray's signed distance from the centre (positive counterclockwise of the
-    centre's bearing) over the section's half-width across that ray: beyond 1 the ray misses
-    the silhouette."""
-    rays = points / np.linalg.norm(points, axis=1)[:, None]
-    offset_m = rays[:, 1] * centre_uv_m[0] - rays[:, 0] * centre_uv_m[1]
-    across = np.column_stack([-rays[:, 1], rays[:, 0]])
-    major = section.major_dir()
-    minor = np.array([-major[1], major[0]])
-    half_m = np.hypot(section.semi_major_m * (across @ major), section.radius_m * (across @ minor))
-    return offset_m / half_m
-
-
-def _echo_symmetry_bearing_rad(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    section: _Section,
-    behind: _Behind,
-    settings: ExtractionSettings,
-) -> float | None:
-    """The bearing the rod's echo strength is symmetric about: at ``echo_symmetry_levels`` of
-    the segment's brightest beam, the middle of where the intensity falls through that level on
-    either side (interpolated between beams that read the rod), median over the levels; None
-    without intensities, where a side's background lies close enough behind to merge into the
-    rod's echo (then the intensity is partly the background's), or where it cannot tell.
-
-    The spot's power on the rod falls off alike on both sides of the rod's centre, and a
-    background farther behind than the pulse merges returns its own echo: which of the two
-    echoes wins moves the segment's ends, not the rod's intensity (the dry run's waypoints 1,
-    3, 17 and 18: within 0.2 mm of the true bearing, scatter 0.03-0.06 mm, where the fits lay
-    -0.8 to +1.3 mm across)."""
-    if scan.intensities is None:
-        return None
-    intensities, ranges = scan.intensities, scan.ranges_m
-    brightest = int(beams[int(np.argmax(intensities[beams]))])
-    on_rod_m = float(ranges[brightest]) + 2.0 * section.semi_major_m
-    middles = []
-    for level in settings.echo_symmetry_levels:
-        threshold = level * float(intensities[brightest])
-        sides = []
-        for direction in (-1, 1):
-            i = brightest
-            while 0 <= i + direction < ranges.size and ranges[i + direction] < on_rod_m and (
-                intensities[i + direction] > threshold
-            ):  # NaN: False
-                i += direction
-            j = i + direction
-            if not (0 <= j < ranges.size and ranges[j] < on_rod_m):
-                return None  # the rod's echo ends above the level: the background's won there
-            share = (intensities[i] - threshold) / (intensities[i] - intensities[j])
-            sides.append(scan.angles_rad[i] + share * (scan.angles_rad[j] - scan.angles_rad[i]))
-            if behind.ranges_m[j] - ranges[j] <= settings.echo_merge_m:  # NaN (nothing behind): False
-                return None
-        middles.append(0.5 * (sides[0] + sides[1]))
-    return float(np.median(middles))
-
-
-def _across_from_silhouette(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    points: FloatArray,
-    sigma: FloatArray,
-    fit: _Fit,
-    section: _Section,
-    behind: _Behind,
-    settings: ExtractionSettings,
-) -> _Fit:
-    """The fit with its position across the bearing from the beams whose rays cross the
-    silhouette, as far out on both sides of the rod's echo's symmetry bearing
-    (``_echo_symmetry_bearing_rad``) as the segment reaches on its shorter side, where the
-    segment reaches further on one side of that bearing than on the other by more than a beam
-    step.
-
-    A beam whose ray misses the rod still reads it where its spot touches the rod and the rod's
-    echo outshines the background's beside it; how far out that holds is set by the background
-    on each side, and the segment (the widest rod-sized core, centred in that halo) follows it.
-    At the dry run's waypoint 18 (a wall's foot one side, the floor at grazing incidence the
-    other) the segment reached 0.8 of the rod's half-width on the wall's side and 1.0-1.2 on the
-    floor's, and the known-radius fit, which follows the middle of its beams, moved 1.4 mm
-    towards the longer side at every seed. Beams inside the silhouette read the rod's own echo
-    on both sides, and taken as far out on both sides of the rod's middle they weigh its two
-    edges alike. Along the bearing the fit keeps its centre, moved by its covariance's coupling
-    to the sideways move; the covariance and the noise take the sideways variance the dropped
-    beams carried (nested fits: the smaller one's less the larger one's)."""
-    bearing_rad = _echo_symmetry_bearing_rad(scan, beams, section, behind, settings)
-    if bearing_rad is None:
-        return fit
-    distance_m = float(np.linalg.norm(fit.centre_uv_m))
-    middle = distance_m * np.array([np.cos(bearing_rad), np.sin(bearing_rad)])
-    offsets = _silhouette_offsets_m(points, middle, section)
-    if abs(float(offsets[0] + offsets[-1])) <= float(np.median(np.abs(np.diff(offsets)))):
-        return fit  # no more than a beam step further on one side
-    inner = np.abs(offsets) <= min(-float(offsets[0]), float(offsets[-1]), 1.0)
-    if np.sum(inner) < settings.silhouette_min_beams:
-        return fit
-    full = _gauss_newton(points, sigma, fit.centre_uv_m, section, settings, free_radius=False, spot=False)
-    solved = _gauss_newton(
-        points[inner], sigma[inner], middle, section, settings, free_radius=False, spot=False
-    )
-    if full is None or solved is None:
-        return fit
-    centre = solved[0][:2]
-    model = _rays(settings)
-    full_noise, full_covariance = _fit_covariances_m2(points, sigma, full[0][:2], full[1], section, model)
-    inner_noise, inner_covariance = _fit_covariances_m2(
-        points[inner], sigma[inner], centre, solved[1], section, model
-    )
-    across = _across_bearing(fit.centre_uv_m)
-    bearing = fit.centre_uv_m / distance_m
-    sideways_m = float(across @ (centre - full[0][:2]))
-    side_m2 = float(across @ fit.covariance_uv_m2 @ across)
-    coupling = float(bearing @ fit.covariance_uv_m2 @ across) / side_m2 if side_m2 > 0.0 else 0.0
-    moved = fit.centre_uv_m + sideways_m * (across + coupling * bearing)
-    added_m2 = max(float(across @ (inner_covariance - full_covariance) @ across), 0.0)
-    added_noise_m2 = max(float(across @ (inner_noise - full_noise) @ across), 0.0)
-    doubted = _with_sideways_doubt(
-        fit, added_m2 * np.outer(across, across), added_noise_m2 * np.outer(across, across)
-    )
-    return replace(doubted, centre_uv_m=moved)
 
 
 def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray, noise_doubt_m2: FloatArray | None = None) -> _Fit:
