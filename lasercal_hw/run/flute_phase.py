@@ -106,6 +106,11 @@ class FluteShift:
         a moved transform."""
         return self.depth * self._offsets(np.asarray(tcp_poses, dtype=float), self.phase_rad, T_base_laser)
 
+    def allowance_uv_m2(self) -> FloatArray:
+        """What the section model leaves of a centre's offset (2, 2), m^2: ``moved`` widens every
+        centre's covariance by it."""
+        return np.eye(2) * (MODEL_ALLOWANCE_RADIUS_FRACTION * self.rod.radius_m) ** 2
+
     def moved(
         self,
         tcp_poses: FloatArray,
@@ -119,7 +124,7 @@ class FluteShift:
             self._offsets(poses, self.phase_rad + self.phase_std_rad)
             - self._offsets(poses, self.phase_rad - self.phase_std_rad)
         )
-        allowance = np.eye(2) * (MODEL_ALLOWANCE_RADIUS_FRACTION * self.rod.radius_m) ** 2
+        allowance = self.allowance_uv_m2()
         return [
             (
                 np.asarray(centre, dtype=float) - shift,

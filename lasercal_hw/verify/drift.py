@@ -29,7 +29,9 @@ posteriori estimate with the active calibration as the prior, ``x ~ N(0, B)`` (`
 broad prior on how far a bump moves a scanner), from ``d = J x + noise(S)``; its
 covariance is ``(J^T S^-1 J + B^-1)^-1``.  Where the calibration's flute phase pass was kept
 (``DriftModel.flutes``), ``J`` and the prediction of a move also carry the change of the twist
-drill's section offsets the move brings (``verify.helix``).  What the correction leaves unexplained is
+drill's section offsets the move brings (``verify.helix``), and the move is estimated with the
+section model's allowance added at every waypoint the calibration measured (a moved scanner sees
+another face, whose model error no longer cancels).  What the correction leaves unexplained is
 tested again (chi-square, 2N - 6 degrees of freedom): a change that is not a rigid move
 of the scanner (another rod, a bent tool, a robot error) shows there.
 
@@ -39,7 +41,7 @@ every waypoint), which makes ``d^T S^-1 d`` non-central chi-square with non-cent
 ``delta^2 J_k^T S^-1 J_k``. The smallest move the test flags with probability
 ``detection_probability`` at its false-alarm rate is ``sqrt(lambda* / J_k^T S^-1 J_k)``,
 ``lambda*`` the non-centrality at which that probability is reached (``J`` with the helix's
-change where flutes are modelled). Where this is above
+change where flutes are modelled, the weaker of a positive and a negative move). Where this is above
 the tolerance, a test that flags nothing cannot say the scanner is within it.
 """
 
@@ -63,7 +65,7 @@ from lasercal_hw.calibration.model import (
 )
 from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.flute_phase import FluteShift
-from lasercal_hw.verify.helix import flute_jacobian, moved_transform
+from lasercal_hw.verify.helix import HelixChange, moved_transform
 
 _GAUSS_NEWTON_STEPS = 6
 _RIGID_PARAMETERS = 6
@@ -286,14 +288,18 @@ def run_drift_test(
     per_waypoint = np.array(
         [float(r @ np.linalg.solve(b, r)) for r, b in zip(d.reshape(-1, 2), blocks, strict=True)]
     )
-    helix = np.zeros_like(jac) if model.flutes is None else flute_jacobian(model.flutes, poses)
+    helix = HelixChange.none(n) if model.flutes is None else HelixChange.of(model.flutes, poses)
+    move_noise = _move_noise(model, total, factor, visited)
     correction, correction_cov, post_fit = _correction(
-        model, poses, measured - (predicted - crossing), factor, helix
+        model, poses, measured - (predicted - crossing), move_noise, helix.jacobian
     )
     post_dof = dof - _RIGID_PARAMETERS
     alpha = model.false_alarm_rate
     threshold = float(chi2.ppf(1.0 - alpha, dof))
-    detectable = detectable_moves(jac + helix, factor, threshold, dof, model.detection_probability)
+    detectable = np.maximum(
+        detectable_moves(jac + helix.forward, factor, threshold, dof, model.detection_probability),
+        detectable_moves(jac + helix.backward, factor, threshold, dof, model.detection_probability),
+    )
     return DriftTest(
         indices=list(indices),
         tcp_poses=poses,
@@ -314,6 +320,20 @@ def run_drift_test(
         detectable_turn_deg=np.degrees(detectable[3:]),
         detection_probability=model.detection_probability,
     )
+
+
+def _move_noise(
+    model: DriftModel, total: FloatArray, factor: tuple[FloatArray, bool], visited: NDArray[np.bool_]
+) -> tuple[FloatArray, bool]:
+    """The factored covariance the move is estimated and its remainder tested with: ``S``, and
+    with flutes the section model's allowance (``FluteShift.allowance_uv_m2``) at every waypoint
+    the calibration measured: a moved scanner sees another face of the section, whose model error
+    no longer cancels against the calibration's residual there (elsewhere the centre's own
+    covariance holds it)."""
+    if model.flutes is None:
+        return factor
+    allowance = np.where(visited[:, None, None], model.flutes.allowance_uv_m2(), 0.0)
+    return cho_factor(total + block_diag(*allowance))
 
 
 def _correction(
