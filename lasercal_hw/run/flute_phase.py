@@ -85,17 +85,31 @@ class FluteShift:
     phase_std_rad: float
     depth: float = 1.0
 
-    def _offsets(self, tcp_poses: FloatArray, phase_rad: float) -> FloatArray:
-        """The section's offset at each pose (N, 2), m, for the phase ``phase_rad``."""
+    def _offsets(
+        self, tcp_poses: FloatArray, phase_rad: float, T_base_laser: FloatArray | None = None
+    ) -> FloatArray:
+        """The section's offset at each pose (N, 2), m, for the phase ``phase_rad``, as
+        ``T_base_laser`` (None: the pass's) puts each crossing."""
         settings = ExtractionSettings()
         return flute_offsets_m(
             phase_rad,
-            self.T_base_laser,
+            self.T_base_laser if T_base_laser is None else T_base_laser,
             tcp_poses,
             self.rod,
             web_fraction=settings.flute_web_fraction,
             opening_deg=settings.flute_opening_deg,
         )
+
+    def offsets_m(self, tcp_poses: FloatArray, T_base_laser: FloatArray | None = None) -> FloatArray:
+        """The offsets ``moved`` takes out (N, 2), m, with the crossings where ``T_base_laser``
+        (None: the pass's) puts them: the verify's model of a moved scanner asks for those of
+        a moved transform."""
+        return self.depth * self._offsets(np.asarray(tcp_poses, dtype=float), self.phase_rad, T_base_laser)
+
+    def allowance_uv_m2(self) -> FloatArray:
+        """What the section model leaves of a centre's offset (2, 2), m^2: ``moved`` widens every
+        centre's covariance by it."""
+        return np.eye(2) * (MODEL_ALLOWANCE_RADIUS_FRACTION * self.rod.radius_m) ** 2
 
     def moved(
         self,
@@ -105,12 +119,12 @@ class FluteShift:
     ) -> list[tuple[FloatArray, FloatArray]]:
         """Each plain centre (m) with the offset taken out, and its covariance (m^2) widened."""
         poses = np.asarray(tcp_poses, dtype=float)
-        offset = self.depth * self._offsets(poses, self.phase_rad)
+        offset = self.offsets_m(poses)
         spread = 0.5 * self.depth * (
             self._offsets(poses, self.phase_rad + self.phase_std_rad)
             - self._offsets(poses, self.phase_rad - self.phase_std_rad)
         )
-        allowance = np.eye(2) * (MODEL_ALLOWANCE_RADIUS_FRACTION * self.rod.radius_m) ** 2
+        allowance = self.allowance_uv_m2()
         return [
             (
                 np.asarray(centre, dtype=float) - shift,

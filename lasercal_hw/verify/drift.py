@@ -27,7 +27,11 @@ The correction ``x = (dt, e)`` (the scanner's move since the calibration, in the
 parameters: origin shift in base axes, small turn about base axes) is the maximum a
 posteriori estimate with the active calibration as the prior, ``x ~ N(0, B)`` (``B``: a
 broad prior on how far a bump moves a scanner), from ``d = J x + noise(S)``; its
-covariance is ``(J^T S^-1 J + B^-1)^-1``.  What the correction leaves unexplained is
+covariance is ``(J^T S^-1 J + B^-1)^-1``.  Where the calibration's flute phase pass was kept
+(``DriftModel.flutes``), ``J`` and the prediction of a move also carry the change of the twist
+drill's section offsets the move brings (``verify.helix``), and the move is estimated with the
+section model's allowance added at every waypoint the calibration measured (a moved scanner sees
+another face, whose model error no longer cancels).  What the correction leaves unexplained is
 tested again (chi-square, 2N - 6 degrees of freedom): a change that is not a rigid move
 of the scanner (another rod, a bent tool, a robot error) shows there.
 
@@ -36,7 +40,8 @@ axis, a turn about one) moves the residual by ``delta J_k`` (``J``: the crossing
 every waypoint), which makes ``d^T S^-1 d`` non-central chi-square with non-centrality
 ``delta^2 J_k^T S^-1 J_k``. The smallest move the test flags with probability
 ``detection_probability`` at its false-alarm rate is ``sqrt(lambda* / J_k^T S^-1 J_k)``,
-``lambda*`` the non-centrality at which that probability is reached. Where this is above
+``lambda*`` the non-centrality at which that probability is reached (``J`` with the helix's
+change where flutes are modelled, the weaker of a positive and a negative move). Where this is above
 the tolerance, a test that flags nothing cannot say the scanner is within it.
 """
 
@@ -58,8 +63,9 @@ from lasercal_hw.calibration.model import (
     residuals_and_jacobian,
     rod_lines_in_base,
 )
-from lasercal_hw.geometry import make_transform, rotvec_to_matrix
 from lasercal_hw.models import FloatArray, RodLine
+from lasercal_hw.run.flute_phase import FluteShift
+from lasercal_hw.verify.helix import HelixChange, moved_transform
 
 _GAUSS_NEWTON_STEPS = 6
 _RIGID_PARAMETERS = 6
@@ -84,6 +90,9 @@ class DriftModel:
     #: test (empty: no curve).
     range_curve_m: FloatArray = field(default_factory=lambda: np.zeros(0))
     range_curve_basis: RangeCurveBasis = RANGE_CURVE_BASIS
+    #: Where the calibration's flute phase pass was kept: its move of the plain fits, whose
+    #: section offsets a moved scanner changes (``verify.helix``; None: no flutes modelled).
+    flutes: FluteShift | None = None
 
     def prior(self) -> FloatArray:
         """Prior covariance (6, 6) of the correction: how far a bump moves a scanner."""
@@ -160,10 +169,7 @@ class DriftTest:
         self, T_base_laser: FloatArray
     ) -> FloatArray:
         """The active transform with the correction applied."""
-        T = np.asarray(T_base_laser, dtype=float)
-        return make_transform(
-            rotvec_to_matrix(self.correction[3:]) @ T[:3, :3], T[:3, 3] + self.correction[:3]
-        )
+        return moved_transform(T_base_laser, self.correction)
 
 
 def _norm_and_std(vector: FloatArray, covariance: FloatArray, unit: float) -> tuple[float, float]:
@@ -282,13 +288,18 @@ def run_drift_test(
     per_waypoint = np.array(
         [float(r @ np.linalg.solve(b, r)) for r, b in zip(d.reshape(-1, 2), blocks, strict=True)]
     )
+    helix = HelixChange.none(n) if model.flutes is None else HelixChange.of(model.flutes, poses)
+    move_noise = _move_noise(model, total, factor, visited)
     correction, correction_cov, post_fit = _correction(
-        model, poses, measured - (predicted - crossing), factor
+        model, poses, measured - (predicted - crossing), move_noise, helix.jacobian
     )
     post_dof = dof - _RIGID_PARAMETERS
     alpha = model.false_alarm_rate
     threshold = float(chi2.ppf(1.0 - alpha, dof))
-    detectable = detectable_moves(jac, factor, threshold, dof, model.detection_probability)
+    detectable = np.maximum(
+        detectable_moves(jac + helix.forward, factor, threshold, dof, model.detection_probability),
+        detectable_moves(jac + helix.backward, factor, threshold, dof, model.detection_probability),
+    )
     return DriftTest(
         indices=list(indices),
         tcp_poses=poses,
@@ -311,21 +322,39 @@ def run_drift_test(
     )
 
 
+def _move_noise(
+    model: DriftModel, total: FloatArray, factor: tuple[FloatArray, bool], visited: NDArray[np.bool_]
+) -> tuple[FloatArray, bool]:
+    """The factored covariance the move is estimated and its remainder tested with: ``S``, and
+    with flutes the section model's allowance (``FluteShift.allowance_uv_m2``) at every waypoint
+    the calibration measured: a moved scanner sees another face of the section, whose model error
+    no longer cancels against the calibration's residual there (elsewhere the centre's own
+    covariance holds it)."""
+    if model.flutes is None:
+        return factor
+    allowance = np.where(visited[:, None, None], model.flutes.allowance_uv_m2(), 0.0)
+    return cho_factor(total + block_diag(*allowance))
+
+
 def _correction(
-    model: DriftModel, poses: FloatArray, target_uv_m: FloatArray, noise: tuple[FloatArray, bool]
+    model: DriftModel,
+    poses: FloatArray,
+    target_uv_m: FloatArray,
+    noise: tuple[FloatArray, bool],
+    helix: FloatArray,
 ) -> tuple[FloatArray, FloatArray, float]:
     """MAP correction (6,), its covariance (6, 6) and the data part of the objective at it:
     Gauss-Newton on ``|c(x) - target|^2_S + x^T B^-1 x`` with ``c`` the crossings of the
-    moved transform and ``target`` the measured centres less the recorded residuals;
-    converges in a few steps for bumps."""
-    T = np.asarray(model.T_base_laser, dtype=float)
+    moved transform plus ``helix @ x`` (the section offsets' change, ``verify.helix``: zeros
+    without flutes) and ``target`` the measured centres less the recorded residuals; converges
+    in a few steps for bumps."""
     prior_information = np.linalg.inv(model.prior())
     x = np.zeros(6)
 
     def linearised(x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        moved = make_transform(rotvec_to_matrix(x[3:]) @ T[:3, :3], T[:3, 3] + x[:3])
-        crossing, jac, _ = predictions(model, poses, moved)
+        crossing, jac, _ = predictions(model, poses, moved_transform(model.T_base_laser, x))
         jac[:, :, 3:] = jac[:, :, 3:] @ left_jacobian_so3(x[3:])
+        crossing, jac = crossing + helix @ x, jac + helix
         return (target_uv_m - crossing).reshape(-1), jac.reshape(-1, 6)
 
     for _ in range(_GAUSS_NEWTON_STEPS):

@@ -165,7 +165,10 @@ def plan_verify(
     there."""
     checking = verify_job(job, T_base_laser)
     refit = refit or SecondPassRefit(np.asarray(T_base_laser, dtype=float), checking.rod.rod_line())
-    model = drift_model(T_base_laser, covariance, checking, range_error, refit.range_offset_m, rod)
+    model = replace(
+        drift_model(T_base_laser, covariance, checking, range_error, refit.range_offset_m, rod),
+        flutes=refit.flutes,
+    )
     waypoints = job_waypoints(checking)
     reference = recorded_residuals(residuals, recorded_waypoints, waypoints)
     centre_covariance, noise_covariance = recorded_centre_covariances(
