@@ -2066,6 +2066,11 @@ def _across_bearing(centre_uv_m: FloatArray) -> FloatArray:
     return np.array([-centre_uv_m[1], centre_uv_m[0]]) / float(np.linalg.norm(centre_uv_m))
 
 
+#: The fewest of ``echo_middle_levels`` whose middle must be read on the rod's beams (a far rod's
+#: lobe, wider than the rod, does not fall to the lowest levels on them).
+MIN_ECHO_MIDDLE_LEVELS = 2
+
+
 def _across_from_echo_middle(
     scan: AveragedScan, fit: RodCentre, section: _Section, settings: ExtractionSettings
 ) -> RodCentre:
@@ -2073,9 +2078,10 @@ def _across_from_echo_middle(
     strength: at each of ``echo_middle_levels`` of the brightest beam on the rod, the middle of
     where the intensity falls through that level on either side (interpolated between beams
     that read the rod), averaged over the levels. Along the bearing the centre is kept; across,
-    the covariance and the dwell noise take the levels' scatter (a lopsided lobe's middles
-    move with the level), the mean's and a beam step's quantisation: all of it, since which
-    beams cross a level changes from dwell to dwell. Unchanged without intensities, for a fluted rod (its
+    the dwell noise takes the levels' scatter (a lopsided lobe's middles move with the level)
+    and the mean's (all of it: which beams cross a level changes from dwell to dwell), the
+    covariance that and a beam step's quantisation besides (the beams' angles repeat at the
+    pose). Unchanged without intensities, for a fluted rod (its
     glint is no symmetric lobe), or where a level is not crossed on the rod's beams on both
     sides (the background's echo won there).
 
@@ -2097,7 +2103,7 @@ def _across_from_echo_middle(
     middles_rad = []
     for level in settings.echo_middle_levels:
         threshold = level * float(intensities[brightest])
-        sides = []
+        sides: list[float] = []
         for direction in (-1, 1):
             i = brightest
             while 0 <= i + direction < ranges.size and ranges[i + direction] < on_rod_m and (
@@ -2106,17 +2112,20 @@ def _across_from_echo_middle(
                 i += direction
             j = i + direction
             if not (0 <= j < ranges.size and ranges[j] < on_rod_m and np.isfinite(intensities[j])):
-                return fit
+                break
             share = (intensities[i] - threshold) / (intensities[i] - intensities[j])
             sides.append(scan.angles_rad[i] + share * (scan.angles_rad[j] - scan.angles_rad[i]))
-        middles_rad.append(0.5 * (sides[0] + sides[1]))
+        if len(sides) == 2:
+            middles_rad.append(0.5 * (sides[0] + sides[1]))
+    if len(middles_rad) < MIN_ECHO_MIDDLE_LEVELS:
+        return fit
     middles_m = distance_m * (np.asarray(middles_rad) - bearing_rad)
     across = _across_bearing(fit.centre_uv_m)
     shift_m = float(np.mean(middles_m))  # the fit's own centre lies on its bearing
     # A flat-topped lobe (every level crossed between the same two beams) fixes its middle only
     # to a beam step: each side anywhere within one, the middle their mean.
     step_m = distance_m * float(np.median(np.abs(np.diff(scan.angles_rad))))
-    variance_m2 = float(np.var(middles_m)) * (1.0 + 1.0 / middles_m.size) + step_m**2 / 24.0
+    noise_m2 = float(np.var(middles_m)) * (1.0 + 1.0 / middles_m.size)
     along = np.outer(fit.centre_uv_m, fit.centre_uv_m) / distance_m**2
     noise = fit.noise_covariance_uv_m2
 
@@ -2127,8 +2136,8 @@ def _across_from_echo_middle(
     return replace(
         fit,
         centre_uv_m=fit.centre_uv_m + shift_m * across,
-        covariance_uv_m2=across_replaced(fit.covariance_uv_m2, variance_m2),
-        noise_covariance_uv_m2=None if noise is None else across_replaced(noise, variance_m2),
+        covariance_uv_m2=across_replaced(fit.covariance_uv_m2, noise_m2 + step_m**2 / 24.0),
+        noise_covariance_uv_m2=None if noise is None else across_replaced(noise, noise_m2),
     )
 
 
