@@ -2136,7 +2136,7 @@ def _across_from_echo_middle(
     return replace(
         fit,
         centre_uv_m=fit.centre_uv_m + shift_m * across,
-        covariance_uv_m2=across_replaced(fit.covariance_uv_m2, noise_m2 + step_m**2 / 96.0),
+        covariance_uv_m2=across_replaced(fit.covariance_uv_m2, noise_m2 + step_m**2 / 24.0),
         noise_covariance_uv_m2=None if noise is None else across_replaced(noise, noise_m2),
     )
 
