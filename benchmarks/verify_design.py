@@ -26,8 +26,7 @@ mean over its dof ``k``: the statistic is then ``k`` times a non-central chi-squ
 k``; a noise stated too large costs power). Rules: the verify's choice (D-optimal with the centre
 covariance the calibration's solver weighed each waypoint with, as ``result.json`` records it),
 the same with one assumed 0.5 mm centre noise at every waypoint (the choice before 2026-11-27, and
-that of an older ``result.json``), with flutes the choice on the crossings alone (the one before
-2026-11-28, branch ``helixpick``), and, over every subset of the verify's size (the verify's own
+that of an older ``result.json``), and, over every subset of the verify's size (the verify's own
 noise), the one with the smallest weakest-axis turn and the one that flags the most random 0.3 deg
 turns, and that last search again on the centre covariance the calibration recorded (what the
 verify knows when it chooses; the verify dwell's own noise is known only after it).
@@ -54,7 +53,7 @@ import itertools
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
@@ -75,7 +74,7 @@ from lasercal_hw.verify.drift import (
     predictions,
     residual_covariance,
 )
-from lasercal_hw.verify.helix import move_jacobians, offset_change_m
+from lasercal_hw.verify.helix import HelixChange, offset_change_m
 from lasercal_hw.verify.procedure import VerifyPlan
 from lasercal_hw.verify.selection import select_waypoints, waypoint_information
 
@@ -278,8 +277,8 @@ def main() -> None:
 class Candidates:
     """The waypoints where the unmoved verify dwell found the rod (``found``: job indices), and
     the unmoved centres measured there and what the drift test states: each alone's information
-    (n, 6, 6; with flutes the mean of a positive and a negative move's, as the verify's choice
-    weighs it, ``selection.waypoint_information``)."""
+    (n, 6, 6) on the crossings, as the verify's choice weighs it (``selection.waypoint_information``;
+    the helix's change is in ``information_of`` and ``noncentrality``)."""
 
     plan: VerifyPlan
     found: list[int]
@@ -314,9 +313,9 @@ class Candidates:
     def information_of(self, subset: list[int], noise: FloatArray | None = None) -> list[FloatArray]:
         """The test's information (6, 6) from the job's waypoints ``subset`` (all candidates), with
         the verify dwell's ``noise`` there (None: the candidates'): one, or with flutes one for a
-        positive and one for a negative move (``helix.move_jacobians``)."""
+        positive and one for a negative move (``move_jacobians``)."""
         poses, jac, total = self._test(subset, noise)
-        sides = [side.reshape(-1, 6) for side in move_jacobians(self.plan.model.flutes, poses, jac)]
+        sides = [side.reshape(-1, 6) for side in move_jacobians(self.plan.model, poses, jac)]
         return [j.T @ cho_solve(total, j) for j in sides]
 
     def noncentrality(
@@ -340,6 +339,16 @@ class Candidates:
     def whitened_squares(self) -> FloatArray:
         """Each candidate's squared whitened residual (n,) of the unmoved verify."""
         return squared_residuals(self.plan, self.found, self.centres, self.stated, self.noise)
+
+
+def move_jacobians(model: DriftModel, tcp_poses: FloatArray, jac: FloatArray) -> list[FloatArray]:
+    """The Jacobians (n, 2, 6 each) of the centres in the move, as ``test.detectable`` takes them:
+    the crossings' ``jac`` alone without flutes; with them, ``jac`` plus the helix's change for a
+    positive and for a negative move (the offsets jump on one side only)."""
+    if model.flutes is None:
+        return [jac]
+    helix = HelixChange.of(model.flutes, tcp_poses)
+    return [jac + helix.forward, jac + helix.backward]
 
 
 def squared_residuals(
@@ -397,19 +406,6 @@ def rules(
         budget_s=budget_s,
     )
     named = [("verify's choice", plan.selection.indices), ("D-optimal, 0.5 mm assumed", assumed.indices)]
-    if model.flutes is not None:
-        geometric = select_waypoints(
-            replace(model, flutes=None),
-            plan.waypoints,
-            count,
-            np.isfinite(plan.reference).all(axis=1),
-            time_of=lambda indices: visit_time_s(plan.job, plan.waypoints[indices]),
-            budget_s=budget_s,
-            centre_covariance_uv_m2=whole,
-            noise_covariance_uv_m2=drawn,
-            unusable=np.isin(np.arange(len(plan.waypoints)), plan.selection.left_out),
-        )
-        named.append(("D-optimal on the crossings alone", geometric.indices))
     return [
         *((name, list(chosen)) for name, chosen in named if set(chosen) <= set(found)),
         ("smallest weakest turn", first_in_budget(weakest_turn)),

@@ -42,16 +42,6 @@ def offset_change_m(flutes: FluteShift, tcp_poses: FloatArray, x: FloatArray) ->
     return moved - flutes.offsets_m(tcp_poses)
 
 
-def move_jacobians(flutes: FluteShift | None, tcp_poses: FloatArray, jac: FloatArray) -> list[FloatArray]:
-    """The Jacobians (N, 2, 6 each) of the centres in the move: the crossings' ``jac`` alone
-    without flutes; with them, ``jac`` plus the helix's change for a positive and for a negative
-    move (the offsets jump on one side only)."""
-    if flutes is None:
-        return [jac]
-    helix = HelixChange.of(flutes, tcp_poses)
-    return [jac + helix.forward, jac + helix.backward]
-
-
 @dataclass(frozen=True)
 class HelixChange:
     """The section offsets' change (N, 2, 6 each, m per unit of ``x``) for a move along each

@@ -31,7 +31,6 @@ from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base, whi
 from lasercal_hw.errors import CalibrationError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.verify.drift import DriftModel, noise_blocks, predictions
-from lasercal_hw.verify.helix import move_jacobians
 
 #: Centre noise the design assumes where the calibration recorded none (a 20 mm rod over a
 #: 3 s dwell: about 0.5 mm per axis).
@@ -87,8 +86,8 @@ def waypoint_information(
     _, jac, slope = predictions(model, waypoints)
     centre = np.asarray(centre_covariance_uv_m2, dtype=float)
     white = whitening(noise_blocks(model, slope, centre, visited, noise_covariance_uv_m2))
-    whitened = [white @ side for side in move_jacobians(model.flutes, waypoints, jac)]
-    return sum(np.swapaxes(w, 1, 2) @ w for w in whitened) / len(whitened)
+    whitened = white @ jac
+    return np.swapaxes(whitened, 1, 2) @ whitened
 
 
 def centre_noise_note(known: NDArray[np.bool_], noise_known: NDArray[np.bool_] | None = None) -> str:
