@@ -318,23 +318,35 @@ class Candidates:
         sides = [side.reshape(-1, 6) for side in move_jacobians(self.plan.model, poses, jac)]
         return [j.T @ cho_solve(total, j) for j in sides]
 
+    def centre_moves(self, subset: list[int], moves: FloatArray) -> FloatArray:
+        """How far each of ``moves`` (D, 6) moves the centres (D, n, 2) at the job's waypoints
+        ``subset``: the crossings' move and, with flutes, the section offsets' exact change
+        (``helix.offset_change_m``)."""
+        poses = self.plan.waypoints[subset]
+        _, jac, _ = predictions(self.plan.model, poses)
+        shift = np.einsum("nij,dj->dni", jac, moves)
+        if self.plan.model.flutes is not None:
+            shift += np.stack([offset_change_m(self.plan.model.flutes, poses, x) for x in moves])
+        return shift
+
     def noncentrality(
         self, subset: list[int], moves: FloatArray, noise: FloatArray | None = None
     ) -> FloatArray:
         """The test's non-centrality (D,) at the job's waypoints ``subset`` for each of ``moves``
-        (D, 6): the crossings' move and, with flutes, the section offsets' exact change
-        (``helix.offset_change_m``)."""
-        poses, jac, total = self._test(subset, noise)
-        shift = np.einsum("nij,dj->dni", jac, moves)
-        if self.plan.model.flutes is not None:
-            shift += np.stack([offset_change_m(self.plan.model.flutes, poses, x) for x in moves])
-        flat = shift.reshape(len(moves), -1)
+        (D, 6) (``centre_moves``), with the verify dwell's ``noise`` there (None: the candidates')."""
+        _, _, total = self._test(subset, noise)
+        flat = self.centre_moves(subset, moves).reshape(len(moves), -1)
         return np.einsum("dk,kd->d", flat, cho_solve(total, flat.T))
 
     def alone_noncentrality(self, moves: FloatArray) -> FloatArray:
-        """Each candidate's non-centrality alone (n, D) for each of ``moves`` (D, 6), as
-        ``noncentrality`` (the waypoints it compares with the calibration's own are independent)."""
-        return np.stack([self.noncentrality([i], moves) for i in self.found])
+        """Each candidate's non-centrality alone (n, D) for each of ``moves`` (D, 6)
+        (``centre_moves``), the calibration's covariance left out as the choice leaves it out (the
+        waypoints it compares with the calibration's own are independent)."""
+        _, _, slope = predictions(self.plan.model, self.plan.waypoints[self.found])
+        visited = np.isfinite(self.plan.reference[self.found]).all(axis=1)
+        blocks = noise_blocks(self.plan.model, slope, self.stated, visited, self.noise)
+        shift = self.centre_moves(self.found, moves)
+        return np.einsum("dni,nij,dnj->nd", shift, np.linalg.inv(blocks), shift)
 
     def whitened_squares(self) -> FloatArray:
         """Each candidate's squared whitened residual (n,) of the unmoved verify."""
