@@ -12,7 +12,12 @@ waypoint with the scanner unmoved, each centre re-fitted as the calibration's se
 its own (``SecondPassRefit``): the centre covariance the drift test states at each.
 
 For a subset of waypoints the test's information is ``F = J^T S^-1 J``
-(``drift.residual_covariance``). Printed per rule, each inside the time budget: the smallest shift
+(``drift.residual_covariance``). Where the calibration's flute phase pass was kept (a twist
+drill), a move also changes the section's offsets at every crossing (``verify.helix``): ``J``
+then carries that change, for a positive and for a negative move apart (the weaker counted, as
+``test.detectable`` does), and the share of random moves flagged takes each move's exact change
+(``helix.offset_change_m``: the non-centrality ``|J x + h(x)|^2`` over ``S``). Printed per rule,
+each inside the time budget: the smallest shift
 / turn flagged 90 % of the time along the weakest base axis (``test.detectable``), the turn about
 each base axis, and the predicted share of random 3 mm shifts and 0.3 deg turns flagged (the
 non-central chi-square averaged over directions; what ``verify_rates`` measures) and that share
@@ -57,7 +62,6 @@ from scipy.stats import chi2, ncx2
 from benchmarks.dry_run_accuracy import measure_waypoints
 from benchmarks.verify_trials import VerifyBench, add_job_arguments
 from fakes.world import World
-from lasercal_hw.calibration.model import whitening
 from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.models import FloatArray
@@ -70,8 +74,9 @@ from lasercal_hw.verify.drift import (
     predictions,
     residual_covariance,
 )
+from lasercal_hw.verify.helix import HelixChange, offset_change_m
 from lasercal_hw.verify.procedure import VerifyPlan
-from lasercal_hw.verify.selection import select_waypoints
+from lasercal_hw.verify.selection import select_waypoints, waypoint_information
 
 SHIFT_M = 0.003
 TURN_RAD = float(np.radians(0.3))
@@ -99,13 +104,11 @@ def unit_directions(count: int, seed: int) -> FloatArray:
     return drawn / np.linalg.norm(drawn, axis=1)[:, None]
 
 
-def flagged_share(
-    information: FloatArray, threshold: float, dof: int, directions: FloatArray
-) -> tuple[float, float]:
-    """Predicted share of random 3 mm shifts and 0.3 deg turns flagged."""
-    shift = np.einsum("ni,ij,nj->n", directions, information[:3, :3], directions) * SHIFT_M**2
-    turn = np.einsum("ni,ij,nj->n", directions, information[3:, 3:], directions) * TURN_RAD**2
-    return float(ncx2.sf(threshold, dof, shift).mean()), float(ncx2.sf(threshold, dof, turn).mean())
+def random_moves(directions: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The moves (D, 6 each: m, rad) of a 3 mm shift and of a 0.3 deg turn along each of
+    ``directions`` (D, 3)."""
+    zeros = np.zeros_like(directions)
+    return np.hstack([SHIFT_M * directions, zeros]), np.hstack([zeros, TURN_RAD * directions])
 
 
 @dataclass(frozen=True)
@@ -120,8 +123,8 @@ class Judged:
     flagged_turn: float
     time_share: float
     with_verify_only_deg: float
-    #: The test's information (6, 6), degrees of freedom and threshold.
-    information: FloatArray
+    #: The non-centrality of each random 0.3 deg turn (D,), the test's degrees of freedom and threshold.
+    turn_noncentrality: FloatArray
     dof: int
     threshold: float
     #: The unmoved verify dwell's chi-square at these waypoints.
@@ -130,46 +133,45 @@ class Judged:
 
 def judge(
     name: str,
+    candidates: Candidates,
     waypoints: list[int],
-    information: FloatArray,
-    dof: int,
-    model: DriftModel,
+    moves: tuple[FloatArray, FloatArray],
     time_share: float,
-    directions: FloatArray,
     unmoved_chi_square: float,
+    noise: FloatArray | None = None,
 ) -> Judged:
-    """``information`` (6, 6) of a test on ``dof`` values judged as the module docstring says
+    """The test at the job's ``waypoints`` judged as the module docstring says, with the random
+    ``moves`` (shifts, turns) and the verify dwell's ``noise`` there (None: the candidates')
     (``unmoved_chi_square``: of the unmoved verify dwell at those waypoints)."""
+    model, dof = candidates.plan.model, 2 * len(waypoints)
     threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
     needed = needed_noncentrality(dof, model)
-    weakest = np.sqrt(needed / np.diag(information))
-    p_shift, p_turn = flagged_share(information, threshold, dof, directions)
-    bound = np.sqrt(needed / (np.diag(information)[3:] + np.diag(np.linalg.inv(model.covariance))[3:]))
+    diagonal = np.min([np.diag(side) for side in candidates.information_of(waypoints, noise)], axis=0)
+    weakest = np.sqrt(needed / diagonal)
+    shift, turn = (candidates.noncentrality(waypoints, move, noise) for move in moves)
+    bound = np.sqrt(needed / (diagonal[3:] + np.diag(np.linalg.inv(model.covariance))[3:]))
     return Judged(
         name,
         sorted(waypoints),
         float(weakest[:3].max() * 1e3),
         np.degrees(weakest[3:]),
-        p_shift,
-        p_turn,
+        float(ncx2.sf(threshold, dof, shift).mean()),
+        float(ncx2.sf(threshold, dof, turn).mean()),
         time_share,
         float(np.degrees(bound.max())),
-        information,
+        turn,
         dof,
         threshold,
         unmoved_chi_square,
     )
 
 
-def scaled_turn_share(outcomes: list[Judged], directions: FloatArray) -> tuple[float, float]:
+def scaled_turn_share(outcomes: list[Judged]) -> tuple[float, float]:
     """The unmoved chi-square's mean over its dof (``k``, 1 where the stated noise is right)
     and the predicted share of 0.3 deg turns flagged if the noise is ``k`` times the stated
     variance: the statistic is then ``k`` times a non-central chi-square of ``lambda / k``."""
     k = float(np.mean([o.unmoved_chi_square for o in outcomes]) / np.mean([o.dof for o in outcomes]))
-    shares = []
-    for o in outcomes:
-        turn = np.einsum("ni,ij,nj->n", directions, o.information[3:, 3:], directions) * TURN_RAD**2
-        shares.append(float(ncx2.sf(o.threshold / k, o.dof, turn / k).mean()))
+    shares = [float(ncx2.sf(o.threshold / k, o.dof, o.turn_noncentrality / k).mean()) for o in outcomes]
     return k, float(np.mean(shares))
 
 
@@ -184,7 +186,7 @@ def main() -> None:
     args = parser.parse_args()
 
     bench = VerifyBench.from_args(args)
-    directions = unit_directions(DIRECTIONS, 0)
+    moves = random_moves(unit_directions(DIRECTIONS, 0))
     judged: dict[str, list[Judged]] = {}
     whitened: list[FloatArray] = []
     alone_turns: list[FloatArray] = []
@@ -210,18 +212,14 @@ def main() -> None:
         candidates = Candidates.of(plan, found, centres, stated, noise)
         line = [f"seed {seed:3d}"]
         whole, drawn = recorded_centre_covariances(trial.result.residuals, bench.poses, plan.waypoints)
-        recorded = np.nan_to_num(Candidates.of(plan, found, centres, whole[found], drawn[found]).alone)
-        for name, subset in rules(plan, candidates, recorded, bench.count, bench.budget_s):
-            information = candidates.information_of(subset)
+        for name, subset in rules(plan, candidates, (whole, drawn), bench.count, bench.budget_s):
             share = (visit_time_s(plan.job, plan.waypoints[subset]) or np.nan) / bench.calibration_s
             unmoved = float(candidates.whitened_squares()[[found.index(i) for i in subset]].sum())
-            outcome = judge(
-                name, subset, information, 2 * len(subset), plan.model, share, directions, unmoved
-            )
+            outcome = judge(name, candidates, subset, moves, share, unmoved)
             judged.setdefault(name, []).append(outcome)
             line.append(f"{name}: {outcome.waypoints} {outcome.turn_deg.max():.3f} deg")
         if args.slack_dwell:
-            slack = slack_dwell(bench, plan, trial.result.residuals, world, rng, candidates, directions)
+            slack = slack_dwell(bench, plan, trial.result.residuals, world, rng, candidates, moves)
             if slack is not None:
                 outcome, dwell_s, white_3s, white_slack, ratio = slack
                 judged.setdefault(outcome.name, []).append(outcome)
@@ -246,7 +244,7 @@ def main() -> None:
         shift = np.array([o.weakest_shift_mm for o in outcomes])
         shares = np.array([o.time_share for o in outcomes])
         axis = np.median(turn, axis=0)
-        k, scaled = scaled_turn_share(outcomes, directions)
+        k, scaled = scaled_turn_share(outcomes)
         print(
             f"  {name}: weakest shift median {np.median(shift):.2f} mm, weakest turn median "
             f"{np.median(weakest):.3f} deg (max {weakest.max():.3f}; about base x / y / z median "
@@ -279,7 +277,8 @@ def main() -> None:
 class Candidates:
     """The waypoints where the unmoved verify dwell found the rod (``found``: job indices), and
     the unmoved centres measured there and what the drift test states: each alone's information
-    (n, 6, 6)."""
+    (n, 6, 6) on the crossings, as the verify's choice weighs it (``selection.waypoint_information``;
+    the helix's change is in ``information_of`` and ``noncentrality``)."""
 
     plan: VerifyPlan
     found: list[int]
@@ -294,25 +293,74 @@ class Candidates:
     ) -> Candidates:
         """The candidates of ``plan``: the verify dwell's ``centres`` (n, 2) at ``found``, their
         covariance ``stated`` and the part of it a dwell draws anew, ``noise`` (n, 2, 2)."""
-        _, jac, slope = predictions(plan.model, plan.waypoints[found])
         visited = np.isfinite(plan.reference[found]).all(axis=1)
-        white = whitening(noise_blocks(plan.model, slope, stated, visited, noise)) @ jac
-        return cls(plan, found, centres, stated, noise, np.swapaxes(white, 1, 2) @ white)
+        alone = waypoint_information(plan.model, plan.waypoints[found], visited, stated, noise)
+        return cls(plan, found, centres, stated, noise, alone)
 
-    def information_of(self, subset: list[int], noise: FloatArray | None = None) -> FloatArray:
-        """The test's information (6, 6) from the job's waypoints ``subset`` (all candidates), with
-        the verify dwell's ``noise`` there (None: the candidates')."""
+    def _test(
+        self, subset: list[int], noise: FloatArray | None
+    ) -> tuple[FloatArray, FloatArray, tuple[FloatArray, bool]]:
+        """The job's waypoints ``subset``'s poses (n, 6), crossings' Jacobian (n, 2, 6) and the
+        factored ``S`` of the test there, with the verify dwell's ``noise`` (None: the candidates')."""
         at = [self.found.index(i) for i in subset]
-        _, jac, slope = predictions(self.plan.model, self.plan.waypoints[subset])
+        poses = self.plan.waypoints[subset]
+        _, jac, slope = predictions(self.plan.model, poses)
         visited = np.isfinite(self.plan.reference[subset]).all(axis=1)
         drawn = self.noise[at] if noise is None else noise
-        total = cho_factor(residual_covariance(self.plan.model, jac, slope, self.stated[at], visited, drawn))
-        j = jac.reshape(-1, 6)
-        return j.T @ cho_solve(total, j)
+        total = residual_covariance(self.plan.model, jac, slope, self.stated[at], visited, drawn)
+        return poses, jac, cho_factor(total)
+
+    def information_of(self, subset: list[int], noise: FloatArray | None = None) -> list[FloatArray]:
+        """The test's information (6, 6) from the job's waypoints ``subset`` (all candidates), with
+        the verify dwell's ``noise`` there (None: the candidates'): one, or with flutes one for a
+        positive and one for a negative move (``move_jacobians``)."""
+        poses, jac, total = self._test(subset, noise)
+        sides = [side.reshape(-1, 6) for side in move_jacobians(self.plan.model, poses, jac)]
+        return [j.T @ cho_solve(total, j) for j in sides]
+
+    def centre_moves(self, subset: list[int], moves: FloatArray) -> FloatArray:
+        """How far each of ``moves`` (D, 6) moves the centres (D, n, 2) at the job's waypoints
+        ``subset``: the crossings' move and, with flutes, the section offsets' exact change
+        (``helix.offset_change_m``)."""
+        poses = self.plan.waypoints[subset]
+        _, jac, _ = predictions(self.plan.model, poses)
+        shift = np.einsum("nij,dj->dni", jac, moves)
+        if self.plan.model.flutes is not None:
+            shift += np.stack([offset_change_m(self.plan.model.flutes, poses, x) for x in moves])
+        return shift
+
+    def noncentrality(
+        self, subset: list[int], moves: FloatArray, noise: FloatArray | None = None
+    ) -> FloatArray:
+        """The test's non-centrality (D,) at the job's waypoints ``subset`` for each of ``moves``
+        (D, 6) (``centre_moves``), with the verify dwell's ``noise`` there (None: the candidates')."""
+        _, _, total = self._test(subset, noise)
+        flat = self.centre_moves(subset, moves).reshape(len(moves), -1)
+        return np.einsum("dk,kd->d", flat, cho_solve(total, flat.T))
+
+    def alone_noncentrality(self, moves: FloatArray) -> FloatArray:
+        """Each candidate's non-centrality alone (n, D) for each of ``moves`` (D, 6)
+        (``centre_moves``), the calibration's covariance left out as the choice leaves it out (the
+        waypoints it compares with the calibration's own are independent)."""
+        _, _, slope = predictions(self.plan.model, self.plan.waypoints[self.found])
+        visited = np.isfinite(self.plan.reference[self.found]).all(axis=1)
+        blocks = noise_blocks(self.plan.model, slope, self.stated, visited, self.noise)
+        shift = self.centre_moves(self.found, moves)
+        return np.einsum("dni,nij,dnj->nd", shift, np.linalg.inv(blocks), shift)
 
     def whitened_squares(self) -> FloatArray:
         """Each candidate's squared whitened residual (n,) of the unmoved verify."""
         return squared_residuals(self.plan, self.found, self.centres, self.stated, self.noise)
+
+
+def move_jacobians(model: DriftModel, tcp_poses: FloatArray, jac: FloatArray) -> list[FloatArray]:
+    """The Jacobians (n, 2, 6 each) of the centres in the move, as ``test.detectable`` takes them:
+    the crossings' ``jac`` alone without flutes; with them, ``jac`` plus the helix's change for a
+    positive and for a negative move (the offsets jump on one side only)."""
+    if model.flutes is None:
+        return [jac]
+    helix = HelixChange.of(model.flutes, tcp_poses)
+    return [jac + helix.forward, jac + helix.backward]
 
 
 def squared_residuals(
@@ -329,15 +377,21 @@ def squared_residuals(
 
 
 def rules(
-    plan: VerifyPlan, candidates: Candidates, recorded: FloatArray, count: int, budget_s: float | None
+    plan: VerifyPlan,
+    candidates: Candidates,
+    covariances: tuple[FloatArray, FloatArray],
+    count: int,
+    budget_s: float | None,
 ) -> list[tuple[str, list[int]]]:
     """(name, job waypoint indices) per rule of the module docstring, each inside the budget; the
     searches take the waypoints where the calibration used its centre (an outlier or a waypoint
-    without a rod is no candidate of the verify's either). ``recorded`` (n, 6, 6): each
-    candidate's information from the centre covariance the calibration recorded there, which is
-    what the verify knows when it chooses (the other searches know the verify dwell's own noise,
-    which a verify learns only after its dwells)."""
+    without a rod is no candidate of the verify's either). ``covariances`` (N, 2, 2 each; NaN:
+    none): the centre covariance the calibration recorded at each job waypoint and the part of it
+    a dwell draws anew, which is what the verify knows when it chooses (the other searches know
+    the verify dwell's own noise, which a verify learns only after its dwells)."""
     model, found = plan.model, candidates.found
+    whole, drawn = covariances
+    recorded = Candidates.of(plan, found, candidates.centres, whole[found], drawn[found])
     usable = [k for k, i in enumerate(found) if np.isfinite(plan.reference[i]).all()]
     subsets = np.fromiter(
         itertools.chain.from_iterable(itertools.combinations(usable, count)),
@@ -367,18 +421,18 @@ def rules(
     return [
         *((name, list(chosen)) for name, chosen in named if set(chosen) <= set(found)),
         ("smallest weakest turn", first_in_budget(weakest_turn)),
-        ("most 0.3 deg turns", first_in_budget(-turns_flagged(candidates.alone, subsets, model))),
+        ("most 0.3 deg turns", first_in_budget(-turns_flagged(candidates, subsets, model))),
         ("most 0.3 deg turns by the record", first_in_budget(-turns_flagged(recorded, subsets, model))),
     ]
 
 
-def turns_flagged(alone: FloatArray, subsets: FloatArray, model: DriftModel) -> FloatArray:
+def turns_flagged(candidates: Candidates, subsets: FloatArray, model: DriftModel) -> FloatArray:
     """Each subset's (m, count) predicted share of random 0.3 deg turns flagged
-    (``SEARCH_DIRECTIONS`` axes; the waypoints' information ``alone`` (n, 6, 6) added)."""
+    (``SEARCH_DIRECTIONS`` axes; the waypoints' non-centralities alone added)."""
     dof = 2 * subsets.shape[1]
     threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
-    axes = unit_directions(SEARCH_DIRECTIONS, 1)
-    per_waypoint = (np.einsum("di,nij,dj->nd", axes, alone[:, 3:, 3:], axes) * TURN_RAD**2).astype(np.float32)
+    _, turns = random_moves(unit_directions(SEARCH_DIRECTIONS, 1))
+    per_waypoint = np.nan_to_num(candidates.alone_noncentrality(turns)).astype(np.float32)
     grid = np.linspace(0.0, float(per_waypoint.max()) * subsets.shape[1], 4000)
     flagged = ncx2.sf(threshold, dof, grid)
     return over_subsets(per_waypoint, subsets, lambda summed: np.interp(summed, grid, flagged).mean(axis=1))
@@ -403,7 +457,7 @@ def slack_dwell(
     world: World,
     rng: np.random.Generator,
     candidates: Candidates,
-    directions: FloatArray,
+    moves: tuple[FloatArray, FloatArray],
 ) -> tuple[Judged, float, FloatArray, FloatArray, FloatArray] | None:
     """The verify's choice at the longest dwell inside the budget, measured there: judged with that
     dwell's noise plus the calibration's recorded one at each waypoint, that dwell (s), and the
@@ -426,14 +480,13 @@ def slack_dwell(
     _, calibration_noise = recorded_centre_covariances(residuals, bench.poses, plan.waypoints)
     # noise_blocks counts a revisited waypoint's drawn noise twice: half of the two dwells' sum.
     both = 0.5 * (noise + calibration_noise[chosen])
-    information = candidates.information_of(chosen, both)
     share = (visit_time_s(job, poses) or np.nan) / bench.calibration_s
     centres = np.array([m.centre.centre_uv_m for m in refitted])
     at = [candidates.found.index(i) for i in chosen]
     squares = squared_residuals(plan, chosen, centres, stated, both)
     outcome = judge(
-        "verify's choice, dwell filling the budget", chosen, information, 2 * len(chosen), plan.model,
-        share, directions, float(squares.sum()),
+        "verify's choice, dwell filling the budget", candidates, chosen, moves, share, float(squares.sum()),
+        both,
     )
     ratio = np.trace(noise, axis1=1, axis2=2) / np.trace(candidates.noise[at], axis1=1, axis2=2)
     return outcome, job.dwell_s, candidates.whitened_squares()[at], squares, ratio

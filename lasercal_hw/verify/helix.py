@@ -35,6 +35,13 @@ def moved_transform(T_base_laser: FloatArray, x: FloatArray) -> FloatArray:
     return make_transform(rotvec_to_matrix(x[3:]) @ T[:3, :3], T[:3, 3] + x[:3])
 
 
+def offset_change_m(flutes: FluteShift, tcp_poses: FloatArray, x: FloatArray) -> FloatArray:
+    """The section offsets' change (N, 2), m, at each pose when the scanner moves by ``x``: the
+    offsets ``flutes`` takes out at the moved transform less those at its own."""
+    moved = flutes.offsets_m(tcp_poses, moved_transform(flutes.T_base_laser, x))
+    return moved - flutes.offsets_m(tcp_poses)
+
+
 @dataclass(frozen=True)
 class HelixChange:
     """The section offsets' change (N, 2, 6 each, m per unit of ``x``) for a move along each
@@ -51,12 +58,10 @@ class HelixChange:
     @classmethod
     def of(cls, flutes: FluteShift, tcp_poses: FloatArray) -> HelixChange:
         """The offsets ``flutes`` takes out at each moved transform less those at its own."""
-        at_calibration = flutes.offsets_m(tcp_poses)
         steps = np.diag([STEP_SHIFT_M] * 3 + [STEP_TURN_RAD] * 3)
 
         def change(step: FloatArray) -> FloatArray:
-            moved = flutes.offsets_m(tcp_poses, moved_transform(flutes.T_base_laser, step))
-            return (moved - at_calibration) / float(np.abs(step).sum())
+            return offset_change_m(flutes, tcp_poses, step) / float(np.abs(step).sum())
 
         forward = np.stack([change(step) for step in steps], axis=-1)
         backward = np.stack([-change(-step) for step in steps], axis=-1)
