@@ -315,7 +315,7 @@ class ExtractionSettings:
     #: told by its echo's fall-off across the rod: its beams' intensities over the brightest,
     #: against a diffuse section's under the spot (``_gloss_ratio``), under this ratio
     #: (physical model, seeds 0, 1, 100: matte, dark, painted 0.78-1.27, retro-reflective
-    #: 0.67-1.33, bare metal and steel 0.18-1.03, median 0.40-0.46) ...
+    #: 0.67-1.33, bare metal and steel 0.18-1.03, median 0.40-0.46; 0: never) ...
     glint_gloss_ratio: float = 0.75
     #: ... on this many beams or fewer (``_along_from_glint``).
     glint_max_beams: int = 7
