@@ -1132,11 +1132,7 @@ def _spot_readings_m(
     front_a, side_a = front @ axis_xy, side @ axis_xy
     front2, side2, front_side = (front**2).sum(1), (side**2).sum(1), np.einsum("ij,ij->i", front, side)
     beside_m = across @ centre
-    shares = [1.0 - settings.spot_halo_fraction]
-    scales = [1.0]
-    if settings.spot_halo_fraction > 0.0:
-        shares.append(settings.spot_halo_fraction)
-        scales.append(settings.spot_halo_scale)
+    shares, scales = zip(*_spot_parts(settings), strict=True)
     nodes, weights = _gauss_legendre(settings.spot_quadrature_nodes)
     count = nodes.size
     half_m = np.repeat(np.fmax(core_m, 1e-12)[:, None] * np.array(scales)[None, :], count, axis=1)
@@ -1770,6 +1766,14 @@ def _behind(scan: AveragedScan, background: AveragedScan | None, settings: Extra
     return _Behind(np.where(np.isfinite(farthest), farthest, np.nan), None)
 
 
+def _spot_parts(settings: ExtractionSettings) -> tuple[tuple[float, float], ...]:
+    """The spot's core and, where it has one, its halo: (share of the power, width over the
+    core's) each."""
+    halo = settings.spot_halo_fraction
+    core = ((1.0 - halo, 1.0),)
+    return (*core, (halo, settings.spot_halo_scale)) if halo > 0.0 else core
+
+
 def _spot_sigma_m(range_m: FloatArray, settings: ExtractionSettings) -> FloatArray:
     """Gaussian sigma across the beam's spot at these ranges (a quarter of its 1/e^2 width)."""
     return 0.25 * (settings.spot_width_at_scanner_m + settings.spot_divergence_rad * range_m)
@@ -2178,8 +2182,7 @@ def _gloss_ratio(
     across_m = radius_m * np.sin(np.linspace(-np.pi / 2.0, np.pi / 2.0, 201))
     cosine = np.sqrt(np.fmax(1.0 - (across_m / radius_m) ** 2, 0.0))
     power = np.zeros(beams.size)
-    halo = settings.spot_halo_fraction
-    for share, scale in ((1.0 - halo, 1.0), (halo, settings.spot_halo_scale)):
+    for share, scale in _spot_parts(settings):
         width_m = max(half_m * scale, 1e-9)
         profile = np.exp(-2.0 * ((across_m[None, :] - offsets_m[:, None]) / width_m) ** 2)
         power += share / width_m * (profile * cosine * np.gradient(across_m)).sum(axis=1)
