@@ -40,7 +40,7 @@ Steps (docs/extraction.md has the reasoning):
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,7 +48,6 @@ from numpy.typing import NDArray
 from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.scan.average import AveragedScan
-from lasercal_hw.scan.echo_pull import surface_share, tail_pull_m
 from lasercal_hw.scan.extraction.beams import (
     _beam_step_rad,
     _range_sigma,
@@ -56,19 +55,35 @@ from lasercal_hw.scan.extraction.beams import (
     _trim_unstable,
     _unstable_beams,
 )
+from lasercal_hw.scan.extraction.blend import (
+    _Behind,
+    _behind,
+    _blend_refusal,
+    _drop_blended_edges,
+    _pull_shifts_m,
+    _steady_beams_beside,
+    _tail_pulls_m,
+    _without_blended_flanks,
+)
 from lasercal_hw.scan.extraction.centre_fit import (
     _arc_span_deg,
     _drop_mixed_edges,
-    _Fit,
     _fit_centre,
     seed_centre_pi4,
 )
-from lasercal_hw.scan.extraction.covariance import _centre_shift
-from lasercal_hw.scan.extraction.fit import _fit_residuals, _gauss_newton, _rays, _residual_sigma, _residuals
+from lasercal_hw.scan.extraction.doubts import (
+    _arc_bias_m,
+    _with_arc_bias,
+    _with_edge_doubt,
+    _with_shared_push,
+    _with_symmetry_doubt,
+    _with_uneven_background,
+)
+from lasercal_hw.scan.extraction.fit import _gauss_newton, _residuals
 from lasercal_hw.scan.extraction.results import RodCentre, RodNotFoundError, RodQuality
 from lasercal_hw.scan.extraction.section import _across_bearing, _Section, _unit_axis
 from lasercal_hw.scan.extraction.settings import ExtractionSettings
-from lasercal_hw.scan.extraction.spot import _beside_share, _narrower_than_spot, _spot_parts, _spot_sigma_m
+from lasercal_hw.scan.extraction.spot import _narrower_than_spot, _spot_parts, _spot_sigma_m
 
 __all__ = [
     "ExtractionSettings",
@@ -828,296 +843,6 @@ def _fit_segment(
     )
 
 
-@dataclass(frozen=True)
-class _Behind:
-    """What lies behind each beam: its range (m; inf or NaN: nothing) and intensity (None:
-    unknown)."""
-
-    ranges_m: FloatArray
-    intensities: FloatArray | None
-
-
-def _behind(scan: AveragedScan, background: AveragedScan | None, settings: ExtractionSettings) -> _Behind:
-    """The background scan's view, or without one the farthest reading within
-    ``behind_window_beams`` of each beam (the background beside the rod)."""
-    if background is not None:
-        intensities = background.intensities if scan.intensities is not None else None
-        return _Behind(background.ranges_m, intensities)
-    ranges = np.where(np.isfinite(scan.ranges_m), scan.ranges_m, -np.inf)
-    reach = settings.behind_window_beams
-    padded = np.concatenate([np.full(reach, -np.inf), ranges, np.full(reach, -np.inf)])
-    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1)
-    farthest = windows.max(axis=1)
-    return _Behind(np.where(np.isfinite(farthest), farthest, np.nan), None)
-
-
-def _blend(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    centre: FloatArray,
-    section: _Section,
-    behind: _Behind,
-    settings: ExtractionSettings,
-    *,
-    halo: bool = True,
-) -> tuple[FloatArray, FloatArray]:
-    """Per beam, the background's share of the returned echo and the blend allowance (m);
-    ``halo``: with the spot's faint halo (False: its core alone, which tells the edge beams
-    apart; the halo adds about the same to every beam).
-
-    The share is the part of the spot passing beside the rod (a gaussian spot across the
-    rod's silhouette); with intensities it is weighted by the background's power against
-    the beam's (the UTM's intensity grows like the square root of the power).  It counts
-    only where the background merges into the rod's echo (less than ``echo_merge_m``
-    behind): a surface farther behind returns its own echo, and a beam that reads the rod
-    reads the rod alone (a 4 mm rod at 0.1 m before a wall 2.5 m behind was refused as
-    "every beam blends it" though each of its 18 beams read the rod's range; its pull on the
-    rod's echo peak is ``_tail_pulls_m``'s).  The allowance is the share times the depth
-    behind."""
-    ranges = scan.ranges_m[beams]
-    share = _beside_share(scan, beams, centre, section, settings, halo=halo)
-    if behind.intensities is not None and scan.intensities is not None:
-        own = np.fmax(scan.intensities[beams], 1.0)
-        ratio = np.where(np.isfinite(behind.intensities[beams]), behind.intensities[beams] / own, 1.0)
-        share = np.fmin(share * ratio**2, 1.0)
-    with np.errstate(invalid="ignore"):
-        depth = behind.ranges_m[beams] - ranges
-        merged = np.isfinite(depth) & (depth > 0.0) & (depth < settings.echo_merge_m)
-    share = np.where(merged, share, 0.0)
-    return share, share * np.where(merged, depth, 0.0)
-
-
-def _tail_pulls_m(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    centre: FloatArray,
-    section: _Section,
-    behind: _Behind,
-    settings: ExtractionSettings,
-) -> tuple[FloatArray, FloatArray]:
-    """Per beam, how far a surface beyond the merge behind it pulls its reading long and that
-    surface's share of the beam's power (``echo_pull``; both 0 where the surface merges,
-    nothing lies behind, or either scan has no intensities)."""
-    zero = np.zeros(beams.size)
-    if behind.intensities is None or scan.intensities is None:
-        return zero, zero
-    with np.errstate(invalid="ignore"):
-        depth = behind.ranges_m[beams] - scan.ranges_m[beams]
-        beyond = np.isfinite(depth) & (depth >= settings.echo_merge_m)
-    beyond &= np.isfinite(behind.intensities[beams])
-    if not np.any(beyond):
-        return zero, zero
-    depth = np.where(beyond, depth, 0.0)
-    share = surface_share(
-        _beside_share(scan, beams, centre, section, settings),
-        np.fmax(scan.intensities[beams], 1.0),
-        np.where(beyond, behind.intensities[beams], 0.0),
-        depth,
-        settings.pulse_fwhm_m,
-    )
-    share = np.where(beyond, share, 0.0)
-    return np.where(beyond, tail_pull_m(share, depth, settings.pulse_fwhm_m), 0.0), share
-
-
-def _nearer(points: FloatArray, pull_m: FloatArray) -> FloatArray:
-    """The points moved ``pull_m`` nearer the scanner along their beams."""
-    return points * (1.0 - pull_m / np.linalg.norm(points, axis=1))[:, None]
-
-
-def _pull_shifts_m(
-    points: FloatArray,
-    sigma: FloatArray,
-    pulls_m: tuple[FloatArray, ...],
-    section: _Section,
-    settings: ExtractionSettings,
-) -> list[FloatArray]:
-    """For each of ``pulls_m``, how far the fitted centre moves when each point's pull is taken
-    out of its range (a fit that fails so: about the mean pull along the arc's bearing, towards
-    the scanner); the points' own fit is made once, when a shift needs it."""
-    base: FloatArray | None = None
-    shifts = []
-    for pull_m in pulls_m:
-        if not np.any(pull_m > 0.0):
-            shifts.append(np.zeros(2))
-            continue
-        try:
-            moved = _fit_centre(_nearer(points, pull_m), sigma, section, settings).centre_uv_m
-        except RodNotFoundError:
-            bearing = np.mean(points, axis=0)
-            shifts.append(-float(np.mean(pull_m)) * bearing / float(np.linalg.norm(bearing)))
-            continue
-        if base is None:
-            base = _fit_centre(points, sigma, section, settings).centre_uv_m
-        shifts.append(moved - base)
-    return shifts
-
-
-def _drop_blended_edges(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    points: FloatArray,
-    sigma: FloatArray,
-    keep: NDArray[np.int64],
-    fit: _Fit,
-    section: _Section,
-    behind: _Behind,
-    settings: ExtractionSettings,
-) -> tuple[NDArray[np.int64], _Fit, FloatArray, FloatArray]:
-    """The fit without an edge beam that is more background than rod by its centre (its spot
-    passes mostly beside the rod and the surface behind merges into its echo) while the other
-    edge beam reads the rod cleanly, refitted until the two edges agree; with every beam's
-    blend share and bound by the last centre.
-
-    Such a beam reads well behind the rod's surface, and a known-radius fit bends towards it:
-    a dark 45 mm rod at 1 m before a wall 0.3 m behind kept two blends (+14 and +49 mm) on one
-    side of its core and none on the other, and its centre sat 13.6 mm sideways (3.1 std);
-    a 20 mm rod at 0.3 m was "not a rod" for the same reason. Edges blended alike on both
-    sides are left to the blend bounds (the ideal scanner's silhouette edges, which read the
-    rod's own surface: dropping them cost its median error 0.40 -> 0.47 mm)."""
-    while True:
-        share, bound_m = _blend(scan, beams, fit.centre_uv_m, section, behind, settings)
-        if keep.size <= settings.min_beams:
-            return keep, fit, share, bound_m
-        # The edges compared by the spot's core: its halo, much the same on both sides, lifted
-        # the clean edge of a dark 45 mm rod at 0.1 m before a bright wall over 5 %, and the
-        # blends kept on the other side pulled it 10.9 mm sideways.
-        core, _ = _blend(scan, beams, fit.centre_uv_m, section, behind, settings, halo=False)
-        first, last = core[keep[0]], core[keep[-1]]
-        if max(first, last) <= settings.max_blend_share or min(first, last) > settings.doubtful_blend_share:
-            return keep, fit, share, bound_m
-        kept = keep[1:] if first > last else keep[:-1]
-        if kept.size < settings.min_beams:
-            return keep, fit, share, bound_m
-        inner, fit = _drop_mixed_edges(points[kept], sigma[kept], section, settings)
-        keep = kept[inner]
-
-
-def _steady_beams_beside(
-    scan: AveragedScan,
-    sigma: FloatArray,
-    beams: NDArray[np.int64],
-    behind: _Behind,
-    settings: ExtractionSettings,
-    *,
-    over_flips: bool = False,
-) -> int:
-    """How many beams beside the rod (both sides, up to ``max_ramp_beams`` each) read
-    steadily between its edge and the surface behind: the beam's spot straddling the two
-    (a far rod's ramps, split off its segment by their range jumps). An exact ray reads one
-    surface or flips between them (unstable: ``_unstable_beams``), so it counts none.
-    ``over_flips``: the count steps over flipping beams (a polished bit's flanks flip between
-    it and the wall, and the steady beams beyond read the wall pulled towards it)."""
-    ranges = scan.ranges_m
-    unstable = _unstable_beams(scan, settings)
-    count = 0
-    for edge, step in ((int(beams[0]), -1), (int(beams[-1]), 1)):
-        i = edge + step
-        while 0 <= i < ranges.size and abs(i - edge) <= settings.max_ramp_beams:
-            if unstable[i]:
-                if not over_flips:
-                    break
-                i += step
-                continue
-            margin = max(settings.min_depth_below_background_m, settings.background_sigmas * float(sigma[i]))
-            if not ranges[edge] < ranges[i] < behind.ranges_m[i] - margin:  # NaN: False
-                break
-            count += 1
-            i += step
-    return count
-
-
-def _without_blended_flanks(
-    beams: NDArray[np.int64],
-    bound_m: FloatArray,
-    sigma: FloatArray,
-    section: _Section,
-    settings: ExtractionSettings,
-) -> NDArray[np.int64]:
-    """The beams without the runs at either end whose blend bound exceeds what a beam of the
-    rod may lie off its surface (its noise and the shape tolerance, as in ``_rod_core``): a
-    segment whose flanks merged with a wall close behind on both sides, which the fit could
-    not take as a rod (20 mm painted rods at 0.2-0.3 m before a wall 0.3 m behind: "not a
-    rod, fit RMS 7-8 mm"), is tried again on its middle (fewer than ``min_beams``: unchanged)."""
-    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
-    clean = np.flatnonzero(bound_m <= settings.edge_residual_sigmas * sigma + tolerance)
-    if clean.size < settings.min_beams:
-        return beams
-    return beams[clean[0] : clean[-1] + 1]
-
-
-def _blend_refusal(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    section: _Section,
-    behind: _Behind,
-    settings: ExtractionSettings,
-) -> str:
-    """Why a rod whose every beam is mostly background is refused."""
-    range_m = float(np.min(scan.ranges_m[beams]))
-    depth_m = float(np.nanmedian(behind.ranges_m[beams])) - range_m
-    spot_mm = 4000.0 * float(_spot_sigma_m(np.array([range_m]), settings)[0])
-    return (
-        f"every beam on the rod at {range_m:.2f} m blends it with the surface {depth_m:.2f} m behind it "
-        f"(a {2000 * section.radius_m:.0f} mm rod against the beam's {spot_mm:.0f} mm spot): no reading is "
-        f"the rod's own; use a thicker or retro-reflective rod, or clear the background to more than "
-        f"{settings.echo_merge_m:g} m behind the rod"
-    )
-
-
-def _arc_bias_m(scan: AveragedScan, beams: NDArray[np.int64], settings: ExtractionSettings) -> FloatArray:
-    """Per beam, how far its range error may differ from the front beam's: the range walk
-    between their intensities and the near-range error's change between their ranges."""
-    ranges = scan.ranges_m[beams]
-    front = int(np.argmin(ranges))
-    near = settings.near_bias_m * np.exp(-(np.fmax(ranges, 0.1) - 0.1) / settings.near_bias_decay_m)
-    deeper_efolds = np.log(np.fmax(ranges, 1e-3) / max(float(ranges[front]), 1e-3))
-    bias = np.abs(near - near[front]) + settings.range_error_slope_m_per_efold * np.abs(deeper_efolds)
-    if scan.intensities is not None:
-        intensity = np.fmax(scan.intensities[beams], 1.0)
-        bias = bias + settings.range_walk_m_per_efold * np.abs(np.log(intensity / intensity[front]))
-    return bias
-
-
-def _with_arc_bias(
-    scan: AveragedScan,
-    beams: NDArray[np.int64],
-    points: FloatArray,
-    sigma: FloatArray,
-    blend_m: FloatArray,
-    fit: _Fit,
-    section: _Section,
-    settings: ExtractionSettings,
-) -> _Fit:
-    """The fit with the arc's range-error variation (``_arc_bias_m``) in its covariance."""
-    push_m = _arc_bias_m(scan, beams, settings)
-    return _with_shared_push(points, sigma, blend_m, push_m, fit, section, settings)
-
-
-def _with_shared_push(
-    points: FloatArray,
-    sigma: FloatArray,
-    blend_m: FloatArray,
-    push_m: FloatArray,
-    fit: _Fit,
-    section: _Section,
-    settings: ExtractionSettings,
-) -> _Fit:
-    """The fit with the centre's move were every beam's range off by ``push_m`` in its
-    covariance (shared by neighbours, so taken whole); ``blend_m``: blend allowances already
-    in the beams' sigmas."""
-    if not np.any(push_m > 0.0):
-        return fit
-    model = settings if fit.spot else _rays(settings)
-    _, normals, _ = _fit_residuals(points, fit.centre_uv_m, section, model)
-    residual_sigma = _residual_sigma(points, np.hypot(sigma, blend_m), normals, section.radius_m, settings)
-    jac = -normals[:, :2] / residual_sigma[:, None]
-    try:
-        shift = _centre_shift(points, normals, residual_sigma, jac.T @ jac, push_m)
-    except np.linalg.LinAlgError:
-        return fit
-    return replace(fit, covariance_uv_m2=fit.covariance_uv_m2 + np.outer(shift, shift))
-
-
 #: The fewest of ``echo_middle_levels`` whose middle must be read on the rod's beams (a far rod's
 #: lobe, wider than the rod, does not fall to the lowest levels on them).
 MIN_ECHO_MIDDLE_LEVELS = 2
@@ -1256,144 +981,6 @@ def _along_from_glint(
         covariance_uv_m2=found.covariance_uv_m2 + doubt_m2 * along,
         noise_covariance_uv_m2=None if noise is None else noise + beam_m2 * along,
     )
-
-
-def _with_sideways_doubt(fit: _Fit, doubt_m2: FloatArray, noise_doubt_m2: FloatArray | None = None) -> _Fit:
-    """The fit with a sideways check's variance in its covariance (``doubt_m2``) and in its
-    noise (``noise_doubt_m2``, default the same): which beams are the silhouette's edges
-    changes from dwell to dwell (a far rod's 3-7 beams: its centre moved 5-7 mm sideways
-    between two dwells at one pose), so another dwell draws that part anew too."""
-    noise = fit.noise_covariance_uv_m2
-    noise_doubt_m2 = doubt_m2 if noise_doubt_m2 is None else noise_doubt_m2
-    return replace(
-        fit,
-        covariance_uv_m2=fit.covariance_uv_m2 + doubt_m2,
-        noise_covariance_uv_m2=None if noise is None else noise + noise_doubt_m2,
-    )
-
-
-def _with_edge_doubt(
-    points: FloatArray, sigma: FloatArray, fit: _Fit, section: _Section, settings: ExtractionSettings
-) -> _Fit:
-    """The fit with a sideways variance where its two edge beams pull it away from what the
-    rest of the arc says.
-
-    The silhouette's edge beams fix the centre sideways far better than the arc's ranges do
-    (on the ideal scanner they are exact to a beam step). On a real one the spot blurs the
-    edges, speckle holds an edge beam off for the whole dwell, or an edge beam is trimmed
-    on one side only, and the known-radius fit moves sideways by half a beam or more (a 45
-    mm rod at 1-2 m: 2-4 mm against 0.5-0.9 mm std). The arc without its edge beams is
-    fitted too; the part of the two centres' sideways difference that their covariances do
-    not explain (the difference of two nested fits has the variance of the smaller one less
-    the larger one's) joins the covariance across the bearing."""
-    if points.shape[0] < settings.min_beams + 2:
-        return fit
-    # Ray fits: the sideways position is the ray fit's (``_along_the_spot``).
-    full = _gauss_newton(points, sigma, fit.centre_uv_m, section, settings, free_radius=False, spot=False)
-    inner = _gauss_newton(
-        points[1:-1], sigma[1:-1], fit.centre_uv_m, section, settings, free_radius=False, spot=False
-    )
-    if full is None or inner is None:
-        return fit
-    try:
-        difference_m2 = np.linalg.inv(inner[1]) - np.linalg.inv(full[1])
-    except np.linalg.LinAlgError:
-        return fit
-    across = _across_bearing(fit.centre_uv_m)
-    sideways_m = float(across @ (inner[0][:2] - full[0][:2]))
-    excess_m2 = sideways_m**2 - max(float(across @ difference_m2 @ across), 0.0)
-    if excess_m2 <= 0.0:
-        return fit
-    return _with_sideways_doubt(fit, excess_m2 * np.outer(across, across))
-
-
-def _with_uneven_background(
-    scan: AveragedScan, beams: NDArray[np.int64], fit: _Fit, behind: _Behind, settings: ExtractionSettings
-) -> _Fit:
-    """The fit with a sideways variance where the backgrounds just outside its two edges (the
-    beams within the spot's halo of each edge, what ``behind`` says lies there) reach into the
-    rod's echo unequally (``uneven_background_doubt``), where that exceeds the fit's sideways std
-    (smaller, it left the dry runs' p95 0.001-0.005 mm worse). It repeats at the pose, so it stays
-    out of the noise."""
-    range_m = float(np.min(scan.ranges_m[beams]))
-    spot_m = float(_spot_sigma_m(np.array([range_m]), settings)[0])
-    pulse_sigma_m = settings.pulse_fwhm_m / (2.0 * np.sqrt(2.0 * np.log(2.0)))
-    reach = max(int(np.ceil(settings.spot_halo_scale * spot_m / (range_m * _beam_step_rad(scan)))), 1)
-    reaches_m = []
-    for edge, step in ((int(beams[0]), -1), (int(beams[-1]), 1)):
-        outside = edge + step * np.arange(1, reach + 1)
-        outside = outside[(outside >= 0) & (outside < scan.ranges_m.size)]
-        depth_m = behind.ranges_m[outside] - range_m
-        depth_m = depth_m[np.isfinite(depth_m) & (depth_m > 0.0)]
-        if depth_m.size == 0:
-            return fit
-        depth = float(np.median(depth_m))
-        reaches_m.append(depth * np.exp(-0.5 * (depth / pulse_sigma_m) ** 2))
-    std_m = settings.uneven_background_doubt * spot_m * abs(reaches_m[0] - reaches_m[1]) / pulse_sigma_m
-    across = _across_bearing(fit.centre_uv_m)
-    if std_m**2 <= float(across @ fit.covariance_uv_m2 @ across):
-        return fit
-    return _with_sideways_doubt(fit, std_m**2 * np.outer(across, across), np.zeros((2, 2)))
-
-
-def _symmetry_bearing_rad(scan: AveragedScan, beams: NDArray[np.int64], section: _Section) -> float | None:
-    """The bearing the rod's range profile is symmetric about: at depths of 0.2-0.8 radius
-    behind its nearest beam, the middle of where the profile crosses that depth on either
-    side (interpolated between beams), median over the depths; None where it cannot tell.
-
-    A rod's own arc is symmetric about its centre's bearing, and so is what the beam's spot
-    adds on both sides (a halo of near readings, ramps of blends into a wall close behind),
-    which a known-radius fit of the few beams left may not be."""
-    ranges = scan.ranges_m
-    front = int(beams[int(np.argmin(ranges[beams]))])
-    nearest = float(ranges[front])
-    middles = []
-    for depth in (0.2, 0.4, 0.6, 0.8):
-        level = nearest + depth * section.radius_m
-        sides = []
-        for direction in (-1, 1):
-            i = front
-            while 0 <= i + direction < ranges.size and ranges[i + direction] < level:  # NaN: False
-                i += direction
-            j = i + direction
-            if not (0 <= j < ranges.size and np.isfinite(ranges[j])):
-                break
-            share = (level - ranges[i]) / (ranges[j] - ranges[i])
-            sides.append(scan.angles_rad[i] + share * (scan.angles_rad[j] - scan.angles_rad[i]))
-        if len(sides) == 2:
-            middles.append(0.5 * (sides[0] + sides[1]))
-    return float(np.median(middles)) if middles else None
-
-
-def _with_symmetry_doubt(
-    scan: AveragedScan, beams: NDArray[np.int64], fit: _Fit, section: _Section
-) -> _Fit:
-    """The fit with a sideways variance where its centre's bearing and the profile's symmetry
-    disagree (``_symmetry_bearing_rad``) by more than the fit's own sideways variance and a
-    beam step's quantisation: a rod merged with a wall close behind keeps 5 beams whose fit
-    sat 10 mm sideways against 1 mm std (a 20 mm rod at 0.75 m, the wall 0.3 m behind)."""
-    bearing = _symmetry_bearing_rad(scan, beams, section)
-    if bearing is None:
-        return fit
-    distance_m = float(np.linalg.norm(fit.centre_uv_m))
-    across = _across_bearing(fit.centre_uv_m)
-    fitted = float(np.arctan2(fit.centre_uv_m[1], fit.centre_uv_m[0]))
-    sideways_m = distance_m * float(np.angle(np.exp(1j * (bearing - fitted))))
-    quantisation_m2 = (distance_m * _beam_step_rad(scan)) ** 2 / 12.0
-    noise = fit.covariance_uv_m2 if fit.noise_covariance_uv_m2 is None else fit.noise_covariance_uv_m2
-    # Against the whole covariance for the covariance, against the noise for the noise: a
-    # blend bound that covers the disagreement repeats at the pose, while which beams the
-    # core keeps is drawn anew by every dwell (verify seed 6: a 20 mm rod at 1.2 m, 3 beams,
-    # 192-194 at the calibration and 191-193 at the verify, 11.7 mm apart sideways against
-    # 2-3 mm of noise std, its 59-188 mm blend std having swallowed the check).
-    excess_m2, noise_excess_m2 = (
-        max(sideways_m**2 - float(across @ covariance @ across) - quantisation_m2, 0.0)
-        for covariance in (fit.covariance_uv_m2, noise)
-    )
-    if noise_excess_m2 <= 0.0:
-        return fit
-    doubt = np.outer(across, across)
-    return _with_sideways_doubt(fit, excess_m2 * doubt, noise_excess_m2 * doubt)
 
 
 def _flute_moments_m(radius_m: float, settings: ExtractionSettings) -> tuple[float, float, float]:
