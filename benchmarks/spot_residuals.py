@@ -22,7 +22,9 @@ import numpy as np
 
 from fakes.scanner_model.dwell import simulate_dwell
 from fakes.scene import PhysicsSettings
-from lasercal_hw.scan.extraction import ExtractionSettings, _Section, _spot_readings_m
+from lasercal_hw.scan.extraction import ExtractionSettings
+from lasercal_hw.scan.extraction.section import _Section
+from lasercal_hw.scan.extraction.spot import _spot_readings_m
 
 RADII_M = (0.004, 0.010, 0.020, 0.045)
 RANGES_M = (0.15, 0.3, 0.75, 1.5, 3.0)
