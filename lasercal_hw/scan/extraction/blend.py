@@ -230,7 +230,7 @@ def _without_blended_flanks(
     segment whose flanks merged with a wall close behind on both sides, which the fit could
     not take as a rod (20 mm painted rods at 0.2-0.3 m before a wall 0.3 m behind: "not a
     rod, fit RMS 7-8 mm"), is tried again on its middle (fewer than ``min_beams``: unchanged)."""
-    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
+    tolerance = settings.shape_tolerance_m(section.radius_m)
     clean = np.flatnonzero(bound_m <= settings.edge_residual_sigmas * sigma + tolerance)
     if clean.size < settings.min_beams:
         return beams

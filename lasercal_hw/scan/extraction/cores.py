@@ -105,7 +105,7 @@ def _flat_halo(
     the rest, so the search for fronts found none. Its middle is then the front."""
     nearest = float(np.nanmin(ranges))
     reach_rad = 4 * (settings.max_ramp_beams + 1) * step_rad
-    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
+    tolerance = settings.shape_tolerance_m(section.radius_m)
     extremes_sigma = 2.0 * settings.edge_residual_sigmas * float(np.nanmedian(sigma))
     flat = float(np.nanmax(ranges)) - nearest <= section.semi_major_m + tolerance + extremes_sigma
     return flat and width_rad <= _widest_rad(nearest, section, settings) + reach_rad
@@ -125,7 +125,7 @@ def _middle_of_front(
     at 0.1 m)."""
     ranges = scan.ranges_m[part]
     sigma = _range_sigma(scan, settings)[part]
-    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
+    tolerance = settings.shape_tolerance_m(section.radius_m)
     with np.errstate(invalid="ignore"):
         level = ranges <= ranges[position] + 3.0 * np.hypot(sigma, sigma[position]) + tolerance
     run = next(r for r in _runs(level) if r[0] <= position <= r[-1])
@@ -154,7 +154,7 @@ def _rod_core(
     bearing = float(scan.angles_rad[part[front]])
     centre = centre_range * np.array([np.cos(bearing), np.sin(bearing)])
     points = scan.points_m()[part]
-    tolerance = max(settings.shape_tolerance_fraction * section.radius_m, settings.min_shape_tolerance_m)
+    tolerance = settings.shape_tolerance_m(section.radius_m)
     run = part[:0]
     for _ in range(4):
         residuals, _ = _residuals(points, centre, section, section.radius_m)

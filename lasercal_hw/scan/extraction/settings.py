@@ -227,3 +227,8 @@ class ExtractionSettings:
     glint_gloss_ratio: float = 0.75
     #: ... on this many beams or fewer (``_along_from_glint``).
     glint_max_beams: int = 7
+
+    def shape_tolerance_m(self, radius_m: float) -> float:
+        """How far a beam may lie off a rod of ``radius_m``'s surface beyond its noise and still
+        be the rod's (``shape_tolerance_fraction`` of the radius, at least ``min_shape_tolerance_m``)."""
+        return max(self.shape_tolerance_fraction * radius_m, self.min_shape_tolerance_m)
