@@ -15,14 +15,13 @@ the stated noise model); repeated with re-admission until the set is stable.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, Field, TypeAdapter
+from pydantic import TypeAdapter
 from scipy import special
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
@@ -32,10 +31,8 @@ from lasercal_hw.calibration.initial import linear_initial_pose
 from lasercal_hw.calibration.model import (
     RANGE_CURVE_BASIS,
     RANGE_CURVE_REFERENCE_M,
-    axis_basis,
     effective_covariance,
     euler_zyx_axes,
-    extended_fisher_information,
     extended_residuals_and_jacobian,
     fisher_information,
     left_jacobian_so3,
@@ -44,9 +41,7 @@ from lasercal_hw.calibration.model import (
     range_curve_variable,
     range_error_basis,
     range_error_m,
-    rod_lines_of_transforms,
     whiten,
-    whiten_residual,
     whitening,
 )
 from lasercal_hw.calibration.paper import solve_paper
@@ -58,8 +53,33 @@ from lasercal_hw.calibration.result import (
     Provenance,
     RangeErrorPoint,
     RangeOffset,
-    RodAxisEstimate,
     WaypointResidual,
+)
+from lasercal_hw.calibration.solver.axis import (
+    _axis_advice,
+    _axis_crb_std,
+    _axis_estimate,
+    _axis_prior_weight,
+    _mean_crossing_along_m,
+    axis_deviation,
+)
+from lasercal_hw.calibration.solver.data import (
+    MIN_WAYPOINTS,
+    _arrays,
+    _check_rod_directions,
+    _Data,
+    _usable_by_incidence,
+)
+from lasercal_hw.calibration.solver.extras import _crb_std, _extended_fisher, _Extras
+from lasercal_hw.calibration.solver.formatting import _finite, _fmt, _list
+from lasercal_hw.calibration.solver.options import SolverOptions
+from lasercal_hw.calibration.solver.residuals import (
+    _MEDIAN_CHI2_2DOF,
+    _chi2_2dof_quantile,
+    _degrees_of_freedom,
+    _reduced_chi_square,
+    _residual_scale,
+    _whitened,
 )
 from lasercal_hw.errors import CalibrationError, ConfigError, DegenerateDataError
 from lasercal_hw.geometry import (
@@ -69,7 +89,6 @@ from lasercal_hw.geometry import (
     matrix_to_euler_zyx,
     matrix_to_quat,
     matrix_to_rotvec,
-    pose_to_matrix,
     rotvec_to_matrix,
 )
 from lasercal_hw.models import Observation, RodLine
@@ -78,134 +97,9 @@ logger = logging.getLogger(__name__)
 
 _RESIDUALS = TypeAdapter(list[WaypointResidual])
 
-MIN_WAYPOINTS = 5
 MAX_RANGE_ERROR_M = 0.3
 """Ten times a UTM-30LX-EW's data-sheet range accuracy (+-30 mm to 10 m): a fit whose range
 error curve needs more at a used crossing has diverged, not found the scanner's error."""
-_MEDIAN_CHI2_2DOF = 2.0 * np.log(2.0)
-
-
-class SolverOptions(BaseModel):
-    """Settings of the solver (recorded in the result's provenance)."""
-
-    formulation: Literal["ours", "paper"] = "ours"
-    loss: Literal["huber", "soft_l1", "cauchy"] = Field("huber", description="robust loss in robust mode")
-    loss_scale: float | None = Field(
-        None, gt=0, description="robust loss knee in sigmas; default: the outlier limit (3.7 at 99.9 %)"
-    )
-    outlier_confidence: float = Field(0.999, gt=0.5, lt=1.0)
-    max_rejection_rounds: int = Field(10, ge=1)
-    max_outlier_fraction: float = Field(0.3, ge=0.0, lt=1.0)
-    default_sigma_uv_m: float = Field(0.005, gt=0, description="centre noise when none is given")
-    robot_sigma_m: float = Field(0.0005, ge=0, description="robot TCP position noise per axis")
-    min_incidence_deg: float = Field(
-        5.0, ge=0, lt=90, description="rod-to-plane angle below which a waypoint is unusable"
-    )
-    parallel_tolerance_deg: float = Field(0.5, ge=0, description="all rod axes within this are 'parallel'")
-    min_condition_ratio: float = Field(1e-6, gt=0, description="refuse below this singular-value ratio")
-    weak_condition_ratio: float = Field(1e-2, gt=0, description="note directions below this ratio")
-    estimate_axis: bool | Literal["auto"] = Field(
-        False,
-        description="estimate the rod line in the TCP frame (2 offsets, 2 tilts); auto: when observable",
-    )
-    estimate_range_offset: bool | Literal["auto"] = Field(
-        False,
-        description="estimate the scanner's range error curve over distance (an offset, then powers of "
-        "ln(distance) where the waypoints pin them down); auto: the offset too only when observable",
-    )
-    max_range_terms: int = Field(
-        5,
-        ge=1,
-        le=5,
-        description="most terms of the range error curve: 1 an offset, each more a power of ln(d / 1 m)",
-    )
-    auto_range_offset_max_std_m: float = Field(
-        0.002,
-        gt=0,
-        description="estimate a term of the range error curve when the Cramér-Rao std of what it adds to the "
-        "error over the crossings' span (its coefficient's std times half the span in ln d, to its power) is "
-        "below this",
-    )
-    auto_range_offset_min_sigmas: float = Field(
-        3.3, gt=0, description="auto: ... and keep it only when it is this many std from zero"
-    )
-    range_offset_applied_m: float = Field(
-        0.0, description="range offset already removed from the centres (added to the reported offset)"
-    )
-    auto_axis_max_offset_std_m: float = Field(
-        0.001,
-        gt=0,
-        description="auto: estimate the axis when the Cramér-Rao std of its offset where the rod crosses "
-        "the plane is below this",
-    )
-    axis_prior_std_m: float = Field(
-        0.005,
-        gt=0,
-        description="how far the given rod axis may be off across itself (one std): an estimated axis is "
-        "held to it where the waypoints cannot see it",
-    )
-    axis_prior_std_deg: float = Field(3.0, gt=0, description="... and how far it may be tilted (one std)")
-    weak_axis_tilt_std_deg: float = Field(
-        0.5, gt=0, description="note a rod-axis tilt whose Cramér-Rao std is above this as weakly determined"
-    )
-
-
-@dataclass
-class _Data:
-    """The observations as arrays, rod lines in the base frame (for the current rod line
-    ``rod`` and range error curve ``range_curve_m``: ``with_line`` moves them)."""
-
-    index: np.ndarray
-    origins: FloatArray
-    directions: FloatArray
-    centres: FloatArray
-    covariance: FloatArray
-    tcp_transforms: FloatArray
-    rod: RodLine
-    nominal_rod: RodLine
-    range_curve_m: FloatArray = field(default_factory=lambda: np.zeros(0))
-    #: The part of each centre's covariance another dwell draws anew (N, 2, 2), NaN where the
-    #: observation did not say (``Observation.noise_covariance_uv_m2``): recorded, not weighed.
-    noise_covariance: FloatArray = field(default_factory=lambda: np.zeros((0, 2, 2)))
-
-    def with_line(self, rod: RodLine, range_curve_m: FloatArray) -> _Data:
-        """The same observations for another rod line and range error curve."""
-        origins, directions = _lines(self.tcp_transforms, rod)
-        return replace(self, origins=origins, directions=directions, rod=rod, range_curve_m=range_curve_m)
-
-    def predicted(self, rotation: FloatArray, translation: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Where the centres should be seen (N, 2), with the range error, and the slopes."""
-        crossing, slope, _ = plane_crossing(rotation, translation, self.origins, self.directions)
-        if self.range_curve_m.any():
-            distance = np.linalg.norm(crossing, axis=1)
-            crossing = crossing * (1.0 + range_error_m(self.range_curve_m, distance)[0] / distance)[:, None]
-        return crossing, slope
-
-
-@dataclass(frozen=True)
-class _Extras:
-    """Which parameters besides the six of the pose are estimated."""
-
-    axis: bool = False
-    range_terms: int = 0
-    axis_note: str = ""
-    offset_note: str = ""
-
-    @property
-    def offset(self) -> bool:
-        """Whether the range error curve (at least its offset) is estimated."""
-        return self.range_terms > 0
-
-    @property
-    def count(self) -> int:
-        return 4 * self.axis + self.range_terms
-
-
-def _lines(tcp_transforms: FloatArray, rod: RodLine) -> tuple[FloatArray, FloatArray]:
-    rotations = tcp_transforms[:, :3, :3]
-    return rotations @ np.asarray(rod.origin_m, dtype=float) + tcp_transforms[
-        :, :3, 3
-    ], rotations @ rod.unit_direction()
 
 
 def solve(
@@ -287,98 +181,6 @@ def solve(
         result.provenance.solve_time_s * 1e3,
     )
     return result
-
-
-def _arrays(
-    observations: Sequence[Observation], table: FloatArray, rod: RodLine, opts: SolverOptions
-) -> _Data:
-    """The solver's arrays from the observations and their (N, 8) pose and centre rows."""
-    n = len(observations)
-    if n < MIN_WAYPOINTS:
-        raise DegenerateDataError(
-            f"only {n} waypoint(s); at least {MIN_WAYPOINTS} with different rod orientations are needed "
-            "(each gives 2 equations for 6 unknowns): record more waypoints"
-        )
-    index = np.array([o.index for o in observations])
-    poses, centres = table[:, :6], table[:, 6:]
-    default = np.eye(2) * opts.default_sigma_uv_m**2
-    covariance = np.array(
-        [default if o.covariance_uv_m2 is None else o.covariance_uv_m2 for o in observations], dtype=float
-    )
-    misshapen = covariance.shape != (n, 2, 2) or any(
-        np.shape(observations[row].tcp_pose) != (6,) or np.shape(observations[row].centre_uv_m) != (2,)
-        for row in np.flatnonzero(np.isnan(table).all(axis=1))
-    )
-    if misshapen:
-        raise ConfigError(
-            "each observation needs a 6-element TCP pose, a 2-element centre and a 2x2 covariance"
-        )
-    finite = np.isfinite(poses).all(axis=1) & np.isfinite(centres).all(axis=1)
-    finite &= np.isfinite(covariance).all(axis=(1, 2))
-    if not finite.all():
-        bad = ", ".join(str(i) for i in index[~finite][:10])
-        raise DegenerateDataError(
-            f"waypoint(s) {bad} contain NaN or infinite values: re-record or remove those waypoints"
-        )
-    rod_direction = np.asarray(rod.direction, dtype=float)
-    if not (np.isfinite(rod_direction).all() and np.linalg.norm(rod_direction) > 1e-9):
-        raise ConfigError(f"rod axis direction {rod_direction.tolist()} is not a usable direction")
-    det = covariance[:, 0, 0] * covariance[:, 1, 1] - covariance[:, 0, 1] ** 2
-    bad_cov = ~((covariance[:, 0, 0] > 0) & (det > 0))
-    if bad_cov.any():
-        raise ConfigError(
-            f"centre covariance of waypoint {index[bad_cov][0]} is not positive definite: "
-            "give positive sigma_u, sigma_v"
-        )
-    transforms = pose_to_matrix(poses)
-    origins, directions = rod_lines_of_transforms(transforms, rod)
-    unknown = np.full((2, 2), np.nan)
-    noise = np.array(
-        [unknown if o.noise_covariance_uv_m2 is None else o.noise_covariance_uv_m2 for o in observations],
-        dtype=float,
-    ).reshape(n, 2, 2)
-    return _Data(
-        index, origins, directions, centres, covariance, transforms, rod, rod, noise_covariance=noise
-    )
-
-
-def _check_rod_directions(directions: FloatArray, opts: SolverOptions) -> None:
-    mean = directions.mean(axis=0)
-    mean /= np.linalg.norm(mean)
-    spread_deg = float(np.degrees(np.arccos(np.clip(directions @ mean, -1.0, 1.0))).max())
-    if spread_deg <= opts.parallel_tolerance_deg:
-        raise DegenerateDataError(
-            f"all rod axes are parallel (within {spread_deg:.2f} deg, along base {_fmt(mean)}): the "
-            "translation along the rod axis and the tilt of the scan plane are not observable; vary "
-            "the tool orientation, tilting the rod 10-20 deg about two different axes across the waypoints"
-        )
-
-
-def _usable_by_incidence(
-    rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions
-) -> tuple[np.ndarray, list[Outlier]]:
-    """Waypoints whose rod crosses the (initial) scan plane steeply enough to be used."""
-    normal = rotation[:, 2]
-    incidence_deg = np.degrees(np.arcsin(np.clip(np.abs(data.directions @ normal), 0.0, 1.0)))
-    usable = incidence_deg >= opts.min_incidence_deg
-    if usable.sum() < MIN_WAYPOINTS:
-        raise DegenerateDataError(
-            f"rod axes lie nearly in the scan plane (steepest crossing {incidence_deg.max():.1f} deg, "
-            f"{int(usable.sum())} waypoint(s) above {opts.min_incidence_deg:g} deg): the crossing point "
-            "along the rod is not observable; point the rod through the scan plane at 30 deg or more"
-        )
-    crossing, _, _ = plane_crossing(rotation, translation, data.origins, data.directions)
-    offset_mm = np.linalg.norm(crossing - data.centres, axis=1) * 1e3
-    outliers = [
-        Outlier(
-            index=int(data.index[i]),
-            residual_mm=_finite(offset_mm[i]),
-            reason=f"rod axis only {incidence_deg[i]:.1f} deg from the scan plane "
-            f"(minimum {opts.min_incidence_deg:g} deg)",
-        )
-        for i in np.flatnonzero(~usable)
-    ]
-    return usable, outliers
 
 
 def _fit(
@@ -530,19 +332,6 @@ def _check_not_diverged(rotation: FloatArray, translation: FloatArray, data: _Da
             f"beyond any working scanner's ({MAX_RANGE_ERROR_M * 1e3:.0f} mm): the fit ran away with the "
             f"pose, or the scanner is faulty (compare a tape-measured distance with its reading); {advice}"
         )
-
-
-def _whitened(rotation: FloatArray, translation: FloatArray, data: _Data, opts: SolverOptions) -> FloatArray:
-    """Whitened residual of every waypoint (N, 2); non-finite ones become infinite."""
-    crossing, slope = data.predicted(rotation, translation)
-    white = whitening(effective_covariance(data.covariance, slope, opts.robot_sigma_m))
-    return np.nan_to_num(whiten_residual(white, crossing - data.centres), nan=np.inf)
-
-
-def _chi2_2dof_quantile(probability: float) -> float:
-    """The chi-square quantile with 2 degrees of freedom: that distribution is exponential with
-    mean 2, so its quantile is closed-form (and scipy.stats, 0.3 s to import, is not needed)."""
-    return -2.0 * math.log1p(-probability)
 
 
 def _rejected(
@@ -767,28 +556,6 @@ def _result(
     )
 
 
-def _extended_fisher(
-    rotation: FloatArray,
-    translation: FloatArray,
-    data: _Data,
-    used: np.ndarray,
-    opts: SolverOptions,
-    extras: _Extras,
-) -> FloatArray:
-    """Fisher information of the pose and the extra parameters over the used waypoints."""
-    return extended_fisher_information(
-        rotation,
-        translation,
-        data.tcp_transforms[used],
-        data.rod,
-        data.covariance[used],
-        opts.robot_sigma_m,
-        data.range_curve_m,
-        with_axis=extras.axis,
-        with_offset=extras.range_terms,
-    )
-
-
 def _extras(
     rotation: FloatArray,
     translation: FloatArray,
@@ -885,31 +652,6 @@ def _lower_curve(
     return lower
 
 
-def _degrees_of_freedom(used: np.ndarray, extras: _Extras) -> int:
-    """Two residuals per used waypoint less the pose's 6 and the extras' parameters."""
-    return 2 * int(used.sum()) - 6 - extras.count
-
-
-def _reduced_chi_square(m2: FloatArray, used: np.ndarray, extras: _Extras) -> float:
-    """The chi-square of the waypoints' squared whitened residuals ``m2`` over the used ones,
-    per degree of freedom (1 when there are none left to measure it)."""
-    dof = _degrees_of_freedom(used, extras)
-    return float(m2[used].sum() / dof) if dof > 0 else 1.0
-
-
-def _residual_scale(
-    rotation: FloatArray,
-    translation: FloatArray,
-    data: _Data,
-    used: np.ndarray,
-    opts: SolverOptions,
-    extras: _Extras,
-) -> float:
-    """The fit's residuals in units of the stated noise: ``sqrt(reduced chi-square)``."""
-    m2 = (_whitened(rotation, translation, data, opts) ** 2).sum(axis=1)
-    return float(np.sqrt(_reduced_chi_square(m2, used, extras)))
-
-
 def _fullest_fit_scale(
     rotation: FloatArray,
     translation: FloatArray,
@@ -1000,30 +742,6 @@ def _range_terms_wanted(
     )
 
 
-def _axis_crb_std(fisher: FloatArray, crossing_along_m: float) -> tuple[FloatArray, FloatArray]:
-    """Cramér-Rao std of the rod axis's offset where it crosses the plane (m, e1 and e2) and
-    of its tilt (deg), from the information of the pose, the axis (parameters 6-9) and more."""
-    if not np.all(np.isfinite(fisher)):
-        return np.full(2, np.inf), np.full(2, np.inf)
-    axis_covariance = np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)[6:10, 6:10]
-    tilt_std_rad = np.sqrt(np.clip(np.diag(axis_covariance)[2:], 0.0, None))
-    return _crossing_offset_std_m(axis_covariance, crossing_along_m), np.degrees(tilt_std_rad)
-
-
-def _crossing_offset_std_m(axis_covariance: FloatArray, crossing_along_m: float) -> FloatArray:
-    """Std (m) of the axis offset ``a + along * b`` where the rod crosses the plane, from the
-    covariance (4, 4) of the offset ``a`` and tilt ``b`` at the rod origin."""
-    to_crossing = np.hstack([np.eye(2), crossing_along_m * np.eye(2)])
-    return np.sqrt(np.clip(np.diag(to_crossing @ axis_covariance @ to_crossing.T), 0.0, None))
-
-
-def _crb_std(fisher: FloatArray) -> FloatArray:
-    """Cramér-Rao std of every parameter (infinite where the information is not finite)."""
-    if not np.all(np.isfinite(fisher)):
-        return np.full(fisher.shape[0], np.inf)
-    return np.sqrt(np.clip(np.diag(np.linalg.pinv(fisher, rcond=1e-12, hermitian=True)), 0.0, None))
-
-
 def _require_observable(fisher: FloatArray, opts: SolverOptions, extras: _Extras) -> None:
     """Refuse (``DegenerateDataError``) extra parameters the waypoints cannot separate from the pose."""
     scale = 1.0 / np.sqrt(np.clip(np.diag(fisher), 1e-300, None))
@@ -1042,83 +760,6 @@ def _require_observable(fisher: FloatArray, opts: SolverOptions, extras: _Extras
     raise DegenerateDataError(
         f"the {'rod axis' if extras.axis else 'range offset'} cannot be told apart from the scanner pose "
         f"with these waypoints (singular-value ratio {ratio:.1e}): {'; '.join(parts)}"
-    )
-
-
-def _axis_advice(offset_std_m: FloatArray, tilt_std_deg: FloatArray, opts: SolverOptions) -> str:
-    """Which tool motion the trajectory lacks to observe the rod axis."""
-    advice = []
-    if not offset_std_m.max() <= opts.auto_axis_max_offset_std_m:
-        advice.append(
-            "to see the axis offset, turn the tool about the rod axis between waypoints (spin it 90 deg or "
-            "more) and tilt it about two different axes"
-        )
-    if not tilt_std_deg.max() <= opts.weak_axis_tilt_std_deg:
-        advice.append(
-            "to see the axis tilt, vary where along the rod it crosses the scan plane (crossings spread "
-            "5 cm or more along the rod)"
-        )
-    return "; ".join(advice) or "the trajectory is too short"
-
-
-def _axis_prior_weight(opts: SolverOptions) -> FloatArray:
-    """1 / std of the axis prior for (offset e1, e2 (m), tilt e1, e2 (rad))."""
-    return 1.0 / np.array([opts.axis_prior_std_m] * 2 + [np.radians(opts.axis_prior_std_deg)] * 2)
-
-
-def axis_deviation(nominal: RodLine, rod: RodLine) -> FloatArray:
-    """How ``rod`` lies off ``nominal``: its offset (m) across the nominal axis at the nominal
-    origin and its tilt (the tangent) along ``axis_basis`` of the nominal direction, the
-    parameters of ``moved_rod``."""
-    basis = axis_basis(nominal.direction)
-    direction = rod.unit_direction()
-    nominal_direction = nominal.unit_direction()
-    along = direction @ nominal_direction
-    nominal_origin = np.asarray(nominal.origin_m, dtype=float)
-    origin = np.asarray(rod.origin_m, dtype=float)
-    level = origin + ((nominal_origin - origin) @ nominal_direction) / along * direction
-    offset = (level - nominal_origin) @ basis
-    return np.concatenate([offset, (direction @ basis) / along])
-
-
-def _mean_crossing_along_m(
-    rotation: FloatArray, translation: FloatArray, data: _Data, used: np.ndarray
-) -> float:
-    """Mean distance along the rod, from its origin, at which the used waypoints cross the plane."""
-    _, _, along_m = plane_crossing(rotation, translation, data.origins[used], data.directions[used])
-    return float(np.mean(along_m))
-
-
-def _axis_estimate(
-    data: _Data, extras: _Extras, covariance: FloatArray, crossing_along_m: float
-) -> RodAxisEstimate | None:
-    """The estimated rod line next to the nominal one (None when the axis was never asked for),
-    with its offset where the rod crossed the plane: the part of the line the waypoints pin
-    down best when the crossings keep to a short stretch of the rod."""
-    nominal = data.nominal_rod
-    if not extras.axis and not extras.axis_note:
-        return None
-    basis = axis_basis(nominal.direction)
-    deviation = axis_deviation(nominal, data.rod)
-    offset, tilt = deviation[:2], np.arctan(deviation[2:])
-    axis_covariance = covariance[6:10, 6:10] if extras.axis else np.zeros((4, 4))
-    std = np.sqrt(np.diag(axis_covariance))
-    crossing_std = _crossing_offset_std_m(axis_covariance, crossing_along_m)
-    return RodAxisEstimate(
-        estimated=extras.axis,
-        nominal_origin_m=_list(nominal.origin_m),
-        nominal_direction=_list(nominal.unit_direction()),
-        origin_m=_list(np.asarray(nominal.origin_m, dtype=float) + basis @ offset),
-        direction=_list(data.rod.unit_direction()),
-        basis_tcp=basis.T.tolist(),
-        offset_mm=_list(offset * 1e3),
-        offset_std_mm=_list(std[:2] * 1e3),
-        tilt_deg=_list(np.degrees(tilt)),
-        tilt_std_deg=_list(np.degrees(std[2:])),
-        crossing_along_mm=crossing_along_m * 1e3,
-        crossing_offset_mm=_list((offset + crossing_along_m * deviation[2:]) * 1e3),
-        crossing_offset_std_mm=_list(crossing_std * 1e3),
-        note=extras.axis_note,
     )
 
 
@@ -1152,19 +793,3 @@ def _range_offset(
         ],
         worst_mm=float(np.max(np.abs(range_error_m(curve, dense)[0]))) * 1e3,
     )
-
-
-def _fmt(vector: FloatArray) -> str:
-    names = ("x", "y", "z")
-    axis = int(np.argmax(np.abs(vector)))
-    if abs(vector[axis]) > 0.98:
-        return f"{'-' if vector[axis] < 0 else ''}{names[axis]}"
-    return "(" + ", ".join(f"{v:+.2f}" for v in vector) + ")"
-
-
-def _finite(value: float) -> float:
-    return float(value) if np.isfinite(value) else 1e12
-
-
-def _list(array: FloatArray) -> list[float]:
-    return [float(v) for v in np.asarray(array).ravel()]
