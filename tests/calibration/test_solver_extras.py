@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import lasercal_hw.calibration.solver as solver_module
+import lasercal_hw.calibration.solver.pipeline as solver_module
 from fakes.scene import load_scene
 from fakes.world import World
 from lasercal_hw.calibration.model import (
