@@ -101,6 +101,7 @@ def solve_run(
         solve_settings=solution.settings,
         centre_warnings=solution.centre_warnings,
         refit=solution.refit,
+        waypoints=measured.waypoints,
     )
 
 

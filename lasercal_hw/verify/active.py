@@ -157,13 +157,29 @@ class ActiveCalibration(ResultFile):
             raise self._malformed(f"{name} has a non-finite origin or a zero direction")
         return replace(nominal, origin_m=origin_m, direction=direction)
 
+    def waypoints_note(self) -> str:
+        """Where ``waypoints`` come from, for ``verify.json``."""
+        if self.run_waypoints is not None:
+            count = len(self.run_waypoints)
+            return f"result.json run.waypoints: the {count} waypoints the calibration planned"
+        return (
+            "the job's waypoints as listed (result.json records no run.waypoints, written before "
+            "2026-11-28 or by `lasercal solve`): an adaptive run's second design or a spun run's "
+            "turned waypoints are not among them"
+        )
+
     @property
     def rod(self) -> RodLine | None:
         """The rod the calibration was made with, if recorded."""
         return self.job.rod.rod_line() if self.job is not None else None
 
     def waypoints(self) -> FloatArray | None:
-        """The calibration's waypoints (UR poses) as its job lists them, if its job was recorded."""
+        """The calibration's waypoints (UR poses) by the residuals' index: every one its run
+        planned (``run.waypoints``: an adaptive run's second design and a spun run's turned
+        waypoints too) or, in a file without that record, as its job lists them (``waypoints_note``);
+        None without either."""
+        if self.run_waypoints is not None:
+            return self.run_waypoints
         if self.job is None:
             return None
         if self.job.trajectory.flute_phase_deg is not None:  # the waypoints, not the spin before them

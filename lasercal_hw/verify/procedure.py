@@ -155,21 +155,23 @@ def plan_verify(
     range_error: RangeOffset | None = None,
     refit: SecondPassRefit | None = None,
     rod: RodLine | None = None,
+    candidates: FloatArray | None = None,
 ) -> VerifyPlan:
     """How to check the calibration ``T_base_laser`` (with its ``covariance``, its range error
     curve ``range_error`` (None: none), its second pass's ``refit`` (None: none recorded; the
     calibrated transform, the job's rod and the raw ranges), the rod it estimated, which
     predicts the crossings (None: the job's), and its ``residuals`` at ``recorded_waypoints``,
     None: not recorded) with ``job``: ``count`` waypoints (None: the job's ``verify.waypoints``)
-    chosen within ``budget_s``, each weighed with the centre covariance the calibration recorded
-    there."""
+    chosen within ``budget_s`` among ``candidates`` (the calibration's own waypoints as its run
+    recorded them; None: the job's), each weighed with the centre covariance the calibration
+    recorded there."""
     checking = verify_job(job, T_base_laser)
     refit = refit or SecondPassRefit(np.asarray(T_base_laser, dtype=float), checking.rod.rod_line())
     model = replace(
         drift_model(T_base_laser, covariance, checking, range_error, refit.range_offset_m, rod),
         flutes=refit.flutes,
     )
-    waypoints = job_waypoints(checking)
+    waypoints = job_waypoints(checking) if candidates is None else np.asarray(candidates, dtype=float)
     reference = recorded_residuals(residuals, recorded_waypoints, waypoints)
     centre_covariance, noise_covariance = recorded_centre_covariances(
         residuals, recorded_waypoints, waypoints
@@ -193,7 +195,7 @@ def plan_active(
 ) -> VerifyPlan:
     """``plan_verify`` for the calibration ``active`` as its ``result.json`` records it (its
     transform, covariance, residuals, waypoints, range error curve, second pass and estimated
-    rod) checked with ``job``'s rod."""
+    rod) checked with ``job``'s rod, choosing among the waypoints its run recorded where it did."""
     nominal = job.rod.rod_line()
     return plan_verify(
         job,
@@ -206,6 +208,7 @@ def plan_active(
         range_error=active.result.range_offset,
         refit=active.refit(nominal),
         rod=active.result.estimated_rod(nominal),
+        candidates=active.run_waypoints,
     )
 
 
