@@ -103,7 +103,14 @@ def _gloss_ratio(
     of each beam's intensity over the brightest, divided by that prediction (intensity goes
     as the square root of the power; the spot's core and halo as ``_spot_readings_m`` takes
     them). About 1 for a diffuse surface, well under for a polished one; None without
-    intensities or such beams."""
+    intensities or such beams.
+
+    The power is the one ``spot._spot_readings_m`` weights its readings by, integrated more
+    plainly: an upright circle of ``radius_m`` (no tilt), one spot width for every beam (at the
+    rod's front, ``distance - radius``), each beam beside the centre by its bearing, and 201
+    angles over the visible half (where the spot model takes each beam's own section, range and
+    Gauss-Legendre nodes within its spot). The two profiles differ by up to 0.4 % of the peak;
+    ``glint_gloss_ratio`` was set on this one."""
     if scan.intensities is None:
         return None
     intensity = scan.intensities[beams]

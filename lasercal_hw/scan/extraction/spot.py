@@ -41,7 +41,15 @@ def _spot_readings_m(
     and reads ``b.c + tau(phi)``, both ``x`` and ``tau`` fixed by the section's shape, so the
     reading moves with the centre as ``b + d(mean tau)/dm across``. Gauss-Legendre nodes over
     the part each of the spot's core and halo covers (to twice its 1/e^2 half-width, where it
-    is 3e-4 of its peak: the moving limits add nothing worth keeping to the derivative)."""
+    is 3e-4 of its peak: the moving limits add nothing worth keeping to the derivative).
+
+    The power each spot takes from the rod (the readings' weight, ``total`` below) is the
+    quantity ``intensity._gloss_ratio`` integrates too, its own way and only relative to the
+    brightest beam: here the section as this beam sees it (an ellipse for a tilted rod, the
+    cosine of incidence in 3D), each beam's spot as wide as at its own reading, Gauss-Legendre
+    nodes within twice each part's half-width; there an upright circle, one spot width at the
+    rod's front, 201 angles across the whole visible half. Their predicted profiles differ by up
+    to 0.4 % of the peak (10-45 mm rods at 0.75-3 m), so each keeps its own."""
     ranges = np.linalg.norm(points, axis=1)
     core_m = 2.0 * _spot_sigma_m(ranges, settings)  # the core's 1/e^2 half-width
     if not np.any(core_m > 0.0):
