@@ -54,13 +54,16 @@ def result_document(
     scanner: str | None = None,
 ) -> dict[str, Any]:
     """``result.json``: the solver's result plus the run's verdict, skips and timings, the
-    robot's own kinematics calibration (``run.robot_calibration``; null: unknown), and the cell
-    scanner it calibrated (``run.scanner_name``, whose frame the exports name)."""
+    pose it commanded at each waypoint index (``run.waypoints``: every design of an adaptive run,
+    a twist drill's spin and turned waypoints), the robot's own kinematics calibration
+    (``run.robot_calibration``; null: unknown), and the cell scanner it calibrated
+    (``run.scanner_name``, whose frame the exports name)."""
     result = outcome.result
     document = result.to_json_dict()
     document["verdict"] = outcome.verdict.as_dict()
     document["run"] = {
         "waypoints_planned": len(outcome.measurements) + len(outcome.skipped),
+        "waypoints": np.asarray(outcome.waypoints, dtype=float).tolist(),
         "observations": len(outcome.observations),
         "skipped": [{"index": s.index, "reason": s.reason} for s in outcome.skipped],
         "centre_warnings": [{"index": i, "warning": warning} for i, warning in outcome.centre_warnings],
@@ -166,6 +169,9 @@ class ResultFile:
     #: The flute phase pass's outcome as recorded (``run.first_pass.flute_phase``), or None where
     #: the file has none (a rod without flutes, or a file written before 2026-11-27).
     flute_phase: dict[str, Any] | None = None
+    #: The UR pose the run commanded at each waypoint index (``run.waypoints``, N x 6), or None
+    #: where the file has none (written before 2026-11-28, or by ``lasercal solve`` of a CSV).
+    visited_waypoints: FloatArray | None = None
 
     @property
     def passed(self) -> bool:
@@ -219,7 +225,25 @@ def read_result_file(path: Path) -> ResultFile:
         first_pass_transform=(_table(run, "first_pass") or {}).get("T_base_laser"),
         first_pass_rod=_table(_table(run, "first_pass") or {}, "rod"),
         flute_phase=_table(_table(run, "first_pass") or {}, "flute_phase"),
+        visited_waypoints=_poses(run.get("waypoints"), path),
     )
+
+
+def _poses(value: Any, path: Path) -> FloatArray | None:
+    """``run.waypoints`` as UR pose vectors (N, 6), None where the file has none; a malformed
+    list raises ``ConfigError``."""
+    if value is None:
+        return None
+    try:
+        poses = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        poses = np.zeros((0, 0))
+    if poses.ndim != 2 or poses.shape[1] != 6 or not np.isfinite(poses).all():
+        raise ConfigError(
+            f"{path}: run.waypoints is not a list of UR poses (6 finite numbers each); pass the "
+            "result.json that `lasercal run` wrote"
+        )
+    return poses
 
 
 def report_data(

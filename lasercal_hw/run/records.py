@@ -143,6 +143,9 @@ class RunOutcome:
     centre_warnings: list[tuple[int, str]]
     #: How the solved centres were fitted (``TwoPassSolution.refit``; ``result.json`` records it).
     refit: SecondPassRefit
+    #: The UR pose the run commanded at each waypoint index (N, 6), every design and turn of it
+    #: (``result.json``'s ``run.waypoints``: what a verify chooses among).
+    waypoints: FloatArray
 
 
 @dataclass(frozen=True)
