@@ -1,7 +1,8 @@
-"""A verify over an adaptive calibration chooses among every pose the calibration visited
-(``result.json``'s ``run.waypoints``: both designs), weighs each with the residual and centre
-covariance recorded there and counts both designs in its time budget; an older result.json
-without the record falls back to the job's waypoints and says so in the selection."""
+"""A verify chooses among every pose the calibration visited (``result.json``'s
+``run.waypoints``: both designs of an adaptive run, a spun drill's spin and turned waypoints),
+weighs each with the residual and centre covariance recorded there and counts them all in its
+time budget; an older result.json without the record falls back to the job's waypoints and says
+so in the selection."""
 
 from __future__ import annotations
 
@@ -13,19 +14,23 @@ import numpy as np
 import pytest
 
 from lasercal_hw.config import JobConfig, job_from_mapping
+from lasercal_hw.run import flute_spin
 from lasercal_hw.run.adaptive import run_second_design
+from lasercal_hw.run.flute_spin import SpinPhase, run_turned_waypoints, turned_about_bit
 from lasercal_hw.run.outputs import result_document
 from lasercal_hw.run.records import RunOutcome
 from lasercal_hw.run.replay import solve_recording
 from lasercal_hw.run.resume import DESIGN_EVENT
+from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.timing import visit_time_s
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
 from lasercal_hw.verify.active import load_active_calibration
 from lasercal_hw.verify.procedure import plan_active, time_budget_s, verify_job
 from tests.doubles import run_calibration
 from tests.run.test_adaptive import ADAPTIVE
+from tests.run.test_flute_spin import _spun_job
 from tests.run.test_sequencer import make_cell
 
 
@@ -113,3 +118,33 @@ def test_an_older_result_json_without_the_record_still_verifies(
     np.testing.assert_array_equal(plan.waypoints, job_waypoints(checking))
     assert "does not record the poses its run commanded" in plan.selection.candidates_source
     assert len(plan.selection.indices) == adaptive_run.job.verify.waypoints
+
+
+def test_a_spun_drills_verify_matches_each_residual_to_the_pose_it_was_measured_at(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A ``flute_phase_deg`` run visits the spin, then its waypoints turned to the phase: the
+    candidates are those poses, each with its own residual (main: the listed waypoints, the
+    residual of the run's k-th visit, a spin dwell for k < 12, at the k-th listed pose)."""
+    job = _spun_job(tmp_path)
+    spin = job_waypoints(job)
+    told = SpinPhase(phase_deg=60.0, phase_std_deg=3.0, gain=20.0, shift_deg=30.0, centres=9)
+    monkeypatch.setattr(flute_spin, "phase_from_spin", lambda *args: told)
+    clock, robot, scanner = make_cell(job)
+    recorder = SessionRecorder(
+        tmp_path / "session.mcap", {"job": job.model_dump(mode="json"), "waypoints": spin.tolist()}
+    )
+    try:
+        spun = Sequencer(robot, scanner, recorder, job, spin, clock=clock).measure()
+        outcome = run_turned_waypoints(robot, scanner, recorder, job, spin, spun, clock=clock)
+    finally:
+        recorder.close()
+    result = tmp_path / "result.json"
+    result.write_text(json.dumps(result_document(outcome, job)), encoding="utf-8")
+    plan = plan_active(load_active_calibration(result), job)
+    turned = turned_about_bit(listed_waypoints(job), job.rod.rod_line(), 30.0)
+    np.testing.assert_array_equal(plan.waypoints, np.vstack([spin, turned]))
+    used = {row.index: (row.du_mm / 1e3, row.dv_mm / 1e3) for row in outcome.result.residuals if row.used}
+    for index in used:  # a pose visited twice (the spin's 30 deg turn is waypoint 0 turned): either visit's
+        same = np.flatnonzero(np.abs(plan.waypoints - plan.waypoints[index]).max(axis=1) < 1e-6)
+        assert any(np.allclose(plan.reference[index], used[k]) for k in same if k in used), index
