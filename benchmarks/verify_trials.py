@@ -99,6 +99,5 @@ class VerifyBench:
             refit=trial.refit,
             rod=calibration.estimated_rod(self.job.rod.rod_line()),
             candidates=self.poses,  # as from a result.json that records the poses its run visited
-            candidates_source="the poses the simulated calibration visited",
         )
         return trial, plan

@@ -48,6 +48,11 @@ def main() -> None:
         ranges_m = np.where(mm >= 23, mm / 1000.0, np.nan)
         scans.append(LaserScan(k, world.geometry, ranges_m, mm, intensity, 0.025 * k, 0.025 * k))
     averaged = average_scans(scans)
+    # Where the run would look: the rod's crossing of the scan plane (the scene has other
+    # rod-like objects, and the extraction refuses to choose among them unguided).
+    point, axis = world.rod_shape_in_scanner(T)
+    expected_uv_m = (point - point[2] / axis[2] * axis)[:2]
+    radius_m = world.rod.radius_m
     background_scans = []
     T_away = world.ground_truth_T_base_laser @ make_transform(np.eye(3), [0.0, 0.0, 3.0])
     for scan in scans:
@@ -61,10 +66,15 @@ def main() -> None:
         ("world.scan_ranges_m, all noise models", lambda: world.scan_ranges_m(T, rng)),
         ("world.scan_mm (wire values + intensities)", lambda: world.scan_mm(T, rng)),
         ("average_scans, 120 scans x 1081 beams", lambda: average_scans(scans)),
-        ("find_rod_centre, no background", lambda: find_rod_centre(averaged, radius_m=0.02)),
+        (
+            "find_rod_centre, no background",
+            lambda: find_rod_centre(averaged, radius_m=radius_m, expected_uv_m=expected_uv_m),
+        ),
         (
             "find_rod_centre, with background",
-            lambda: find_rod_centre(averaged, radius_m=0.02, background=background),
+            lambda: find_rod_centre(
+                averaged, radius_m=radius_m, background=background, expected_uv_m=expected_uv_m
+            ),
         ),
     ]
     print(f"reference (beam end points of one scan): {ref * 1e6:.1f} us")

@@ -8,13 +8,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
 from lasercal_hw.calibration.quality import evaluate_gates
 from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.config import JobConfig
 from lasercal_hw.errors import InterruptedRunError
-from lasercal_hw.models import FloatArray
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.records import (
     Measured,
@@ -32,18 +29,15 @@ def solve_run(
     job: JobConfig,
     recorder: RunRecorder,
     *,
-    waypoints: FloatArray,
+    waypoint_count: int,
     on_progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
     clock: Callable[[], float] = time.time,
 ) -> RunOutcome:
-    """Solve what ``Sequencer.measure`` gathered at ``waypoints`` (the poses the run commanded,
-    by index), grade it, and record the solve, the verdict and the run's end. A cancel or Ctrl-C
-    while solving raises InterruptedRunError (nothing moves any more; the recording holds every
-    waypoint, so the run can be solved again)."""
+    """Solve what ``Sequencer.measure`` gathered, grade it, and record the solve, the verdict
+    and the run's end. A cancel or Ctrl-C while solving raises InterruptedRunError (nothing
+    moves any more; the recording holds every waypoint, so the run can be solved again)."""
     cancel = cancel or CancelToken()
-    commanded = np.asarray(waypoints, dtype=float).reshape(-1, 6)
-    waypoint_count = len(commanded)
     done = len(measured.measurements) + len(measured.skipped)
     started_s = clock()
 
@@ -107,7 +101,7 @@ def solve_run(
         solve_settings=solution.settings,
         centre_warnings=solution.centre_warnings,
         refit=solution.refit,
-        waypoints=commanded,
+        waypoints=measured.waypoints,
     )
 
 

@@ -53,11 +53,10 @@ def result_document(
     robot_calibration: RobotCalibration | None = None,
     scanner: str | None = None,
 ) -> dict[str, Any]:
-    """``result.json``: the solver's result plus the run's verdict, skips and timings, the
-    pose it commanded at each waypoint index (``run.waypoints``: every design of an adaptive run,
-    a twist drill's spin and turned waypoints), the robot's own kinematics calibration
-    (``run.robot_calibration``; null: unknown), and the cell scanner it calibrated
-    (``run.scanner_name``, whose frame the exports name)."""
+    """``result.json``: the solver's result plus the run's verdict, skips and timings, every
+    waypoint's UR pose by index (``run.waypoints``: what the residuals' ``index`` counts), the
+    robot's own kinematics calibration (``run.robot_calibration``; null: unknown), and the cell
+    scanner it calibrated (``run.scanner_name``, whose frame the exports name)."""
     result = outcome.result
     document = result.to_json_dict()
     document["verdict"] = outcome.verdict.as_dict()
@@ -169,14 +168,32 @@ class ResultFile:
     #: The flute phase pass's outcome as recorded (``run.first_pass.flute_phase``), or None where
     #: the file has none (a rod without flutes, or a file written before 2026-11-27).
     flute_phase: dict[str, Any] | None = None
-    #: The UR pose the run commanded at each waypoint index (``run.waypoints``, N x 6), or None
-    #: where the file has none (written before 2026-11-28, or by ``lasercal solve`` of a CSV).
-    visited_waypoints: FloatArray | None = None
+    #: The UR pose of every waypoint the run planned (N, 6), by the residuals' index
+    #: (``run.waypoints``), or None where the file has none (written before 2026-11-28, or by
+    #: ``lasercal solve`` of a CSV; of a ``session.mcap`` it writes them where the recording holds them all).
+    run_waypoints: FloatArray | None = None
 
     @property
     def passed(self) -> bool:
         """True when the run's quality gates passed (False without a verdict)."""
         return bool((self.verdict or {}).get("passed", False))
+
+
+def _run_waypoints(run: dict[str, Any], path: Path) -> FloatArray | None:
+    """``run.waypoints`` as UR poses (N, 6), None where the file has none; malformed: ConfigError."""
+    value = run.get("waypoints")
+    if value is None:
+        return None
+    try:
+        poses = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        poses = np.zeros(0)
+    if poses.ndim != 2 or poses.shape[1] != 6 or not np.isfinite(poses).all():
+        raise ConfigError(
+            f"{path}: run.waypoints is not a list of UR poses (6 finite numbers each); pass the "
+            "result.json that `lasercal run` wrote"
+        )
+    return poses
 
 
 def _table(document: dict[str, Any], key: str) -> dict[str, Any] | None:
@@ -225,25 +242,8 @@ def read_result_file(path: Path) -> ResultFile:
         first_pass_transform=(_table(run, "first_pass") or {}).get("T_base_laser"),
         first_pass_rod=_table(_table(run, "first_pass") or {}, "rod"),
         flute_phase=_table(_table(run, "first_pass") or {}, "flute_phase"),
-        visited_waypoints=_poses(run.get("waypoints"), path),
+        run_waypoints=_run_waypoints(run, path),
     )
-
-
-def _poses(value: Any, path: Path) -> FloatArray | None:
-    """``run.waypoints`` as UR pose vectors (N, 6), None where the file has none; a malformed
-    list raises ``ConfigError``."""
-    if value is None:
-        return None
-    try:
-        poses = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        poses = np.zeros((0, 0))
-    if poses.ndim != 2 or poses.shape[1] != 6 or not np.isfinite(poses).all():
-        raise ConfigError(
-            f"{path}: run.waypoints is not a list of UR poses (6 finite numbers each); pass the "
-            "result.json that `lasercal run` wrote"
-        )
-    return poses
 
 
 def report_data(

@@ -143,8 +143,8 @@ class RunOutcome:
     centre_warnings: list[tuple[int, str]]
     #: How the solved centres were fitted (``TwoPassSolution.refit``; ``result.json`` records it).
     refit: SecondPassRefit
-    #: The UR pose the run commanded at each waypoint index (N, 6), every design and turn of it
-    #: (``result.json``'s ``run.waypoints``: what a verify chooses among).
+    #: The UR pose of every waypoint the run planned (N, 6), by index: an adaptive run's second
+    #: design and a spun run's turned waypoints included (``result.json``'s ``run.waypoints``).
     waypoints: FloatArray
 
 
@@ -157,6 +157,8 @@ class Measured:
     skipped: list[SkippedWaypoint]
     background: AveragedScan | None
     timings: Timings
+    #: The UR pose of every waypoint the sequencer was given (N, 6), by index.
+    waypoints: FloatArray
     #: Waypoints a resumed run had already measured or skipped before this call.
     resumed_from: int = 0
 

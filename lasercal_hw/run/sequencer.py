@@ -144,6 +144,7 @@ class Sequencer:
             skipped=sorted(self._skipped, key=lambda s: s.index),
             background=self._background,
             timings=self._timings,
+            waypoints=self._waypoints.copy(),
             resumed_from=len(self._resume.measurements) + len(self._resume.skipped),
         )
 

@@ -13,7 +13,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from lasercal_hw.calibration.result import WaypointResidual
-from lasercal_hw.config import JobConfig
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.flute_phase import FluteShift
@@ -158,41 +157,34 @@ class ActiveCalibration(ResultFile):
             raise self._malformed(f"{name} has a non-finite origin or a zero direction")
         return replace(nominal, origin_m=origin_m, direction=direction)
 
+    def waypoints_note(self) -> str:
+        """Where ``waypoints`` come from, for ``verify.json``."""
+        if self.run_waypoints is not None:
+            count = len(self.run_waypoints)
+            return f"result.json run.waypoints: the {count} waypoints the calibration planned"
+        return (
+            "the job's waypoints as listed (result.json records no run.waypoints, written before "
+            "2026-11-28 or by `lasercal solve` of a CSV): an adaptive run's second design or a spun run's "
+            "turned waypoints are not among them"
+        )
+
     @property
     def rod(self) -> RodLine | None:
         """The rod the calibration was made with, if recorded."""
         return self.job.rod.rod_line() if self.job is not None else None
 
     def waypoints(self) -> FloatArray | None:
-        """The calibration's waypoints (UR poses, by the index of its residual rows): the poses its
-        run commanded (``run.waypoints``), else, in a file written before it recorded them, as its
-        job lists them (an adaptive job's first design, a spun drill's waypoints without the spin
-        and the turn); None with neither."""
-        if self.visited_waypoints is not None:
-            return self.visited_waypoints
+        """The calibration's waypoints (UR poses) by the residuals' index: every one its run
+        planned (``run.waypoints``: an adaptive run's second design and a spun run's turned
+        waypoints too) or, in a file without that record, as its job lists them (``waypoints_note``);
+        None without either."""
+        if self.run_waypoints is not None:
+            return self.run_waypoints
         if self.job is None:
             return None
         if self.job.trajectory.flute_phase_deg is not None:  # the waypoints, not the spin before them
             return listed_waypoints(self.job)
         return job_waypoints(self.job)
-
-    def candidates(self, job: JobConfig) -> tuple[FloatArray | None, str]:
-        """The waypoints a verify with ``job`` chooses among and where they come from (for
-        ``verify.json``'s selection): every pose the calibration's run commanded, as recorded;
-        None (the verify job's own ``job_waypoints``, as before 2026-11-28) where the file does not
-        record them or ``job`` lists another trajectory than the calibration's."""
-        if self.visited_waypoints is None:
-            return None, (
-                "the job's waypoints (an adaptive job's first design, a spun drill's as listed): "
-                "result.json does not record the poses its run commanded (run.waypoints, written "
-                "before 2026-11-28)"
-            )
-        if self.job is not None and job.trajectory != self.job.trajectory:
-            return None, "the verify job's own waypoints: it lists another trajectory than the calibration's"
-        return self.visited_waypoints, (
-            f"the {len(self.visited_waypoints)} poses the calibration's run commanded (run.waypoints): "
-            "every waypoint it visited"
-        )
 
 
 def load_active_calibration(path: Path) -> ActiveCalibration:

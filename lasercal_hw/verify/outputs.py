@@ -128,7 +128,7 @@ def verify_document(outcome: VerifyOutcome, *, ground_truth: FloatArray | None =
         "selection": {
             "waypoints": selection.indices,
             "candidates": selection.candidates,
-            "candidates_source": selection.candidates_source,
+            "candidates_from": outcome.calibration.waypoints_note(),
             "expected_std_shift_mm": selection.expected_std_shift_mm,
             "expected_std_turn_deg": selection.expected_std_turn_deg,
             "centre_noise": selection.centre_noise,

@@ -120,9 +120,7 @@ def drift_model(
 
 def time_budget_s(active: ActiveCalibration, job: JobConfig) -> float | None:
     """``verify.max_time_fraction`` of the calibration's motion and dwell (estimated the
-    same way as the verify's) through every waypoint it visited (``ActiveCalibration.waypoints``:
-    both designs of an adaptive run where ``result.json`` records them); None when its trajectory
-    was not recorded or not reachable."""
+    same way as the verify's); None when its trajectory was not recorded or not reachable."""
     calibration_waypoints = active.waypoints()
     if active.job is None or calibration_waypoints is None:
         return None
@@ -158,16 +156,15 @@ def plan_verify(
     refit: SecondPassRefit | None = None,
     rod: RodLine | None = None,
     candidates: FloatArray | None = None,
-    candidates_source: str = "the job's waypoints",
 ) -> VerifyPlan:
     """How to check the calibration ``T_base_laser`` (with its ``covariance``, its range error
     curve ``range_error`` (None: none), its second pass's ``refit`` (None: none recorded; the
     calibrated transform, the job's rod and the raw ranges), the rod it estimated, which
     predicts the crossings (None: the job's), and its ``residuals`` at ``recorded_waypoints``,
     None: not recorded) with ``job``: ``count`` waypoints (None: the job's ``verify.waypoints``)
-    chosen within ``budget_s`` among ``candidates`` (UR poses; None: the job's, ``job_waypoints``;
-    ``candidates_source`` says which for ``verify.json``), each weighed with the centre covariance
-    the calibration recorded there."""
+    chosen within ``budget_s`` among ``candidates`` (the calibration's own waypoints as its run
+    recorded them; None: the job's), each weighed with the centre covariance the calibration
+    recorded there."""
     checking = verify_job(job, T_base_laser)
     refit = refit or SecondPassRefit(np.asarray(T_base_laser, dtype=float), checking.rod.rod_line())
     model = replace(
@@ -190,7 +187,6 @@ def plan_verify(
         noise_covariance_uv_m2=noise_covariance,
         unusable=unusable_waypoints(residuals, recorded_waypoints, waypoints),
     )
-    selection = replace(selection, candidates_source=candidates_source)
     return VerifyPlan(checking, model, waypoints, reference, selection, refit)
 
 
@@ -199,10 +195,8 @@ def plan_active(
 ) -> VerifyPlan:
     """``plan_verify`` for the calibration ``active`` as its ``result.json`` records it (its
     transform, covariance, residuals, waypoints, range error curve, second pass and estimated
-    rod) checked with ``job``'s rod, choosing among the poses it visited where it records them
-    (``ActiveCalibration.candidates``)."""
+    rod) checked with ``job``'s rod, choosing among the waypoints its run recorded where it did."""
     nominal = job.rod.rod_line()
-    candidates, source = active.candidates(job)
     return plan_verify(
         job,
         active.T_base_laser,
@@ -214,8 +208,7 @@ def plan_active(
         range_error=active.result.range_offset,
         refit=active.refit(nominal),
         rod=active.result.estimated_rod(nominal),
-        candidates=candidates,
-        candidates_source=source,
+        candidates=active.run_waypoints,
     )
 
 

@@ -54,8 +54,6 @@ class Selection:
     #: Waypoints through the plane that were no candidates: the calibration visited them without
     #: a centre it used (no rod found, or an outlier).
     left_out: list[int] = field(default_factory=list)
-    #: Which waypoints were the candidates (the poses the calibration visited, or the job's).
-    candidates_source: str = ""
 
 
 def _crosses_plane(model: DriftModel, waypoints: FloatArray) -> np.ndarray:

@@ -274,10 +274,10 @@ def test_the_record_of_the_visited_poses_leaves_a_listed_jobs_choice_as_it_was(
     document["run"]["waypoints"] = job_waypoints(job).tolist()
     recorded = tmp_path / "result.json"
     recorded.write_text(json.dumps(document), encoding="utf-8")
-    before = plan_active(load_active_calibration(calibration.path), job)
-    after = plan_active(load_active_calibration(recorded), job)
-    assert "run.waypoints" in after.selection.candidates_source
-    assert "does not record" in before.selection.candidates_source
+    older, active = load_active_calibration(calibration.path), load_active_calibration(recorded)
+    before, after = plan_active(older, job), plan_active(active, job)
+    assert active.waypoints_note().startswith("result.json run.waypoints")
+    assert older.waypoints_note().startswith("the job's waypoints as listed")
     np.testing.assert_array_equal(after.waypoints, before.waypoints)
     np.testing.assert_array_equal(after.reference, before.reference)
     assert after.selection.indices == before.selection.indices

@@ -1,150 +1,143 @@
-"""A verify chooses among every pose the calibration visited (``result.json``'s
-``run.waypoints``: both designs of an adaptive run, a spun drill's spin and turned waypoints),
-weighs each with the residual and centre covariance recorded there and counts them all in its
-time budget; an older result.json without the record falls back to the job's waypoints and says
-so in the selection."""
+"""The verify chooses among every waypoint the calibration visited: ``result.json`` records
+them (``run.waypoints``), an adaptive run's second design and a spun drill's turned waypoints
+included, and the residual at each is matched to its pose. A file without the record falls back
+to the job's waypoints (an adaptive job's first design) and says so."""
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from lasercal_hw.config import JobConfig, job_from_mapping
+from lasercal_hw.config import job_from_mapping
+from lasercal_hw.errors import ConfigError
 from lasercal_hw.run import flute_spin
 from lasercal_hw.run.adaptive import run_second_design
 from lasercal_hw.run.flute_spin import SpinPhase, run_turned_waypoints, turned_about_bit
 from lasercal_hw.run.outputs import result_document
 from lasercal_hw.run.records import RunOutcome
-from lasercal_hw.run.replay import solve_recording
-from lasercal_hw.run.resume import DESIGN_EVENT
 from lasercal_hw.run.sequencer import Sequencer
-from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
-from lasercal_hw.session.reader import read_session
-from lasercal_hw.session.recorder import SessionRecorder
 from lasercal_hw.verify.active import load_active_calibration
-from lasercal_hw.verify.procedure import plan_active, time_budget_s, verify_job
-from tests.doubles import run_calibration
+from lasercal_hw.verify.procedure import plan_active, time_budget_s
+from tests.doubles import MemoryRecorder, run_calibration
 from tests.run.test_adaptive import ADAPTIVE
 from tests.run.test_flute_spin import _spun_job
 from tests.run.test_sequencer import make_cell
 
-
-@dataclass(frozen=True)
-class AdaptiveRun:
-    """An adaptive calibration on the doubles' cell: its job, outcome, recording and result.json."""
-
-    job: JobConfig
-    outcome: RunOutcome
-    session: Path
-    result: Path
+FIRST = ADAPTIVE["trajectory"]["first_waypoints"]
+EVERY = ADAPTIVE["trajectory"]["design_waypoints"]
 
 
 @pytest.fixture(scope="module")
-def adaptive_run(tmp_path_factory: pytest.TempPathFactory) -> AdaptiveRun:
-    """Six waypoints of a first design from a rough pose 4 cm / 4 deg off, six designed from its
-    estimate, one solve over all twelve, recorded and written as ``lasercal run`` does."""
+def adaptive_run() -> tuple[RunOutcome, dict[str, Any]]:
+    """An adaptive calibration on the doubles (6 waypoints designed first, 6 from its estimate)
+    and the ``result.json`` document it writes."""
     job = job_from_mapping(ADAPTIVE)
-    folder = tmp_path_factory.mktemp("adaptive")
     first = job_waypoints(job)
     clock, robot, scanner = make_cell(job)
-    session = folder / "session.mcap"
-    recorder = SessionRecorder(session, {"job": job.model_dump(mode="json"), "waypoints": first.tolist()})
-    try:
-        outcome = run_calibration(robot, scanner, recorder, job, first, clock=clock)
-        final = run_second_design(robot, scanner, recorder, job, first, outcome, clock=clock)
-    finally:
-        recorder.close()
-    result = folder / "result.json"
-    result.write_text(json.dumps(result_document(final, job)), encoding="utf-8")
-    return AdaptiveRun(job, final, session, result)
+    recorder = MemoryRecorder()
+    outcome = run_calibration(robot, scanner, recorder, job, first, clock=clock)
+    final = run_second_design(robot, scanner, recorder, job, first, outcome, clock=clock)
+    return final, json.loads(json.dumps(result_document(final, job)))
 
 
-def _visited(run: AdaptiveRun) -> np.ndarray:
-    """Every pose the run commanded: the first design, then the second as the recording's
-    design event holds it."""
-    event = read_session(run.session, include_scans=False).events_of(DESIGN_EVENT)[-1]
-    assert event["first_index"] == 6
-    return np.vstack([job_waypoints(run.job), np.asarray(event["waypoints"], dtype=float)])
+def written(tmp_path: Path, document: dict[str, Any]) -> Path:
+    path = tmp_path / "result.json"
+    path.write_text(json.dumps(document), encoding="utf-8")
+    return path
 
 
-def test_result_json_records_every_pose_the_adaptive_run_commanded(adaptive_run: AdaptiveRun) -> None:
-    recorded = json.loads(adaptive_run.result.read_text(encoding="utf-8"))["run"].get("waypoints")
-    np.testing.assert_array_equal(np.asarray(recorded), _visited(adaptive_run))
-    assert sorted(r.index for r in adaptive_run.outcome.result.residuals) == list(range(12))
+def test_result_json_records_every_waypoint_of_both_designs(adaptive_run, tmp_path: Path) -> None:
+    final, document = adaptive_run
+    active = load_active_calibration(written(tmp_path, document))
+    assert active.run_waypoints is not None and active.run_waypoints.shape == (EVERY, 6)
+    assert np.array_equal(active.run_waypoints, final.waypoints)
+    assert np.array_equal(active.run_waypoints[:FIRST], job_waypoints(active.job))
+    assert sorted(r.index for r in active.result.residuals) == list(range(EVERY))
 
 
-def test_a_replay_of_the_recording_records_both_designs(adaptive_run: AdaptiveRun) -> None:
-    replay = solve_recording(adaptive_run.session)
-    np.testing.assert_array_equal(getattr(replay, "waypoints", None), _visited(adaptive_run))
+def test_the_verify_chooses_among_the_second_design_too(adaptive_run, tmp_path: Path) -> None:
+    _, document = adaptive_run
+    active = load_active_calibration(written(tmp_path, document))
+    plan = plan_active(active, active.job, count=EVERY - 2)
+    assert plan.waypoints.shape == (EVERY, 6)
+    used = [r.index for r in active.result.residuals if r.used]
+    assert any(i >= FIRST for i in used)
+    # The residual the calibration saw is the prediction's offset at every waypoint it used,
+    # the second design's included (matched by pose).
+    assert np.isfinite(plan.reference[used]).all()
+    by_index = {r.index: (r.du_mm, r.dv_mm) for r in active.result.residuals}
+    for i in used:
+        assert np.allclose(1000.0 * plan.reference[i], by_index[i])
+    assert any(i >= FIRST for i in plan.selection.indices)
+    assert "run.waypoints" in active.waypoints_note()
+    # Both designs' motion and dwell are the budget's base.
+    assert time_budget_s(active, active.job) > 1.5 * _first_design_budget_s(document, tmp_path)
 
 
-def test_verify_chooses_among_both_designs_with_their_recorded_residuals(adaptive_run: AdaptiveRun) -> None:
-    """Every visited pose is a candidate, each with the residual the calibration saw there
-    (on main: the first design re-made from the calibrated pose, none of them a pose the
-    calibration visited, so no residual at all), and the choice takes second-design waypoints."""
-    active = load_active_calibration(adaptive_run.result)
-    plan = plan_active(active, adaptive_run.job)
-    np.testing.assert_array_equal(plan.waypoints, _visited(adaptive_run))
-    used = sorted(r.index for r in adaptive_run.outcome.result.residuals if r.used)
-    assert np.flatnonzero(np.isfinite(plan.reference).all(axis=1)).tolist() == used
-    assert any(index >= 6 for index in plan.selection.indices), plan.selection.indices
-    assert "run.waypoints" in plan.selection.candidates_source
+def _first_design_budget_s(document: dict[str, Any], tmp_path: Path) -> float:
+    older = json.loads(json.dumps(document))
+    del older["run"]["waypoints"]
+    older_dir = tmp_path / "older"
+    older_dir.mkdir(exist_ok=True)
+    active = load_active_calibration(written(older_dir, older))
+    budget_s = time_budget_s(active, active.job)
+    assert budget_s is not None
+    return budget_s
 
 
-def test_the_time_budget_counts_both_designs(adaptive_run: AdaptiveRun) -> None:
-    active = load_active_calibration(adaptive_run.result)
-    job = adaptive_run.job
-    both = visit_time_s(job, _visited(adaptive_run))
-    first = visit_time_s(job, job_waypoints(job))
-    assert both is not None and first is not None and both > first
-    assert time_budget_s(active, job) == pytest.approx(job.verify.max_time_fraction * both)
-
-
-def test_an_older_result_json_without_the_record_still_verifies(
-    adaptive_run: AdaptiveRun, tmp_path: Path
+def test_a_file_without_the_record_falls_back_to_the_first_design_and_says_so(
+    adaptive_run, tmp_path: Path
 ) -> None:
-    document = json.loads(adaptive_run.result.read_text(encoding="utf-8"))
-    document["run"].pop("waypoints", None)
-    older = tmp_path / "result.json"
-    older.write_text(json.dumps(document), encoding="utf-8")
-    active = load_active_calibration(older)
-    plan = plan_active(active, adaptive_run.job)
-    checking = verify_job(adaptive_run.job, active.T_base_laser)
-    np.testing.assert_array_equal(plan.waypoints, job_waypoints(checking))
-    assert "does not record the poses its run commanded" in plan.selection.candidates_source
-    assert len(plan.selection.indices) == adaptive_run.job.verify.waypoints
+    _, document = adaptive_run
+    del document["run"]["waypoints"]
+    active = load_active_calibration(written(tmp_path, document))
+    assert active.run_waypoints is None
+    plan = plan_active(active, active.job)
+    assert plan.waypoints.shape == (FIRST, 6)
+    assert all(i < FIRST for i in plan.selection.indices)
+    assert "second design" in active.waypoints_note()
 
 
-def test_a_spun_drills_verify_matches_each_residual_to_the_pose_it_was_measured_at(
+@pytest.mark.parametrize(
+    "bad", [[[0.1, 0.2, 0.3]], "poses", [[0.0] * 5 + [float("nan")]], [[1, 2, 3, 4, 5, 6], [1]]]
+)
+def test_malformed_waypoints_are_refused_by_name(adaptive_run, tmp_path: Path, bad: Any) -> None:
+    _, document = adaptive_run
+    document = json.loads(json.dumps(document))
+    document["run"]["waypoints"] = bad
+    with pytest.raises(ConfigError, match=r"run\.waypoints is not a list of UR poses"):
+        load_active_calibration(written(tmp_path, document))
+
+
+def test_a_spun_drill_s_turned_waypoints_are_matched_to_their_own_residuals(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A ``flute_phase_deg`` run visits the spin, then its waypoints turned to the phase: the
-    candidates are those poses, each with its own residual (main: the listed waypoints, the
-    residual of the run's k-th visit, a spin dwell for k < 12, at the k-th listed pose)."""
+    """A ``flute_phase_deg`` run visits the spin, then its listed waypoints turned about the bit:
+    the verify's candidates are those poses, each with the residual measured at that pose (not
+    the spin's, which share the first indices; a pose visited twice takes its first visit's)."""
     job = _spun_job(tmp_path)
     spin = job_waypoints(job)
     told = SpinPhase(phase_deg=60.0, phase_std_deg=3.0, gain=20.0, shift_deg=30.0, centres=9)
     monkeypatch.setattr(flute_spin, "phase_from_spin", lambda *args: told)
     clock, robot, scanner = make_cell(job)
-    recorder = SessionRecorder(
-        tmp_path / "session.mcap", {"job": job.model_dump(mode="json"), "waypoints": spin.tolist()}
-    )
-    try:
-        spun = Sequencer(robot, scanner, recorder, job, spin, clock=clock).measure()
-        outcome = run_turned_waypoints(robot, scanner, recorder, job, spin, spun, clock=clock)
-    finally:
-        recorder.close()
-    result = tmp_path / "result.json"
-    result.write_text(json.dumps(result_document(outcome, job)), encoding="utf-8")
-    plan = plan_active(load_active_calibration(result), job)
+    recorder = MemoryRecorder()
+    spun = Sequencer(robot, scanner, recorder, job, spin, clock=clock).measure()
+    outcome = run_turned_waypoints(robot, scanner, recorder, job, spin, spun, clock=clock)
+    active = load_active_calibration(written(tmp_path, json.loads(json.dumps(result_document(outcome, job)))))
+
+    plan = plan_active(active, active.job)
     turned = turned_about_bit(listed_waypoints(job), job.rod.rod_line(), 30.0)
-    np.testing.assert_array_equal(plan.waypoints, np.vstack([spin, turned]))
-    used = {row.index: (row.du_mm / 1e3, row.dv_mm / 1e3) for row in outcome.result.residuals if row.used}
-    for index in used:  # a pose visited twice (the spin's 30 deg turn is waypoint 0 turned): either visit's
-        same = np.flatnonzero(np.abs(plan.waypoints - plan.waypoints[index]).max(axis=1) < 1e-6)
-        assert any(np.allclose(plan.reference[index], used[k]) for k in same if k in used), index
+    assert np.allclose(plan.waypoints, np.vstack([spin, turned]))
+    measured = {r.index: (r.du_mm, r.dv_mm) for r in active.result.residuals if r.used}
+    first_visit = {
+        i: min(j for j in measured if np.allclose(plan.waypoints[j], plan.waypoints[i], atol=1e-6))
+        for i in measured
+    }
+    assert any(i >= len(spin) and first_visit[i] == i for i in measured)
+    for i, j in first_visit.items():
+        assert np.allclose(1000.0 * plan.reference[i], measured[j])
