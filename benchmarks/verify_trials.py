@@ -81,7 +81,8 @@ class VerifyBench:
         self, world: World, rng: np.random.Generator, *, reference: bool = True
     ) -> tuple[Trial, VerifyPlan]:
         """A calibration simulated in ``world`` (``dry_run_accuracy.simulate``) and the verify
-        planned from it (``plan_verify``, the time budget); ``reference`` False: the plan
+        planned from it (``plan_verify``, the time budget, choosing among the poses the calibration
+        visited as ``lasercal verify`` does from ``run.waypoints``); ``reference`` False: the plan
         ignores the calibration's residuals at its own waypoints. Raises ``LasercalError`` when
         the calibration fails."""
         trial = simulate(self.job, self.poses, world, self.scans, rng)
@@ -97,5 +98,6 @@ class VerifyBench:
             range_error=calibration.range_offset,
             refit=trial.refit,
             rod=calibration.estimated_rod(self.job.rod.rod_line()),
+            candidates=self.poses,  # as from a result.json that records the poses its run visited
         )
         return trial, plan

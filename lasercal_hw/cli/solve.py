@@ -95,6 +95,7 @@ def solve_command(
         for message in replay.messages:
             err_console.print(f"[yellow]replay:[/] {message}")
         result, gates = replay.solution.result, replay.job.quality
+        commanded = replay.waypoints
     else:
         if use_recorded_centres or scanner is not None:
             raise ConfigError(
@@ -121,8 +122,11 @@ def solve_command(
         options = settings.solver.model_copy(update={k: v for k, v in changes.items() if v is not None})
         result = solve(observations, rod, robust=robust, options=options)
         gates = settings.quality
+        commanded = None  # a CSV holds the measured TCP poses, not the commanded ones
     verdict = evaluate_gates(result, gates, len(result.residuals))
     document = result.to_json_dict() | {"passed": verdict.passed, "verdict": verdict.as_dict()}
+    if commanded is not None:  # the poses the recorded run commanded, for a verify's choice
+        document["run"] = {"waypoints": commanded.tolist()}
     if output is not None:
         try:
             output.write_text(json.dumps(document, indent=2) + "\n", encoding="utf-8")

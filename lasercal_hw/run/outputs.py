@@ -170,7 +170,7 @@ class ResultFile:
     flute_phase: dict[str, Any] | None = None
     #: The UR pose of every waypoint the run planned (N, 6), by the residuals' index
     #: (``run.waypoints``), or None where the file has none (written before 2026-11-28, or by
-    #: ``lasercal solve``).
+    #: ``lasercal solve`` of a CSV; of a ``session.mcap`` it writes them where the recording holds them all).
     run_waypoints: FloatArray | None = None
 
     @property

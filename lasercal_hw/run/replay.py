@@ -68,6 +68,10 @@ class RecordingSolution:
     skipped: dict[int, str]
     truncated: bool
     messages: list[str]
+    #: The pose the live run commanded at each waypoint index, as recorded (the meta's and every
+    #: later design's, ``recorded_job``); None where the recording does not hold a pose for every
+    #: waypoint it measured or skipped (never made up).
+    waypoints: FloatArray | None = None
 
 
 def solve_recording(
@@ -84,7 +88,7 @@ def solve_recording(
     if not path.is_file():
         raise ConfigError(f"recording {str(path)!r} does not exist; pass the session.mcap of a run")
     recording = read_session(path).for_scanner(scanner)
-    job, _ = recorded_job(recording)
+    job, commanded = recorded_job(recording)
     if job_overrides:
         job = with_overrides(job, job_overrides, "command line")
     events = check_observation_events(recording)
@@ -107,6 +111,12 @@ def solve_recording(
         for event in recording.events_of("waypoint_skipped")
         if int(event["index"]) not in observed
     }
+    last = max(observed | set(skipped), default=-1)
+    if last >= len(commanded):
+        messages.append(
+            f"the recording holds the commanded poses of waypoints 0-{len(commanded) - 1} only, not of "
+            f"waypoint {last}: run.waypoints is left out"
+        )
     solution = solve_two_pass(measurements, job, background)
     turn_note = recorded_turn_note(recording)
     if turn_note is not None:  # the spin is not fitted again: its note is the live run's, named so
@@ -118,6 +128,7 @@ def solve_recording(
         skipped=dict(sorted(skipped.items())),
         truncated=recording.truncated,
         messages=messages,
+        waypoints=commanded if last < len(commanded) else None,
     )
 
 

@@ -164,7 +164,7 @@ class ActiveCalibration(ResultFile):
             return f"result.json run.waypoints: the {count} waypoints the calibration planned"
         return (
             "the job's waypoints as listed (result.json records no run.waypoints, written before "
-            "2026-11-28 or by `lasercal solve`): an adaptive run's second design or a spun run's "
+            "2026-11-28 or by `lasercal solve` of a CSV): an adaptive run's second design or a spun run's "
             "turned waypoints are not among them"
         )
 

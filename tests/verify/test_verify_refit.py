@@ -258,3 +258,29 @@ def test_a_turned_scanner_over_a_fluted_drill_is_estimated_as_the_rigid_move_it_
         truth = move_between(world.ground_truth_T_base_laser, turned.ground_truth_T_base_laser)
         ratios.append(np.abs(test.correction - truth) / np.sqrt(np.diag(test.correction_covariance)))
     assert np.mean(np.array(ratios) < 2.0) >= 0.8
+
+
+@pytest.mark.parametrize("name", ["calibrated", "drill_calibrated", "fluted_calibrated"])
+def test_the_record_of_the_visited_poses_leaves_a_listed_jobs_choice_as_it_was(
+    name: str, request: pytest.FixtureRequest, tmp_path: Path
+) -> None:
+    """The default job, the drill job and the fluted drill job visit their waypoints as listed:
+    with ``run.waypoints`` (the poses the run commanded) the verify chooses the same waypoints
+    with the same residuals and the same expected std to the digit as from a file without it."""
+    calibration: Calibrated = request.getfixturevalue(name)
+    document = json.loads(calibration.path.read_text(encoding="utf-8"))
+    job = load_active_calibration(calibration.path).job
+    assert job is not None
+    document["run"]["waypoints"] = job_waypoints(job).tolist()
+    recorded = tmp_path / "result.json"
+    recorded.write_text(json.dumps(document), encoding="utf-8")
+    older, active = load_active_calibration(calibration.path), load_active_calibration(recorded)
+    before, after = plan_active(older, job), plan_active(active, job)
+    assert active.waypoints_note().startswith("result.json run.waypoints")
+    assert older.waypoints_note().startswith("the job's waypoints as listed")
+    np.testing.assert_array_equal(after.waypoints, before.waypoints)
+    np.testing.assert_array_equal(after.reference, before.reference)
+    assert after.selection.indices == before.selection.indices
+    assert after.selection.expected_std_shift_mm == before.selection.expected_std_shift_mm
+    assert after.selection.expected_std_turn_deg == before.selection.expected_std_turn_deg
+    assert after.selection.left_out == before.selection.left_out
