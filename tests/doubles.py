@@ -301,5 +301,4 @@ def run_calibration(robot: Any, scanner: Any, recorder: Any, job: Any, waypoints
     """Measure with a ``Sequencer`` and solve as the engine does (``run/outcome.solve_run``)."""
     sequencer = Sequencer(robot, scanner, recorder, job, waypoints, **options)
     solve_options = {key: options[key] for key in ("on_progress", "cancel", "clock") if key in options}
-    count = len(np.asarray(waypoints).reshape(-1, 6))
-    return solve_run(sequencer.measure(), job, recorder, waypoint_count=count, **solve_options)
+    return solve_run(sequencer.measure(), job, recorder, **solve_options)

@@ -173,7 +173,7 @@ def run_second_design(
     )
     outcome = solve_run(
         sequencer.measure(), job, recorder,
-        waypoint_count=len(every_waypoint), on_progress=on_progress, cancel=cancel, clock=clock,
+        on_progress=on_progress, cancel=cancel, clock=clock,
     )
     outcome.timings.motion_s += first.timings.motion_s
     outcome.timings.dwell_s += first.timings.dwell_s

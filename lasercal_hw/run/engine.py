@@ -237,7 +237,7 @@ def calibrate(
         else:
             outcome = solve_run(
                 measured, session.job, session.recorder,
-                waypoint_count=len(session.waypoints), on_progress=session.on_progress, cancel=cancel,
+                on_progress=session.on_progress, cancel=cancel,
             )
         if session.job.trajectory.adaptive:  # design the rest from this estimate, measure it, solve all
             outcome = run_second_design(

@@ -260,7 +260,7 @@ def run_turned_waypoints(
     holds every waypoint and is solved as it is."""
     spin_count = len(SPIN_TURNS_DEG)
     if len(waypoints) > spin_count:
-        return solve_run(spun, job, recorder, waypoint_count=len(waypoints), on_progress=on_progress,
+        return solve_run(spun, job, recorder, on_progress=on_progress,
                          cancel=cancel, clock=clock)
     turned = turn_waypoints(job, spun.measurements, spun.background)
     phase = turned.phase
@@ -286,7 +286,7 @@ def run_turned_waypoints(
         cancel=cancel,
         clock=clock,
     )
-    outcome = solve_run(sequencer.measure(), job, recorder, waypoint_count=len(every_waypoint),
+    outcome = solve_run(sequencer.measure(), job, recorder,
                         on_progress=on_progress, cancel=cancel, clock=clock)
     outcome.timings.motion_s += spun.timings.motion_s
     outcome.timings.dwell_s += spun.timings.dwell_s

@@ -29,7 +29,6 @@ def solve_run(
     job: JobConfig,
     recorder: RunRecorder,
     *,
-    waypoint_count: int,
     on_progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
     clock: Callable[[], float] = time.time,
@@ -38,6 +37,7 @@ def solve_run(
     and the run's end. A cancel or Ctrl-C while solving raises InterruptedRunError (nothing
     moves any more; the recording holds every waypoint, so the run can be solved again)."""
     cancel = cancel or CancelToken()
+    waypoint_count = len(measured.waypoints)
     done = len(measured.measurements) + len(measured.skipped)
     started_s = clock()
 
