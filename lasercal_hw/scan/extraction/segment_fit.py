@@ -103,9 +103,7 @@ def _fit_segment(
         segment = _without_tail_pull(segment, sigma_all, section, behind, settings, ramp_beams)
         if settings.spot_width_at_scanner_m + settings.spot_divergence_rad > 0.0:
             segment = _with_blend_bound(segment, section, behind, settings, spot_shown)
-    fit = _with_doubts(segment, section, behind, settings, spot_shown)
-    taken_shift_m, pull_shift_m = _tail_pull_shifts_m(segment, section, settings)
-    segment = replace(segment, fit=_with_tail_pull_doubt(fit, taken_shift_m, settings))
+    segment = replace(segment, fit=_with_doubts(segment, section, behind, settings, spot_shown))
     keep = segment.keep
     refusal = _misfit_refusal(segment, section, settings)
     if refusal is not None:
@@ -126,6 +124,8 @@ def _fit_segment(
             )
         except RodNotFoundError:
             raise refusal from None
+    taken_shift_m, pull_shift_m = _tail_pull_shifts_m(segment, section, settings)
+    segment = replace(segment, fit=_with_tail_pull_doubt(segment.fit, taken_shift_m, settings))
     # The warning judges the whole estimated pull, taken out or not: the correction is only as
     # good as the estimate (the pulse row of the extraction benchmark: judged on what was left,
     # a bit 2.6 mm off went silent).
