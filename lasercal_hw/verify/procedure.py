@@ -36,6 +36,7 @@ from lasercal_hw.verify.active import (
     load_active_calibration,
     recorded_centre_covariances,
     recorded_residuals,
+    repeated_poses,
     unusable_waypoints,
 )
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
@@ -185,7 +186,7 @@ def plan_verify(
         budget_s=budget_s,
         centre_covariance_uv_m2=centre_covariance,
         noise_covariance_uv_m2=noise_covariance,
-        unusable=unusable_waypoints(residuals, recorded_waypoints, waypoints),
+        unusable=unusable_waypoints(residuals, recorded_waypoints, waypoints) | repeated_poses(waypoints),
     )
     return VerifyPlan(checking, model, waypoints, reference, selection, refit)
 

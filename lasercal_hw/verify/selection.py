@@ -52,7 +52,7 @@ class Selection:
     #: Which centre noise the choice weighed the candidates with (``centre_noise_note``).
     centre_noise: str = ""
     #: Waypoints through the plane that were no candidates: the calibration visited them without
-    #: a centre it used (no rod found, or an outlier).
+    #: a centre it used (no rod found, or an outlier), or visited their pose before.
     left_out: list[int] = field(default_factory=list)
 
 
@@ -143,7 +143,12 @@ def select_waypoints(
     refused = crossing & (False if unusable is None else np.asarray(unusable, dtype=bool))
     usable = np.flatnonzero(crossing & ~refused)
     if len(usable) < MIN_WAYPOINTS:
-        unused = f" ({int(refused.sum())} more that the calibration could not use)" if refused.any() else ""
+        unused = (
+            f" ({int(refused.sum())} more that are no candidates: no centre the calibration used "
+            "there, or a pose it visited before)"
+            if refused.any()
+            else ""
+        )
         raise CalibrationError(
             f"only {len(usable)} of the trajectory's {len(poses)} waypoints put the rod through the scan "
             f"plane the calibration describes{unused}: check that the job and the calibration belong to "

@@ -141,3 +141,28 @@ def test_a_spun_drill_s_turned_waypoints_are_matched_to_their_own_residuals(
     assert any(i >= len(spin) and first_visit[i] == i for i in measured)
     for i, j in first_visit.items():
         assert np.allclose(1000.0 * plan.reference[i], measured[j])
+
+
+def test_a_pose_visited_twice_is_one_candidate(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The spin's 30 deg turn is waypoint 0 turned: the verify counts that pose once (its later
+    visit is left out, by name in ``selection.left_out``), so no choice weighs one pose twice."""
+    job = _spun_job(tmp_path)
+    spin = job_waypoints(job)
+    told = SpinPhase(phase_deg=60.0, phase_std_deg=3.0, gain=20.0, shift_deg=30.0, centres=9)
+    monkeypatch.setattr(flute_spin, "phase_from_spin", lambda *args: told)
+    clock, robot, scanner = make_cell(job)
+    recorder = MemoryRecorder()
+    spun = Sequencer(robot, scanner, recorder, job, spin, clock=clock).measure()
+    outcome = run_turned_waypoints(robot, scanner, recorder, job, spin, spun, clock=clock)
+    active = load_active_calibration(written(tmp_path, json.loads(json.dumps(result_document(outcome, job)))))
+
+    plan = plan_active(active, active.job, count=len(plan_active(active, active.job).waypoints))
+    repeats = [
+        k for k in range(1, len(plan.waypoints))
+        if np.any(np.max(np.abs(plan.waypoints[:k] - plan.waypoints[k]), axis=1) <= 1e-6)
+    ]
+    assert repeats, "the fixture should visit one pose twice"
+    assert set(repeats) <= set(plan.selection.left_out)
+    assert not set(repeats) & set(plan.selection.indices)
+    chosen = plan.waypoints[plan.selection.indices]
+    assert len({tuple(np.round(pose, 6)) for pose in chosen}) == len(chosen)
