@@ -21,7 +21,7 @@ from lasercal_hw.run.outputs import result_document
 from lasercal_hw.run.records import RunOutcome
 from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
-from lasercal_hw.verify.active import load_active_calibration
+from lasercal_hw.verify.active import ActiveCalibration, load_active_calibration
 from lasercal_hw.verify.procedure import plan_active, time_budget_s
 from tests.doubles import MemoryRecorder, run_calibration
 from tests.run.test_adaptive import ADAPTIVE
@@ -114,12 +114,9 @@ def test_malformed_waypoints_are_refused_by_name(adaptive_run, tmp_path: Path, b
         load_active_calibration(written(tmp_path, document))
 
 
-def test_a_spun_drill_s_turned_waypoints_are_matched_to_their_own_residuals(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """A ``flute_phase_deg`` run visits the spin, then its listed waypoints turned about the bit:
-    the verify's candidates are those poses, each with the residual measured at that pose (not
-    the spin's, which share the first indices; a pose visited twice takes its first visit's)."""
+def spun_calibration(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> ActiveCalibration:
+    """A ``flute_phase_deg`` calibration on the doubles (the spin told a 30 deg turn), as its
+    ``result.json`` records it."""
     job = _spun_job(tmp_path)
     spin = job_waypoints(job)
     told = SpinPhase(phase_deg=60.0, phase_std_deg=3.0, gain=20.0, shift_deg=30.0, centres=9)
@@ -128,7 +125,18 @@ def test_a_spun_drill_s_turned_waypoints_are_matched_to_their_own_residuals(
     recorder = MemoryRecorder()
     spun = Sequencer(robot, scanner, recorder, job, spin, clock=clock).measure()
     outcome = run_turned_waypoints(robot, scanner, recorder, job, spin, spun, clock=clock)
-    active = load_active_calibration(written(tmp_path, json.loads(json.dumps(result_document(outcome, job)))))
+    return load_active_calibration(written(tmp_path, json.loads(json.dumps(result_document(outcome, job)))))
+
+
+def test_a_spun_drill_s_turned_waypoints_are_matched_to_their_own_residuals(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A ``flute_phase_deg`` run visits the spin, then its listed waypoints turned about the bit:
+    the verify's candidates are those poses, each with the residual measured at that pose (not
+    the spin's, which share the first indices; a pose visited twice takes its first visit's)."""
+    active = spun_calibration(tmp_path, monkeypatch)
+    job = active.job
+    spin = job_waypoints(job)
 
     plan = plan_active(active, active.job)
     turned = turned_about_bit(listed_waypoints(job), job.rod.rod_line(), 30.0)
@@ -146,16 +154,7 @@ def test_a_spun_drill_s_turned_waypoints_are_matched_to_their_own_residuals(
 def test_a_pose_visited_twice_is_one_candidate(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The spin's 30 deg turn is waypoint 0 turned: the verify counts that pose once (its later
     visit is left out, by name in ``selection.left_out``), so no choice weighs one pose twice."""
-    job = _spun_job(tmp_path)
-    spin = job_waypoints(job)
-    told = SpinPhase(phase_deg=60.0, phase_std_deg=3.0, gain=20.0, shift_deg=30.0, centres=9)
-    monkeypatch.setattr(flute_spin, "phase_from_spin", lambda *args: told)
-    clock, robot, scanner = make_cell(job)
-    recorder = MemoryRecorder()
-    spun = Sequencer(robot, scanner, recorder, job, spin, clock=clock).measure()
-    outcome = run_turned_waypoints(robot, scanner, recorder, job, spin, spun, clock=clock)
-    active = load_active_calibration(written(tmp_path, json.loads(json.dumps(result_document(outcome, job)))))
-
+    active = spun_calibration(tmp_path, monkeypatch)
     plan = plan_active(active, active.job, count=len(plan_active(active, active.job).waypoints))
     repeats = [
         k for k in range(1, len(plan.waypoints))
