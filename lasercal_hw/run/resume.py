@@ -101,7 +101,7 @@ def window_average(event: dict[str, Any], scans: list[LaserScan]) -> AveragedSca
     expected = int(event["scans"])
     if len(window) != expected or not window:
         return f"{len(window)} scans recorded in its dwell window, the live run averaged {expected}"
-    return average_scans(window)
+    return average_scans(window, halves=True)
 
 
 def recorded_centre(event: dict[str, Any]) -> RodCentre:

@@ -18,6 +18,7 @@ from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray, Observation, RodLine
+from lasercal_hw.run.dwell_noise import measured_scale
 from lasercal_hw.run.flute_phase import PLAIN_EXTRACTION, FluteShift, estimate_flute_phase
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.scan.average import AveragedScan
@@ -79,7 +80,8 @@ class SecondPassRefit:
     Where a twist drill's flute phase pass was kept (``flutes``), the centres are the pass's:
     plain fits (``PLAIN_EXTRACTION``) of ``rod`` (then the second pass's estimate, made plain,
     as the second pass's solution ``T_base_laser`` predicts it), moved by the section's offset at
-    each waypoint's turn (``FluteShift``)."""
+    each waypoint's turn (``FluteShift``), their stated dwell noise scaled by what the run's own
+    half dwells showed (``run.dwell_noise``)."""
 
     T_base_laser: FloatArray
     rod: RodLine
@@ -105,8 +107,11 @@ class SecondPassRefit:
                 [m.centre.centre_uv_m for m in plain],
                 [m.centre.covariance_uv_m2 for m in plain],
             )
+            noise = self.flutes.noise
             return [
-                replace(m, centre=replace(m.centre, centre_uv_m=centre, covariance_uv_m2=covariance))
+                replace(
+                    m, centre=replace(noise.scaled(m.centre), centre_uv_m=centre, covariance_uv_m2=covariance)
+                )
                 for m, (centre, covariance) in zip(plain, moved, strict=True)
             ], kept
         refitted, kept = refit_centres(
@@ -187,8 +192,13 @@ def solve_two_pass(
         plain_refit = SecondPassRefit(
             result.matrix(), replace(result.estimated_rod(rod), fluted=False), range_offset_m
         )
-        plain, _ = plain_refit.centres(measurements, background, PLAIN_EXTRACTION)
-        plain_observations = [m.observation() for m in plain]
+        plain, plain_kept = plain_refit.centres(measurements, background, PLAIN_EXTRACTION)
+        unfitted = {index for index, _ in plain_kept}
+        noise = measured_scale(
+            [m for m in plain if m.index not in unfitted],
+            lambda halves: plain_refit.centres(halves, background, PLAIN_EXTRACTION),
+        )
+        plain_observations = [replace(m, centre=noise.scaled(m.centre)).observation() for m in plain]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)
         if phase is None:
             refinement += (
@@ -196,8 +206,8 @@ def solve_two_pass(
             )
         else:
             result, observations = phase.result, phase.observations
-            refit = replace(plain_refit, flutes=phase.shift)
-            refinement += f"; {phase.note}"
+            refit = replace(plain_refit, flutes=replace(phase.shift, noise=noise))
+            refinement += f"; {phase.note}; {noise.note()}"
     settings = SolveSettings(rod, applied, job.quality)
     warnings = [(m.index, warning) for m in refitted for warning in m.centre.warnings]
     return TwoPassSolution(first, result, observations, refinement, kept, settings, warnings, refit)

@@ -54,6 +54,7 @@ from numpy.typing import NDArray
 from scipy.linalg import block_diag, cho_factor, cho_solve
 from scipy.optimize import brentq
 from scipy.stats import chi2, ncx2
+from scipy.stats import f as f_dist
 
 from lasercal_hw.calibration.model import (
     RANGE_CURVE_BASIS,
@@ -295,7 +296,7 @@ def run_drift_test(
     )
     post_dof = dof - _RIGID_PARAMETERS
     alpha = model.false_alarm_rate
-    threshold = float(chi2.ppf(1.0 - alpha, dof))
+    threshold = test_threshold(model, dof)
     detectable = np.maximum(
         detectable_moves(jac + helix.forward, factor, threshold, dof, model.detection_probability),
         detectable_moves(jac + helix.backward, factor, threshold, dof, model.detection_probability),
@@ -309,17 +310,39 @@ def run_drift_test(
         chi_square=chi_square,
         dof=dof,
         threshold=threshold,
-        p_value=float(chi2.sf(chi_square, dof)),
+        p_value=_p_value(model, chi_square, dof),
         false_alarm_rate=alpha,
         correction=correction,
         correction_covariance=correction_cov,
         post_fit_chi_square=post_fit,
         post_fit_dof=post_dof,
-        post_fit_threshold=float(chi2.ppf(1.0 - alpha, post_dof)) if post_dof > 0 else float("inf"),
+        post_fit_threshold=test_threshold(model, post_dof) if post_dof > 0 else float("inf"),
         detectable_shift_mm=detectable[:3] * 1e3,
         detectable_turn_deg=np.degrees(detectable[3:]),
         detection_probability=model.detection_probability,
     )
+
+
+def _noise_dof(model: DriftModel) -> int:
+    """Degrees of freedom of the factor the stated dwell noise was scaled by (0: none)."""
+    return 0 if model.flutes is None else model.flutes.noise.dof
+
+
+def test_threshold(model: DriftModel, dof: int) -> float:
+    """The statistic's (1 - alpha) quantile on ``dof`` degrees of freedom: chi-square's, or
+    where the dwell noise was scaled by a factor measured with ``nu`` degrees of freedom
+    (``run.dwell_noise``), ``dof`` times F(dof, nu)'s: the factor's own scatter divides the
+    statistic (``chi2_dof / (chi2_nu / nu)``)."""
+    nu = _noise_dof(model)
+    if nu:
+        return float(dof * f_dist.ppf(1.0 - model.false_alarm_rate, dof, nu))
+    return float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
+
+
+def _p_value(model: DriftModel, chi_square: float, dof: int) -> float:
+    """The chance of a statistic above ``chi_square`` if nothing moved (``test_threshold``)."""
+    nu = _noise_dof(model)
+    return float(f_dist.sf(chi_square / dof, dof, nu)) if nu else float(chi2.sf(chi_square, dof))
 
 
 def _move_noise(
