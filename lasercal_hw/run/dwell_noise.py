@@ -48,6 +48,8 @@ class DwellNoiseScale:
         """What the run says of it (its ``refinement``)."""
         if not self.dof:
             return f"the plain fits' stated dwell noise kept (fewer than {MIN_WAYPOINTS} half dwells fitted)"
+        if self.factor == 1.0:
+            return f"the plain fits' stated dwell noise kept ({self.dof // 2} half dwells scatter as much)"
         return (
             f"the plain fits' stated dwell noise times {self.factor:.2f}, as their half dwells scatter "
             f"({self.dof // 2} waypoints)"

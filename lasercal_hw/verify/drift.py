@@ -324,8 +324,9 @@ def run_drift_test(
 
 
 def _noise_dof(model: DriftModel) -> int:
-    """Degrees of freedom of the factor the stated dwell noise was scaled by (0: none)."""
-    return 0 if model.flutes is None else model.flutes.noise.dof
+    """Degrees of freedom of the factor the stated dwell noise was scaled by (0: not scaled)."""
+    noise = None if model.flutes is None else model.flutes.noise
+    return noise.dof if noise is not None and noise.factor < 1.0 else 0
 
 
 def test_threshold(model: DriftModel, dof: int) -> float:
