@@ -24,7 +24,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from lasercal_hw.models import FloatArray
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.scan.extraction import RodCentre
 
@@ -64,27 +63,60 @@ class DwellNoiseScale:
         return replace(centre, noise_covariance_uv_m2=self.factor * np.asarray(noise, dtype=float))
 
 
-def measured_scale(measurements: Sequence[WaypointMeasurement], refit: Refit) -> DwellNoiseScale:
-    """The factor (module docstring) from ``measurements`` (centres fitted by ``refit``) whose
-    dwells kept their halves and whose centres state their noise without a warning."""
-    chosen = {
-        m.index: m
+#: Each waypoint's two half dwells' centres, by its index.
+HalfCentres = dict[int, tuple[RodCentre, RodCentre]]
+
+
+def half_centres(measurements: Sequence[WaypointMeasurement], refit: Refit) -> HalfCentres:
+    """Both halves' centres (fitted by ``refit``) of each measurement whose dwell kept its halves
+    and whose centre states its noise without a warning, where both halves fitted."""
+    chosen = [
+        m
         for m in measurements
         if m.averaged.halves is not None
         and m.centre.noise_covariance_uv_m2 is not None
         and not m.centre.warnings
-    }
-    halves: list[dict[int, FloatArray]] = []
+    ]
+    fits: list[dict[int, RodCentre]] = []
     for which in (0, 1):
-        halved = [replace(m, averaged=m.averaged.halves[which]) for m in chosen.values()]  # type: ignore[index]
+        halved = [replace(m, averaged=m.averaged.halves[which]) for m in chosen]  # type: ignore[index]
         fitted, failed = refit(halved)
         unfitted = {index for index, _ in failed}
-        halves.append({m.index: m.centre.centre_uv_m for m in fitted if m.index not in unfitted})
+        fits.append({m.index: m.centre for m in fitted if m.index not in unfitted})
+    return {index: (fits[0][index], fits[1][index]) for index in fits[0] if index in fits[1]}
+
+
+def steady(measurement: WaypointMeasurement, halves: HalfCentres) -> bool:
+    """Both halves' fits kept the beams the dwell's fit kept. A fluted centre jumps by millimetres
+    where its beam set changes by one beam, which another dwell may do (drill job, seeds 104-109:
+    unmoved verifies at 17-41 in chi-square with every centre scaled); a centre whose own halves
+    already disagree on its beams keeps its stated noise whole."""
+    both = halves.get(measurement.index)
+    beams = measurement.centre.beam_indices
+    return both is not None and all(np.array_equal(half.beam_indices, beams) for half in both)
+
+
+def measured_scale(
+    measurements: Sequence[WaypointMeasurement], halves: HalfCentres
+) -> DwellNoiseScale:
+    """The factor (module docstring) pooled over the steady ``measurements`` (``steady``)."""
     squares = []
-    for index in set(halves[0]) & set(halves[1]):
-        d = np.asarray(halves[0][index], dtype=float) - np.asarray(halves[1][index], dtype=float)
-        noise = np.asarray(chosen[index].centre.noise_covariance_uv_m2, dtype=float)
+    for m in measurements:
+        if not steady(m, halves):
+            continue
+        even, odd = halves[m.index]
+        d = np.asarray(even.centre_uv_m, dtype=float) - np.asarray(odd.centre_uv_m, dtype=float)
+        noise = np.asarray(m.centre.noise_covariance_uv_m2, dtype=float)
         squares.append(float(d @ np.linalg.solve(noise, d)) / 4.0)
     if len(squares) < MIN_WAYPOINTS:
         return DwellNoiseScale()
     return DwellNoiseScale(min(1.0, float(np.sum(squares)) / (2.0 * len(squares))), 2 * len(squares))
+
+
+def with_measured_noise(
+    measurements: Sequence[WaypointMeasurement],
+    scale: DwellNoiseScale,
+    halves: HalfCentres,
+) -> list[WaypointMeasurement]:
+    """The measurements, each steady one's stated dwell noise scaled (``DwellNoiseScale.scaled``)."""
+    return [replace(m, centre=scale.scaled(m.centre)) if steady(m, halves) else m for m in measurements]

@@ -18,7 +18,7 @@ from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray, Observation, RodLine
-from lasercal_hw.run.dwell_noise import measured_scale
+from lasercal_hw.run.dwell_noise import half_centres, measured_scale, with_measured_noise
 from lasercal_hw.run.flute_phase import PLAIN_EXTRACTION, FluteShift, estimate_flute_phase
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.scan.average import AveragedScan
@@ -101,17 +101,22 @@ class SecondPassRefit:
         replace moved back along its bearing by it), and the waypoints (index, reason) that
         kept their first centre (the flute phase pass moves those too, as it did)."""
         if self.flutes is not None:
-            plain, kept = replace(self, flutes=None).centres(measurements, background, PLAIN_EXTRACTION)
+            plain_fit = replace(self, flutes=None)
+            plain, kept = plain_fit.centres(measurements, background, PLAIN_EXTRACTION)
+            if self.flutes.noise.factor < 1.0:
+                unfitted = {index for index, _ in kept}
+                halves = half_centres(
+                    [m for m in plain if m.index not in unfitted],
+                    lambda halved: plain_fit.centres(halved, background, PLAIN_EXTRACTION),
+                )
+                plain = with_measured_noise(plain, self.flutes.noise, halves)
             moved = self.flutes.moved(
                 np.array([m.tcp_pose for m in plain], dtype=float),
                 [m.centre.centre_uv_m for m in plain],
                 [m.centre.covariance_uv_m2 for m in plain],
             )
-            noise = self.flutes.noise
             return [
-                replace(
-                    m, centre=replace(noise.scaled(m.centre), centre_uv_m=centre, covariance_uv_m2=covariance)
-                )
+                replace(m, centre=replace(m.centre, centre_uv_m=centre, covariance_uv_m2=covariance))
                 for m, (centre, covariance) in zip(plain, moved, strict=True)
             ], kept
         refitted, kept = refit_centres(
@@ -194,11 +199,12 @@ def solve_two_pass(
         )
         plain, plain_kept = plain_refit.centres(measurements, background, PLAIN_EXTRACTION)
         unfitted = {index for index, _ in plain_kept}
-        noise = measured_scale(
+        halves = half_centres(
             [m for m in plain if m.index not in unfitted],
-            lambda halves: plain_refit.centres(halves, background, PLAIN_EXTRACTION),
+            lambda halved: plain_refit.centres(halved, background, PLAIN_EXTRACTION),
         )
-        plain_observations = [replace(m, centre=noise.scaled(m.centre)).observation() for m in plain]
+        noise = measured_scale(plain, halves)
+        plain_observations = [m.observation() for m in with_measured_noise(plain, noise, halves)]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)
         if phase is None:
             refinement += (

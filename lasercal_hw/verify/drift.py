@@ -21,7 +21,10 @@ covariance propagated with the Jacobian ``J_u`` of those predictions (rows of vi
 waypoints are zero there: their prediction does not depend on the solved transform).
 The last term correlates the waypoints, so S is whitened as a whole. ``d^T S^-1 d`` is
 chi-square with 2N degrees of freedom: above its (1 - alpha) quantile the calibration
-has changed, at false-alarm rate alpha.
+has changed, at false-alarm rate alpha. Where the plain fits' stated dwell noise was scaled by a
+factor the calibration measured from its half dwells (``run.dwell_noise``, a fluted bit), the
+factor's own scatter is in the threshold: ``2N`` times the F quantile on (2N, its degrees of
+freedom), as the statistic is then a chi-square over the factor's.
 
 The correction ``x = (dt, e)`` (the scanner's move since the calibration, in the solver's
 parameters: origin shift in base axes, small turn about base axes) is the maximum a
