@@ -90,11 +90,8 @@ def world_with(
     return World(scene, scanner)
 
 
-def dwell(
-    world: World, tcp_pose: np.ndarray, scans: int, rng: np.random.Generator, *, halves: bool = False
-) -> AveragedScan:
-    """Average ``scans`` noisy scans of the world with the TCP at ``tcp_pose`` (UR vector);
-    ``halves``: with the dwell's interleaved halves, as the sequencer averages a waypoint's."""
+def dwell(world: World, tcp_pose: np.ndarray, scans: int, rng: np.random.Generator) -> AveragedScan:
+    """Average ``scans`` noisy scans of the world with the TCP at ``tcp_pose`` (UR vector)."""
     T = pose_to_matrix(np.asarray(tcp_pose, dtype=float))
     period_s = world.geometry.scan_period_s
     batch = []
@@ -102,7 +99,7 @@ def dwell(
         mm, intensities = world.scan_mm(T, rng)
         ranges_m = np.where(mm >= 23, mm / 1000.0, np.nan)
         batch.append(LaserScan(k, world.geometry, ranges_m, mm, intensities, period_s * k, period_s * k))
-    return average_scans(batch, halves=halves)
+    return average_scans(batch)
 
 
 def errors(result: CalibrationResult, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -128,7 +125,7 @@ def measure(
     nominal = job.scanner.nominal
     measurements: list[WaypointMeasurement] = []
     for index, pose in enumerate(waypoints, start=first_index):
-        averaged = dwell(world, pose, scans, rng, halves=True)
+        averaged = dwell(world, pose, scans, rng)
         expected = None if nominal is None else predict_rod(nominal.matrix(), pose, rod).expected_uv_m
         try:
             centre = find_rod_centre(

@@ -20,7 +20,7 @@ as before.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -29,7 +29,6 @@ from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.models import FloatArray, Observation, RodLine
-from lasercal_hw.run.dwell_noise import DwellNoiseScale
 from lasercal_hw.scan.extraction import ExtractionSettings
 
 #: Trial phases over the half turn (the section is point-symmetric).
@@ -90,9 +89,6 @@ class FluteShift:
     phase_rad: float
     phase_std_rad: float
     depth: float = 1.0
-    #: What a dwell draws anew of the plain fits' stated noise, measured from the run's scans
-    #: (``run.dwell_noise``; the default: all of it): the plain fits repeat the section's shape.
-    noise: DwellNoiseScale = field(default_factory=DwellNoiseScale)
 
     def _offsets(
         self, tcp_poses: FloatArray, phase_rad: float, T_base_laser: FloatArray | None = None

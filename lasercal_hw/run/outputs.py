@@ -114,9 +114,7 @@ def flute_phase_record(refit: SecondPassRefit) -> dict[str, Any]:
     """``run.first_pass.flute_phase``: whether the flute phase pass was kept and, where it was,
     the phase (deg from the tool's x axis, over the half turn) and its std, the transform and
     plain rod line of its plain fits (``plain_fit``) and those its section offsets were taken
-    with (``offsets``), and the factor on the plain fits' stated dwell noise with the degrees of
-    freedom it pools (``run.dwell_noise``): what the verify's re-fit needs to fit and weigh its
-    centres as the pass did."""
+    with (``offsets``): what the verify's re-fit needs to move the plain fits as the pass did."""
     shift = refit.flutes
     if shift is None:
         return {"kept": False}
@@ -126,8 +124,6 @@ def flute_phase_record(refit: SecondPassRefit) -> dict[str, Any]:
         "phase_std_deg": float(np.degrees(shift.phase_std_rad)),
         "plain_fit": _fit_record(refit.T_base_laser, refit.rod),
         "offsets": _fit_record(shift.T_base_laser, shift.rod),
-        "dwell_noise_factor": shift.noise.factor,
-        "dwell_noise_dof": shift.noise.dof,
     }
 
 

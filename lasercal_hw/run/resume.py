@@ -96,13 +96,12 @@ def _window_scans(scans: list[LaserScan], start_s: float, end_s: float) -> list[
 
 
 def window_average(event: dict[str, Any], scans: list[LaserScan]) -> AveragedScan | str:
-    """The averaged scan of an observation's dwell window (with its interleaved halves, as the
-    sequencer averages it), or why it cannot be rebuilt."""
+    """The averaged scan of an observation's dwell window, or why it cannot be rebuilt."""
     window = _window_scans(scans, float(event["window_start_s"]), float(event["window_end_s"]))
     expected = int(event["scans"])
     if len(window) != expected or not window:
         return f"{len(window)} scans recorded in its dwell window, the live run averaged {expected}"
-    return average_scans(window, halves=True)
+    return average_scans(window)
 
 
 def recorded_centre(event: dict[str, Any]) -> RodCentre:

@@ -291,7 +291,7 @@ class Sequencer:
             drift_mm=drift_mm,
         )
         self._check_capture(capture, drift_mm)
-        averaged = average_scans(capture.scans, halves=True)
+        averaged = average_scans(capture.scans)
         expected_uv_m = self._nominal_expected_uv(tcp_start)
         try:
             centre = find_rod_centre(

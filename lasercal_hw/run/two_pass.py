@@ -18,7 +18,6 @@ from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
 from lasercal_hw.calibration.solver import SolverOptions, solve
 from lasercal_hw.config import JobConfig
 from lasercal_hw.models import FloatArray, Observation, RodLine
-from lasercal_hw.run.dwell_noise import half_centres, measured_scale, with_measured_noise
 from lasercal_hw.run.flute_phase import PLAIN_EXTRACTION, FluteShift, estimate_flute_phase
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.scan.average import AveragedScan
@@ -80,8 +79,7 @@ class SecondPassRefit:
     Where a twist drill's flute phase pass was kept (``flutes``), the centres are the pass's:
     plain fits (``PLAIN_EXTRACTION``) of ``rod`` (then the second pass's estimate, made plain,
     as the second pass's solution ``T_base_laser`` predicts it), moved by the section's offset at
-    each waypoint's turn (``FluteShift``), their stated dwell noise scaled by what the run's own
-    half dwells showed (``run.dwell_noise``)."""
+    each waypoint's turn (``FluteShift``)."""
 
     T_base_laser: FloatArray
     rod: RodLine
@@ -101,15 +99,7 @@ class SecondPassRefit:
         replace moved back along its bearing by it), and the waypoints (index, reason) that
         kept their first centre (the flute phase pass moves those too, as it did)."""
         if self.flutes is not None:
-            plain_fit = replace(self, flutes=None)
-            plain, kept = plain_fit.centres(measurements, background, PLAIN_EXTRACTION)
-            if self.flutes.noise.factor < 1.0:
-                unfitted = {index for index, _ in kept}
-                halves = half_centres(
-                    [m for m in plain if m.index not in unfitted],
-                    lambda halved: plain_fit.centres(halved, background, PLAIN_EXTRACTION),
-                )
-                plain = with_measured_noise(plain, self.flutes.noise, halves)
+            plain, kept = replace(self, flutes=None).centres(measurements, background, PLAIN_EXTRACTION)
             moved = self.flutes.moved(
                 np.array([m.tcp_pose for m in plain], dtype=float),
                 [m.centre.centre_uv_m for m in plain],
@@ -197,14 +187,8 @@ def solve_two_pass(
         plain_refit = SecondPassRefit(
             result.matrix(), replace(result.estimated_rod(rod), fluted=False), range_offset_m
         )
-        plain, plain_kept = plain_refit.centres(measurements, background, PLAIN_EXTRACTION)
-        unfitted = {index for index, _ in plain_kept}
-        halves = half_centres(
-            [m for m in plain if m.index not in unfitted],
-            lambda halved: plain_refit.centres(halved, background, PLAIN_EXTRACTION),
-        )
-        noise = measured_scale(plain, halves)
-        plain_observations = [m.observation() for m in with_measured_noise(plain, noise, halves)]
+        plain, _ = plain_refit.centres(measurements, background, PLAIN_EXTRACTION)
+        plain_observations = [m.observation() for m in plain]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)
         if phase is None:
             refinement += (
@@ -212,8 +196,8 @@ def solve_two_pass(
             )
         else:
             result, observations = phase.result, phase.observations
-            refit = replace(plain_refit, flutes=replace(phase.shift, noise=noise))
-            refinement += f"; {phase.note}; {noise.note()}"
+            refit = replace(plain_refit, flutes=phase.shift)
+            refinement += f"; {phase.note}"
     settings = SolveSettings(rod, applied, job.quality)
     warnings = [(m.index, warning) for m in refitted for warning in m.centre.warnings]
     return TwoPassSolution(first, result, observations, refinement, kept, settings, warnings, refit)

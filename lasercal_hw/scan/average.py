@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,10 +52,6 @@ class AveragedScan:
     scan_count: int
     valid_count: NDArray[np.int64] | None = None
     intensities: FloatArray | None = None
-    #: The even and the odd scans of the dwell averaged apart (interleaved, so that a drift over
-    #: the dwell is in both): two dwells of half the length at the same pose, which tell how
-    #: much a fit's centre scatters from dwell to dwell (``run.dwell_noise``). None: not asked.
-    halves: tuple[AveragedScan, AveragedScan] | None = field(default=None, repr=False, compare=False)
 
     @property
     def valid(self) -> NDArray[np.bool_]:
@@ -100,14 +96,12 @@ def average_scans(
     reject_sigmas: float = 3.5,
     mad_floor_m: float = 0.001,
     min_valid_fraction: float = 0.5,
-    halves: bool = False,
 ) -> AveragedScan:
     """Robust per-beam average of a dwell's scans (median + MAD rejection, mean of inliers).
 
     ``mad_floor_m`` keeps the rejection threshold above the 1 mm range quantisation when
-    almost all readings are equal; ``halves``: average the even and the odd scans apart too
-    (``AveragedScan.halves``; from 4 scans).  Raises ``CalibrationError`` for no scans or scans
-    with different beam layouts.
+    almost all readings are equal.  Raises ``CalibrationError`` for no scans or scans with
+    different beam layouts.
     """
     if len(scans) == 0:
         raise CalibrationError("no scans to average: the dwell recorded no scan; check the scanner stream")
@@ -146,26 +140,7 @@ def average_scans(
         scan_count=scan_count,
         valid_count=valid_count.astype(np.int64),
         intensities=_mean_intensities(scans, inlier, safe_count, usable),
-        halves=_interleaved_halves(scans, reject_sigmas, mad_floor_m, min_valid_fraction)
-        if halves and scan_count >= 4
-        else None,
     )
-
-
-def _interleaved_halves(
-    scans: Sequence[LaserScan], reject_sigmas: float, mad_floor_m: float, min_valid_fraction: float
-) -> tuple[AveragedScan, AveragedScan]:
-    """The even and the odd scans, each averaged as ``average_scans`` averages the dwell."""
-    even, odd = (
-        average_scans(
-            scans[start::2],
-            reject_sigmas=reject_sigmas,
-            mad_floor_m=mad_floor_m,
-            min_valid_fraction=min_valid_fraction,
-        )
-        for start in (0, 1)
-    )
-    return even, odd
 
 
 def _repeated_steps(scans: Sequence[LaserScan], ranges: FloatArray) -> NDArray[np.bool_]:

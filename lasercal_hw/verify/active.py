@@ -15,7 +15,6 @@ from numpy.typing import NDArray
 from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import FloatArray, RodLine
-from lasercal_hw.run.dwell_noise import DwellNoiseScale
 from lasercal_hw.run.flute_phase import FluteShift
 from lasercal_hw.run.outputs import ResultFile, read_result_file
 from lasercal_hw.run.two_pass import SecondPassRefit
@@ -55,7 +54,6 @@ class ActiveCalibration(ResultFile):
                 self._recorded_line(nominal, offsets.get("rod"), "flute_phase.offsets.rod"),
                 float(np.radians(self._number(kept, "phase_deg"))),
                 float(np.radians(self._number(kept, "phase_std_deg"))),
-                noise=self._dwell_noise(kept),
             )
             plain_rod = self._recorded_line(nominal, plain_fit.get("rod"), "flute_phase.plain_fit.rod")
             return SecondPassRefit(
@@ -81,28 +79,11 @@ class ActiveCalibration(ResultFile):
         kept = self._kept_flute_phase()
         if kept is None:
             return "the calibration's flute phase pass was not kept: centres fitted with the mean offset"
-        noise = self._dwell_noise(kept)
-        weighed = (
-            f"their stated dwell noise times {noise.factor:.2f}, as the calibration's half dwells showed "
-            f"({noise.dof} degrees of freedom, in the test's threshold)"
-            if noise.dof
-            else "their stated dwell noise whole (the file records no measured factor)"
-        )
         return (
             "centres fitted as the calibration's flute phase pass did (run.first_pass.flute_phase): "
             f"plain fits moved by the section's offset at {self._number(kept, 'phase_deg'):.0f} "
-            f"+- {self._number(kept, 'phase_std_deg'):.0f} deg, {weighed}"
+            f"+- {self._number(kept, 'phase_std_deg'):.0f} deg"
         )
-
-    def _dwell_noise(self, kept: dict[str, Any]) -> DwellNoiseScale:
-        """The factor on the plain fits' stated dwell noise the pass measured (``run.dwell_noise``);
-        a file written before 2026-11-28 records none: the stated noise whole (``flute_note``)."""
-        if "dwell_noise_factor" not in kept:
-            return DwellNoiseScale()
-        factor, dof = self._number(kept, "dwell_noise_factor"), self._number(kept, "dwell_noise_dof")
-        if not 0.0 < factor <= 1.0 or dof < 0 or dof != int(dof):
-            raise self._malformed("flute_phase.dwell_noise_factor is not in (0, 1] or its dof not a count")
-        return DwellNoiseScale(factor, int(dof))
 
     def _kept_flute_phase(self) -> dict[str, Any] | None:
         """``run.first_pass.flute_phase`` where it says the pass was kept (a fluted job's), else None."""

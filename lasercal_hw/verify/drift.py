@@ -21,10 +21,7 @@ covariance propagated with the Jacobian ``J_u`` of those predictions (rows of vi
 waypoints are zero there: their prediction does not depend on the solved transform).
 The last term correlates the waypoints, so S is whitened as a whole. ``d^T S^-1 d`` is
 chi-square with 2N degrees of freedom: above its (1 - alpha) quantile the calibration
-has changed, at false-alarm rate alpha. Where the plain fits' stated dwell noise was scaled by a
-factor the calibration measured from its half dwells (``run.dwell_noise``, a fluted bit), the
-factor's own scatter is in the threshold: ``2N`` times the F quantile on (2N, its degrees of
-freedom), as the statistic is then a chi-square over the factor's.
+has changed, at false-alarm rate alpha.
 
 The correction ``x = (dt, e)`` (the scanner's move since the calibration, in the solver's
 parameters: origin shift in base axes, small turn about base axes) is the maximum a
@@ -57,7 +54,6 @@ from numpy.typing import NDArray
 from scipy.linalg import block_diag, cho_factor, cho_solve
 from scipy.optimize import brentq
 from scipy.stats import chi2, ncx2
-from scipy.stats import f as f_dist
 
 from lasercal_hw.calibration.model import (
     RANGE_CURVE_BASIS,
@@ -299,7 +295,7 @@ def run_drift_test(
     )
     post_dof = dof - _RIGID_PARAMETERS
     alpha = model.false_alarm_rate
-    threshold = test_threshold(model, dof)
+    threshold = float(chi2.ppf(1.0 - alpha, dof))
     detectable = np.maximum(
         detectable_moves(jac + helix.forward, factor, threshold, dof, model.detection_probability),
         detectable_moves(jac + helix.backward, factor, threshold, dof, model.detection_probability),
@@ -313,40 +309,17 @@ def run_drift_test(
         chi_square=chi_square,
         dof=dof,
         threshold=threshold,
-        p_value=_p_value(model, chi_square, dof),
+        p_value=float(chi2.sf(chi_square, dof)),
         false_alarm_rate=alpha,
         correction=correction,
         correction_covariance=correction_cov,
         post_fit_chi_square=post_fit,
         post_fit_dof=post_dof,
-        post_fit_threshold=test_threshold(model, post_dof) if post_dof > 0 else float("inf"),
+        post_fit_threshold=float(chi2.ppf(1.0 - alpha, post_dof)) if post_dof > 0 else float("inf"),
         detectable_shift_mm=detectable[:3] * 1e3,
         detectable_turn_deg=np.degrees(detectable[3:]),
         detection_probability=model.detection_probability,
     )
-
-
-def _noise_dof(model: DriftModel) -> int:
-    """Degrees of freedom of the factor the stated dwell noise was scaled by (0: not scaled)."""
-    noise = None if model.flutes is None else model.flutes.noise
-    return noise.dof if noise is not None and noise.factor < 1.0 else 0
-
-
-def test_threshold(model: DriftModel, dof: int) -> float:
-    """The statistic's (1 - alpha) quantile on ``dof`` degrees of freedom: chi-square's, or
-    where the dwell noise was scaled by a factor measured with ``nu`` degrees of freedom
-    (``run.dwell_noise``), ``dof`` times F(dof, nu)'s: the factor's own scatter divides the
-    statistic (``chi2_dof / (chi2_nu / nu)``)."""
-    nu = _noise_dof(model)
-    if nu:
-        return float(dof * f_dist.ppf(1.0 - model.false_alarm_rate, dof, nu))
-    return float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
-
-
-def _p_value(model: DriftModel, chi_square: float, dof: int) -> float:
-    """The chance of a statistic above ``chi_square`` if nothing moved (``test_threshold``)."""
-    nu = _noise_dof(model)
-    return float(f_dist.sf(chi_square / dof, dof, nu)) if nu else float(chi2.sf(chi_square, dof))
 
 
 def _move_noise(

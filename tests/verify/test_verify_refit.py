@@ -93,17 +93,6 @@ def fluted_calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
     return calibration
 
 
-@pytest.fixture(scope="module")
-def fluted_dwelt(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
-    """The drill job as shipped, seed 103, at the job's own dwell (120 scans a waypoint): its flute
-    phase pass kept, its plain fits' stated dwell noise scaled by what their half dwells showed."""
-    job = load_job(DRILL_JOB)
-    true_rod = real_bit(job.rod.rod_line())
-    calibration = calibrate(job, true_rod, 103, tmp_path_factory.mktemp("dwelt"), DRILL_SCENE, scans=120)
-    assert calibration.solution.refit.flutes is not None
-    return calibration
-
-
 def assert_verify_gives_the_calibration_back(calibration: Calibrated) -> None:
     """The calibration's averaged scans through the verify's processing (the recorded second
     pass: its transform, its rod line, the range offset out of every range; the prediction
@@ -295,35 +284,3 @@ def test_the_record_of_the_visited_poses_leaves_a_listed_jobs_choice_as_it_was(
     assert after.selection.expected_std_shift_mm == before.selection.expected_std_shift_mm
     assert after.selection.expected_std_turn_deg == before.selection.expected_std_turn_deg
     assert after.selection.left_out == before.selection.left_out
-
-
-def test_a_fluted_drills_verify_weighs_its_residuals_with_the_noise_a_dwell_draws(
-    fluted_dwelt: Calibrated,
-) -> None:
-    """The shipped drill job at its own dwell, 8 unmoved verifies at the chosen waypoints, each
-    followed by one of the scanner turned 0.3 deg about a random axis: the unmoved residuals'
-    whitened squares average near 2 a waypoint (main, the fits' stated noise whole: 0.65), the
-    factor on the stated noise is recorded with the flute phase pass and read back, and the turn
-    of draw 4 is flagged (main: chi-square 15.8 against 20.09)."""
-    active = load_active_calibration(fluted_dwelt.path)
-    plan = plan_active(active, active.job)
-    true_rod = real_bit(active.job.rod.rod_line())
-    world = world_with(load_scene(DRILL_SCENE), true_rod, robot_error_seed=1000 + 103)
-    poses = plan.waypoints[plan.selection.indices]
-    squares, flagged = [], []
-    for draw in range(8):
-        rng = np.random.default_rng(draw)
-        measured, background = measure_waypoints(plan.job, poses, world, 120, rng)
-        unmoved, _ = refit_and_test(plan, measured, background)
-        assert unmoved is not None and not unmoved.changed
-        squares += list(unmoved.whitened_norm**2)
-        measured, background = measure_waypoints(plan.job, poses, moved_world(world, rng, 0.0, 0.3), 120, rng)
-        turned, _ = refit_and_test(plan, measured, background)
-        assert turned is not None
-        flagged.append(turned.changed)
-    assert 1.0 < np.mean(squares) < 3.0
-    assert flagged[4]
-    shift = plan.refit.flutes
-    assert shift is not None and shift.noise == fluted_dwelt.solution.refit.flutes.noise  # type: ignore[union-attr]
-    assert 0.2 < shift.noise.factor < 0.6 and shift.noise.dof >= 20
-    assert "as the calibration's half dwells showed" in (active.flute_note() or "")
