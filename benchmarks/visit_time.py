@@ -5,8 +5,8 @@ Runs ``lasercal run --dry-run`` with the job (fake cell child, real drivers) and
 ``lasercal verify --dry-run`` on its ``result.json``, and reads each run's own timings
 (``Timings``: motion is moves and settling, dwell includes the background) and recording:
 
-- per waypoint, from the end of the one before (the background for the first) to its
-  ``dwell_start`` event: the move and the settle;
+- per waypoint, from the end of the one before (the background for the first, a second
+  pass's preflight for its first) to its ``dwell_start`` event: the move and the settle;
 - from ``dwell_start`` to ``dwell_end``: the settle margin, the dwell and the closing scan;
 - the rest of motion plus dwell: the move from the arm's start to the retract pose and the
   background.
@@ -35,6 +35,10 @@ from lasercal_hw.session.reader import read_session
 from lasercal_hw.verify.active import load_active_calibration
 from lasercal_hw.verify.procedure import verify_job
 
+#: Events after which the arm moves to a waypoint: a second pass (an adaptive run's second
+#: design) moves after its preflight.
+_MOVE_STARTS = ("background", "preflight_ok", "observation", "waypoint_skipped")
+
 
 def dry_run(command: list[str], out: Path) -> dict:
     """``lasercal <command> --dry-run --yes --json --out out``: its JSON document."""
@@ -55,7 +59,7 @@ def clock_parts_s(recording_path: Path, motion_s: float, dwell_s: float) -> tupl
     end_s = started_s = None
     for event in events:
         kind, at_s = event["kind"], event["host_time_s"]
-        if kind == "background" or (kind in ("observation", "waypoint_skipped") and started_s is not None):
+        if kind in _MOVE_STARTS:
             end_s = at_s
         elif kind == "dwell_start" and end_s is not None:
             moves_s += at_s - end_s
