@@ -502,8 +502,7 @@ class Sequencer:
     def _time_left_s(self, remaining: int) -> float:
         """Before the first move, the planned visit of the waypoints not yet done
         (``run.timing``, from the UR home posture; without the background when a resumed run
-        has it); after it, each remaining waypoint at the
-        mean move so far and the planned dwell."""
+        has it); after it, each remaining waypoint at the mean move so far and the planned dwell."""
         dwell_s = dwell_each_s(self._job)
         if self._moves:
             return remaining * (self._timings.motion_s / self._moves + dwell_s)
