@@ -26,10 +26,10 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from lasercal_hw.config import JobConfig
 from lasercal_hw.run.timing import VisitTimeline, visit_timeline
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.verify.active import load_active_calibration
@@ -40,7 +40,7 @@ from lasercal_hw.verify.procedure import verify_job
 _MOVE_STARTS = ("background", "preflight_ok", "observation", "waypoint_skipped")
 
 
-def dry_run(command: list[str], out: Path) -> dict:
+def dry_run(command: list[str], out: Path) -> dict[str, Any]:
     """``lasercal <command> --dry-run --yes --json --out out``: its JSON document."""
     result = subprocess.run(
         [sys.executable, "-m", "lasercal_hw.cli.main", *command,
@@ -69,7 +69,7 @@ def clock_parts_s(recording_path: Path, motion_s: float, dwell_s: float) -> tupl
     return motion_s + dwell_s - moves_s - dwells_s, moves_s, dwells_s
 
 
-def row(name: str, timeline: VisitTimeline | None, document: dict, recording_path: Path) -> str:
+def row(name: str, timeline: VisitTimeline | None, document: dict[str, Any], recording_path: Path) -> str:
     """One line of the table: clock and estimate, whole and by part."""
     timings = document["timings"] if "timings" in document else document["run"]["timings"]
     clock_s = timings["motion_s"] + timings["dwell_s"]
@@ -98,8 +98,9 @@ def main() -> None:
         result_path = root / "run" / "result.json"
         verify = dry_run(["verify", "--calibration", str(result_path)], root / "verify")
         active = load_active_calibration(result_path)
-        job: JobConfig = active.job
-        poses = active.waypoints()
+        job, poses = active.job, active.waypoints()
+        if job is None or poses is None:
+            sys.exit(f"{result_path} records no job or no waypoints")
         chosen = verify["selection"]["waypoints"]
         checking = verify_job(job, np.asarray(active.T_base_laser))
         print("| visit | clock motion+dwell (s) | estimate (s) | estimate/clock | to retract + background "
