@@ -26,9 +26,10 @@ test flags the moved scanner); the smallest move the test detects 90 % of the ti
 its weakest direction (its power; above the tolerance the verdict is ``inconclusive``); the
 coverage of the estimated move (|error| / std per component) and the verdict counts (a
 ``recalibrate`` because no rigid scanner move explains the residuals counted apart); and
-the time of the verify (motion + settle margin + dwell: ``run.timing.visit_time_s``,
-joint trapezoid profiles at the job's caps between UR5 inverse kinematics solutions) against
-the calibration's, estimated the same way.
+the time of the verify (its motion and dwell as ``run.timing.visit_time_s`` estimates them: the
+move from the UR home posture to the retract pose, the background, the moves' trapezoids at the
+job's caps between UR5 inverse kinematics solutions, each waypoint's settle margin, dwell and
+closing scan) against the calibration's, estimated the same way.
 """
 
 from __future__ import annotations

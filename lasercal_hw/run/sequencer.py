@@ -44,7 +44,7 @@ from lasercal_hw.run.records import (
     record_event,
 )
 from lasercal_hw.run.retract import retract_candidates
-from lasercal_hw.run.timing import move_times_s
+from lasercal_hw.run.timing import dwell_each_s, visit_timeline
 from lasercal_hw.run.two_pass import predict_rod
 from lasercal_hw.run.watchers import Watcher, watch_waypoint
 from lasercal_hw.scan.average import AveragedScan, average_scans
@@ -118,7 +118,7 @@ class Sequencer:
         self._joint_targets: dict[int, FloatArray] = {}
         self._current: int | None = None
         self._moves = 0
-        self._planned_move_s: float | None = None
+        self._planned_s: float | None = None
         self._consensus: tuple[tuple[int, ...], FloatArray | None] | None = None
 
     # -- public -------------------------------------------------------------------------
@@ -488,23 +488,31 @@ class Sequencer:
             return
         done = len(self._measurements) + len(self._skipped)
         remaining = len(self._waypoints) - done
-        per_waypoint_s = self._job.dwell_s + self._job.settle.margin_s + self._mean_motion_s()
         self._on_progress(
             Progress(
                 stage=stage,
                 message=message,
                 waypoint_count=len(self._waypoints),
                 completed=done,
-                time_left_s=remaining * per_waypoint_s,
+                time_left_s=self._time_left_s(remaining),
                 **fields,
             )
         )
 
-    def _mean_motion_s(self) -> float:
-        """The mean move so far; before the first move, the mean of the planned moves."""
+    def _time_left_s(self, remaining: int) -> float:
+        """Before the first move, the planned visit of the waypoints not yet done
+        (``run.timing``, from the UR home posture; without the background when a resumed run
+        has it); after it, each remaining waypoint at the mean move so far and the planned dwell."""
+        dwell_s = dwell_each_s(self._job)
         if self._moves:
-            return self._timings.motion_s / self._moves
-        if self._planned_move_s is None:
-            planned_s = move_times_s(self._job, self._waypoints) if len(self._waypoints) else None
-            self._planned_move_s = float(np.mean(planned_s)) if planned_s else 0.0
-        return self._planned_move_s
+            return remaining * (self._timings.motion_s / self._moves + dwell_s)
+        if self._planned_s is None:
+            done = self._resume.finished_indices
+            pending = self._waypoints[[i for i in range(len(self._waypoints)) if i not in done]]
+            timeline = visit_timeline(self._job, pending) if len(pending) else None
+            if timeline is None:
+                self._planned_s = remaining * dwell_s
+            else:  # a resumed run's background is kept: the arm goes to its next waypoint
+                taken_s = 0.0 if self._background is None else timeline.to_retract_s + timeline.background_s
+                self._planned_s = timeline.total_s - taken_s
+        return self._planned_s

@@ -26,7 +26,7 @@ from lasercal_hw.run.records import Progress
 from lasercal_hw.run.replay import solve_recording
 from lasercal_hw.run.resume import resume_state
 from lasercal_hw.run.retract import NOMINAL_CLEARANCE_M, background_lift_m
-from lasercal_hw.run.timing import move_times_s
+from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
 from tests.doubles import (
@@ -392,7 +392,9 @@ def test_waypoints_go_by_their_names_in_messages_and_by_position_in_the_recordin
     assert [fields["index"] for _, kind, fields in recorder.events if kind == "dwell_start"] == list(range(6))
 
 
-def test_time_left_counts_the_planned_moves_before_the_arm_has_moved() -> None:
+def test_time_left_is_the_planned_visit_before_the_arm_has_moved() -> None:
+    """Until the first move the time left is the whole planned visit: the move to the retract
+    pose, the background and every waypoint (``run.timing``)."""
     job = fast_job()
     clock, robot, scanner = make_cell(job)
     progress: list[Progress] = []
@@ -401,11 +403,10 @@ def test_time_left_counts_the_planned_moves_before_the_arm_has_moved() -> None:
                     clock=clock)
 
     first = progress[0]
-    dwell_only_s = len(waypoints) * (job.dwell_s + job.settle.margin_s)
-    planned_s = move_times_s(job, waypoints)
+    planned_s = visit_time_s(job, waypoints)
     assert planned_s is not None
     assert first.completed == 0
-    assert first.time_left_s == pytest.approx(dwell_only_s + sum(planned_s), rel=1e-6)
+    assert first.time_left_s == pytest.approx(planned_s, rel=1e-6)
 
 
 def test_preflight_solves_each_pose_nearest_the_one_before() -> None:
