@@ -29,6 +29,7 @@ a near-singular pose makes inaccurate is dropped rather than returned wrong.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -429,3 +430,14 @@ def inverse_kinematics_pose(
 ) -> FloatArray | None:
     """:func:`inverse_kinematics` for a UR pose vector ``[x, y, z, rx, ry, rz]``."""
     return inverse_kinematics(pose_to_matrix(tcp_pose), q_near, tcp_offset_pose=tcp_offset_pose, model=model)
+
+
+def move_duration_s(distance: float, speed: float, accel: float) -> float:
+    """How long a UR move over ``distance`` lasts at ``speed`` and ``accel`` caps: a trapezoid
+    (a triangle when too short to reach ``speed``). ur_rtde's moveJ and URScript's movej take
+    the speed and acceleration "of leading axis" (rad, the joint that moves most), moveL/movel
+    the tool's (m); any consistent unit."""
+    ramp = speed**2 / accel
+    if distance <= ramp:
+        return 2.0 * math.sqrt(distance / accel)
+    return distance / speed + speed / accel

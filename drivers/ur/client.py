@@ -37,6 +37,7 @@ from lasercal_hw.errors import (
 )
 from lasercal_hw.geometry import invert_transform, matrix_to_pose, pose_to_matrix, rotation_angle_rad
 from lasercal_hw.models import FloatArray, RobotIdentity, RobotState
+from lasercal_hw.ur_kinematics import move_duration_s
 
 logger = logging.getLogger(__name__)
 
@@ -79,13 +80,6 @@ class MotionLimits:
         if not 0.0 < accel <= max_accel:
             raise ConfigError(f"acceleration {accel:g} {unit}² is outside (0, {max_accel:g}] {unit}², the "
                               "configured limit; lower it or raise the limit in the configuration")
-
-
-def _trapezoid_duration_s(distance: float, speed: float, accel: float) -> float:
-    ramp_s = speed / accel
-    if accel * ramp_s * ramp_s >= distance:
-        return 2.0 * float(np.sqrt(distance / accel))
-    return 2.0 * ramp_s + (distance - accel * ramp_s * ramp_s) / speed
 
 
 def probe_controller(host: str, timeout_s: float) -> tuple[int, int, int, int]:
@@ -365,7 +359,7 @@ class URRobot:
         distance = max(float(np.linalg.norm(goal[:3, 3] - start[:3, 3])),
                        float(rotation_angle_rad(start[:3, :3].T @ goal[:3, :3])))
         self._run_move("moveL", lambda: self._control.moveL(target.tolist(), speed_m_s, accel_m_s2, True),
-                       _trapezoid_duration_s(distance, speed_m_s, accel_m_s2))
+                       move_duration_s(distance, speed_m_s, accel_m_s2))
         reached = pose_to_matrix(self.tcp_pose())
         position_error_m = float(np.linalg.norm(reached[:3, 3] - goal[:3, 3]))
         rotation_error_rad = float(rotation_angle_rad(reached[:3, :3].T @ goal[:3, :3]))
@@ -381,7 +375,7 @@ class URRobot:
         target = np.asarray(q_rad, dtype=float).reshape(6)
         distance = float(np.max(np.abs(target - self.joint_positions_rad())))
         self._run_move("moveJ", lambda: self._control.moveJ(target.tolist(), speed_rad_s, accel_rad_s2, True),
-                       _trapezoid_duration_s(distance, speed_rad_s, accel_rad_s2))
+                       move_duration_s(distance, speed_rad_s, accel_rad_s2))
         error_rad = float(np.max(np.abs(self.joint_positions_rad() - target)))
         if error_rad > _JOINT_TOLERANCE_RAD:
             raise RobotError(f"moveJ ended {np.degrees(error_rad):.3f} deg away from its target")

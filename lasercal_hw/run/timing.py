@@ -33,21 +33,12 @@ from lasercal_hw.config import JobConfig
 from lasercal_hw.geometry import pose_to_matrix, rotation_angle_rad
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.retract import retract_candidates
-from lasercal_hw.ur_kinematics import inverse_kinematics_pose
+from lasercal_hw.ur_kinematics import inverse_kinematics_pose, move_duration_s
 
 HOME_POSTURE_RAD = np.array([0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0])
 SCAN_PERIOD_S = 0.025
 #: A linear move shorter than this is a pure rotation, its length the angle (rad).
 _PURE_ROTATION_M = 1e-6
-
-
-def trapezoid_s(distance: float, speed: float, accel: float) -> float:
-    """Duration of a trapezoidal (or triangular) profile over ``distance`` at ``speed`` and
-    ``accel`` caps (any unit: rad or m)."""
-    ramp = speed**2 / accel
-    if distance <= ramp:
-        return 2.0 * math.sqrt(distance / accel)
-    return distance / speed + speed / accel
 
 
 @dataclass(frozen=True)
@@ -84,7 +75,7 @@ def dwell_each_s(job: JobConfig) -> float:
 def _joint_move_s(job: JobConfig, start_rad: FloatArray, target_rad: FloatArray) -> float:
     motion = job.motion
     distance_rad = float(np.max(np.abs(target_rad - start_rad)))
-    return trapezoid_s(distance_rad, motion.joint_speed_rad_s, motion.joint_accel_rad_s2)
+    return move_duration_s(distance_rad, motion.joint_speed_rad_s, motion.joint_accel_rad_s2)
 
 
 def _linear_move_s(job: JobConfig, start: FloatArray, target: FloatArray) -> float:
@@ -93,7 +84,7 @@ def _linear_move_s(job: JobConfig, start: FloatArray, target: FloatArray) -> flo
     length = float(np.linalg.norm(target_matrix[:3, 3] - start_matrix[:3, 3]))
     if length <= _PURE_ROTATION_M:
         length = float(rotation_angle_rad(start_matrix[:3, :3].T @ target_matrix[:3, :3]))
-    return trapezoid_s(length, motion.speed_m_s, motion.accel_m_s2)
+    return move_duration_s(length, motion.speed_m_s, motion.accel_m_s2)
 
 
 def visit_timeline(

@@ -12,7 +12,7 @@ import dashboard_client
 import numpy as np
 import pytest
 
-from drivers.ur.client import MotionLimits, URRobot, _trapezoid_duration_s
+from drivers.ur.client import MotionLimits, URRobot
 from fakes.ur_controller.controller import DEFAULT_START_Q_RAD
 from lasercal_hw.errors import (
     ConfigError,
@@ -22,7 +22,7 @@ from lasercal_hw.errors import (
     TransportError,
 )
 from lasercal_hw.geometry import matrix_to_pose
-from lasercal_hw.ur_kinematics import forward_kinematics
+from lasercal_hw.ur_kinematics import forward_kinematics, move_duration_s
 from tests.drivers.ur.conftest import StartFake, eventually
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(60)]
@@ -158,7 +158,7 @@ def test_protective_stop_mid_move_raises_at_once_and_never_resumes(start_fake: S
         target = first.copy()
         target[0] += 0.2
         speed, accel = 0.25, 1.2
-        duration_s = _trapezoid_duration_s(0.2, speed, accel)
+        duration_s = move_duration_s(0.2, speed, accel)
         started = time.monotonic()
         with pytest.raises(ProtectiveStopError, match="protective stop"):
             robot.move_linear(target, speed, accel)
