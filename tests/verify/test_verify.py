@@ -306,6 +306,8 @@ def test_a_verify_over_its_time_share_says_so() -> None:
         "it took 25.8% of the calibration's motion and dwell time, over the 25% promised "
         "(verify.max_time_fraction)"
     )
+    hair = with_time_note(ok, 0.25004, 0.25)
+    assert "it took 25.004% of the calibration's motion and dwell time, over the 25% promised" in hair.reason
 
 
 def test_the_prediction_carries_the_calibrations_range_error_less_the_offset_taken_out_of_the_ranges(
