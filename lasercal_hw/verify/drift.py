@@ -100,6 +100,26 @@ class DriftModel:
 
 
 @dataclass(frozen=True)
+class RangeChange:
+    """The one range change (every beam reading the same amount longer) that best explains the
+    residuals, and the chi-square of what it leaves (``2N - 1`` degrees of freedom): a diagnosis
+    of a flagged test, not part of it. A scanner warming up after power-on, or at another
+    temperature, reads its ranges so (docs/scanner-model.md, warm-up drift)."""
+
+    offset_m: float
+    std_m: float
+    remainder_chi_square: float
+    remainder_dof: int
+    remainder_threshold: float
+
+    @property
+    def explains(self) -> bool:
+        """True where the change is beyond twice its std and leaves residuals the test accepts."""
+        accepted = self.remainder_dof > 0 and self.remainder_chi_square <= self.remainder_threshold
+        return accepted and abs(self.offset_m) > 2.0 * self.std_m
+
+
+@dataclass(frozen=True)
 class DriftTest:
     """The outcome of the test for N measured waypoints (arrays in waypoint order)."""
 
@@ -121,6 +141,7 @@ class DriftTest:
     detectable_shift_mm: FloatArray
     detectable_turn_deg: FloatArray
     detection_probability: float
+    range_change: RangeChange | None = None
 
     @property
     def changed(self) -> bool:
@@ -319,6 +340,26 @@ def run_drift_test(
         detectable_shift_mm=detectable[:3] * 1e3,
         detectable_turn_deg=np.degrees(detectable[3:]),
         detection_probability=model.detection_probability,
+        range_change=_range_change(crossing, d, factor, alpha),
+    )
+
+
+def _range_change(
+    crossing: FloatArray, d: FloatArray, factor: tuple[FloatArray, bool], alpha: float
+) -> RangeChange:
+    """``RangeChange`` of the residuals ``d`` (2N,): a range change moves each rod centre along
+    its bearing (the ``crossing``, (N, 2)), weighed with ``S``."""
+    bearings = (crossing / np.linalg.norm(crossing, axis=1)[:, None]).reshape(-1)
+    information = float(bearings @ cho_solve(factor, bearings))
+    offset_m = float(bearings @ cho_solve(factor, d)) / information
+    remainder = d - offset_m * bearings
+    dof = d.size - 1
+    return RangeChange(
+        offset_m=offset_m,
+        std_m=float(np.sqrt(1.0 / information)),
+        remainder_chi_square=float(remainder @ cho_solve(factor, remainder)),
+        remainder_dof=dof,
+        remainder_threshold=float(chi2.ppf(1.0 - alpha, dof)) if dof > 0 else float("inf"),
     )
 
 

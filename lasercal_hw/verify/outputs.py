@@ -18,7 +18,7 @@ from lasercal_hw.outputs.report import ReportData, render_report
 from lasercal_hw.run.outputs import transform_error, write_text
 from lasercal_hw.run.records import Timings
 from lasercal_hw.verify.active import ActiveCalibration
-from lasercal_hw.verify.drift import DriftTest
+from lasercal_hw.verify.drift import DriftTest, RangeChange
 from lasercal_hw.verify.identity import IdentityCheck
 from lasercal_hw.verify.selection import Selection
 from lasercal_hw.verify.verdict import Verdict
@@ -56,6 +56,19 @@ def _floats(values: Any) -> list[Any]:
     return np.asarray(values, dtype=float).tolist()
 
 
+def _range_change_document(change: RangeChange) -> dict[str, Any]:
+    return {
+        "offset_mm": change.offset_m * 1e3,
+        "std_mm": change.std_m * 1e3,
+        "remainder_chi_square": change.remainder_chi_square,
+        "remainder_dof": change.remainder_dof,
+        "remainder_threshold": change.remainder_threshold,
+        "explains": change.explains,
+        "meaning": "the one range change along every beam that best explains the residuals, and "
+        "what it leaves; a diagnosis of a flagged test (a scanner warming up), not part of it",
+    }
+
+
 def _test_document(test: DriftTest, visited: list[bool]) -> dict[str, Any]:
     shift_mm, shift_std_mm = test.shift_norm_mm()
     turn_deg, turn_std_deg = test.turn_norm_deg()
@@ -70,6 +83,7 @@ def _test_document(test: DriftTest, visited: list[bool]) -> dict[str, Any]:
         "post_fit_chi_square": test.post_fit_chi_square,
         "post_fit_dof": test.post_fit_dof,
         "rigid": test.rigid,
+        "range_change": None if test.range_change is None else _range_change_document(test.range_change),
         "detectable": {
             "shift_mm": _floats(test.detectable_shift_mm),
             "turn_deg": _floats(test.detectable_turn_deg),

@@ -87,10 +87,24 @@ def decide(
             "recalibrate",
             f"measurements disagree ({statistic}) in a way no rigid scanner move explains (post-fit "
             f"chi-square {test.post_fit_chi_square:.1f} > {test.post_fit_threshold:.1f}): "
-            "check the rod or tool",
+            "check the rod or tool" + _range_note(test),
         )
     inside = shift_mm <= tolerance_mm and turn_deg <= tolerance_deg
     tolerance = f"tolerance {tolerance_mm:g} mm, {tolerance_deg:g} deg"
     if inside:
-        return Verdict("degraded", f"{move}, inside the {tolerance} ({statistic})")
-    return Verdict("recalibrate", f"{move}, beyond the {tolerance} ({statistic})")
+        return Verdict("degraded", f"{move}, inside the {tolerance} ({statistic})" + _range_note(test))
+    return Verdict("recalibrate", f"{move}, beyond the {tolerance} ({statistic})" + _range_note(test))
+
+
+def _range_note(test: DriftTest) -> str:
+    """Where one range change explains a flagged test as well: say so, and what to do."""
+    change = test.range_change
+    if change is None or not change.explains:
+        return ""
+    return (
+        f"; the residuals also fit one range change of {change.offset_m * 1e3:+.2f} +- "
+        f"{change.std_m * 1e3:.2f} mm along every beam (remainder chi-square "
+        f"{change.remainder_chi_square:.1f} <= {change.remainder_threshold:.1f}): the scanner may "
+        "read its ranges differently than at the calibration, as one does while it warms up after "
+        "power-on; if it was powered on recently, let it warm up and verify again"
+    )

@@ -442,3 +442,24 @@ def test_an_older_calibration_without_centre_covariances_says_the_choice_assumed
     verdict = Verdict("recalibrate", "r")
     outcome = VerifyOutcome(older, plan.job, plan.selection, [], None, verdict, [], [], [], Timings())
     assert verify_document(outcome)["selection"]["centre_noise"] == note
+
+
+def test_a_range_change_along_every_beam_is_named_and_a_move_is_not(
+    setup: tuple[DriftModel, np.ndarray, Path],
+) -> None:
+    """A scanner that reads every range 3 mm longer (warming up after power-on) is flagged, and
+    the verdict says one range change explains it; a turned scanner's residuals do not fit one."""
+    wide, poses, _ = setup
+    model = DriftModel(**{**wide.__dict__, "covariance": np.eye(6) * 1e-12, "robot_sigma_m": 1e-4})
+    chosen = poses[:6]
+    cov = np.broadcast_to(np.eye(2) * SIGMA_UV_M**2, (6, 2, 2))
+    still = centres(model, chosen, np.zeros(6))
+    longer = still + 0.003 * still / np.linalg.norm(still, axis=1)[:, None]
+    warming = run_drift_test(model, list(range(6)), chosen, longer, cov)
+    assert warming.changed and warming.range_change is not None and warming.range_change.explains
+    assert warming.range_change.offset_m == pytest.approx(0.003, abs=3 * warming.range_change.std_m)
+    assert "one range change of +3.00" in decide([], warming, 2.0, 0.2).reason
+    turn = np.array([0.0, 0.0, 0.0, *np.radians([0.0, 0.0, 1.0])])
+    turned = run_drift_test(model, list(range(6)), chosen, centres(model, chosen, turn), cov)
+    assert turned.changed and turned.range_change is not None and not turned.range_change.explains
+    assert "range change" not in decide([], turned, 2.0, 0.2).reason
