@@ -198,7 +198,7 @@ class PhysicsSettings(_Strict):
     bias_limit_m: float = Field(0.030, ge=0.0)
     warmup_drift_m: float = 0.010
     warmup_time_constant_s: float = Field(900.0, gt=0.0)
-    warm_at_start: bool = False
+    warm_at_start: bool = True
     duplicate_step_probability: Probability = 0.28
 
 

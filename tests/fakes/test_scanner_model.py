@@ -80,13 +80,18 @@ def test_bias_stays_within_the_data_sheet_and_grows_at_the_near_end() -> None:
 
 
 def test_warm_up_drift_fades_after_power_on() -> None:
-    def front(elapsed_s: float | None) -> float:
-        dwell = simulate_dwell((1.0, 0.0), 0.02, background_m=0.5, scan_count=20, elapsed_s=elapsed_s)
+    cold_start = PHYSICS.model_copy(update={"warm_at_start": False})
+
+    def front(elapsed_s: float | None, physics: PhysicsSettings = cold_start) -> float:
+        dwell = simulate_dwell(
+            (1.0, 0.0), 0.02, background_m=0.5, scan_count=20, physics=physics, elapsed_s=elapsed_s
+        )
         return float(average_scans(dwell.scans).ranges_m[_beam_towards(dwell, 30)])
 
     cold, warm = front(0.0), front(None)
     assert cold - warm == pytest.approx(PHYSICS.warmup_drift_m, abs=0.002)
     assert abs(front(10 * PHYSICS.warmup_time_constant_s) - warm) < 0.002
+    assert front(0.0, PHYSICS) == pytest.approx(warm, abs=1e-9)  # the fake cell's default: warm
 
 
 def test_drill_section_has_two_flutes_and_the_web() -> None:
