@@ -239,9 +239,8 @@ def repeated_poses(waypoints: FloatArray) -> NDArray[np.bool_]:
     """True at each of ``waypoints`` (N,) whose pose an earlier one already has (a spun drill's
     spin and its turned waypoints can share one): a second visit there adds no candidate, and
     a verify that took both would count one pose's noise twice as independent."""
-    poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
-    earlier = [np.max(np.abs(poses[:k] - pose), axis=1) for k, pose in enumerate(poses)]
-    return np.array([bool((gap <= SAME_POSE_TOLERANCE).any()) for gap in earlier], dtype=bool)
+    each_pose = _same_poses(waypoints, waypoints)  # a pose's first index: its own or an earlier one
+    return np.array([int(same[0]) < k for k, same in enumerate(each_pose)], dtype=bool)
 
 
 def recorded_residuals(
