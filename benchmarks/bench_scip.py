@@ -6,8 +6,8 @@
 2. ``stream``: stream ME scans at 40 Hz from the fake scanner running in a separate
    process; prints received/dropped scans and the CPU share of this (client) process.
 
-    .venv/bin/python benchmarks/bench_scip.py decode
-    .venv/bin/python benchmarks/bench_scip.py stream --duration 30 [--link pty]
+    .venv/bin/python -m benchmarks.bench_scip decode
+    .venv/bin/python -m benchmarks.bench_scip stream --duration 30 [--link pty]
 """
 
 from __future__ import annotations

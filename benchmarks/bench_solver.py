@@ -2,7 +2,7 @@
 formulation against the paper's on the same data in the same run (interleaved, so both
 see the same machine load).  Times are CPU time of this process (one BLAS thread).
 
-Run: .venv/bin/python benchmarks/bench_solver.py [--quick]
+Run: .venv/bin/python -m benchmarks.bench_solver [--quick]
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ As a reference measured in the same run, a plain absolute-deadline sleep loop at
 same rate runs in a process of its own; the fake's jitter is also printed as a ratio to
 it. One thread reads both connections, so the two clients do not compete for the GIL.
 
-    .venv/bin/python benchmarks/bench_ur_fake.py --duration 60 --address 127.0.0.90
+    .venv/bin/python -m benchmarks.bench_ur_fake --duration 60 --address 127.0.0.90
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Benchmark: does the fake scanner keep the UTM-30LX-EW rhythm, and what does a scan cost?
 
-Run: ``.venv/bin/python benchmarks/fake_scanner_timing.py [--seconds 3]``
+Run: ``.venv/bin/python -m benchmarks.fake_scanner_timing [--seconds 3]``
 
 Prints, as ratios against references measured in the same run:
 * the cost of building one ME scan message (full 1081 steps with intensities) relative

@@ -1,7 +1,7 @@
 """Recorder throughput: how many scans per second session.mcap can take and give back,
 as ratios against a plain-file reference measured in the same run.
 
-    .venv/bin/python benchmarks/recorder_bench.py [--scans 2000]
+    .venv/bin/python -m benchmarks.recorder_bench [--scans 2000]
 
 Reference: each scan's raw values (int32 ranges and intensities, float64 times) appended to
 a plain file with a flush per scan, read back with numpy. The recorder must stay far above

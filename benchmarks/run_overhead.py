@@ -5,7 +5,7 @@ report) with a trajectory preset and reads the run's own timings: wall time, mot
 (moves and settling), dwell time (background included). The overhead ratio is
 ``(wall - motion - dwell) / (motion + dwell)``, both measured in the same run.
 
-    .venv/bin/python benchmarks/run_overhead.py [--preset paper] [--dwell 3.0]
+    .venv/bin/python -m benchmarks.run_overhead [--preset paper] [--dwell 3.0]
 """
 
 from __future__ import annotations

@@ -353,11 +353,27 @@ def design(
             }
         )
         return
-    _print_design(result, request, model, out)
+    _print_design(result, request, model, out, _job_lines(out, config, scanner_name))
 
 
-def _print_design(result: Any, request: Any, model: URModel, out: Path) -> None:
-    """The predicted std per axis, what stays weak, and how to use the file."""
+def _job_lines(out: Path, config: Path | None, scanner_name: str | None) -> str:
+    """Where the designed file goes in the job: its table, and its path as the job file reads it
+    (relative to the job file's folder, as ``load_job`` resolves it; absolute outside that folder)."""
+    scope = f"scanners.{scanner_name}." if scanner_name is not None else ""
+    path = out
+    if config is not None:
+        folder = config.resolve().parent
+        path = out.resolve()
+        path = path.relative_to(folder) if path.is_relative_to(folder) else path
+    where = f" in {config}" if config is not None else ""
+    return (
+        f"[{scope}trajectory] waypoints_file = \"{path.as_posix()}\"{where}, "
+        f"and the scanner pose as [{scope or 'scanner.'}nominal]"
+    )
+
+
+def _print_design(result: Any, request: Any, model: URModel, out: Path, job_lines: str) -> None:
+    """The predicted std per axis, what stays weak, and how to use the file (``job_lines``)."""
     gate_mm, gate_deg = request.targets.translation_mm, request.targets.rotation_deg
     title = f"{len(result.waypoints)} waypoints for a {model.name}" + (
         ", rod axis estimated with the pose" if request.estimate_axis else ""
@@ -374,8 +390,7 @@ def _print_design(result: Any, request: Any, model: URModel, out: Path) -> None:
         console.print(f"[yellow]weak:[/] {result.weak_direction}")
     console.print(
         f"wrote {out}; every waypoint passes "
-        f"`lasercal trajectory check --file {out} --robot-model {model.name}`. Use it with "
-        f"trajectory.waypoints_file = \"{out}\" and the scanner pose as [scanner.nominal].",
+        f"`lasercal trajectory check --file {out} --robot-model {model.name}`. Use it with {job_lines}.",
         markup=False,
     )
 

@@ -1,5 +1,5 @@
 """The run, live in the Foxglove app: a loopback websocket server (``foxglove-sdk``, the
-optional extra ``lasercal[foxglove]``) fed by the engine's events.
+optional extra ``foxglove``) fed by the engine's events.
 
 Topics (frames ``base``, ``tcp``, ``rod``, ``laser``):
 
@@ -49,7 +49,10 @@ DEFAULT_PORT = 8765
 MIN_CENTRES_FOR_ESTIMATE = 5
 CIRCLE_SEGMENTS = 48
 FRAME_BASE, FRAME_TCP, FRAME_ROD, FRAME_LASER = "base", "tcp", "rod", "laser"
-INSTALL_HINT = "the Foxglove live view needs the optional extra: pip install 'lasercal[foxglove]'"
+INSTALL_HINT = (
+    "the Foxglove live view needs the optional extra foxglove: from lasercal's checkout, "
+    ".venv/bin/pip install -e '.[foxglove]'"
+)
 
 
 class EventLike(Protocol):

@@ -31,6 +31,7 @@ from lasercal_hw.errors import CalibrationError, ConfigError
 from lasercal_hw.models import FloatArray, LaserScan, RodLine
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.resume import (
+    RECORDING_DOC,
     check_observation_events,
     recorded_background,
     recorded_centre,
@@ -95,7 +96,7 @@ def solve_recording(
     if not recording.scans:
         raise ConfigError(
             f"{path} holds no usable scans (a /scan message with its /lasercal/scan_info companion); the "
-            "centres cannot be re-extracted (docs/recorder.md: what a recording holds)"
+            f"centres cannot be re-extracted ({RECORDING_DOC})"
         )
     background = _background(recording)
     measurements, messages, unscanned = _reextract(events, recording, job, background, use_recorded_centres)

@@ -58,6 +58,9 @@ def recorded_turn_note(recording: SessionRecording) -> str | None:
     return None
 
 
+#: Where the docs say what a recording must hold to be replayed (named in the errors).
+RECORDING_DOC = 'docs/recorder.md, "What a recording must hold to be replayed"'
+
 #: What an ``observation`` event must hold for the waypoint to be rebuilt from the recording.
 OBSERVATION_FIELDS = (
     "index",
@@ -77,7 +80,7 @@ def check_observation_events(recording: SessionRecording) -> list[dict[str, Any]
     if not events:
         raise ConfigError(
             f"{recording.path} holds no 'observation' events (/lasercal/event): it does not say which scans "
-            "each waypoint averaged; record with `lasercal run` (docs/recorder.md: what a recording holds)"
+            f"each waypoint averaged; record with `lasercal run` ({RECORDING_DOC})"
         )
     for event in events:
         missing = [name for name in OBSERVATION_FIELDS if name not in event]
@@ -85,8 +88,7 @@ def check_observation_events(recording: SessionRecording) -> list[dict[str, Any]
             which = f"waypoint {event['index']}" if "index" in event else "an observation event"
             raise ConfigError(
                 f"{recording.path}: {which} lacks {', '.join(missing)} in its 'observation' event; the "
-                "recording "
-                "is incomplete or from an older version (docs/recorder.md: what a recording holds)"
+                f"recording is incomplete or from an older version ({RECORDING_DOC})"
             )
     return events
 

@@ -161,3 +161,23 @@ def test_an_unsupported_file_names_both_kinds_solve_reads(tmp_path: Path) -> Non
     readme = tmp_path / "README.md"
     readme.write_text("# not observations\n")
     assert_one_line_error(run_cli("solve", str(readme)), 2, "supported: .csv observations, or a run's .mcap")
+
+
+def test_formulation_paper_solves_a_runs_file_that_estimates_the_range_curve(tmp_path: Path) -> None:
+    """docs/solver.md's `solve observations.csv --formulation paper` on a run's file, whose settings
+    estimate the range error curve (the default job's): the paper's problem, the pose alone, with
+    a note; asked for explicitly, an estimate the paper cannot make is still refused."""
+    from lasercal_hw.calibration.observations import SolveSettings
+    from lasercal_hw.calibration.solver import SolverOptions
+    from lasercal_hw.config import QualityConfig
+    from lasercal_hw.models import RodLine
+
+    path = tmp_path / "observations.csv"
+    settings = SolveSettings(RodLine(), SolverOptions(estimate_range_offset=True), QualityConfig())
+    write_observations_csv(path, observations(points=30, laser_noise_m=0.003), settings)
+    solved = run_cli("solve", str(path), "--formulation", "paper", "--json")
+    assert solved.returncode == 0, solved.stderr
+    assert "estimates the pose alone, not the range error curve" in solved.stderr
+    assert np.linalg.norm(np.array(json.loads(solved.stdout)["T_base_laser"])[:3, 3] - TRUTH[:3, 3]) < 0.03
+    explicit = run_cli("solve", str(path), "--formulation", "paper", "--estimate-axis")
+    assert_one_line_error(explicit, 2, "cannot estimate the rod axis")

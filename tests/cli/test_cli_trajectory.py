@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -101,3 +103,30 @@ def test_check_with_the_robots_own_kinematics_reads_its_primary_interface() -> N
     unreachable = run_cli("trajectory", "check", "--robot", "127.0.0.254")  # nothing listens there
     assert unreachable.returncode == 3, unreachable.stderr
     assert "cannot reach the robot's primary interface at 127.0.0.254:30011" in unreachable.stderr
+
+
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+@pytest.mark.parametrize(
+    ("example", "choice", "table"),
+    [
+        ("rod.toml", ["--scanner-pose", "0.35", "-0.55", "0.15", "10", "-3", "2"], "trajectory"),
+        ("cell.toml", ["--scanner", "rear"], "scanners.rear.trajectory"),
+    ],
+)
+def test_design_prints_the_waypoints_file_line_that_the_job_resolves_to_the_written_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, example: str, choice: list[str], table: str
+) -> None:
+    """A job reads a relative waypoints_file from its own folder, not from where `trajectory
+    design` ran: the line the design prints must point at the file it wrote."""
+    (tmp_path / "jobs").mkdir()
+    shutil.copy(EXAMPLES / example, tmp_path / "jobs" / example)
+    monkeypatch.chdir(tmp_path)
+    args = ["trajectory", "design", "--config", f"jobs/{example}", "--waypoints", "6", "--out", "new.csv"]
+    result = runner.invoke(app, [*args, *choice])
+    assert result.exit_code == 0, result.output
+    line = re.search(rf'\[{re.escape(table)}\] waypoints_file = "([^"]+)"', " ".join(result.stdout.split()))
+    assert line is not None, result.stdout
+    assert (tmp_path / "jobs" / line[1]).resolve() == (tmp_path / "new.csv").resolve()

@@ -18,7 +18,11 @@ import pytest
 from lasercal_hw.cli.main import _Commands
 
 ROOT = Path(__file__).resolve().parents[2]
-PROMPT = re.compile(r"^(?:\$ )?(?:\.venv/bin/)?lasercal (?P<args>.*)$")
+PROMPT = re.compile(
+    r"^(?:\$ )?(?:(?:\.venv/bin/)?lasercal|(?:\.venv/bin/)?python -m lasercal_hw\.cli\.main) (?P<args>.*)$"
+)
+#: A command in an example job's comment: ``# Run:  lasercal run ...``, ``#   lasercal ...``.
+COMMENTED = re.compile(r"#\s*(?:[A-Z][a-z ]*:)?\s*(?P<command>lasercal .*--.*)$")
 
 
 def documented_commands() -> list[tuple[str, str]]:
@@ -41,6 +45,26 @@ def documented_commands() -> list[tuple[str, str]]:
                 match = PROMPT.match(part.strip())
                 if match:
                     found.append((f"{path.relative_to(ROOT)}:{number}", match["args"]))
+    return found + commented_commands()
+
+
+def commented_commands() -> list[tuple[str, str]]:
+    """(file:line, the arguments after ``lasercal``) of every command in examples/' comments."""
+    found = []
+    for path in sorted((ROOT / "examples").rglob("*.toml")):
+        pending: tuple[int, str] | None = None
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+            if pending is not None:
+                start, text = pending
+                text += " " + line.lstrip("# ").rstrip()
+            else:
+                match = COMMENTED.search(line)
+                if match is None:
+                    continue
+                start, text = number, match["command"].rstrip()
+            pending = (start, text[:-1]) if text.endswith("\\") else None
+            if pending is None:
+                found.append((f"{path.relative_to(ROOT)}:{start}", text.removeprefix("lasercal ")))
     return found
 
 

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-pytest.importorskip("foxglove", reason="the foxglove extra is missing: pip install 'lasercal[foxglove]'")
+pytest.importorskip("foxglove", reason="the foxglove extra is missing: pip install -e '.[foxglove]'")
 websocket = pytest.importorskip("websocket", reason="websocket-client (comes with selenium) is missing")
 
 from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base  # noqa: E402

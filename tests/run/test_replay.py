@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -21,6 +22,8 @@ from lasercal_hw.session.reader import read_session
 from lasercal_hw.session.recorder import SessionRecorder
 from tests.doubles import UTM_GEOMETRY, SimClock, SimRobot, SimScanner, run_calibration, semicircle_waypoints
 from tests.run.test_sequencer import fast_job
+
+RECORDER_DOC = Path(__file__).resolve().parents[2] / "docs" / "recorder.md"
 
 # A recording made with another beam layout than the UTM-30LX-EW's default.
 CLUSTER_2_FROM_90 = replace(UTM_GEOMETRY, first_step=90, cluster=2)
@@ -145,8 +148,13 @@ def test_recording_without_observation_events_is_a_one_line_error(
         return None if topic == TOPIC_EVENT and json.loads(data).get("kind") == "observation" else data
 
     path = _copy(recorded[0], tmp_path / "no-observations.mcap", drop_observations)
-    with pytest.raises(ConfigError, match="holds no 'observation' events"):
+    with pytest.raises(ConfigError, match="holds no 'observation' events") as caught:
         solve_recording(path)
+    # It names a section of docs/recorder.md by its heading, so a reader finds it.
+    section = re.search(r'docs/recorder\.md, "([^"]+)"', str(caught.value))
+    headings = [line.lstrip("#").strip() for line in RECORDER_DOC.read_text(encoding="utf-8").splitlines()
+                if line.startswith("#")]
+    assert section is not None and section[1] in headings, str(caught.value)
 
 
 def test_scans_without_scan_info_are_a_one_line_error(
