@@ -45,8 +45,9 @@ def require_scanner_pose(job: JobConfig) -> None:
         f"the job gives no scanner pose, and the preset {job.trajectory.preset!r} is laid out for the "
         "fake cell's default scene (scanner at 0.30, 0.50, 0.20 m), not for your cell: measure the "
         "scanner's pose roughly and run `lasercal trajectory design --scanner-pose X Y Z YAW PITCH ROLL "
-        "--config JOB --out waypoints.csv`, then set trajectory.waypoints_file = \"waypoints.csv\" and "
-        "[scanner.nominal] in the job (or [scanner.nominal] alone to keep a preset checked for your cell)"
+        "--config JOB --out waypoints.csv`, then put in the job the waypoints_file line its output ends "
+        "with (the path as the job file reads it) and the same pose as [scanner.nominal] (or "
+        "[scanner.nominal] alone to keep a preset checked for your cell)"
     )
 
 

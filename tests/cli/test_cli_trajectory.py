@@ -105,7 +105,6 @@ def test_check_with_the_robots_own_kinematics_reads_its_primary_interface() -> N
     assert "cannot reach the robot's primary interface at 127.0.0.254:30011" in unreachable.stderr
 
 
-
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 

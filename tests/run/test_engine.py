@@ -23,9 +23,15 @@ def _live_job() -> JobConfig:
 
 def test_a_live_run_without_any_scanner_pose_points_to_trajectory_design(tmp_path: Path) -> None:
     out = tmp_path / "out"
-    with pytest.raises(ConfigError, match=r"no scanner pose.*lasercal trajectory design --scanner-pose"):
+    expected = r"no scanner pose.*lasercal trajectory design --scanner-pose"
+    with pytest.raises(ConfigError, match=expected) as refused:
         calibrate(RunRequest(job=load_job(None), out_dir=out, robot_host="127.0.0.9"))
     assert not out.exists()
+    # The design writes its file where it is run and ends with the line to put in the job, the
+    # path as the job file reads it: the error sends there rather than naming a path of its own
+    # (which a job file in another folder would read as another file).
+    assert "the waypoints_file line its output ends with" in str(refused.value)
+    assert 'waypoints_file = "waypoints.csv"' not in str(refused.value)
 
 
 def test_a_cancelled_run_before_connecting_leaves_no_empty_folder(tmp_path: Path) -> None:
