@@ -185,10 +185,13 @@ class Sequencer:
         retract = first_clear_pose(self._robot, candidates, self._rod, self._job.workspace)
         if retract is None:  # preflight lists why the preferred one fails
             retract = candidates[0]
-        poses = {RETRACT: retract} | {f"waypoint {i}": w for i, w in enumerate(self._waypoints)}
+        order = self._chain_order()
+        poses = {(RETRACT if i is None else f"waypoint {i}"): (retract if i is None else self._waypoints[i])
+                 for i in order}
         report = run_preflight(self._robot, self._scanner, poses, self._rod, self._job.workspace)
-        retract_q, *waypoint_q = report.joint_solutions_rad
-        self._joint_targets = dict(enumerate(waypoint_q))
+        solutions = dict(zip(order, report.joint_solutions_rad, strict=True))
+        retract_q = solutions.pop(None)
+        self._joint_targets = {i: q for i, q in solutions.items() if i is not None}
         self._event(
             "preflight_ok",
             robot=report.robot,
@@ -208,6 +211,19 @@ class Sequencer:
             self._measure_waypoint(index)
         self._current = None
         return report
+
+    def _chain_order(self) -> list[int | None]:
+        """The poses in the order the arm visits them (None: the retract pose), each solved nearest
+        the one before from the arm's present joints: the retract pose when the background is
+        still to take, then the waypoints not yet done; after them what the arm does not visit
+        (checked, off the chain), so that a resumed run's first move starts where the arm is
+        rather than where a chain through the finished waypoints would have left it."""
+        done = self._resume.finished_indices
+        pending = [i for i in range(len(self._waypoints)) if i not in done]
+        finished = [i for i in range(len(self._waypoints)) if i in done]
+        if self._background is None:
+            return [None, *pending, *finished]
+        return [*pending, *finished, None]
 
     def _capture_background(self, pose: FloatArray, q_rad: FloatArray) -> None:
         self._progress("background", "moving to the retract pose for the background")
