@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -409,12 +410,12 @@ def test_time_left_is_the_planned_visit_before_the_arm_has_moved() -> None:
     assert first.time_left_s == pytest.approx(planned_s, rel=1e-6)
 
 
-def test_preflight_solves_each_pose_nearest_the_one_before() -> None:
-    """Consecutive joint moves stay short: the retract pose is solved near the arm's present
-    joints, every waypoint near the solution before it, in the order they are visited."""
-    job = fast_job()
-    clock, robot, scanner = make_cell(job)
-    asked: list[tuple[np.ndarray, np.ndarray | None]] = []
+IkAsk = tuple[np.ndarray, np.ndarray | None]
+
+
+def _record_inverse_kinematics(robot: SimRobot) -> tuple[list[IkAsk], Callable[..., np.ndarray | None]]:
+    """Every (pose, q_near) the robot's inverse kinematics is asked from now on, and the solver."""
+    asked: list[IkAsk] = []
     solve = robot.inverse_kinematics
 
     def recording_ik(pose: np.ndarray, q_near_rad: np.ndarray | None = None) -> np.ndarray | None:
@@ -422,6 +423,15 @@ def test_preflight_solves_each_pose_nearest_the_one_before() -> None:
         return solve(pose, q_near_rad)
 
     robot.inverse_kinematics = recording_ik  # type: ignore[method-assign]
+    return asked, solve
+
+
+def test_preflight_solves_each_pose_nearest_the_one_before() -> None:
+    """Consecutive joint moves stay short: the retract pose is solved near the arm's present
+    joints, every waypoint near the solution before it, in the order they are visited."""
+    job = fast_job()
+    clock, robot, scanner = make_cell(job)
+    asked, solve = _record_inverse_kinematics(robot)
     waypoints = semicircle_waypoints(6)
     run_calibration(robot, scanner, MemoryRecorder(), job, waypoints, clock=clock)
 
@@ -442,14 +452,7 @@ def test_a_resumed_run_chains_its_joint_targets_from_where_the_arm_is() -> None:
     clock, robot, scanner = make_cell(job)
     waypoints = semicircle_waypoints(10)
     first = run_calibration(robot, scanner, MemoryRecorder(), job, waypoints[:6], clock=clock)
-    asked: list[tuple[np.ndarray, np.ndarray | None]] = []
-    solve = robot.inverse_kinematics
-
-    def recording_ik(pose: np.ndarray, q_near_rad: np.ndarray | None = None) -> np.ndarray | None:
-        asked.append((np.asarray(pose, dtype=float), q_near_rad))
-        return solve(pose, q_near_rad)
-
-    robot.inverse_kinematics = recording_ik  # type: ignore[method-assign]
+    asked, solve = _record_inverse_kinematics(robot)
     resume = ResumeState(first.measurements, first.skipped, first.background)
     run_calibration(robot, scanner, MemoryRecorder(), job, waypoints, resume=resume, clock=clock)
 
