@@ -18,6 +18,7 @@ from lasercal_hw.geometry import (
     euler_zyx_to_matrix,
     invert_transform,
     make_transform,
+    matrix_to_pose,
     pose_to_matrix,
     transform_points,
 )
@@ -33,6 +34,8 @@ from lasercal_hw.models import (
 from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.records import RunOutcome
 from lasercal_hw.run.sequencer import Sequencer
+from lasercal_hw.run.timing import HOME_POSTURE_RAD
+from lasercal_hw.ur_kinematics import forward_kinematics, inverse_kinematics_pose, move_duration_s
 
 PAPER_T_BASE_LASER = make_transform(
     euler_zyx_to_matrix(*np.radians([5.0, 7.0, 3.0])), [0.30, 0.50, 0.20]
@@ -98,6 +101,13 @@ class SimRobot:
         return self.tcp_pose()
 
     def move_linear(self, pose: FloatArray, speed_m_s: float, accel_m_s2: float) -> None:
+        end = self._begin_move(pose)
+        start = self.tcp_pose()
+        self._travel(start, end, max(float(np.linalg.norm(end[:3] - start[:3])) / speed_m_s, 0.05))
+
+    def _begin_move(self, pose: FloatArray) -> FloatArray:
+        """What every move does first: refuse in a stop, tell ``on_move``, remember the target,
+        stop where told to; returns the target."""
         if self._stopped_for_good:
             raise RobotError("robot is in a protective stop")
         if callable(self.on_move):
@@ -109,9 +119,9 @@ class SimRobot:
             if self.stop_reported_late:  # the move only sees its program end, like ur_rtde can
                 raise RobotError("moveJ: the control program stopped during the move")
             raise ProtectiveStopError("robot entered a protective stop (C153A1: collision detected)")
-        start = self.tcp_pose()
-        end = np.asarray(pose, dtype=float).copy()
-        duration_s = max(float(np.linalg.norm(end[:3] - start[:3])) / speed_m_s, 0.05)
+        return np.asarray(pose, dtype=float).copy()
+
+    def _travel(self, start: FloatArray, end: FloatArray, duration_s: float) -> None:
         t0 = self.clock()
         self._path.append((t0, t0 + duration_s, start, end))
         self.pose = end
@@ -138,6 +148,41 @@ class SimRobot:
 
     def close(self) -> None:
         pass
+
+
+@dataclass
+class PacedRobot(SimRobot):
+    """A SimRobot with a UR5's joints: it solves and moves as the UR5 model does (from the home
+    posture), each move lasting ``slowdown`` times the UR trapezoid at the commanded caps, as a
+    speed slider below 100 % stretches every move alike; it settles at once."""
+
+    slowdown: float = 1.0
+    settle_s: float = 0.0
+    joints_rad: FloatArray = field(default_factory=lambda: HOME_POSTURE_RAD.copy())
+
+    def __post_init__(self) -> None:
+        self.pose = matrix_to_pose(forward_kinematics(self.joints_rad))
+
+    def joint_positions_rad(self) -> FloatArray:
+        return self.joints_rad.copy()
+
+    def inverse_kinematics(self, pose: FloatArray, q_near_rad: FloatArray | None = None) -> FloatArray | None:
+        return inverse_kinematics_pose(pose, self.joints_rad if q_near_rad is None else q_near_rad)
+
+    def move_joint(self, q_rad: FloatArray, speed_rad_s: float, accel_rad_s2: float) -> None:
+        q = np.asarray(q_rad, dtype=float)
+        end = self._begin_move(matrix_to_pose(forward_kinematics(q)))
+        distance_rad = float(np.max(np.abs(q - self.joints_rad)))
+        self._travel(self.pose, end, self.slowdown * move_duration_s(distance_rad, speed_rad_s, accel_rad_s2))
+        self.joints_rad = q
+
+    def move_linear(self, pose: FloatArray, speed_m_s: float, accel_m_s2: float) -> None:
+        q = self.inverse_kinematics(pose)
+        assert q is not None, "PacedRobot: a linear move to a pose the UR5 model cannot reach"
+        end = self._begin_move(pose)
+        length_m = float(np.linalg.norm(end[:3] - self.pose[:3]))
+        self._travel(self.pose, end, self.slowdown * move_duration_s(length_m, speed_m_s, accel_m_s2))
+        self.joints_rad = q
 
 
 def _cylinder_hits_m(directions: FloatArray, origin: FloatArray, axis: FloatArray,

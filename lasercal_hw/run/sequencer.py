@@ -44,7 +44,7 @@ from lasercal_hw.run.records import (
     record_event,
 )
 from lasercal_hw.run.retract import retract_candidates
-from lasercal_hw.run.timing import dwell_each_s, visit_timeline
+from lasercal_hw.run.time_left import TimeLeft
 from lasercal_hw.run.two_pass import predict_rod
 from lasercal_hw.run.watchers import Watcher, watch_waypoint
 from lasercal_hw.scan.average import AveragedScan, average_scans
@@ -117,8 +117,8 @@ class Sequencer:
         self._timings = Timings()
         self._joint_targets: dict[int, FloatArray] = {}
         self._current: int | None = None
-        self._moves = 0
-        self._planned_s: float | None = None
+        self._time_plan: TimeLeft | None = None
+        self._moved_to: set[int | None] = set()  # None: the retract pose
         self._consensus: tuple[tuple[int, ...], FloatArray | None] | None = None
 
     # -- public -------------------------------------------------------------------------
@@ -231,8 +231,7 @@ class Sequencer:
         for attempt in range(1, attempts + 1):
             # The arm may start anywhere: reach the retract pose in joint space (the preflight
             # solution nearest the current joints), which no singularity can stop.
-            self._move(pose, q_rad, joint=True)
-            settled_s = self._settle()
+            settled_s = self._go(None, pose, q_rad, joint=True)
             count = self._job.background.scans
             self._progress("background", f"averaging {count} background scans (rod out of the plane)")
             dwell_started_s = self._clock()
@@ -288,8 +287,7 @@ class Sequencer:
         count = len(self._waypoints)
         name = self._name(index)
         self._progress("move", f"moving to waypoint {name} ({index + 1} of {count})", waypoint=index)
-        self._move(self._waypoints[index], self._joint_targets[index])
-        settled_s = self._settle()
+        settled_s = self._go(index, self._waypoints[index], self._joint_targets[index])
         tcp_start = self._read_tcp(settled_s)
         self._progress("dwell", f"dwelling {self._job.dwell_s:g} s at waypoint {name}", waypoint=index)
         capture = self._dwell(index, attempt, settled_s, tcp_start)
@@ -394,10 +392,20 @@ class Sequencer:
 
     # -- motion and bookkeeping ---------------------------------------------------------
 
+    def _go(self, target: int | None, pose: FloatArray, q_rad: FloatArray, *, joint: bool = False) -> float:
+        """Move to waypoint ``target`` (None: the retract pose) and wait until the arm is steady;
+        returns the host time it settled. A first move to it is timed against the plan."""
+        motion_before_s = self._timings.motion_s
+        self._move(pose, q_rad, joint=joint)
+        settled_s = self._settle()
+        if target not in self._moved_to:
+            self._moved_to.add(target)
+            self._plan_of_time().moved(target, self._timings.motion_s - motion_before_s)
+        return settled_s
+
     def _move(self, pose: FloatArray, q_rad: FloatArray, *, joint: bool = False) -> None:
         """Move to a pose: in joint space when asked (or configured), else on a TCP line."""
         motion = self._job.motion
-        self._moves += 1
         started_s = self._clock()
         try:
             if joint or motion.move == "joint":
@@ -502,33 +510,34 @@ class Sequencer:
         self._cancel.raise_if_cancelled()
         if self._on_progress is None:
             return
-        done = len(self._measurements) + len(self._skipped)
-        remaining = len(self._waypoints) - done
         self._on_progress(
             Progress(
                 stage=stage,
                 message=message,
                 waypoint_count=len(self._waypoints),
-                completed=done,
-                time_left_s=self._time_left_s(remaining),
+                completed=len(self._measurements) + len(self._skipped),
+                time_left_s=self._time_left_s(),
                 **fields,
             )
         )
 
-    def _time_left_s(self, remaining: int) -> float:
-        """Before the first move, the planned visit of the waypoints not yet done
-        (``run.timing``, from the UR home posture; without the background when a resumed run
-        has it); after it, each remaining waypoint at the mean move so far and the planned dwell."""
-        dwell_s = dwell_each_s(self._job)
-        if self._moves:
-            return remaining * (self._timings.motion_s / self._moves + dwell_s)
-        if self._planned_s is None:
+    def _plan_of_time(self) -> TimeLeft:
+        """The visit of the waypoints this run has still to do, planned once (``run.time_left``)."""
+        if self._time_plan is None:
             done = self._resume.finished_indices
-            pending = self._waypoints[[i for i in range(len(self._waypoints)) if i not in done]]
-            timeline = visit_timeline(self._job, pending) if len(pending) else None
-            if timeline is None:
-                self._planned_s = remaining * dwell_s
-            else:  # a resumed run's background is kept: the arm goes to its next waypoint
-                taken_s = 0.0 if self._background is None else timeline.to_retract_s + timeline.background_s
-                self._planned_s = timeline.total_s - taken_s
-        return self._planned_s
+            pending = [i for i in range(len(self._waypoints)) if i not in done]
+            self._time_plan = TimeLeft.plan(self._job, self._waypoints, pending)
+        return self._time_plan
+
+    def _time_left_s(self) -> float:
+        """The plan's moves, background and dwells still ahead, the moves scaled by how long the
+        arm's moves took against the plan so far (``run.time_left``)."""
+        finished = {m.index for m in self._measurements} | {s.index for s in self._skipped}
+        ahead = [i for i in range(len(self._waypoints)) if i not in finished]
+        background_ahead = self._background is None
+        return self._plan_of_time().seconds(
+            retract_ahead=background_ahead and None not in self._moved_to,
+            background_ahead=background_ahead,
+            moves_ahead=[i for i in ahead if i not in self._moved_to],
+            dwells_ahead=len(ahead),
+        )

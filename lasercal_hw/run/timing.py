@@ -1,6 +1,6 @@
 """How long visiting a list of waypoints takes (motion plus dwell, as ``Timings`` counts
 them), estimated before the arm moves: the verify chooses waypoints that fit its time
-budget by it, and a run's time-left estimate uses it until the arm has made its first move.
+budget by it, and a running visit's time left starts from it (``run.time_left``).
 
 The timeline follows the run (``run/sequencer``) part by part:
 

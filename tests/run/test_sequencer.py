@@ -33,6 +33,7 @@ from lasercal_hw.session.recorder import SessionRecorder
 from tests.doubles import (
     PAPER_T_BASE_LASER,
     MemoryRecorder,
+    PacedRobot,
     SimClock,
     SimRobot,
     SimScanner,
@@ -408,6 +409,26 @@ def test_time_left_is_the_planned_visit_before_the_arm_has_moved() -> None:
     assert planned_s is not None
     assert first.completed == 0
     assert first.time_left_s == pytest.approx(planned_s, rel=1e-6)
+
+
+def test_time_left_keeps_to_a_robot_slower_than_planned() -> None:
+    """A robot whose every move takes twice the UR trapezoid (a speed slider at 50 %): from
+    the first move on, the time left is the moves ahead at the pace the moves so far set, the
+    background and the dwells, so it tells what is really left at every step, through the
+    background and with a waypoint's move counted until the arm is there and not after."""
+    job = fast_job()
+    clock = SimClock()
+    robot = PacedRobot(clock, slowdown=2.0)
+    scanner = SimScanner(clock, robot, job.rod.rod_line())
+    seen: list[tuple[float, Progress]] = []
+    run_calibration(robot, scanner, MemoryRecorder(), job, semicircle_waypoints(6),
+                    on_progress=lambda p: seen.append((clock(), p)), clock=clock)
+
+    end_s = next(t for t, p in seen if p.stage == "solve")
+    moved = [(t, p) for t, p in seen if t > seen[0][0] and t < end_s]
+    assert [p.stage for _, p in moved][:2] == ["background", "move"]  # from the background on
+    for t, p in moved:
+        assert p.time_left_s == pytest.approx(end_s - t, rel=0.03, abs=0.1), p.message
 
 
 IkAsk = tuple[np.ndarray, np.ndarray | None]
