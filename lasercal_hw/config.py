@@ -217,11 +217,6 @@ class TrajectoryConfig(_Strict):
             )
         return self
 
-    @property
-    def uses_file(self) -> bool:
-        """True when the waypoints come from a file rather than a preset."""
-        return self.waypoints_file is not None
-
 
 class SettleConfig(_Strict):
     """When the arm counts as steady after a move."""
@@ -280,10 +275,6 @@ class WorkspaceConfig(_Strict):
             if not low < high:
                 raise ValueError(f"workspace box {axis}: min {low} m must be below max {high} m")
         return self
-
-    def contains(self, point_m: FloatArray) -> bool:
-        """True when the point lies inside the box (boundary included)."""
-        return not self.violations(point_m, "point")
 
     def violations(self, point_m: FloatArray, what: str) -> list[str]:
         """Why ``point_m`` is outside the box, one reason per axis (empty when inside)."""

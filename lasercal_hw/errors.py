@@ -83,12 +83,6 @@ class DegenerateDataError(CalibrationError):
     """Some direction of the transform is not observable from the given waypoints."""
 
 
-class QualityGateError(CalibrationError):
-    """The solve succeeded but the result fails a configured quality gate."""
-
-    exit_code = ExitCode.QUALITY_GATE_FAILED
-
-
 class InterruptedRunError(LasercalError):
     """The run was interrupted by the operator (Ctrl-C) or by SIGTERM."""
 

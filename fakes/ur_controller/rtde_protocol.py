@@ -215,13 +215,6 @@ def version_reply(version: tuple[int, int, int, int]) -> bytes:
     return struct.pack(">IIII", *version)
 
 
-def text_message(message: str, source: str, level: int) -> bytes:
-    """A v2 ``M`` message payload (only sent after streaming has started)."""
-    msg = message.encode("utf-8")[:255]
-    src = source.encode("utf-8")[:255]
-    return bytes([len(msg)]) + msg + bytes([len(src)]) + src + bytes([level & 0xFF])
-
-
 class Recipe:
     """An ordered list of variables with their types, packed as one struct."""
 

@@ -123,15 +123,6 @@ def _import_foxglove() -> Any:
     return foxglove
 
 
-def foxglove_available() -> bool:
-    """Whether the optional ``foxglove-sdk`` package is installed."""
-    try:
-        _import_foxglove()
-    except ConfigError:
-        return False
-    return True
-
-
 def _timestamp(fm: Any, time_s: float) -> Any:
     sec = int(time_s)
     return fm.Timestamp(sec, int((time_s - sec) * 1e9))

@@ -184,11 +184,6 @@ class JobManager:
         """A file in a job's folder (NotFoundError when there is no such file)."""
         return folder_file(Path(self.get(job_id).out_dir), name, f"job {job_id} has no file {name!r}")
 
-    def running_id(self) -> str | None:
-        """The id of the running job, if any."""
-        with self._lock:
-            return self._active.job_id if self._active else None
-
     # -- life cycle ----------------------------------------------------------------------------
 
     def recover(self) -> list[str]:
