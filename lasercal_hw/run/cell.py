@@ -32,7 +32,7 @@ from lasercal_hw.calibration.observations import read_observations_csv
 from lasercal_hw.calibration.pairs import error_in_std, joint_relative_pose, relative_pose
 from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
 from lasercal_hw.config import JobConfig, ScannerConfig, job_from_mapping
-from lasercal_hw.errors import ConfigError
+from lasercal_hw.errors import ConfigError, LasercalError
 from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.dry_run_cell import DryRunCell, start_fake_cell
@@ -41,7 +41,9 @@ from lasercal_hw.run.events import EventSink
 from lasercal_hw.run.outputs import OBSERVATIONS_FILE, RESULT_FILE, SESSION_FILE, read_result_file, write_text
 from lasercal_hw.run.replay import ReplayedSharedCentres, replay_shared_centres
 from lasercal_hw.run.resume import recorded_background
+from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.watchers import SolvedWatcher
+from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.session.format import META_JOB_SCANNERS, scan_topics
 from lasercal_hw.session.reader import SessionRecording, read_session
 from lasercal_hw.session.recorder import SessionRecorder
@@ -227,13 +229,15 @@ def calibrate_cell(
         if pending and _one_recording(request.out_dir):
             recording = _open_job_recording(request.out_dir, names, job)
             stack.callback(recording.recorder.close)
-        for name in names:
+        planned_s = {name: _planned_visit_s(job.for_scanner(name)) for name in pending}
+        for position, name in enumerate(names):
             watch = tuple(
                 (other, job.for_scanner(other).scanner) for other in names
                 if other != name and job.for_scanner(other).scanner.nominal is not None
             )
+            later_s = sum(planned_s.get(other, 0.0) for other in names[position + 1 :])
             outcomes[name] = _scanner(
-                request, job, name, watch, fake_cell, recording, sink, on_event, cancel, confirm
+                request, job, name, watch, fake_cell, recording, sink, on_event, cancel, confirm, later_s
             )
     cell = CellReport(request.out_dir, outcomes, _pairs(outcomes, request.out_dir, job))
     document = _read_cell_file(request.out_dir) | cell.document()
@@ -290,11 +294,12 @@ def _scanner(
     on_event: Callable[[RunEvent], None] | None,
     cancel: CancelToken,
     confirm: Callable[[MotionPlan], None] | None,
+    later_s: float,
 ) -> ScannerOutcome:
     """One scanner's outcome: its run (recorded in the job's ``recording``, or in a folder written
     before it in its own; continued where that holds its run; the scanners of ``watch`` measure
-    the rod where they see it: ``run/watchers``), or its ``result.json`` kept from before a
-    resume; told as a ``scanner_result`` event."""
+    the rod where they see it: ``run/watchers``; its time left counts ``later_s`` for the scanners
+    after it), or its ``result.json`` kept from before a resume; told as a ``scanner_result`` event."""
     folder = request.out_dir / name
     kept = (folder / RESULT_FILE).is_file()
     report = None
@@ -313,7 +318,8 @@ def _scanner(
             watch=watch,
             recording=recording,
         )
-        report = calibrate(run, on_event=events_of_scanner(on_event, name), cancel=cancel, confirm=confirm)
+        on_run_event = events_of_scanner(on_event, name, later_s)
+        report = calibrate(run, on_event=on_run_event, cancel=cancel, confirm=confirm)
     outcome = _scanner_outcome(name, folder / RESULT_FILE, report, job.for_scanner(name).rod.rod_line())
     if recording is not None and report is not None:  # its calibrated frame, for viewers of the recording
         recording.recorder.write_frame(time.time(), scan_topics(name)[2], outcome.T_base_laser)
@@ -344,14 +350,33 @@ def _resuming_the_cell(
 
 
 def events_of_scanner(
-    on_event: Callable[[RunEvent], None] | None, name: str
+    on_event: Callable[[RunEvent], None] | None, name: str, later_s: float = 0.0
 ) -> Callable[[RunEvent], None] | None:
     """``on_event`` with every event of scanner ``name``'s run naming it (``data["scanner"]``),
-    so a page or a live view shows each scanner's scans and centres as its own."""
+    so a page or a live view shows each scanner's scans and centres as its own; a progress
+    event's time left is the job's, ``later_s`` of the scanners after this one added."""
     if on_event is None:
         return None
     sink = on_event
-    return lambda event: sink(replace(event, data=event.data | {"scanner": name}))
+
+    def named(event: RunEvent) -> None:
+        data = event.data | {"scanner": name}
+        if event.kind == "progress" and data.get("time_left_s") is not None:
+            data["time_left_s"] += later_s
+        sink(replace(event, data=data))
+
+    return named
+
+
+def _planned_visit_s(job: JobConfig) -> float:
+    """A scanner's visit of its job's waypoints as planned before the arm moves (``run.timing``);
+    0 where the UR5 model cannot plan it or the job cannot list them yet. An adaptive job's
+    second part and a spun drill's waypoints follow from what the run measures first: not counted."""
+    try:
+        planned_s = visit_time_s(job, job_waypoints(job))
+    except LasercalError:
+        return 0.0
+    return 0.0 if planned_s is None else planned_s
 
 
 def _scanner_outcome(name: str, path: Path, report: RunReport | None, nominal_rod: RodLine) -> ScannerOutcome:

@@ -27,6 +27,8 @@ from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell
 from lasercal_hw.run.engine import RunEvent
 from lasercal_hw.run.replay import replay_shared_centres
+from lasercal_hw.run.timing import visit_time_s
+from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.session.format import (
     META_JOB_SCANNERS,
     META_SCANNER_NAME,
@@ -223,6 +225,22 @@ def test_both_scanners_calibrated_and_their_transform_within_its_std(
         within = agreement["chi_square"] <= agreement["threshold"]
         assert agreement["verdict"] == ("agree" if within else "disagree"), agreement
     assert agreement["shared_waypoints"] + len(agreement.get("left_out", [])) >= 1, agreement
+
+
+def test_a_scanners_time_left_counts_the_scanners_after_it(stopped_and_resumed: StoppedAndResumed) -> None:
+    """Before its arm moves, the front scanner's time left is its own planned visit and the rear
+    scanner's; the rear's, the last, is its own alone (``run.timing``)."""
+    job = load_job(stopped_and_resumed.out.parent / "job.toml")
+    planned = {}
+    for name in ("front", "rear"):
+        scanner_job = job.for_scanner(name)
+        planned[name] = visit_time_s(scanner_job, job_waypoints(scanner_job))
+    first = {}  # each scanner's first progress: its run's start (a retry after a stall resumes it)
+    for event in stopped_and_resumed.events:
+        if event.kind == "progress" and event.data.get("time_left_s") is not None:
+            first.setdefault(event.data["scanner"], event.data["time_left_s"])
+    assert first["front"] == pytest.approx(planned["front"] + planned["rear"], rel=1e-6)
+    assert first["rear"] == pytest.approx(planned["rear"], rel=1e-6)
 
 
 def test_the_other_scanner_measures_the_rod_where_it_sees_it(stopped_and_resumed: StoppedAndResumed) -> None:
