@@ -30,7 +30,7 @@ from lasercal_hw.run.dwell import collect_window
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.two_pass import predict_rod, refit_centres
 from lasercal_hw.scan.average import AveragedScan, average_scans
-from lasercal_hw.scan.extraction import RodCentre, find_rod_centre
+from lasercal_hw.scan.extraction import RodCentre, RodNotFoundError, find_rod_centre
 
 logger = logging.getLogger(__name__)
 
@@ -158,7 +158,10 @@ def watch_waypoint(
         centre = watcher_centre(average_scans(capture.scans), expected, rod)
     except InterruptedRunError:
         raise
-    except LasercalError as exc:  # a failed stream or no rod found (RodNotFoundError)
+    except RodNotFoundError as exc:  # the waypoints are the run scanner's: the other's view is often blocked
+        logger.info("scanner %s at waypoint %d: no shared centre (%s)", watcher.name, index, exc)
+        return
+    except LasercalError as exc:  # a failed stream
         logger.warning("scanner %s at waypoint %d: no shared centre (%s)", watcher.name, index, exc)
         return
     record(
