@@ -88,8 +88,10 @@ class ProgressView:
 
     def __call__(self, event: RunEvent) -> None:
         """Show one run event: progress moves the bar; centres, skips, retries, warnings and
-        where the recording was kept are printed as lines."""
+        where the recording was kept are printed as lines, each led by its scanner's name in a
+        cell job."""
         data = event.data
+        text = escape(_scanner_led(event))
         if event.kind == "progress":
             if self._live and not self._started:
                 self._progress.start()
@@ -101,20 +103,29 @@ class ProgressView:
                 status.append(f"~{data['time_left_s']:.0f} s left")
             self._progress.update(
                 self._task,
-                description=escape(event.message),
+                description=text,
                 total=data["waypoint_count"] or None,
                 completed=data["completed"],
                 status=", ".join(status),
             )
             if data["stage"] == "retry":
-                self._progress.console.print(f"[yellow]{escape(event.message)}[/]")
+                self._progress.console.print(f"[yellow]{text}[/]")
         elif event.kind in _LINE_COLOURS:
-            self._progress.console.print(f"[{_LINE_COLOURS[event.kind]}]{escape(event.message)}[/]")
+            self._progress.console.print(f"[{_LINE_COLOURS[event.kind]}]{text}[/]")
         elif event.kind == "stage":
-            self._progress.console.print(escape(event.message))
+            self._progress.console.print(text)
         elif event.kind == "stopped":  # where the recording is: with the error, on stderr
             self._stop()
             err_console.print(escape(stopped_line(event.message, event.data)))
+
+
+def _scanner_led(event: RunEvent) -> str:
+    """The event's message, led by ``NAME:`` where a cell job's scanner run sent it (its
+    ``scanner_result`` names the scanner itself)."""
+    scanner = event.data.get("scanner")
+    if scanner is None or event.kind == "scanner_result":
+        return event.message
+    return f"{scanner}: {event.message}"
 
 
 def stopped_line(message: str, data: dict[str, Any]) -> str:

@@ -68,3 +68,18 @@ def test_a_long_path_is_never_broken_in_a_log(tmp_path: Path) -> None:
     deep = tmp_path.joinpath(*[f"folder-{i:02d}-with-a-long-name" for i in range(6)], "observations.csv")
     result = run_cli("solve", str(deep))
     assert_one_line_error(result, 2, str(deep))
+
+
+def test_a_cell_jobs_lines_name_their_scanner(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two scanners' runs print alike: each line is led by the scanner its run is of, and the
+    cell's own result line, which names it, is left as it is."""
+    screen = io.StringIO()
+    monkeypatch.setattr(cli_run, "err_console", Console(file=screen, force_terminal=False, soft_wrap=True))
+    with cli_run.ProgressView(Console(file=screen, force_terminal=False, width=80, soft_wrap=True)) as view:
+        centre = "waypoint 3: rod at (+0.1000, +1.2000) m from 40 scans"
+        view(RunEvent(1, "centre", centre, {"scanner": "rear"}))
+        view(RunEvent(2, "scanner_result", "scanner rear: passed", {"scanner": "rear", "passed": True}))
+    assert screen.getvalue().splitlines() == [
+        "rear: waypoint 3: rod at (+0.1000, +1.2000) m from 40 scans",
+        "scanner rear: passed",
+    ]
