@@ -85,10 +85,11 @@ class ScannerConfig(_Strict):
     timeout_s: float = Field(2.0, gt=0.0, le=60.0)
     nominal: NominalPose | None = None
     intensities: bool = Field(
-        False,
+        True,
         description="stream intensities with the ranges (SCIP ME instead of MD): the recording keeps them "
         "and the rod extraction tells a bright rod (retro-reflective tape) from the background-level mixed "
-        "pixels beside it; twice the bytes per scan",
+        "pixels beside it, places a plain rod across the bearing by its intensity's middle and tells a "
+        "repeated step from a chance equal range; twice the bytes per scan (false: MD, ranges alone)",
     )
     estimate_range_offset: bool | Literal["auto"] = Field(
         "auto",

@@ -117,17 +117,18 @@ def test_centre_progress_says_where_the_nominal_mounting_expected_the_rod() -> N
     assert max(misses_m) < job.rod.radius_m
 
 
-def test_a_job_that_wants_intensities_streams_records_and_averages_them() -> None:
-    job = fast_job(scanner={"intensities": True})
+def test_a_job_streams_records_and_averages_intensities_unless_it_says_not_to() -> None:
+    job = fast_job()  # the default: ME, intensities with the ranges
     clock, robot, scanner = make_cell(job)
     recorder = MemoryRecorder()
     outcome = run_calibration(robot, scanner, recorder, job, semicircle_waypoints(6), clock=clock)
     assert scanner.with_intensities
     assert recorder.scans and all(s.intensities is not None for s in recorder.scans)
     assert all(m.averaged.intensities is not None for m in outcome.measurements)
-    clock, robot, plain = make_cell(fast_job())
+    ranges_alone = fast_job(scanner={"intensities": False})
+    clock, robot, plain = make_cell(ranges_alone)
     plain_recorder = MemoryRecorder()
-    run_calibration(robot, plain, plain_recorder, fast_job(), semicircle_waypoints(6), clock=clock)
+    run_calibration(robot, plain, plain_recorder, ranges_alone, semicircle_waypoints(6), clock=clock)
     assert not plain.with_intensities and all(s.intensities is None for s in plain_recorder.scans)
 
 
