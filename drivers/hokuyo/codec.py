@@ -67,6 +67,11 @@ _STREAM_STATUS = {
     "07": "number of scans non-numeric",
 }
 _SINGLE_STATUS = {**_SCAN_STATUS, "10": "laser is off (send BM first)"}
+#: A model without intensities answers ME and GE as undefined commands.
+_NO_INTENSITIES = {
+    "0E": "undefined command: this scanner model sends no intensities; stream ranges alone "
+    "(MD: the job's [scanner] intensities = false)"
+}
 
 COMMAND_STATUS_MEANINGS: dict[str, dict[str, str]] = {
     "BM": {"01": "unable to control due to laser malfunction", "02": "laser is already on"},
@@ -96,10 +101,10 @@ COMMAND_STATUS_MEANINGS: dict[str, dict[str, str]] = {
     "QT": {"0E": "sensor is in time-adjust mode (send TM2 first)"},
     "GD": _SINGLE_STATUS,
     "GS": _SINGLE_STATUS,
-    "GE": _SINGLE_STATUS,
+    "GE": {**_SINGLE_STATUS, **_NO_INTENSITIES},
     "MD": _STREAM_STATUS,
     "MS": _STREAM_STATUS,
-    "ME": _STREAM_STATUS,
+    "ME": {**_STREAM_STATUS, **_NO_INTENSITIES},
 }
 """Command-specific status meanings (scip2.md 4.4-4.12)."""
 

@@ -148,6 +148,9 @@ def test_status_meanings_are_command_specific() -> None:
     assert status_meaning("GD", "10") == "laser is off (send BM first)"
     assert status_meaning("TM", "04") == "TM1 while not in time-adjust mode"
     assert status_meaning("XX", "0E") == "undefined command"
+    assert status_meaning("MD", "0E") == "undefined command"
+    for command in ("ME", "GE"):  # a model without intensities: the way out is MD
+        assert "intensities = false" in status_meaning(command, "0E")
     assert "hardware" in status_meaning("MD", "55")
     assert codec.STATUS_MEANINGS["0G"].startswith("string field")
 
