@@ -218,9 +218,8 @@ class Sequencer:
         still to take, then the waypoints not yet done; after them what the arm does not visit
         (checked, off the chain), so that a resumed run's first move starts where the arm is
         rather than where a chain through the finished waypoints would have left it."""
-        done = self._resume.finished_indices
-        pending = [i for i in range(len(self._waypoints)) if i not in done]
-        finished = [i for i in range(len(self._waypoints)) if i in done]
+        pending = self._pending_at_start()
+        finished = [i for i in range(len(self._waypoints)) if i not in pending]
         if self._background is None:
             return [None, *pending, *finished]
         return [*pending, *finished, None]
@@ -524,10 +523,13 @@ class Sequencer:
     def _plan_of_time(self) -> TimeLeft:
         """The visit of the waypoints this run has still to do, planned once (``run.time_left``)."""
         if self._time_plan is None:
-            done = self._resume.finished_indices
-            pending = [i for i in range(len(self._waypoints)) if i not in done]
-            self._time_plan = TimeLeft.plan(self._job, self._waypoints, pending)
+            self._time_plan = TimeLeft.plan(self._job, self._waypoints, self._pending_at_start())
         return self._time_plan
+
+    def _pending_at_start(self) -> list[int]:
+        """The waypoints this run set out to measure, in order: those its resume had not finished."""
+        done = self._resume.finished_indices
+        return [i for i in range(len(self._waypoints)) if i not in done]
 
     def _time_left_s(self) -> float:
         """The plan's moves, background and dwells still ahead, the moves scaled by how long the
