@@ -90,15 +90,24 @@ def world_with(
     return World(scene, scanner)
 
 
-def dwell(world: World, tcp_pose: np.ndarray, scans: int, rng: np.random.Generator) -> AveragedScan:
-    """Average ``scans`` noisy scans of the world with the TCP at ``tcp_pose`` (UR vector)."""
+def dwell(
+    world: World, tcp_pose: np.ndarray, scans: int, rng: np.random.Generator, *, intensities: bool = True
+) -> AveragedScan:
+    """Average ``scans`` noisy scans of the world with the TCP at ``tcp_pose`` (UR vector);
+    ``intensities`` False: ranges alone, as a job with ``[scanner] intensities = false`` streams
+    them (SCIP MD)."""
     T = pose_to_matrix(np.asarray(tcp_pose, dtype=float))
     period_s = world.geometry.scan_period_s
     batch = []
     for k in range(scans):
-        mm, intensities = world.scan_mm(T, rng)
+        mm, levels = world.scan_mm(T, rng)
         ranges_m = np.where(mm >= 23, mm / 1000.0, np.nan)
-        batch.append(LaserScan(k, world.geometry, ranges_m, mm, intensities, period_s * k, period_s * k))
+        batch.append(
+            LaserScan(
+                k, world.geometry, ranges_m, mm, levels if intensities else None,
+                period_s * k, period_s * k,
+            )
+        )
     return average_scans(batch)
 
 
@@ -125,7 +134,7 @@ def measure(
     nominal = job.scanner.nominal
     measurements: list[WaypointMeasurement] = []
     for index, pose in enumerate(waypoints, start=first_index):
-        averaged = dwell(world, pose, scans, rng)
+        averaged = dwell(world, pose, scans, rng, intensities=job.scanner.intensities)
         expected = None if nominal is None else predict_rod(nominal.matrix(), pose, rod).expected_uv_m
         try:
             centre = find_rod_centre(
@@ -143,7 +152,10 @@ def measure_waypoints(
     job: JobConfig, waypoints: np.ndarray, world: World, scans: int, rng: np.random.Generator
 ) -> tuple[list[WaypointMeasurement], AveragedScan]:
     """The whole chain offline: the background at the retract pose, then ``measure``."""
-    background = dwell(world, retract_candidates(job, waypoints)[0], job.background.scans, rng)
+    background = dwell(
+        world, retract_candidates(job, waypoints)[0], job.background.scans, rng,
+        intensities=job.scanner.intensities,
+    )
     return measure(job, waypoints, world, scans, rng, background), background
 
 
