@@ -43,6 +43,17 @@ class WaypointResidual(BaseModel):
         "the centre); the verify weighs the waypoint with it. None where unknown (centres read from a "
         "CSV, or a file written before it was recorded)",
     )
+    echo_middle_uv_mm: list[float] | None = Field(
+        default=None,
+        description="a twist drill's: where the middle of the rod's echo strength lies from this centre, "
+        "across its bearing (u, v; mm, same frame): its section's glint places it off the axis, by "
+        "the same at every dwell of this pose, while the fitted centre jumps with the beams its fit "
+        "keeps; the verify compares middles. None: not fluted, no intensities, or no middle found",
+    )
+    echo_middle_noise_mm2: float | None = Field(
+        default=None,
+        description="what another dwell draws anew of echo_middle_uv_mm's length across the bearing (mm^2)",
+    )
 
 
 class Outlier(BaseModel):

@@ -21,7 +21,13 @@ from lasercal_hw.models import FloatArray, Observation, RodLine
 from lasercal_hw.run.flute_phase import PLAIN_EXTRACTION, FluteShift, estimate_flute_phase
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.scan.average import AveragedScan
-from lasercal_hw.scan.extraction import ExtractionSettings, RodNotFoundError, find_rod_centre
+from lasercal_hw.scan.extraction import (
+    EchoMiddle,
+    ExtractionSettings,
+    RodNotFoundError,
+    echo_middle,
+    find_rod_centre,
+)
 
 
 @dataclass(frozen=True)
@@ -118,6 +124,17 @@ class SecondPassRefit:
         kept_indices = {index for index, _ in kept}
         return [self._moved_back(m) if m.index in kept_indices else m for m in refitted], kept
 
+    def echo_middle(
+        self, averaged: AveragedScan, tcp_pose: FloatArray, centre_uv_m: FloatArray
+    ) -> EchoMiddle | None:
+        """Where the middle of the rod's echo strength lies across the bearing of ``centre_uv_m``
+        in ``averaged`` (the extraction's ``echo_middle`` at its default levels, over the section
+        the rod's axis cuts at ``tcp_pose`` as ``T_base_laser`` predicts it); None where there is
+        none. A twist drill's verify compares these (``verify/echo_reference``)."""
+        axis = predict_rod(self.T_base_laser, tcp_pose, self.rod).axis_in_scanner
+        semi_major_m = self.rod.radius_m / max(abs(float(axis[2])), 1e-6)
+        return echo_middle(averaged, centre_uv_m, semi_major_m, ExtractionSettings().echo_middle_levels)
+
     def _moved_back(self, measurement: WaypointMeasurement) -> WaypointMeasurement:
         """A first centre moved back along its bearing by the range offset."""
         centre = _moved_back(measurement.centre.centre_uv_m, self.range_offset_m)
@@ -198,9 +215,40 @@ def solve_two_pass(
             result, observations = phase.result, phase.observations
             refit = replace(plain_refit, flutes=phase.shift)
             refinement += f"; {phase.note}"
+    if rod.fluted:
+        result = _with_echo_middles(result, observations, measurements, refit)
     settings = SolveSettings(rod, applied, job.quality)
     warnings = [(m.index, warning) for m in refitted for warning in m.centre.warnings]
     return TwoPassSolution(first, result, observations, refinement, kept, settings, warnings, refit)
+
+
+def _with_echo_middles(
+    result: CalibrationResult,
+    observations: Sequence[Observation],
+    measurements: Sequence[WaypointMeasurement],
+    refit: SecondPassRefit,
+) -> CalibrationResult:
+    """``result`` with each solved centre's echo middle recorded in its residual
+    (``WaypointResidual.echo_middle_uv_mm``): a twist drill's verify compares middles."""
+    scans = {m.index: m.averaged for m in measurements}
+    centres = {o.index: o for o in observations}
+    residuals = []
+    for residual in result.residuals:
+        observation = centres.get(residual.index)
+        averaged = scans.get(residual.index)
+        middle = None
+        if observation is not None and averaged is not None:
+            middle = refit.echo_middle(averaged, observation.tcp_pose, observation.centre_uv_m)
+        if middle is not None:
+            shift_mm = (middle.turned_onto(observation.centre_uv_m) - observation.centre_uv_m) * 1e3
+            residual = residual.model_copy(
+                update={
+                    "echo_middle_uv_mm": shift_mm.tolist(),
+                    "echo_middle_noise_mm2": middle.noise_m2 * 1e6,
+                }
+            )
+        residuals.append(residual)
+    return result.model_copy(update={"residuals": residuals})
 
 
 def refit_centres(

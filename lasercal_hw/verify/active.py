@@ -253,6 +253,22 @@ def recorded_residuals(
     return np.array(pairs, dtype=float).reshape(-1, 2)
 
 
+def recorded_echo_middles(
+    residuals: Sequence[WaypointResidual], recorded_waypoints: FloatArray | None, waypoints: FloatArray
+) -> FloatArray:
+    """A twist drill's echo middle as the calibration recorded it at each of ``waypoints`` in its
+    fit: (N, 3), the middle's offset from the centre (u, v; m) and its dwell noise across the
+    bearing (m^2); NaN where none is recorded (``WaypointResidual.echo_middle_uv_mm``)."""
+    rows = _recorded_at(residuals, recorded_waypoints, waypoints, used_only=True)
+    values = [
+        (np.nan, np.nan, np.nan)
+        if r is None or r.echo_middle_uv_mm is None or r.echo_middle_noise_mm2 is None
+        else (r.echo_middle_uv_mm[0] / 1e3, r.echo_middle_uv_mm[1] / 1e3, r.echo_middle_noise_mm2 / 1e6)
+        for r in rows
+    ]
+    return np.array(values, dtype=float).reshape(-1, 3)
+
+
 def recorded_centre_covariances(
     residuals: Sequence[WaypointResidual], recorded_waypoints: FloatArray | None, waypoints: FloatArray
 ) -> tuple[FloatArray, FloatArray]:

@@ -35,11 +35,13 @@ from lasercal_hw.verify.active import (
     ActiveCalibration,
     load_active_calibration,
     recorded_centre_covariances,
+    recorded_echo_middles,
     recorded_residuals,
     repeated_poses,
     unusable_waypoints,
 )
 from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
+from lasercal_hw.verify.echo_reference import at_echo_middles
 from lasercal_hw.verify.identity import IdentityCheck, check_identity, robot_calibration_check
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
 from lasercal_hw.verify.selection import Selection, select_waypoints
@@ -142,6 +144,8 @@ class VerifyPlan:
     selection: Selection
     #: How the calibration's second pass fitted its centres: the verify fits its own so.
     refit: SecondPassRefit
+    #: A twist drill's echo middle the calibration recorded at each waypoint (``recorded_echo_middles``).
+    echo_middles: FloatArray
 
 
 def plan_verify(
@@ -188,7 +192,8 @@ def plan_verify(
         noise_covariance_uv_m2=noise_covariance,
         unusable=unusable_waypoints(residuals, recorded_waypoints, waypoints) | repeated_poses(waypoints),
     )
-    return VerifyPlan(checking, model, waypoints, reference, selection, refit)
+    middles = recorded_echo_middles(residuals, recorded_waypoints, waypoints)
+    return VerifyPlan(checking, model, waypoints, reference, selection, refit, middles)
 
 
 def plan_active(
@@ -323,14 +328,21 @@ def refit_and_test(
     if len(refitted) < MIN_MEASURED:
         return None, kept
     job_index = [plan.selection.indices[m.index] for m in refitted]
+    centres, reference, noise = at_echo_middles(
+        plan.refit,
+        refitted,
+        plan.echo_middles[job_index],
+        plan.reference[job_index],
+        np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted]),
+    )
     test = run_drift_test(
         plan.model,
         job_index,
         np.array([m.tcp_pose for m in refitted]),
-        np.array([m.centre.centre_uv_m for m in refitted]),
+        centres,
         np.array([m.centre.covariance_uv_m2 for m in refitted]),
-        plan.reference[job_index],
-        np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted]),
+        reference,
+        noise,
     )
     return test, kept
 

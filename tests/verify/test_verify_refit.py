@@ -5,7 +5,7 @@ scanner model, no devices)."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,7 @@ from lasercal_hw.run.two_pass import TwoPassSolution, solve_two_pass
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.verify.active import load_active_calibration
+from lasercal_hw.verify.echo_reference import at_echo_middles
 from lasercal_hw.verify.procedure import plan_active, refit_and_test
 
 SCANS = 40
@@ -223,6 +224,61 @@ def test_a_malformed_recorded_phase_is_refused_naming_the_field(
     active = load_active_calibration(broken)
     with pytest.raises(ConfigError, match=r"run\.first_pass\.flute_phase\.phase_deg is not a finite number"):
         active.refit(active.job.rod.rod_line())
+
+
+def test_a_fluted_calibration_records_the_middle_of_each_centres_echo(
+    fluted_calibrated: Calibrated, drill_calibrated: Calibrated
+) -> None:
+    """A twist drill's residuals record where the middle of its echo lies from each solved centre
+    (across the bearing, with its noise); a plain rod's record none."""
+    residuals = fluted_calibrated.solution.result.residuals
+    recorded = [r for r in residuals if r.echo_middle_uv_mm is not None]
+    assert len(recorded) >= 0.75 * len(residuals)
+    solved = {o.index: o.centre_uv_m for o in fluted_calibrated.solution.observations}
+    for r in recorded:
+        bearing = solved[r.index] / np.linalg.norm(solved[r.index])
+        move_mm = np.asarray(r.echo_middle_uv_mm)
+        assert abs(float(move_mm @ bearing)) <= 0.01 + 0.01 * float(np.linalg.norm(move_mm))
+        assert r.echo_middle_noise_mm2 is not None and r.echo_middle_noise_mm2 >= 0.0
+    assert all(r.echo_middle_uv_mm is None for r in drill_calibrated.solution.result.residuals)
+
+
+def test_a_fluted_verify_compares_echo_middles_not_where_the_fit_jumped(
+    fluted_calibrated: Calibrated,
+) -> None:
+    """The calibration's own scans with every re-fitted centre moved 1.5 mm across its bearing (a
+    beam-set jump of the fit): where the middle was recorded the compared centres are the
+    calibration's middles, unmoved, and the drift test's residual zero; elsewhere the jump stays."""
+    calibration = fluted_calibrated
+    active = load_active_calibration(calibration.path)
+    plan = plan_active(active, active.job, count=len(active.waypoints()))
+    chosen_indices = plan.selection.indices
+    by_index = {m.index: m for m in calibration.measurements}
+    chosen = [
+        WaypointMeasurement(k, by_index[i].tcp_pose, by_index[i].averaged, by_index[i].centre)
+        for k, i in enumerate(chosen_indices)
+        if i in by_index
+    ]
+    refitted, _ = plan.refit.centres(chosen, calibration.background)
+    job_index = [chosen_indices[m.index] for m in refitted]
+    noise = np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted])
+
+    def jumped(m: WaypointMeasurement) -> WaypointMeasurement:
+        c = m.centre.centre_uv_m
+        across = np.array([-c[1], c[0]]) / np.linalg.norm(c)
+        return replace(m, centre=replace(m.centre, centre_uv_m=c + 0.0015 * across))
+
+    args = (plan.echo_middles[job_index], plan.reference[job_index], noise)
+    centres, reference, _ = at_echo_middles(plan.refit, refitted, *args)
+    moved, moved_reference, _ = at_echo_middles(plan.refit, [jumped(m) for m in refitted], *args)
+    at_middle = np.isfinite(plan.echo_middles[job_index]).all(axis=1)
+    assert at_middle.sum() >= 0.75 * len(refitted)
+    np.testing.assert_allclose(moved[at_middle], centres[at_middle], atol=1e-5)
+    np.testing.assert_array_equal(moved_reference, reference)
+    jumps_m = np.linalg.norm(moved[~at_middle] - centres[~at_middle], axis=1)
+    np.testing.assert_allclose(jumps_m, 0.0015, rtol=1e-6)
+    test, _ = refit_and_test(plan, chosen, calibration.background)
+    assert test is not None and test.chi_square == pytest.approx(0.0, abs=1e-6)
 
 
 def test_a_rod_without_flutes_records_no_phase_pass(drill_calibrated: Calibrated) -> None:

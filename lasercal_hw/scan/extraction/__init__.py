@@ -51,14 +51,17 @@ from __future__ import annotations
 
 from lasercal_hw.scan.extraction.centre_fit import seed_centre_pi4
 from lasercal_hw.scan.extraction.find import find_rod_centre
+from lasercal_hw.scan.extraction.intensity import EchoMiddle, echo_middle
 from lasercal_hw.scan.extraction.results import RodCentre, RodNotFoundError, RodQuality
 from lasercal_hw.scan.extraction.settings import ExtractionSettings
 
 __all__ = [
+    "EchoMiddle",
     "ExtractionSettings",
     "RodCentre",
     "RodNotFoundError",
     "RodQuality",
+    "echo_middle",
     "find_rod_centre",
     "seed_centre_pi4",
 ]

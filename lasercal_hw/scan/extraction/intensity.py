@@ -3,7 +3,7 @@ polished rod on few beams placed along it by its glint."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,37 +21,54 @@ from lasercal_hw.scan.extraction.spot import _spot_parts, _spot_sigma_m
 MIN_ECHO_MIDDLE_LEVELS = 2
 
 
-def _across_from_echo_middle(
-    scan: AveragedScan, fit: RodCentre, section: _Section, settings: ExtractionSettings
-) -> RodCentre:
-    """The centre with its position across the bearing from the middle of the rod's echo
-    strength: at each of ``echo_middle_levels`` of the brightest beam on the rod, the middle of
-    where the intensity falls through that level on either side (interpolated between beams
-    that read the rod), averaged over the levels. Along the bearing the centre is kept; across,
-    the dwell noise takes the levels' scatter (a lopsided lobe's middles move with the level)
-    and the mean's (all of it: which beams cross a level changes from dwell to dwell), the
-    covariance that and a beam step's quantisation besides (the beams' angles repeat at the
-    pose). Unchanged without intensities, for a fluted rod (its
-    glint is no symmetric lobe), or where a level is not crossed on the rod's beams on both
-    sides (the background's echo won there).
+@dataclass(frozen=True)
+class EchoMiddle:
+    """The middle of a rod's echo strength across the bearing, seen from a centre."""
 
-    The spot's power on the rod falls off alike on both sides of its centre; which echo wins
-    at the rod's edges moves the segment's ends, not the lobe's middle (the dry run's waypoints
-    1, 3, 17 and 18: within 0.2 mm of the true bearing, where the fits lay -0.75 to +1.32 mm)."""
-    if scan.intensities is None or not settings.echo_middle_levels:
-        return fit
+    #: The middle's bearing (rad, the scan's angles).
+    bearing_rad: float
+    #: How far across the centre's bearing the middle lies (m, at the centre's range; positive
+    #: counterclockwise).
+    shift_m: float
+    #: The dwell noise of ``shift_m`` (m^2): the levels' scatter, and the mean's.
+    noise_m2: float
+    #: The beam step at the centre's range (m): where a flat-topped lobe's middle can lie.
+    step_m: float
+
+    def turned_onto(self, centre_uv_m: FloatArray) -> FloatArray:
+        """``centre_uv_m`` turned about the scanner onto the middle's bearing (its range kept)."""
+        direction = np.array([np.cos(self.bearing_rad), np.sin(self.bearing_rad)])
+        return float(np.linalg.norm(centre_uv_m)) * direction
+
+    def noise_uv_m2(self, centre_uv_m: FloatArray) -> FloatArray:
+        """``noise_m2`` across the bearing of ``centre_uv_m`` (2x2, m^2)."""
+        across = _across_bearing(centre_uv_m)
+        return self.noise_m2 * np.outer(across, across)
+
+
+def echo_middle(
+    scan: AveragedScan, centre_uv_m: FloatArray, semi_major_m: float, levels: tuple[float, ...]
+) -> EchoMiddle | None:
+    """The middle of the rod's echo strength across the bearing of ``centre_uv_m``: at each of
+    ``levels`` of the brightest beam on the rod (within ``semi_major_m`` of the centre's
+    bearing, nearer than it), the middle of where the intensity falls through that level on
+    either side (interpolated between beams that read the rod), averaged over the levels.
+    None without intensities, or where fewer than ``MIN_ECHO_MIDDLE_LEVELS`` are crossed on the
+    rod's beams on both sides (the background's echo won there)."""
+    if scan.intensities is None or not levels:
+        return None
     intensities, ranges = scan.intensities, scan.ranges_m
-    distance_m = float(np.linalg.norm(fit.centre_uv_m))
-    bearing_rad = float(np.arctan2(fit.centre_uv_m[1], fit.centre_uv_m[0]))
-    half_rad = float(np.arcsin(min(section.semi_major_m / distance_m, 1.0)))
+    distance_m = float(np.linalg.norm(centre_uv_m))
+    bearing_rad = float(np.arctan2(centre_uv_m[1], centre_uv_m[0]))
+    half_rad = float(np.arcsin(min(semi_major_m / distance_m, 1.0)))
     within = np.abs(scan.angles_rad - bearing_rad) <= half_rad
     on_rod = within & (ranges < distance_m) & np.isfinite(intensities)
     if not np.any(on_rod):
-        return fit
+        return None
     brightest = int(np.flatnonzero(on_rod)[int(np.argmax(intensities[on_rod]))])
-    on_rod_m = float(ranges[brightest]) + 2.0 * section.semi_major_m
+    on_rod_m = float(ranges[brightest]) + 2.0 * semi_major_m
     middles_rad = []
-    for level in settings.echo_middle_levels:
+    for level in levels:
         threshold = level * float(intensities[brightest])
         sides: list[float] = []
         for direction in (-1, 1):
@@ -68,14 +85,35 @@ def _across_from_echo_middle(
         if len(sides) == 2:
             middles_rad.append(0.5 * (sides[0] + sides[1]))
     if len(middles_rad) < MIN_ECHO_MIDDLE_LEVELS:
-        return fit
+        return None
     middles_m = distance_m * (np.asarray(middles_rad) - bearing_rad)
-    across = _across_bearing(fit.centre_uv_m)
-    shift_m = float(np.mean(middles_m))  # the fit's own centre lies on its bearing
-    # A flat-topped lobe (every level crossed between the same two beams) fixes its middle only
-    # to a beam step: each side anywhere within one, the middle their mean.
     step_m = distance_m * float(np.median(np.abs(np.diff(scan.angles_rad))))
     noise_m2 = float(np.var(middles_m)) * (1.0 + 1.0 / middles_m.size)
+    return EchoMiddle(float(np.mean(middles_rad)), float(np.mean(middles_m)), noise_m2, step_m)
+
+
+def _across_from_echo_middle(
+    scan: AveragedScan, fit: RodCentre, section: _Section, settings: ExtractionSettings
+) -> RodCentre:
+    """The centre with its position across the bearing from the middle of the rod's echo
+    strength (``echo_middle`` at ``echo_middle_levels``). Along the bearing the centre is kept;
+    across, the dwell noise takes the levels' scatter (a lopsided lobe's middles move with the
+    level) and the mean's (all of it: which beams cross a level changes from dwell to dwell),
+    the covariance that and a beam step's quantisation besides (the beams' angles repeat at the
+    pose). Unchanged where there is no middle. Not for a fluted rod (its glint is no symmetric
+    lobe: ``find_rod_centre`` does not call it there; a twist drill's verify compares middles,
+    ``verify/echo_reference``).
+
+    The spot's power on the rod falls off alike on both sides of its centre; which echo wins
+    at the rod's edges moves the segment's ends, not the lobe's middle (the dry run's waypoints
+    1, 3, 17 and 18: within 0.2 mm of the true bearing, where the fits lay -0.75 to +1.32 mm)."""
+    middle = echo_middle(scan, fit.centre_uv_m, section.semi_major_m, settings.echo_middle_levels)
+    if middle is None:
+        return fit
+    distance_m = float(np.linalg.norm(fit.centre_uv_m))
+    across = _across_bearing(fit.centre_uv_m)
+    # A flat-topped lobe (every level crossed between the same two beams) fixes its middle only
+    # to a beam step: each side anywhere within one, the middle their mean.
     along = np.outer(fit.centre_uv_m, fit.centre_uv_m) / distance_m**2
     noise = fit.noise_covariance_uv_m2
 
@@ -85,9 +123,9 @@ def _across_from_echo_middle(
 
     return replace(
         fit,
-        centre_uv_m=fit.centre_uv_m + shift_m * across,
-        covariance_uv_m2=across_replaced(fit.covariance_uv_m2, noise_m2 + step_m**2 / 24.0),
-        noise_covariance_uv_m2=None if noise is None else across_replaced(noise, noise_m2),
+        centre_uv_m=fit.centre_uv_m + middle.shift_m * across,
+        covariance_uv_m2=across_replaced(fit.covariance_uv_m2, middle.noise_m2 + middle.step_m**2 / 24.0),
+        noise_covariance_uv_m2=None if noise is None else across_replaced(noise, middle.noise_m2),
     )
 
 
