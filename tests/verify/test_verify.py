@@ -3,6 +3,7 @@ choice, the identity check, the verdict and reading the calibration."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from lasercal_hw.verify import VerifyRequest, verify
 from lasercal_hw.verify.active import load_active_calibration, recorded_residuals, unusable_waypoints
 from lasercal_hw.verify.drift import (
     DriftModel,
+    DriftTest,
     noise_blocks,
     predictions,
     residual_covariance,
@@ -463,3 +465,53 @@ def test_a_range_change_along_every_beam_is_named_and_a_move_is_not(
     turned = run_drift_test(model, list(range(6)), chosen, centres(model, chosen, turn), cov)
     assert turned.changed and turned.range_change is not None and not turned.range_change.explains
     assert "range change" not in decide([], turned, 2.0, 0.2).reason
+
+
+
+def _still_test(setup: tuple[DriftModel, np.ndarray, Path]) -> DriftTest:
+    """The drift test of six waypoints where nothing moved."""
+    model, poses, _ = setup
+    still = centres(model, poses[:6], np.zeros(6))
+    sharp = np.broadcast_to(np.eye(2) * 1e-6, (6, 2, 2))
+    return run_drift_test(model, list(range(6)), poses[:6], still, sharp)
+
+
+@pytest.mark.parametrize(
+    ("shift_mm", "turn_deg", "named", "not_named"),
+    [
+        (1.0, 0.5, ("only a turn of 0.500 deg", "tolerance 0.2 deg"), ("shift", "mm")),
+        (3.0, 0.1, ("only a shift of 3.00 mm", "tolerance 2 mm"), ("turn", "deg")),
+        (3.0, 0.5, ("a shift of 3.00 mm", "a turn of 0.500 deg", "2 mm", "0.2 deg"), ()),
+    ],
+)
+def test_an_inconclusive_verify_names_only_the_directions_beyond_their_tolerance(
+    setup: tuple[DriftModel, np.ndarray, Path],
+    shift_mm: float,
+    turn_deg: float,
+    named: tuple[str, ...],
+    not_named: tuple[str, ...],
+) -> None:
+    test = _still_test(setup)
+    blind = dataclasses.replace(
+        test, chi_square=0.0, detectable_shift_mm=np.array([shift_mm, 0.1, 0.2]),
+        detectable_turn_deg=np.array([turn_deg, 0.01, 0.02]),
+    )
+    verdict = decide([], blind, tolerance_mm=2.0, tolerance_deg=0.2)
+    assert verdict.status == "inconclusive"
+    blind_part = verdict.reason.split(" but ")[1].split(":")[0]
+    assert all(text in blind_part for text in named), blind_part
+    assert not any(text in blind_part for text in not_named), blind_part
+
+
+def test_an_inconclusive_verify_gives_the_advice_of_its_front_end(
+    setup: tuple[DriftModel, np.ndarray, Path],
+) -> None:
+    """``lasercal verify`` has --waypoints; a daemon's verify job does not (remote verify)."""
+    from lasercal_hw.service.runners import DAEMON_MORE_DATA
+
+    test = _still_test(setup)
+    blind = dataclasses.replace(test, chi_square=0.0, detectable_turn_deg=np.array([1.0, 0.0, 0.0]))
+    assert "--waypoints" in decide([], blind, 2.0, 0.2).reason
+    remote = decide([], blind, 2.0, 0.2, more_data=DAEMON_MORE_DATA).reason
+    assert "--waypoints" not in remote
+    assert remote.endswith(DAEMON_MORE_DATA)
