@@ -244,6 +244,33 @@ def test_cli_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
         verify_command(tmp_path / "none.json", scene=Path("x.toml"), yes=True)
 
 
+
+@pytest.mark.parametrize(
+    ("name", "content"),
+    [
+        ("observations.csv", b"index,u_m,v_m\n0,0.1,0.2\n"),
+        ("session.mcap", b"\x89MCAP0\r\n\x00\x01\x02"),
+        ("empty.json", b""),
+    ],
+)
+def test_a_file_that_is_not_a_result_json_is_named_as_such(tmp_path: Path, name: str, content: bytes) -> None:
+    """Another file of a run (or a broken one) is refused naming what to give, not the JSON
+    parser's or the codec's words."""
+    path = tmp_path / name
+    path.write_bytes(content)
+    result = run_cli("verify", "--calibration", str(path), "--dry-run")
+    assert_one_line_error(
+        result, 2, f"{path} is not a result.json", "give the result.json that `lasercal run`"
+    )
+    for words in ("Expecting value", "codec", "char 0"):
+        assert words not in result.stderr
+
+
+def test_a_run_folder_is_told_its_result_json(tmp_path: Path) -> None:
+    (tmp_path / "result.json").write_text("{}")
+    with pytest.raises(ConfigError, match=f"{tmp_path} is a folder: give {tmp_path / 'result.json'}"):
+        load_active_calibration(tmp_path)
+
 def test_a_cell_job_file_needs_the_calibrations_scanner(tmp_path: Path) -> None:
     """A cell's job file is narrowed to the scanner the calibration is of: a one-scanner
     calibration, or a scanner the file does not describe, is refused naming what it holds
