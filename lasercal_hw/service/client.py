@@ -62,9 +62,12 @@ def check_daemon_url(url: str) -> str:
 
 
 def read_token(token_file: Path | None = None) -> str | None:
-    """``$LASERCAL_TOKEN``, else the token file (default: the daemon's default data folder), else None."""
+    """``$LASERCAL_TOKEN``, else the token file (default: the daemon's default data folder), else
+    None when the default file is missing; a ``token_file`` given that does not exist is a
+    ``ConfigError`` naming it."""
     if os.environ.get(TOKEN_ENV):
         return os.environ[TOKEN_ENV].strip()
+    given = token_file is not None
     if token_file is None:
         from lasercal_hw.service.config import default_data_dir
 
@@ -72,6 +75,11 @@ def read_token(token_file: Path | None = None) -> str | None:
     try:
         return token_file.read_text(encoding="utf-8").strip()
     except FileNotFoundError:
+        if given:  # a file named on purpose: say so before a request goes out without a token
+            raise ConfigError(
+                f"token file {token_file} does not exist: give the daemon's token file (the file "
+                f"'token' in its data folder) with --token-file, or the token itself in ${TOKEN_ENV}"
+            ) from None
         return None
     except OSError as exc:
         raise DaemonRequestError(f"cannot read the token file {token_file}: {exc.strerror or exc}") from None
