@@ -108,6 +108,15 @@ CASES: list[Hostile] = [
         headers={"Content-Length": "-1"},
     ),
     Hostile(
+        "a body cut short",
+        "POST",
+        "/v1/jobs",
+        400,
+        "invalid_json",
+        content=b'{"kind": "dry_run", "confirm_motion": tru',
+        headers={"Content-Type": "application/json"},
+    ),
+    Hostile(
         "a 10,000-character reason",
         "POST",
         "/v1/calibrations/{cal}/activate",

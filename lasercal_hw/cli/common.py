@@ -52,3 +52,20 @@ def parse_vector(text: str, length: int, option: str) -> list[float]:
     if len(values) != length:
         raise ConfigError(f"{option} must have {length} numbers, got {len(values)} in {text!r}")
     return values
+
+
+def check_scene(scene: Path | None, dry_run: bool) -> None:
+    """``--scene`` only with ``--dry-run``, naming a scene file that exists and is valid: a bad
+    one is exit 2 naming it, before any fake cell starts."""
+    if scene is None:
+        return
+    if not dry_run:
+        raise ConfigError("--scene only applies to --dry-run")
+    if not scene.is_file():
+        raise ConfigError(f"--scene {scene} does not exist; give a scene file (docs/extraction.md)")
+    from fakes.scene import load_scene
+
+    try:
+        load_scene(scene)
+    except ConfigError as exc:
+        raise ConfigError(f"--scene: {exc}") from None

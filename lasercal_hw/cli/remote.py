@@ -16,9 +16,25 @@ from lasercal_hw.errors import ConfigError, ExitCode
 
 remote_app = typer.Typer(help="Talk to a running 'lasercal serve' daemon.", no_args_is_help=True)
 
+
+def _daemon_url(url: str) -> str:
+    """The ``--daemon`` option checked before anything is sent (exit 2 naming the option)."""
+    from lasercal_hw.service.client import check_daemon_url
+
+    try:
+        return check_daemon_url(url)
+    except ConfigError as exc:
+        raise typer.BadParameter(str(exc)) from None
+
+
 DaemonOption = Annotated[
     str,
-    typer.Option("--daemon", envvar="LASERCAL_DAEMON", help="Daemon URL (default http://127.0.0.1:8766)."),
+    typer.Option(
+        "--daemon",
+        envvar="LASERCAL_DAEMON",
+        callback=_daemon_url,
+        help="Daemon URL (default http://127.0.0.1:8766).",
+    ),
 ]
 TokenFileOption = Annotated[
     Path | None,

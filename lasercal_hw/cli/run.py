@@ -27,6 +27,7 @@ from lasercal_hw.cli.common import (
     RobotOption,
     SceneOption,
     YesOption,
+    check_scene,
     console,
     err_console,
     print_json,
@@ -322,8 +323,7 @@ def run_command(
     configuration, 3 device error (including a protective stop), 4 calibration impossible
     (degenerate data), 130 interrupted (the arm is stopped; continue with --resume).
     """
-    if scene is not None and not dry_run:
-        raise ConfigError("--scene only applies to --dry-run")
+    check_scene(scene, dry_run)
     require_confirmation_possible(yes, dry_run or resume is not None)
     ui = err_console if as_json else console
     if resume is not None and (config is not None or dwell is not None or out is not None):

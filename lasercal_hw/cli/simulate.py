@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
@@ -23,6 +25,21 @@ _LABELS = {
 }
 
 
+MAX_NOISE_MM = 1000.0
+"""The largest noise simulated: a metre, the size of the cell (more makes impossible poses)."""
+
+
+def _check_noise_mm(option: str, noise_mm: float, zero_allowed: bool) -> None:
+    """A noise the simulation can draw: finite (inf or nan would make NaN waypoints), at most
+    ``MAX_NOISE_MM``, and positive or, when ``zero_allowed``, zero."""
+    too_small = noise_mm < 0 or (noise_mm == 0 and not zero_allowed)
+    if not math.isfinite(noise_mm) or too_small or noise_mm > MAX_NOISE_MM:
+        bound = ">= 0" if zero_allowed else "> 0"
+        raise ConfigError(
+            f"{option} must be a finite number {bound} and at most {MAX_NOISE_MM:g} (mm), got {noise_mm:g}"
+        )
+
+
 def simulate_command(
     trials: int = typer.Option(200, "--trials", help="Number of simulated calibrations."),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
@@ -36,14 +53,14 @@ def simulate_command(
     """Reproduce the paper's Table 1 by Monte Carlo and compare with the Cramér-Rao bound."""
     if trials < 1:
         raise ConfigError(f"--trials must be at least 1, got {trials}")
+    if seed < 0:
+        raise ConfigError(f"--seed must be 0 or more, got {seed}")
     if points < 5:
         raise ConfigError(
             f"too few waypoints: need --points at least 5 (6 unknowns, 2 equations each), got {points}"
         )
-    if not laser_noise_mm > 0:
-        raise ConfigError(f"--laser-noise-mm must be positive, got {laser_noise_mm:g}")
-    if not robot_noise_mm >= 0:
-        raise ConfigError(f"--robot-noise-mm must not be negative, got {robot_noise_mm:g}")
+    _check_noise_mm("--laser-noise-mm", laser_noise_mm, zero_allowed=False)
+    _check_noise_mm("--robot-noise-mm", robot_noise_mm, zero_allowed=True)
     if not 0 < tilt_deg < 60:
         raise ConfigError(f"--tilt-deg must be between 0 and 60 degrees (exclusive), got {tilt_deg:g}")
     if formulation not in ("ours", "paper"):

@@ -178,6 +178,9 @@ DesignModelOption = Annotated[
     ),
 ]
 OutOption = Annotated[Path, typer.Option("--out", help="Waypoint file to write (CSV).")]
+ForceOption = Annotated[
+    bool, typer.Option("--force", help="Replace the --out file if it exists (kept otherwise).")
+]
 SeedOption = Annotated[int, typer.Option("--seed", help="Seed of the search (same seed, same waypoints).")]
 ScannerNameOption = Annotated[
     str | None,
@@ -266,6 +269,7 @@ def design(
     robot_model_name: DesignModelOption = None,
     robot: str | None = _ROBOT_OPT,
     out: OutOption = Path("waypoints.csv"),
+    force: ForceOption = False,
     seed: SeedOption = 0,
     json_output: bool = _JSON_OPT,
 ) -> None:
@@ -289,6 +293,8 @@ def design(
     from trajectories.design import request_for_job
     from trajectories.waypoint_file import waypoints_to_csv
 
+    if out.exists() and not force:  # checked before the design's minutes, and no file is lost
+        raise ConfigError(f"{out} already exists: choose another --out, or pass --force to replace it")
     cell = load_job(config)
     job = cell.for_scanner(scanner_name) if scanner_name is not None else cell
     if shared_with is not None and shared_with == scanner_name:

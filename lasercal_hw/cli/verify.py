@@ -16,8 +16,9 @@ from lasercal_hw.cli.common import (
     ScannerOption,
     SceneOption,
     YesOption,
+    check_scene,
 )
-from lasercal_hw.errors import ConfigError, ExitCode
+from lasercal_hw.errors import ExitCode
 
 if TYPE_CHECKING:
     from lasercal_hw.verify.procedure import VerifyReport
@@ -127,8 +128,7 @@ def verify_command(
     from lasercal_hw.run.engine import default_out_dir
     from lasercal_hw.verify.procedure import VerifyRequest, verify
 
-    if scene is not None and not dry_run:
-        raise ConfigError("--scene only applies to --dry-run")
+    check_scene(scene, dry_run)
     require_confirmation_possible(yes, dry_run)
     ui = err_console if as_json else console
     stamp = default_out_dir()

@@ -201,19 +201,34 @@ def _table(document: dict[str, Any], key: str) -> dict[str, Any] | None:
     return value if isinstance(value, dict) else None
 
 
+def _not_a_result(path: Path, why: str) -> ConfigError:
+    """The error for a file that is not a ``result.json`` (another file of a run, or a broken one)."""
+    return ConfigError(
+        f"{path} is not a result.json ({why}): give the result.json that `lasercal run` or "
+        "`lasercal solve` wrote"
+    )
+
+
 def read_result_file(path: Path) -> ResultFile:
     """Read a ``result.json`` (as ``result_document`` writes it); a missing or malformed
     file raises ``ConfigError`` naming it."""
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path} is a folder: give {path / RESULT_FILE}, the calibration's result file")
     try:
-        document = json.loads(Path(path).read_text(encoding="utf-8"))
+        document = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ConfigError(
             f"calibration file {path} does not exist; pass the result.json of a calibration"
         ) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"cannot read calibration file {path}: {exc}") from None
+    except UnicodeDecodeError:
+        raise _not_a_result(path, "not text: a binary file such as session.mcap") from None
+    except json.JSONDecodeError as exc:
+        raise _not_a_result(path, f"not JSON from line {exc.lineno}") from None
+    except OSError as exc:
+        raise ConfigError(f"cannot read calibration file {path}: {exc.strerror or exc}") from None
     if not isinstance(document, dict):
-        raise ConfigError(f"{path} is not a calibration result (expected a JSON object)")
+        raise _not_a_result(path, "a JSON document, but not an object")
     try:
         result = CalibrationResult.model_validate(document)
     except ValidationError as exc:

@@ -10,14 +10,16 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 import urllib.error
 import urllib.request
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
-from lasercal_hw.errors import ExitCode, LasercalError
+from lasercal_hw.errors import ConfigError, ExitCode, LasercalError
 
 DEFAULT_URL = "http://127.0.0.1:8766"
 TOKEN_ENV = "LASERCAL_TOKEN"
@@ -44,10 +46,28 @@ class DaemonRequestError(LasercalError):
         self.exit_code = ExitCode.DEVICE_ERROR if status is None or status >= 500 else ExitCode.BAD_INPUT
 
 
+def check_daemon_url(url: str) -> str:
+    """``url`` if it is an http(s) URL with a host and a valid port, else a ``ConfigError`` saying
+    what to give (a bare ``host:port`` is told to add ``http://``)."""
+    parts = urlsplit(url)
+    if "://" not in url and re.fullmatch(r"[\w.-]+:\d+/?", url):
+        raise ConfigError(f"{url!r} is not a URL: add http://, as in http://{url}")
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise ConfigError(f"{url!r} is not an http:// URL: give one such as {DEFAULT_URL}")
+    try:
+        _ = parts.port  # urlsplit checks the port only when it is read
+    except ValueError:
+        raise ConfigError(f"{url!r} has no valid port (1-65535): give one such as {DEFAULT_URL}") from None
+    return url
+
+
 def read_token(token_file: Path | None = None) -> str | None:
-    """``$LASERCAL_TOKEN``, else the token file (default: the daemon's default data folder), else None."""
+    """``$LASERCAL_TOKEN``, else the token file (default: the daemon's default data folder), else
+    None when the default file is missing; a ``token_file`` given that does not exist is a
+    ``ConfigError`` naming it."""
     if os.environ.get(TOKEN_ENV):
         return os.environ[TOKEN_ENV].strip()
+    given = token_file is not None
     if token_file is None:
         from lasercal_hw.service.config import default_data_dir
 
@@ -55,6 +75,11 @@ def read_token(token_file: Path | None = None) -> str | None:
     try:
         return token_file.read_text(encoding="utf-8").strip()
     except FileNotFoundError:
+        if given:  # a file named on purpose: say so before a request goes out without a token
+            raise ConfigError(
+                f"token file {token_file} does not exist: give the daemon's token file (the file "
+                f"'token' in its data folder) with --token-file, or the token itself in ${TOKEN_ENV}"
+            ) from None
         return None
     except OSError as exc:
         raise DaemonRequestError(f"cannot read the token file {token_file}: {exc.strerror or exc}") from None
@@ -64,7 +89,7 @@ class DaemonClient:
     """Calls the daemon's ``/v1`` API; every failure is a ``DaemonRequestError``."""
 
     def __init__(self, url: str = DEFAULT_URL, token: str | None = None, timeout_s: float = 30.0) -> None:
-        self.url = url.rstrip("/")
+        self.url = check_daemon_url(url).rstrip("/")
         self.token = token
         self.timeout_s = timeout_s
 

@@ -80,6 +80,14 @@ def _run_cell(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None) 
     )
 
 
+DAEMON_MORE_DATA = (
+    "the daemon verifies with the job recorded with the active calibration, so calibrate again with "
+    "a job whose verify.waypoints (up to 20) or dwell_s is larger, or run 'lasercal verify' on the "
+    "cell with more waypoints"
+)
+"""What an inconclusive verify advises here: a verify job takes no waypoint count or dwell of its own."""
+
+
 def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     """Check the active calibration (``lasercal_hw.verify``) with the job recorded with it;
     the result is filed in the verify history with the calibration it checked."""
@@ -99,7 +107,12 @@ def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     # a cell scanner at daemon.toml's [scanners.NAME] url, else the recorded job's; one scanner at scanner_url
     scanner_url = named.get(scanner_name) if scanner_name is not None else ctx.devices.scanner_url
     report = verify(
-        VerifyRequest(out_dir=ctx.out_dir, robot_host=ctx.devices.robot_host, scanner_url=scanner_url),
+        VerifyRequest(
+            out_dir=ctx.out_dir,
+            robot_host=ctx.devices.robot_host,
+            scanner_url=scanner_url,
+            more_data=DAEMON_MORE_DATA,
+        ),
         folder / RESULT_FILE,
         # a cell scanner's events name it, as its calibration's did
         on_event=ctx.on_event if scanner_name is None else events_of_scanner(ctx.on_event, scanner_name),

@@ -45,7 +45,7 @@ from lasercal_hw.verify.echo_reference import at_echo_middles
 from lasercal_hw.verify.identity import IdentityCheck, check_identity, robot_calibration_check
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
 from lasercal_hw.verify.selection import Selection, select_waypoints
-from lasercal_hw.verify.verdict import Verdict, decide, with_time_note
+from lasercal_hw.verify.verdict import CLI_MORE_DATA, Verdict, decide, with_time_note
 
 MIN_MEASURED = 2
 
@@ -62,6 +62,8 @@ class VerifyRequest:
     waypoints: int | None = None
     dry_run: bool = False
     scene: Path | None = None
+    #: What an inconclusive verdict advises (the CLI's options by default; a daemon gives its own).
+    more_data: str = CLI_MORE_DATA
 
 
 @dataclass(frozen=True)
@@ -289,7 +291,7 @@ def verify(
                 time.time(), "verify_start", calibration=str(active.path), waypoints=selection.indices
             )
             measured = session.sequencer.measure()
-            outcome = _evaluate(active, plan, measured, found["identity"])
+            outcome = _evaluate(active, plan, measured, found["identity"], request.more_data)
             session.recorder.write_event(
                 time.time(), "verify_verdict", verdict=outcome.verdict.status, reason=outcome.verdict.reason
             )
@@ -365,7 +367,11 @@ class _OtherDevicesError(Exception):
 
 
 def _evaluate(
-    active: ActiveCalibration, plan: VerifyPlan, measured: Measured, identity: list[IdentityCheck]
+    active: ActiveCalibration,
+    plan: VerifyPlan,
+    measured: Measured,
+    identity: list[IdentityCheck],
+    more_data: str,
 ) -> VerifyOutcome:
     """Re-fit, test and verdict for what the sequencer measured (its indices count the
     chosen waypoints; the outcome speaks of the job's waypoint numbers)."""
@@ -378,7 +384,7 @@ def _evaluate(
             f"the rod was found at only {len(measured.measurements)} of {len(selection.indices)} waypoints "
             f"where the calibration predicts it ({reasons})"
         )
-    verdict = decide(identity, test, job.verify.tolerance_mm, job.verify.tolerance_deg, missing)
+    verdict = decide(identity, test, job.verify.tolerance_mm, job.verify.tolerance_deg, missing, more_data)
     outcome = VerifyOutcome(
         calibration=active,
         job=job,

@@ -23,18 +23,28 @@ class Verdict:
     reason: str
 
 
-def _blind_spot(test: DriftTest, tolerance_mm: float, tolerance_deg: float) -> str | None:
-    """What the test cannot see of the tolerance (None: it sees a move of the tolerance in
-    every direction)."""
+CLI_MORE_DATA = (
+    "measure more waypoints (--waypoints or the job's verify.waypoints, up to 20) or dwell longer "
+    "(the job's dwell_s) and verify again"
+)
+"""What to do about a blind test with ``lasercal verify`` (a daemon gives its own advice)."""
+
+
+def _blind_spot(test: DriftTest, tolerance_mm: float, tolerance_deg: float, more_data: str) -> str | None:
+    """What the test cannot see of the tolerance, naming only the directions (shift, turn) whose
+    smallest detectable move exceeds its tolerance (None: it sees a move of the tolerance in both)."""
     shift_mm = float(max(test.detectable_shift_mm))
     turn_deg = float(max(test.detectable_turn_deg))
-    if shift_mm <= tolerance_mm and turn_deg <= tolerance_deg:
+    blind = []
+    if shift_mm > tolerance_mm:
+        blind.append(f"a shift of {shift_mm:.2f} mm (tolerance {tolerance_mm:g} mm)")
+    if turn_deg > tolerance_deg:
+        blind.append(f"a turn of {turn_deg:.3f} deg (tolerance {tolerance_deg:g} deg)")
+    if not blind:
         return None
     return (
-        f"it detects ({test.detection_probability:.0%} of the time) only a shift of {shift_mm:.2f} mm "
-        f"or a turn of {turn_deg:.3f} deg along its weakest direction, more than the tolerance "
-        f"{tolerance_mm:g} mm, {tolerance_deg:g} deg: measure more waypoints (verify.waypoints or "
-        "--waypoints, up to 20) or dwell longer (the job's dwell_s) and verify again"
+        f"it detects ({test.detection_probability:.0%} of the time) only {' or '.join(blind)} along "
+        f"its weakest direction, more than the tolerance: {more_data}"
     )
 
 
@@ -59,9 +69,10 @@ def decide(
     tolerance_mm: float,
     tolerance_deg: float,
     missing_reason: str | None = None,
+    more_data: str = CLI_MORE_DATA,
 ) -> Verdict:
     """The verdict; ``test`` is None when too few waypoints were measured
-    (``missing_reason`` says why)."""
+    (``missing_reason`` says why); ``more_data`` is what an inconclusive verdict advises."""
     changed = [check.describe() for check in identity if not check.matches]
     if changed:
         return Verdict("recalibrate", "; ".join(changed))
@@ -77,7 +88,7 @@ def decide(
         f"scanner moved {shift_mm:.2f} +- {shift_std:.2f} mm and turned {turn_deg:.3f} +- {turn_std:.3f} deg"
     )
     if not test.changed:
-        blind = _blind_spot(test, tolerance_mm, tolerance_deg)
+        blind = _blind_spot(test, tolerance_mm, tolerance_deg, more_data)
         if blind is not None:
             agree = f"measurements agree with the calibration ({statistic}), but {blind}"
             return Verdict("inconclusive", agree)

@@ -55,6 +55,28 @@ def test_scene_needs_dry_run(tmp_path: Path) -> None:
     assert "--scene only applies to --dry-run" in result.stderr
 
 
+
+@pytest.mark.parametrize("command", ["run", "verify"])
+@pytest.mark.parametrize(
+    ("scene_text", "fragments"),
+    [(None, ("nope.toml", "does not exist")), ("[rod\n", ("nope.toml", "not valid TOML"))],
+)
+def test_a_scene_file_is_checked_before_a_fake_cell_starts(
+    tmp_path: Path, command: str, scene_text: str | None, fragments: tuple[str, ...]
+) -> None:
+    """A missing or broken --scene is bad input (exit 2) naming the file, not a device error
+    after a fake cell started."""
+    if scene_text is not None:
+        (tmp_path / "nope.toml").write_text(scene_text)
+    calibration = ("--calibration", str(tmp_path / "result.json")) if command == "verify" else ()
+    result = subprocess.run(
+        [sys.executable, "-m", "lasercal_hw.cli.main", command, "--dry-run", "--yes", "--scene", "nope.toml",
+         *calibration],
+        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL, cwd=tmp_path,
+    )
+    assert_one_line_error(result, ExitCode.BAD_INPUT, "--scene", *fragments)
+    assert not (tmp_path / "lasercal-out").exists()
+
 def test_dry_run_scene_gives_the_fake_cell_the_jobs_rod(tmp_path: Path) -> None:
     job = load_job(Path(__file__).parents[2] / "examples" / "drill.toml")
     scene = write_rod_scene(job.rod.rod_line(), tmp_path / "dry_run_scene.toml")

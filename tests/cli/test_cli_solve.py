@@ -90,18 +90,33 @@ def test_unwritable_output_is_a_one_line_error(tmp_path: Path) -> None:
 def test_directory_instead_of_a_file_exit_2(tmp_path: Path) -> None:
     assert_one_line_error(run_cli("solve", str(tmp_path)), 2, "is a directory", "observations.csv")
 
+LASER_NOISE = "--laser-noise-mm must be a finite number > 0 and at most 1000 (mm), got "
+ROBOT_NOISE = "--robot-noise-mm must be a finite number >= 0 and at most 1000 (mm), got "
+
 
 @pytest.mark.parametrize(
     ("args", "message"),
     [
         (("--trials", "0"), "--trials must be at least 1, got 0"),
         (("--trials", "-3"), "--trials must be at least 1, got -3"),
-        (("--laser-noise-mm", "-1"), "--laser-noise-mm must be positive, got -1"),
-        (("--robot-noise-mm", "-0.5"), "--robot-noise-mm must not be negative, got -0.5"),
+        (("--laser-noise-mm", "-1"), LASER_NOISE + "-1"),
+        (("--laser-noise-mm", "0"), LASER_NOISE + "0"),
+        (("--laser-noise-mm", "inf"), LASER_NOISE + "inf"),
+        (("--laser-noise-mm", "nan"), LASER_NOISE + "nan"),
+        (("--robot-noise-mm", "-0.5"), ROBOT_NOISE + "-0.5"),
+        (("--robot-noise-mm", "inf"), ROBOT_NOISE + "inf"),
+        (("--robot-noise-mm", "nan"), ROBOT_NOISE + "nan"),
+        (("--laser-noise-mm", "1e6"), LASER_NOISE + "1e+06"),
+        (("--robot-noise-mm", "1e300"), ROBOT_NOISE + "1e+300"),
+        (("--seed", "-1"), "--seed must be 0 or more, got -1"),
         (("--tilt-deg", "90"), "--tilt-deg must be between 0 and 60"),
+        (("--tilt-deg", "inf"), "--tilt-deg must be between 0 and 60"),
+        (("--tilt-deg", "nan"), "--tilt-deg must be between 0 and 60"),
     ],
 )
 def test_simulate_names_the_bad_option_and_its_value(args: tuple[str, ...], message: str) -> None:
+    """Refused as the option's value (exit 2), never as the NaN waypoints an infinite noise
+    makes (exit 4)."""
     assert_one_line_error(run_cli("simulate", *args), 2, message)
 
 

@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from lasercal_hw.cli.main import app
 from tests.drivers.ur.robot_process import in_process_robot
 from trajectories.presets import preset_waypoints
+from trajectories.waypoint_file import load_waypoints
 
 runner = CliRunner()
 
@@ -129,3 +130,19 @@ def test_design_prints_the_waypoints_file_line_that_the_job_resolves_to_the_writ
     line = re.search(rf'\[{re.escape(table)}\] waypoints_file = "([^"]+)"', " ".join(result.stdout.split()))
     assert line is not None, result.stdout
     assert (tmp_path / "jobs" / line[1]).resolve() == (tmp_path / "new.csv").resolve()
+
+
+def test_design_never_overwrites_a_file_unless_forced(tmp_path: Path) -> None:
+    """An existing --out (a waypoint file a job uses, say) is kept: exit 2 naming it and --force,
+    before the design runs; with --force it is replaced."""
+    out = tmp_path / "waypoints.csv"
+    out.write_text("precious\n")
+    pose = ["--scanner-pose", "0.35", "-0.55", "0.15", "10", "-3", "2", "--waypoints", "6", "--out", str(out)]
+    refused = run_cli("trajectory", "design", *pose)
+    assert refused.returncode == 2, refused.stderr
+    lines = refused.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"{out} already exists" in lines[0] and "--force" in lines[0], refused.stderr
+    assert out.read_text() == "precious\n"
+    forced = runner.invoke(app, ["trajectory", "design", *pose, "--force"])
+    assert forced.exit_code == 0, forced.output
+    assert out.read_text() != "precious\n" and len(load_waypoints(out)) == 6

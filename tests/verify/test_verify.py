@@ -3,6 +3,7 @@ choice, the identity check, the verdict and reading the calibration."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from lasercal_hw.verify import VerifyRequest, verify
 from lasercal_hw.verify.active import load_active_calibration, recorded_residuals, unusable_waypoints
 from lasercal_hw.verify.drift import (
     DriftModel,
+    DriftTest,
     noise_blocks,
     predictions,
     residual_covariance,
@@ -241,6 +243,33 @@ def test_cli_refuses_bad_input_with_one_line(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="--scene only applies to --dry-run"):
         verify_command(tmp_path / "none.json", scene=Path("x.toml"), yes=True)
 
+
+
+@pytest.mark.parametrize(
+    ("name", "content"),
+    [
+        ("observations.csv", b"index,u_m,v_m\n0,0.1,0.2\n"),
+        ("session.mcap", b"\x89MCAP0\r\n\x00\x01\x02"),
+        ("empty.json", b""),
+    ],
+)
+def test_a_file_that_is_not_a_result_json_is_named_as_such(tmp_path: Path, name: str, content: bytes) -> None:
+    """Another file of a run (or a broken one) is refused naming what to give, not the JSON
+    parser's or the codec's words."""
+    path = tmp_path / name
+    path.write_bytes(content)
+    result = run_cli("verify", "--calibration", str(path), "--dry-run")
+    assert_one_line_error(
+        result, 2, f"{path} is not a result.json", "give the result.json that `lasercal run`"
+    )
+    for words in ("Expecting value", "codec", "char 0"):
+        assert words not in result.stderr
+
+
+def test_a_run_folder_is_told_its_result_json(tmp_path: Path) -> None:
+    (tmp_path / "result.json").write_text("{}")
+    with pytest.raises(ConfigError, match=f"{tmp_path} is a folder: give {tmp_path / 'result.json'}"):
+        load_active_calibration(tmp_path)
 
 def test_a_cell_job_file_needs_the_calibrations_scanner(tmp_path: Path) -> None:
     """A cell's job file is narrowed to the scanner the calibration is of: a one-scanner
@@ -463,3 +492,53 @@ def test_a_range_change_along_every_beam_is_named_and_a_move_is_not(
     turned = run_drift_test(model, list(range(6)), chosen, centres(model, chosen, turn), cov)
     assert turned.changed and turned.range_change is not None and not turned.range_change.explains
     assert "range change" not in decide([], turned, 2.0, 0.2).reason
+
+
+
+def _still_test(setup: tuple[DriftModel, np.ndarray, Path]) -> DriftTest:
+    """The drift test of six waypoints where nothing moved."""
+    model, poses, _ = setup
+    still = centres(model, poses[:6], np.zeros(6))
+    sharp = np.broadcast_to(np.eye(2) * 1e-6, (6, 2, 2))
+    return run_drift_test(model, list(range(6)), poses[:6], still, sharp)
+
+
+@pytest.mark.parametrize(
+    ("shift_mm", "turn_deg", "named", "not_named"),
+    [
+        (1.0, 0.5, ("only a turn of 0.500 deg", "tolerance 0.2 deg"), ("shift", "mm")),
+        (3.0, 0.1, ("only a shift of 3.00 mm", "tolerance 2 mm"), ("turn", "deg")),
+        (3.0, 0.5, ("a shift of 3.00 mm", "a turn of 0.500 deg", "2 mm", "0.2 deg"), ()),
+    ],
+)
+def test_an_inconclusive_verify_names_only_the_directions_beyond_their_tolerance(
+    setup: tuple[DriftModel, np.ndarray, Path],
+    shift_mm: float,
+    turn_deg: float,
+    named: tuple[str, ...],
+    not_named: tuple[str, ...],
+) -> None:
+    test = _still_test(setup)
+    blind = dataclasses.replace(
+        test, chi_square=0.0, detectable_shift_mm=np.array([shift_mm, 0.1, 0.2]),
+        detectable_turn_deg=np.array([turn_deg, 0.01, 0.02]),
+    )
+    verdict = decide([], blind, tolerance_mm=2.0, tolerance_deg=0.2)
+    assert verdict.status == "inconclusive"
+    blind_part = verdict.reason.split(" but ")[1].split(":")[0]
+    assert all(text in blind_part for text in named), blind_part
+    assert not any(text in blind_part for text in not_named), blind_part
+
+
+def test_an_inconclusive_verify_gives_the_advice_of_its_front_end(
+    setup: tuple[DriftModel, np.ndarray, Path],
+) -> None:
+    """``lasercal verify`` has --waypoints; a daemon's verify job does not (remote verify)."""
+    from lasercal_hw.service.runners import DAEMON_MORE_DATA
+
+    test = _still_test(setup)
+    blind = dataclasses.replace(test, chi_square=0.0, detectable_turn_deg=np.array([1.0, 0.0, 0.0]))
+    assert "--waypoints" in decide([], blind, 2.0, 0.2).reason
+    remote = decide([], blind, 2.0, 0.2, more_data=DAEMON_MORE_DATA).reason
+    assert "--waypoints" not in remote
+    assert remote.endswith(DAEMON_MORE_DATA)

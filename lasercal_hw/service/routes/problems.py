@@ -55,8 +55,20 @@ def problem(status: int, code: str, message: str, detail: dict[str, Any] | None 
     return JSONResponse({"code": code, "message": message, "detail": detail or {}}, status_code=status)
 
 
+def _json_problem(error: dict[str, Any]) -> JSONResponse:
+    """A body that is not JSON: where it stops being JSON (the error's last place is a character
+    position, not a field)."""
+    position = error["loc"][-1]
+    reason = (error.get("ctx") or {}).get("error", "JSON decode error")
+    message = f"the request body is not valid JSON: {reason} at character {position} (see /v1/docs)"
+    return problem(400, "invalid_json", message, {"position": position})
+
+
 def _validation_problem(exc: RequestValidationError) -> JSONResponse:
     errors = exc.errors()
+    not_json = next((e for e in errors if e.get("type") == "json_invalid"), None)
+    if not_json is not None:
+        return _json_problem(not_json)
     first = errors[0] if errors else {"loc": (), "msg": "invalid request"}
     field = ".".join(str(p) for p in first["loc"] if p not in ("body", "query", "path", "header"))
     message = "; ".join(
