@@ -62,10 +62,13 @@ def job_line(job: dict[str, Any]) -> str:
     """One line: id, kind, state, and what it is doing or how it ended."""
     error = job.get("error") or {}
     if error:
-        tail = f"{error.get('code')}: {error.get('message')}"
+        code, message = str(error.get("code")), str(error.get("message"))
+        said = code == job["state"] or message.startswith(code)  # "interrupted, interrupted: ..."
+        tail = message if said else f"{code}: {message}"
     else:
         tail = "" if job.get("finished_utc") else (job.get("progress") or {}).get("message") or ""
-    return f"job {job['id']} ({job['kind']}): {job['state']}" + (f", {tail}" if tail else "")
+    new = tail and tail != job["state"]  # a queued job's progress says "queued" too
+    return f"job {job['id']} ({job['kind']}): {job['state']}" + (f", {tail}" if new else "")
 
 
 def finished_job_lines(job: dict[str, Any], calibration: dict[str, Any] | None) -> list[str]:

@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from lasercal_hw.cli.main import main
-from lasercal_hw.cli.remote_text import event_line
+from lasercal_hw.cli.remote_text import event_line, job_line
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
 from tests.daemon_helpers import FakeEngine, fake_runners, served_in_thread
@@ -121,3 +121,18 @@ def test_the_status_of_a_cell_is_a_line_per_scanner() -> None:
     assert "scanner front: scip+tcp://127.0.0.2:10940, connected yes, in use by job-1" in lines
     assert "scanner rear: scip+tcp://127.0.0.3:10940, connected no" in lines
     assert "  scanner rear: connection refused" in lines
+
+
+def test_a_job_line_says_each_thing_once() -> None:
+    """A queued job's progress repeats its state, and an error's code may be its state: neither
+    is printed twice; another code is."""
+    queued = {"id": "job-1", "kind": "calibrate", "state": "queued", "progress": {"message": "queued"}}
+    assert job_line(queued) == "job job-1 (calibrate): queued"
+    error = {"code": "interrupted", "message": "run interrupted at waypoint 3 (Ctrl-C)"}
+    stopped = {"id": "job-2", "kind": "dry_run", "state": "interrupted", "error": error}
+    assert job_line(stopped) == "job job-2 (dry_run): interrupted, run interrupted at waypoint 3 (Ctrl-C)"
+    no_scanner = {"code": "device_error", "message": "no"}
+    failed = {"id": "job-3", "kind": "verify", "state": "failed", "error": no_scanner}
+    assert job_line(failed) == "job job-3 (verify): failed, device_error: no"
+    moving = {"id": "job-4", "kind": "calibrate", "state": "running", "progress": {"message": "waypoint 3"}}
+    assert job_line(moving) == "job job-4 (calibrate): running, waypoint 3"
