@@ -15,12 +15,13 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from lasercal_hw.errors import LasercalError
+from lasercal_hw.errors import ConfigError, LasercalError
 from lasercal_hw.run.cell import CELL_FILE
 from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
 from lasercal_hw.run.resume import recorded_job
 from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.events import EventBus
+from lasercal_hw.service.folder_lock import DataFolderLock
 from lasercal_hw.service.job_record import Job, JobError, JobProgress, JobState
 from lasercal_hw.service.jobs import SESSION_FILE
 from lasercal_hw.service.store import DB_FILE, HistoryStore
@@ -150,14 +151,25 @@ def _rebuilt_job(folder: Path, history: CalibrationHistory, report: RebuildRepor
 
 
 def rebuild_history(data_dir: Path) -> RebuildReport:
-    """A new history database from ``data_dir``'s job folders (the old one kept, renamed)."""
-    database = data_dir / DB_FILE
-    report = RebuildReport(old_database=_move_aside(database))
-    store = HistoryStore(database)
+    """A new history database from ``data_dir``'s job folders (the old one kept, renamed).
+    Refused (ConfigError, nothing touched) when the folder does not exist or another process,
+    a running daemon, holds it."""
+    if not data_dir.is_dir():
+        raise ConfigError(
+            f"the data folder {data_dir} does not exist: nothing to rebuild; give the daemon's data "
+            "folder with --data-dir (or data_dir in the --config file)"
+        )
+    lock = DataFolderLock(data_dir, "to rebuild its history while it runs").acquire()
     try:
-        history = CalibrationHistory(store, EventBus(store))
-        for folder in job_folders(data_dir):
-            store.insert_job(_rebuilt_job(folder, history, report).as_json())
+        database = data_dir / DB_FILE
+        report = RebuildReport(old_database=_move_aside(database))
+        store = HistoryStore(database)
+        try:
+            history = CalibrationHistory(store, EventBus(store))
+            for folder in job_folders(data_dir):
+                store.insert_job(_rebuilt_job(folder, history, report).as_json())
+        finally:
+            store.close()
     finally:
-        store.close()
+        lock.release()
     return report
