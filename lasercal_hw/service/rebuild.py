@@ -4,7 +4,9 @@ Each ``jobs/<id>/`` folder holds what its job left: ``result.json`` (a finished
 calibration: filed again, the job ``succeeded``) or a recording (``session.mcap``: the job
 ``interrupted``, resumable from it), or neither (``failed``). What lived only in the
 database is lost: the request as sent, the events, the activation log (no calibration is
-active afterwards) and verifies. A database found in the way is kept beside it, renamed.
+active afterwards), verifies, the calibrations' ids (each is filed under a new one) and who
+marked one bad (none is bad afterwards; the report line says so). A database found in the way
+is kept beside it, renamed.
 """
 
 from __future__ import annotations
@@ -42,9 +44,14 @@ class RebuildReport:
         """One line for the terminal."""
         states = ", ".join(f"{count} {state}" for state, count in sorted(self.jobs.items())) or "no jobs"
         kept = f"; the old database is kept as {self.old_database}" if self.old_database else ""
+        lost = (
+            "; the job folders record neither calibration ids nor bad marks, so every calibration has "
+            "new ids and none is marked bad: mark bad again those that were (lasercal remote mark-bad)"
+            if self.calibrations else ""
+        )
         return (
-            f"rebuilt {database} from the job folders: {states}, {self.calibrations} calibrations{kept}; "
-            "no calibration is active: activate one with lasercal remote activate <id>"
+            f"rebuilt {database} from the job folders: {states}, {self.calibrations} calibrations{kept}"
+            f"{lost}; no calibration is active: activate one with lasercal remote activate <id>"
         )
 
 
