@@ -75,7 +75,11 @@ class Daemon:
             ) from None
         # the folder is this process's before anything in it is read or written (a second daemon
         # would mark this one's running job interrupted); given back if the start fails
-        self.folder_lock = DataFolderLock(self.data_dir, "to start a second daemon on it").acquire()
+        self.folder_lock = DataFolderLock(
+            self.data_dir,
+            "refusing to start a second daemon on it: stop that one first, or give this one another "
+            "--data-dir",
+        ).acquire()
         try:
             self._open(config, runners)
         except BaseException:

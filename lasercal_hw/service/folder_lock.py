@@ -27,9 +27,9 @@ class DataFolderBusyError(ConfigError):
 class DataFolderLock:
     """The data folder's lock, held from ``acquire`` until ``release`` or the process's end."""
 
-    def __init__(self, data_dir: Path, doing: str) -> None:
+    def __init__(self, data_dir: Path, refusal: str) -> None:
         self.path = data_dir / LOCK_FILE
-        self._doing = doing
+        self._refusal = refusal  # what is refused and what to do, the message's end
         self._fd: int | None = None
 
     def acquire(self) -> DataFolderLock:
@@ -46,8 +46,7 @@ class DataFolderLock:
             who = f"process {holder}" if holder is not None else "another process (pid unknown)"
             raise DataFolderBusyError(
                 f"the data folder {self.path.parent} is in use by {who} (a running lasercal serve "
-                f"or --rebuild-history holds {self.path}); refusing {self._doing}: stop that process "
-                "first, or give this one another --data-dir"
+                f"or --rebuild-history holds {self.path}); {self._refusal}"
             ) from None
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())

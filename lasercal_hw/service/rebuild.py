@@ -45,8 +45,9 @@ class RebuildReport:
         states = ", ".join(f"{count} {state}" for state, count in sorted(self.jobs.items())) or "no jobs"
         kept = f"; the old database is kept as {self.old_database}" if self.old_database else ""
         lost = (
-            "; the job folders record neither calibration ids nor bad marks, so every calibration has "
-            "new ids and none is marked bad: mark bad again those that were (lasercal remote mark-bad)"
+            "; the job folders record neither calibration ids nor bad marks, so every calibration is "
+            "filed under a new id and none is marked bad: mark bad again those that were (lasercal "
+            "remote mark-bad)"
             if self.calibrations else ""
         )
         return (
@@ -166,7 +167,9 @@ def rebuild_history(data_dir: Path) -> RebuildReport:
             f"the data folder {data_dir} does not exist: nothing to rebuild; give the daemon's data "
             "folder with --data-dir (or data_dir in the --config file)"
         )
-    lock = DataFolderLock(data_dir, "to rebuild its history while it runs").acquire()
+    lock = DataFolderLock(
+        data_dir, "refusing to rebuild the history under a running daemon: stop the daemon first"
+    ).acquire()
     try:
         database = data_dir / DB_FILE
         report = RebuildReport(old_database=_move_aside(database))
