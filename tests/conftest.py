@@ -52,6 +52,7 @@ REAL_TIME_GROUPS: dict[str, frozenset[str]] = {
             "browser/test_page.py",
             "cli/test_remote_output.py",
             "service/test_daemon_cell_kill.py",
+            "service/test_data_folder_lock.py",
             "service/test_daemon_faults.py",
             "service/test_daemon_integration.py",
             "service/test_daemon_log.py",

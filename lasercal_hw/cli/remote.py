@@ -131,11 +131,38 @@ def _motion_client(yes: bool, doing: str, daemon: str, token_file: Path | None) 
 
 def _print_or_follow(client: Any, job: dict[str, Any], wait: bool, as_json: bool) -> None:
     """Print the job as the daemon took it, or with ``--wait`` follow its events and exit
-    with the code 'lasercal run' would give."""
+    with the code 'lasercal run' would give; Ctrl-C while following cancels the job (the
+    arm stops) and exits 130, as Ctrl-C on 'lasercal run' does."""
     if not wait:
         _print(job, as_json, [remote_text.job_line(job), "see how it goes with: lasercal remote jobs"])
         return
-    _finish(client, client.wait(job["id"], on_event=_show_event), as_json)
+    try:
+        finished = client.wait(job["id"], on_event=_show_event)
+    except KeyboardInterrupt:
+        typer.echo(cancel_after_interrupt(client, job["id"]), err=True)
+        raise typer.Exit(int(ExitCode.INTERRUPTED)) from None
+    _finish(client, finished, as_json)
+
+
+def cancel_after_interrupt(client: Any, job_id: str) -> str:
+    """Cancel the job a Ctrl-C'd command was following; the one line that says what became of it."""
+    from lasercal_hw.service.client import DaemonRequestError
+
+    daemon = "" if client.url == DEFAULT_DAEMON else f" --daemon {client.url}"
+    try:
+        client.cancel(job_id)
+    except (DaemonRequestError, KeyboardInterrupt) as exc:
+        if isinstance(exc, DaemonRequestError) and exc.code == "not_running":
+            return f"interrupted: job {job_id} had already ended; see it with lasercal remote jobs{daemon}"
+        why = str(exc) or "interrupted again"
+        return (
+            f"interrupted: the cancel of job {job_id} failed ({why}): job {job_id} may still be running; "
+            f"stop it with: lasercal remote cancel {job_id}{daemon}"
+        )
+    return (
+        f"interrupted: job {job_id} cancelled, the arm is being stopped (the recording is kept; continue "
+        f"with: lasercal remote resume {job_id} --yes{daemon})"
+    )
 
 
 def _start(

@@ -19,6 +19,7 @@ from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.config import DaemonConfig
 from lasercal_hw.service.errors import ServiceError, StorageFullError
 from lasercal_hw.service.events import EventBus
+from lasercal_hw.service.folder_lock import DataFolderLock
 from lasercal_hw.service.health import DEFAULT_SCANNER, scanner_health
 from lasercal_hw.service.jobs import JobManager, Runner
 from lasercal_hw.service.monitor import DeviceMonitor
@@ -72,6 +73,24 @@ class Daemon:
             raise ConfigError(
                 f"cannot create the data folder {self.data_dir}: {exc.strerror or exc}"
             ) from None
+        # the folder is this process's before anything in it is read or written (a second daemon
+        # would mark this one's running job interrupted); given back if the start fails
+        self.folder_lock = DataFolderLock(
+            self.data_dir,
+            "refusing to start a second daemon on it: stop that one first, or give this one another "
+            "--data-dir",
+        ).acquire()
+        try:
+            self._open(config, runners)
+        except BaseException:
+            self.folder_lock.release()
+            raise
+
+    def _open(
+        self, config: DaemonConfig, runners: Callable[[ActiveCalibration], dict[str, Runner]] | None
+    ) -> None:
+        """Everything in the data folder, once its lock is held: token, history, jobs (those a
+        crash left running marked interrupted)."""
         try:
             self.token = ensure_token(config.token_path)
         except OSError as exc:  # a full disk or a read-only folder on first start
@@ -186,6 +205,7 @@ class Daemon:
         if self.fake_cell is not None:
             self.fake_cell.stop()
         self.store.close()
+        self.folder_lock.release()
 
     def health(self) -> dict[str, Any]:
         """``GET /v1/health``: liveness, and per scanner its calibration's health (from the

@@ -4,7 +4,9 @@ Each ``jobs/<id>/`` folder holds what its job left: ``result.json`` (a finished
 calibration: filed again, the job ``succeeded``) or a recording (``session.mcap``: the job
 ``interrupted``, resumable from it), or neither (``failed``). What lived only in the
 database is lost: the request as sent, the events, the activation log (no calibration is
-active afterwards) and verifies. A database found in the way is kept beside it, renamed.
+active afterwards), verifies, the calibrations' ids (each is filed under a new one) and who
+marked one bad (none is bad afterwards; the report line says so). A database found in the way
+is kept beside it, renamed.
 """
 
 from __future__ import annotations
@@ -15,12 +17,13 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from lasercal_hw.errors import LasercalError
+from lasercal_hw.errors import ConfigError, LasercalError
 from lasercal_hw.run.cell import CELL_FILE
 from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
 from lasercal_hw.run.resume import recorded_job
 from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.events import EventBus
+from lasercal_hw.service.folder_lock import DataFolderLock
 from lasercal_hw.service.job_record import Job, JobError, JobProgress, JobState
 from lasercal_hw.service.jobs import SESSION_FILE
 from lasercal_hw.service.store import DB_FILE, HistoryStore
@@ -41,9 +44,15 @@ class RebuildReport:
         """One line for the terminal."""
         states = ", ".join(f"{count} {state}" for state, count in sorted(self.jobs.items())) or "no jobs"
         kept = f"; the old database is kept as {self.old_database}" if self.old_database else ""
+        lost = (
+            "; the job folders record neither calibration ids nor bad marks, so every calibration is "
+            "filed under a new id and none is marked bad: mark bad again those that were (lasercal "
+            "remote mark-bad)"
+            if self.calibrations else ""
+        )
         return (
-            f"rebuilt {database} from the job folders: {states}, {self.calibrations} calibrations{kept}; "
-            "no calibration is active: activate one with lasercal remote activate <id>"
+            f"rebuilt {database} from the job folders: {states}, {self.calibrations} calibrations{kept}"
+            f"{lost}; no calibration is active: activate one with lasercal remote activate <id>"
         )
 
 
@@ -150,14 +159,27 @@ def _rebuilt_job(folder: Path, history: CalibrationHistory, report: RebuildRepor
 
 
 def rebuild_history(data_dir: Path) -> RebuildReport:
-    """A new history database from ``data_dir``'s job folders (the old one kept, renamed)."""
-    database = data_dir / DB_FILE
-    report = RebuildReport(old_database=_move_aside(database))
-    store = HistoryStore(database)
+    """A new history database from ``data_dir``'s job folders (the old one kept, renamed).
+    Refused (ConfigError, nothing touched) when the folder does not exist or another process,
+    a running daemon, holds it."""
+    if not data_dir.is_dir():
+        raise ConfigError(
+            f"the data folder {data_dir} does not exist: nothing to rebuild; give the daemon's data "
+            "folder with --data-dir (or data_dir in the --config file)"
+        )
+    lock = DataFolderLock(
+        data_dir, "refusing to rebuild the history under a running daemon: stop the daemon first"
+    ).acquire()
     try:
-        history = CalibrationHistory(store, EventBus(store))
-        for folder in job_folders(data_dir):
-            store.insert_job(_rebuilt_job(folder, history, report).as_json())
+        database = data_dir / DB_FILE
+        report = RebuildReport(old_database=_move_aside(database))
+        store = HistoryStore(database)
+        try:
+            history = CalibrationHistory(store, EventBus(store))
+            for folder in job_folders(data_dir):
+                store.insert_job(_rebuilt_job(folder, history, report).as_json())
+        finally:
+            store.close()
     finally:
-        store.close()
+        lock.release()
     return report

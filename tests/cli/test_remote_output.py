@@ -4,13 +4,19 @@ in-process daemon (fake engine) served by uvicorn on a loopback port, as the rea
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 
 from lasercal_hw.cli.main import main
 from lasercal_hw.cli.remote_text import event_line, job_line
+from lasercal_hw.service.client import DaemonClient, DaemonRequestError
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
 from tests.daemon_helpers import FakeEngine, fake_runners, served_in_thread
@@ -136,3 +142,59 @@ def test_a_job_line_says_each_thing_once() -> None:
     assert job_line(failed) == "job job-3 (verify): failed, device_error: no"
     moving = {"id": "job-4", "kind": "calibrate", "state": "running", "progress": {"message": "waypoint 3"}}
     assert job_line(moving) == "job job-4 (calibrate): running, waypoint 3"
+
+
+def _interrupted(url: str, token: str, engine: FakeEngine, *args: str) -> tuple[int, str, str]:
+    """``lasercal remote ARGS --wait --daemon URL`` as its own process, Ctrl-C (SIGINT) once the
+    job it follows runs: (exit code, stdout, stderr)."""
+    engine.started.clear()
+    command = [sys.executable, "-m", "lasercal_hw.cli.main", "remote", *args, "--wait", "--daemon", url]
+    process = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=os.environ | {"LASERCAL_TOKEN": token},
+    )
+    try:
+        assert engine.started.wait(60.0), "the job never started"
+        time.sleep(0.5)  # the client is following the events by now
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=30.0)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    return process.returncode, out, err
+
+
+def test_ctrl_c_while_waiting_cancels_the_job_the_command_started(tmp_path: Path) -> None:
+    """Safety first: the arm must not keep moving after Ctrl-C; calibrate and resume alike."""
+    engine = FakeEngine(waypoints=5)
+    engine.release.clear()  # the job runs until it is cancelled
+    daemon = Daemon(load_daemon_config(None, {"data_dir": tmp_path / "data"}), runners=fake_runners(engine))
+    with served_in_thread(daemon) as url:
+        client = DaemonClient(url, daemon.token)
+        job_id = ""
+        for command in ("calibrate", "resume"):
+            args = ("--dry-run", "--dwell", "0.5") if command == "calibrate" else (job_id,)
+            code, _out, err = _interrupted(url, daemon.token, engine, command, *args, "--yes")
+            job_id = client.jobs()[0]["id"]
+            assert code == 130, err
+            said = [line for line in err.splitlines() if line.startswith("interrupted")]
+            assert len(said) == 1 and job_id in said[0] and "arm is being stopped" in said[0], err
+            engine.release.set()  # the fake engine looks at the cancel between waypoints
+            job = client.wait(job_id)
+            engine.release.clear()
+            assert job["state"] == "cancelled", job
+
+
+class _UnreachableDaemon:
+    url = "http://127.0.0.1:9"
+
+    def cancel(self, job_id: str) -> dict[str, str]:
+        raise DaemonRequestError(f"cannot reach the lasercal daemon at {self.url}: connection refused")
+
+
+def test_a_failed_cancel_after_ctrl_c_says_the_job_may_still_run() -> None:
+    from lasercal_hw.cli.remote import cancel_after_interrupt
+
+    line = cancel_after_interrupt(_UnreachableDaemon(), "job-1")
+    assert "job-1 may still be running" in line, line
+    assert line.endswith("lasercal remote cancel job-1 --daemon http://127.0.0.1:9"), line

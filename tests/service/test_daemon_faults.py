@@ -179,6 +179,8 @@ def test_rebuild_history_from_the_job_folders(history_dir: Path, tmp_path: Path)
     done = serve(data_dir, "--rebuild-history")
     assert done.returncode == 0, done.stderr
     assert "2 succeeded" in done.stdout and "2 calibrations" in done.stdout
+    # the job folders keep neither the calibrations' ids nor who marked one bad: the rebuild says so
+    assert "new id" in done.stdout and "marked bad" in done.stdout, done.stdout
     daemon = Daemon(load_daemon_config(None, {"data_dir": data_dir}))
     try:
         assert len(daemon.store.jobs()) == 3 and len(daemon.store.calibrations()) == 2
