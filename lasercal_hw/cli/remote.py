@@ -221,15 +221,13 @@ def calibrate_command(
 def verify_command(
     daemon: DaemonOption = DEFAULT_DAEMON,
     token_file: TokenFileOption = None,
-    config: ConfigOption = None,
-    preset: PresetOption = None,
-    dwell: DwellOption = None,
     yes: YesOption = False,
     wait: WaitOption = False,
     as_json: JsonOption = False,
 ) -> None:
-    """Check the active calibration for drift (a verify job)."""
-    _start("verify", daemon, token_file, _job(config, preset), dwell, yes, wait, as_json, {})
+    """Check the active calibration for drift (a verify job, with the job recorded with that
+    calibration: its waypoints, dwell and [verify] table)."""
+    _start("verify", daemon, token_file, None, None, yes, wait, as_json, {})
 
 
 @remote_app.command("status")

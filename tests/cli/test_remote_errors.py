@@ -50,3 +50,11 @@ def test_the_default_token_file_may_be_missing(tmp_path: Path, monkeypatch: pyte
     monkeypatch.delenv("LASERCAL_TOKEN", raising=False)
     monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path))
     assert read_token(None) is None
+
+
+@pytest.mark.parametrize("option", [("--dwell", "1"), ("--preset", "quick"), ("--config", "job.toml")])
+def test_remote_verify_refuses_a_job_option_it_could_not_honour(option: tuple[str, str]) -> None:
+    """A daemon's verify runs with the job recorded with the active calibration: a job, preset or
+    dwell given to it is refused (a usage error, exit 2), not silently dropped."""
+    result = run_cli("remote", "verify", *option, "--yes")
+    assert result.returncode == 2 and "No such option" in result.stdout + result.stderr
