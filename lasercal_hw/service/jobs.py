@@ -121,6 +121,13 @@ class _Active:
     thread: threading.Thread
 
 
+DRY_RUN_DAEMON_HINT = (
+    "this daemon serves a fake cell (serve --dry-run), where a calibrate job is checked as on a real "
+    "cell: to try a job there, start a dry run instead (lasercal remote calibrate --dry-run, or kind "
+    "dry_run), which knows the fake cell's scanner pose"
+)
+
+
 class JobManager:
     """Starts, cancels, resumes and files jobs; holds at most one running job."""
 
@@ -204,7 +211,13 @@ class JobManager:
         """Check the request, create the job and start it (ConflictError while another runs)."""
         require_confirmation(body.confirm_motion)
         self._require_kind(body.kind)
-        job = resolve_job(body, self._default_job, self._jobs_dir.parent)
+        try:
+            job = resolve_job(body, self._default_job, self._jobs_dir.parent)
+        except InvalidRequestError as exc:
+            if not (self._dry_run_daemon and body.kind == "calibrate"):
+                raise
+            # the job was checked as a real cell's: say how to try it on this daemon's fake cell
+            raise InvalidRequestError(f"{exc.message}; {DRY_RUN_DAEMON_HINT}", exc.detail["field"]) from None
         devices = self._addresses(body.kind)
         if body.kind != "dry_run" and devices.applied_to(job).robot.host is None:
             raise InvalidRequestError(

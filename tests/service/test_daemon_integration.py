@@ -240,6 +240,18 @@ def test_verify_checks_the_active_calibration_and_files_it(daemon: DaemonProcess
         assert filed["verdict"] in ("ok", "inconclusive", "degraded", "recalibrate") and filed["reason"]
 
 
+def test_a_calibrate_job_without_a_scanner_pose_is_told_the_dry_run_on_a_dry_run_daemon(
+    daemon: DaemonProcess,
+) -> None:
+    """A calibrate job on a dry-run daemon is checked as a real cell's (the preset needs the
+    scanner's pose): the 422 names that and the dry run that tries the job on the fake cell."""
+    with daemon.client() as client:
+        answer = client.post("/v1/jobs", json={"kind": "calibrate", "confirm_motion": True})
+    assert answer.status_code == 422, answer.text
+    message = answer.json()["message"]
+    assert "gives no scanner pose" in message and "lasercal remote calibrate --dry-run" in message
+
+
 def _replace_joint(host: str, joint: int) -> str:
     """The fake controller's own dashboard command: its kinematics calibration changes."""
     with socket.create_connection((host, DASHBOARD_PORT), timeout=5.0) as sock:
