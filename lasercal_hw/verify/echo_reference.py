@@ -40,8 +40,10 @@ def at_echo_middles(
     centres = np.array([m.centre.centre_uv_m for m in measured], dtype=float)
     reference, noise = np.array(reference, dtype=float), np.array(noise, dtype=float)
     for k, m in enumerate(measured):
+        if not (np.isfinite(recorded[k]).all() and np.isfinite(reference[k]).all()):
+            continue  # no middle recorded here: a plain rod, no intensities, or none found
         predicted = predict_rod(refit.T_base_laser, m.tcp_pose, refit.rod).expected_uv_m
-        if predicted is None or not np.isfinite(recorded[k]).all() or not np.isfinite(reference[k]).all():
+        if predicted is None:
             continue
         middle = refit.echo_middle(m.averaged, m.tcp_pose, predicted + reference[k] + recorded[k, :2])
         if middle is None:
