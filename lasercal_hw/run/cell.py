@@ -31,7 +31,7 @@ from lasercal_hw.calibration.model import plane_crossing, range_error_m, rod_lin
 from lasercal_hw.calibration.observations import read_observations_csv
 from lasercal_hw.calibration.pairs import error_in_std, joint_relative_pose, relative_pose
 from lasercal_hw.calibration.result import CalibrationResult, RangeOffset
-from lasercal_hw.config import JobConfig, ScannerConfig, job_from_mapping
+from lasercal_hw.config import JobConfig, ScannerConfig, job_from_mapping, with_overrides
 from lasercal_hw.errors import ConfigError, LasercalError
 from lasercal_hw.models import FloatArray, RodLine
 from lasercal_hw.run.cancel import CancelToken
@@ -160,13 +160,26 @@ def _read_cell_file(folder: Path) -> dict[str, Any]:
 
 def cell_scanners(request: CellRunRequest) -> tuple[JobConfig, list[str]]:
     """The job and the scanners ``request`` runs: a new job's, or a resumed one's (its
-    ``cell.json``: the recorded job and scanners decide)."""
+    ``cell.json``: the recorded job and scanners decide, at the scanner URLs ``request.job``
+    names now: ``_at_current_urls``)."""
     if request.resume is None:
         return request.job, list(request.scanners or request.job.scanner_names())
     folder = cell_folder(request.resume)
     document = _read_cell_file(folder)
     job = job_from_mapping(document["job"], str(folder / CELL_FILE))
-    return job, list(document.get("scanners_run", job.scanner_names()))
+    return _at_current_urls(job, request.job), list(document.get("scanners_run", job.scanner_names()))
+
+
+def _at_current_urls(recorded: JobConfig, current: JobConfig) -> JobConfig:
+    """The recorded job with each of its scanners at the URL ``current`` gives the scanner of the
+    same name, as the robot is at the request's host: a daemon resumes at its devices as they are
+    now (a restarted ``--dry-run`` daemon's fake cell listens elsewhere)."""
+    urls = {
+        f"scanners.{name}.url": current.scanners[name].url
+        for name in recorded.scanners
+        if name in current.scanners and current.scanners[name].url != recorded.scanners[name].url
+    }
+    return with_overrides(recorded, urls, source="the daemon's devices") if urls else recorded
 
 
 def _start(request: CellRunRequest) -> tuple[CellRunRequest, JobConfig, list[str]]:
@@ -309,6 +322,8 @@ def _scanner(
             job=job.for_scanner(name),
             out_dir=folder,
             robot_host=None if request.dry_run else request.robot_host,
+            # where the scanner is now: a resumed run's recording names where it was
+            scanner_url=None if request.dry_run else job.for_scanner(name).scanner.url,
             dry_run=request.dry_run,
             scene=request.scene,
             resume=session if recording is None and session.is_file() else None,

@@ -24,7 +24,7 @@ from lasercal_hw.cli.main import app
 from lasercal_hw.config import job_from_mapping, load_job
 from lasercal_hw.errors import DeviceError, InterruptedRunError
 from lasercal_hw.run.cancel import CancelToken
-from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell
+from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell, cell_scanners
 from lasercal_hw.run.engine import RunEvent
 from lasercal_hw.run.replay import replay_shared_centres
 from lasercal_hw.run.timing import visit_time_s
@@ -423,3 +423,20 @@ def test_a_cell_folder_written_before_the_one_recording_resumes_in_its_own_layou
     before = json.loads((stopped_and_resumed.out / "rear" / "result.json").read_text())["T_base_laser"]
     after = json.loads((out / "rear" / "result.json").read_text())["T_base_laser"]
     np.testing.assert_allclose(after, before, rtol=0, atol=1e-9)
+
+
+def test_a_resumed_cell_job_talks_to_each_scanner_where_the_request_says_it_is_now(tmp_path: Path) -> None:
+    """A cell job resumed by a restarted --dry-run daemon, whose fake cell listens elsewhere now: the
+    recorded job and scanners decide, at the scanner URLs the request gives now; a scanner the
+    request does not name keeps its recorded URL (first-day audit: the resume failed to connect
+    to the old fake cell's address)."""
+    recorded = {"scanners": {"front": {"url": "scip+tcp://127.0.0.5:10940"},
+                             "rear": {"url": "scip+tcp://127.0.0.5:10941"}}}
+    document = {"job": job_from_mapping(recorded).model_dump(mode="json"), "scanners_run": ["front", "rear"],
+                "request": {"dry_run": False, "scene": None}}
+    (tmp_path / CELL_FILE).write_text(json.dumps(document))
+    now = job_from_mapping({"scanners": {"front": {"url": "scip+tcp://127.0.0.7:10940"}}})
+    job, names = cell_scanners(CellRunRequest(job=now, out_dir=tmp_path, resume=tmp_path))
+    assert names == ["front", "rear"]
+    assert job.scanners["front"].url == "scip+tcp://127.0.0.7:10940"
+    assert job.scanners["rear"].url == "scip+tcp://127.0.0.5:10941"
