@@ -102,9 +102,11 @@ def _finish(client: Any, job: dict[str, Any], as_json: bool) -> None:
         "verify_id": job.get("verify_id"),
         "error": job.get("error"),
     }
-    calibration_id = job.get("calibration_id")
-    calibration = client.calibration(calibration_id) if calibration_id and not as_json else None
-    _print(summary, as_json, remote_text.finished_job_lines(job, calibration))
+    # a cell job files one calibration per scanner (document["calibration_ids"]), each shown
+    one = {"": job["calibration_id"]} if job.get("calibration_id") else {}
+    ids = document.get("calibration_ids") or one
+    calibrations = {} if as_json else {scanner: client.calibration(found) for scanner, found in ids.items()}
+    _print(summary, as_json, remote_text.finished_job_lines(job, calibrations))
     if job["state"] == "succeeded":
         passed = bool((job.get("verdict") or {}).get("passed", True))
         raise typer.Exit(int(ExitCode.OK if passed else ExitCode.QUALITY_GATE_FAILED))

@@ -71,18 +71,23 @@ def job_line(job: dict[str, Any]) -> str:
     return f"job {job['id']} ({job['kind']}): {job['state']}" + (f", {tail}" if new else "")
 
 
-def finished_job_lines(job: dict[str, Any], calibration: dict[str, Any] | None) -> list[str]:
-    """A job at its end: its state, and the verify's verdict or the calibration it produced
-    (the daemon's summary of it, with a dry run's error against the truth)."""
+def finished_job_lines(job: dict[str, Any], calibrations: dict[str, dict[str, Any]]) -> list[str]:
+    """A job at its end: its state, and the verify's verdict or the calibrations it produced
+    (the daemon's summaries, by scanner; "" for a one-scanner job's, with a dry run's error
+    against the truth)."""
     lines = [job_line(job)]
     verdict = job.get("verdict") or {}
     if job["kind"] == "verify" and "status" in verdict:
         lines.append(f"verify: {verdict['status'].upper()}: {verdict.get('reason', '')}")
         if job.get("verify_id"):
             lines.append(f"  filed as {job['verify_id']}")
-    elif calibration is not None:
-        truth = (job.get("document") or {}).get("ground_truth")
-        lines += calibration_lines(calibration | ({"ground_truth": truth} if truth else {}))
+        return lines
+    truth = (job.get("document") or {}).get("ground_truth")
+    for scanner, calibration in calibrations.items():
+        if scanner:
+            lines += calibration_lines(calibration, f"scanner {scanner}: calibration")
+        else:
+            lines += calibration_lines(calibration | ({"ground_truth": truth} if truth else {}))
     return lines
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from lasercal_hw.cli.main import main
-from lasercal_hw.cli.remote_text import event_line, job_line
+from lasercal_hw.cli.remote_text import event_line, finished_job_lines, job_line
 from lasercal_hw.service.client import DaemonClient, DaemonRequestError
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
@@ -198,3 +198,20 @@ def test_a_failed_cancel_after_ctrl_c_says_the_job_may_still_run() -> None:
     line = cancel_after_interrupt(_UnreachableDaemon(), "job-1")
     assert "job-1 may still be running" in line, line
     assert line.endswith("lasercal remote cancel job-1 --daemon http://127.0.0.1:9"), line
+
+
+def test_a_finished_cell_job_shows_every_scanners_calibration() -> None:
+    """A cell job files a calibration per scanner: each is shown under its scanner's name (only
+    the first was)."""
+    job = {"id": "job-5", "kind": "calibrate", "state": "succeeded", "finished_utc": "2026-11-29T00:00:00Z"}
+    summaries = {
+        name: {"id": f"cal-{name}", "passed": True, "translation_m": [0.3, 0.5, 0.2],
+               "euler_zyx_deg": [5.0, 7.0, 3.0], "std_translation_mm": [1.0], "std_rotation_deg": [0.1],
+               "rms_residual_mm": 1.5}
+        for name in ("front", "rear")
+    }
+    text = "\n".join(finished_job_lines(job, summaries))
+    assert "scanner front: calibration cal-front: passed" in text
+    assert "scanner rear: calibration cal-rear: passed" in text
+    one = "\n".join(finished_job_lines(job, {"": summaries["front"]}))
+    assert "calibration cal-front: passed" in one and "scanner" not in one
