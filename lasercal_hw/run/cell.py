@@ -179,7 +179,7 @@ def _at_current_urls(recorded: JobConfig, current: JobConfig) -> JobConfig:
         for name in recorded.scanners
         if name in current.scanners and current.scanners[name].url != recorded.scanners[name].url
     }
-    return with_overrides(recorded, urls, source="the daemon's devices") if urls else recorded
+    return with_overrides(recorded, urls, source="the scanner URLs given now") if urls else recorded
 
 
 def _start(request: CellRunRequest) -> tuple[CellRunRequest, JobConfig, list[str]]:

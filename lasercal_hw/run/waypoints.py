@@ -36,12 +36,16 @@ def listed_waypoints(job: JobConfig) -> FloatArray:
     return matrix_to_pose(waypoint_matrices(job_waypoint_list(job)))
 
 
+class ScannerPoseMissingError(ConfigError):
+    """A live run's job says nothing about where the scanner is (``require_scanner_pose``)."""
+
+
 def require_scanner_pose(job: JobConfig) -> None:
     """Refuse a live run whose job says nothing about where the scanner is: a preset is laid
     out for one scanner placement (the fake cell's default scene), not for this cell."""
     if job.trajectory.waypoints_file is not None or job.scanner.nominal is not None:
         return
-    raise ConfigError(
+    raise ScannerPoseMissingError(
         f"the job gives no scanner pose, and the preset {job.trajectory.preset!r} is laid out for the "
         "fake cell's default scene (scanner at 0.30, 0.50, 0.20 m), not for your cell: measure the "
         "scanner's pose roughly and run `lasercal trajectory design --scanner-pose X Y Z YAW PITCH ROLL "

@@ -214,7 +214,7 @@ class JobManager:
         try:
             job = resolve_job(body, self._default_job, self._jobs_dir.parent)
         except InvalidRequestError as exc:
-            if not (self._dry_run_daemon and body.kind == "calibrate"):
+            if not (self._dry_run_daemon and exc.detail["field"] == "job.scanner.nominal"):
                 raise
             # the job was checked as a real cell's: say how to try it on this daemon's fake cell
             raise InvalidRequestError(f"{exc.message}; {DRY_RUN_DAEMON_HINT}", exc.detail["field"]) from None
