@@ -52,6 +52,17 @@ def test_capture_table(url: str) -> None:
     assert "3 scans from" in result.stdout and "median" in result.stdout
 
 
+def test_capture_counts_the_scans_it_saved_not_the_stream_messages(url: str) -> None:
+    """The stream goes on until QT is answered, so a scan more than asked for usually arrives;
+    the count is of the scans kept (the rows, the JSON's scans), not of what came."""
+    document = json.loads(run_cli("scanner", "capture", url, "--scans", "5", "--json").stdout)
+    assert len(document["scans"]) == document["stats"]["saved"] == 5
+    assert "received" not in document["stats"]
+    table = run_cli("scanner", "capture", url, "--scans", "5")
+    assert table.returncode == 0, table.stderr
+    assert "saved 5," in table.stdout and "received" not in table.stdout
+
+
 def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
