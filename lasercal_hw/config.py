@@ -406,6 +406,10 @@ class JobConfig(_Strict):
         """The cell's scanners in the job file's order (``default`` for a one-scanner job)."""
         return list(self.scanners) or [DEFAULT_SCANNER_NAME]
 
+    def scanners_with_own_trajectory(self) -> list[str]:
+        """The cell's scanners that visit their own entry's waypoints, not the job's [trajectory]."""
+        return [name for name, entry in self.scanners.items() if entry.trajectory is not None]
+
     def for_scanner(self, name: str) -> JobConfig:
         """The one-scanner job of scanner ``name``: its ``[scanners.NAME]`` as ``[scanner]``, with
         its own rod, trajectory and gates where it gives them. A one-scanner job is itself."""

@@ -18,6 +18,8 @@ class ExitCode(IntEnum):
     BAD_INPUT = 2
     DEVICE_ERROR = 3
     CALIBRATION_FAILED = 4
+    BUSY = 5
+    """The daemon already runs a job that moves the arm: the command was right, try it later."""
     INTERRUPTED = 130
 
 

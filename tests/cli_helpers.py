@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
 
-def run_cli(*args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess[str]:
-    """``lasercal ARGS`` in a fresh interpreter, no stdin (as in CI), output captured."""
+def run_cli(
+    *args: str, timeout_s: float = 120.0, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """``lasercal ARGS`` in a fresh interpreter, no stdin (as in CI), output captured; ``env``
+    adds to the environment."""
     return subprocess.run(
         [sys.executable, "-m", "lasercal_hw.cli.main", *args],
         capture_output=True, text=True, timeout=timeout_s, stdin=subprocess.DEVNULL,
+        env=None if env is None else os.environ | env,
     )
 
 

@@ -140,7 +140,7 @@ class HokuyoScanner:
             reconnect_timeout_s=reconnect_timeout_s,
         )
         try:
-            scanner._resynchronise(quiet_s=quiet_s)
+            scanner._first_drain(quiet_s)
             scanner.refresh_info()
             scanner._geometry = scanner.parameters().geometry(first_step, last_step, cluster)
             if sync_clock:
@@ -207,6 +207,24 @@ class HokuyoScanner:
             logger.debug("%s: drained %d bytes after QT", self.url, drained)
         self._framer.reset()
         self._pending.clear()
+
+    def _first_drain(self, quiet_s: float) -> None:
+        """The drain right after connecting. A TCP scanner that drops the connection here,
+        before answering anything, is serving another client: a UTM-30LX-EW serves one TCP
+        client at a time (the fake closes a second connection at once, docs/scip-fake.md)."""
+        try:
+            self._resynchronise(quiet_s=quiet_s)
+        except DeviceTimeoutError:
+            raise
+        except TransportError as exc:
+            if not self.url.startswith("scip+tcp:"):
+                raise
+            raise TransportError(
+                f"{self.url}: the scanner closed the connection before answering "
+                f"({self._without_url(exc)}); it is most likely busy with another client, as a "
+                "UTM-30LX-EW serves one TCP client at a time: stop the other client (another "
+                "lasercal command, a daemon job using this scanner, a ROS driver) and try again"
+            ) from exc
 
     def _in_reader_mode(self) -> bool:
         reader = self._reader

@@ -36,6 +36,11 @@ FoxgloveOption = Annotated[bool, typer.Option(
 FoxglovePortOption = Annotated[int, typer.Option("--foxglove-port", help="Port of the --foxglove server.")]
 
 
+def foxglove_line(url: str) -> str:
+    """The one line saying where the ``--foxglove`` view is served, to paste into the app."""
+    return f"Foxglove live view on {url} (in the Foxglove app: Open connection, Foxglove WebSocket)"
+
+
 def print_json(document: Any) -> None:
     """Write one JSON document to standard output (nothing else goes there with --json)."""
     sys.stdout.write(json.dumps(document, indent=2, sort_keys=False, allow_nan=False) + "\n")

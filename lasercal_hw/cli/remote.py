@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -146,11 +147,35 @@ def _print_or_follow(client: Any, job: dict[str, Any], wait: bool, as_json: bool
     _finish(client, finished, as_json)
 
 
+def _daemon_option(client: Any) -> str:
+    """`` --daemon URL`` for a command shown to the user, or nothing for the default daemon."""
+    return "" if client.url == DEFAULT_DAEMON else f" --daemon {client.url}"
+
+
+def _send_motion(client: Any, send: Callable[[], dict[str, Any]]) -> dict[str, Any]:
+    """The job a request that moves the arm started; a daemon busy with another job is one line
+    naming that job and the commands to watch or cancel it (exit 5, ``ExitCode.BUSY``)."""
+    from lasercal_hw.service.client import DaemonRequestError
+
+    try:
+        return send()
+    except DaemonRequestError as exc:
+        if exc.code != "job_running":
+            raise
+        running, kind = exc.detail.get("job_id", "?"), exc.detail.get("kind", "a job")
+        daemon = _daemon_option(client)
+        raise DaemonRequestError(
+            f"the daemon is busy: job {running} ({kind}) is moving the arm; watch it with: lasercal remote "
+            f"status{daemon}, or cancel it with: lasercal remote cancel {running}{daemon}; then try again",
+            status=exc.status, code=exc.code, detail=exc.detail,
+        ) from None
+
+
 def cancel_after_interrupt(client: Any, job_id: str) -> str:
     """Cancel the job a Ctrl-C'd command was following; the one line that says what became of it."""
     from lasercal_hw.service.client import DaemonRequestError
 
-    daemon = "" if client.url == DEFAULT_DAEMON else f" --daemon {client.url}"
+    daemon = _daemon_option(client)
     try:
         client.cancel(job_id)
     except (DaemonRequestError, KeyboardInterrupt) as exc:
@@ -179,7 +204,8 @@ def _start(
     extra: dict[str, Any],
 ) -> None:
     client = _motion_client(yes, "this job", daemon, token_file)
-    started = client.start_job({"kind": kind, "confirm_motion": True, "job": job, "dwell_s": dwell} | extra)
+    body = {"kind": kind, "confirm_motion": True, "job": job, "dwell_s": dwell} | extra
+    started = _send_motion(client, lambda: client.start_job(body))
     if wait:
         typer.echo(f"job {started['id']} started; following its events", err=True)
     _print_or_follow(client, started, wait, as_json)
@@ -205,7 +231,8 @@ def calibrate_command(
         bool, typer.Option("--no-restore", help="Leave the robot's program unloaded.")
     ] = False,
 ) -> None:
-    """Start a calibration (with --wait: follow it and exit 0 passed, 1 gate failed, 2-4, 130)."""
+    """Start a calibration (exit 5 when the daemon is busy with another job; with --wait: follow it
+    and exit 0 passed, 1 gate failed, 2-4, 130)."""
     _start(
         "dry_run" if dry_run else "calibrate",
         daemon,
@@ -332,7 +359,7 @@ def resume_command(
 ) -> None:
     """Continue a cancelled or interrupted job from its recording."""
     client = _motion_client(yes, "resuming", daemon, token_file)
-    _print_or_follow(client, client.resume(job_id), wait, as_json)
+    _print_or_follow(client, _send_motion(client, lambda: client.resume(job_id)), wait, as_json)
 
 
 @remote_app.command("diff")

@@ -30,12 +30,13 @@ from lasercal_hw.cli.common import (
     check_scene,
     console,
     err_console,
+    foxglove_line,
     print_json,
 )
 from lasercal_hw.cli.solve import print_result
 from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import ConfigError, ExitCode, InterruptedRunError
-from lasercal_hw.live.foxglove import foxglove_view
+from lasercal_hw.live.foxglove import FoxgloveLiveView, foxglove_view
 from lasercal_hw.run.cell import CELL_FILE, CellReport, CellRunRequest, calibrate_cell, names_a_cell
 from lasercal_hw.run.engine import MotionPlan, RunEvent, RunReport, RunRequest, calibrate, default_out_dir
 
@@ -226,6 +227,15 @@ def _print_summary(report: RunReport) -> None:
     console.print(f"verdict: {verdict}")
 
 
+@contextlib.contextmanager
+def _live_view(port: int | None, ui: Console) -> Iterator[FoxgloveLiveView | None]:
+    """The ``--foxglove`` view on ``port`` (None: none) for the run, its address said once."""
+    with foxglove_view(port) as live:
+        if live is not None:
+            ui.print(escape(foxglove_line(live.url)))
+        yield live
+
+
 def _run_cell(
     job: JobConfig, scanner_name: str | None, robot: str | None, dry_run: bool, scene: Path | None,
     resume: Path | None, *, yes: bool, as_json: bool, live_port: int | None,
@@ -244,7 +254,7 @@ def _run_cell(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    with interrupt_once(), ProgressView(ui) as view, foxglove_view(live_port) as live:
+    with interrupt_once(), ProgressView(ui) as view, _live_view(live_port, ui) as live:
         report = calibrate_cell(
             request, on_event=live.watch_cell(request, view) if live else view,
             confirm=None if yes or dry_run else confirm_before_motion(view, ui),
@@ -351,7 +361,7 @@ def run_command(
         resume=resume,
         title=f"lasercal {'dry run' if dry_run else 'run'}",
     )
-    with interrupt_once(), ProgressView(ui) as view, foxglove_view(live_port) as live:
+    with interrupt_once(), ProgressView(ui) as view, _live_view(live_port, ui) as live:
         report = calibrate(
             request, on_event=live.watch(request, view) if live else view,
             confirm=None if yes or dry_run else confirm_before_motion(view, ui)

@@ -110,8 +110,9 @@ def capture(
         scanner.stop_streaming()
         stats = scanner.stream_stats()
         identity = scanner.identity()
+    # saved: the scans kept (the stream also receives those that come before QT is answered)
     stats_doc = {
-        "received": stats.received,
+        "saved": len(captured),
         "dropped": stats.queue_overflows + stats.corrupted,
         "queue_overflows": stats.queue_overflows,
         "corrupted": stats.corrupted,

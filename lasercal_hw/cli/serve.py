@@ -9,7 +9,7 @@ from typing import Annotated, Any
 
 import typer
 
-from lasercal_hw.cli.common import DryRunOption, FoxgloveOption, FoxglovePortOption
+from lasercal_hw.cli.common import DryRunOption, FoxgloveOption, FoxglovePortOption, foxglove_line
 
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Daemon configuration (TOML).")]
 ListenOption = Annotated[
@@ -60,7 +60,8 @@ def serve_command(
     """Run the calibration daemon until SIGTERM or Ctrl-C (a running job's arm is stopped first).
 
     Prints one line 'lasercal daemon listening on http://HOST:PORT (token in FILE)' once it
-    accepts connections; notifies systemd (READY=1, STATUS, WATCHDOG) when run under it.
+    accepts connections (with --foxglove, then one line with the live view's ws:// address);
+    notifies systemd (READY=1, STATUS, WATCHDOG) when run under it.
     """
     import uvicorn
 
@@ -100,6 +101,8 @@ def serve_command(
             bound_port = self.servers[0].sockets[0].getsockname()[1]
             url = f"http://{url_host(host)}:{bound_port}"
             print(f"{READY_PREFIX}{url} (token in {settings.token_path})", flush=True)
+            if live is not None:
+                print(foxglove_line(live.url), flush=True)
             notify("READY=1")
 
         def handle_exit(self, sig: int, frame: Any) -> None:

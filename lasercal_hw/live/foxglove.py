@@ -186,6 +186,11 @@ class FoxgloveLiveView:
         """The port the server listens on (useful when it was started on port 0)."""
         return int(self._server.port)
 
+    @property
+    def url(self) -> str:
+        """The address the Foxglove app opens (``ws://127.0.0.1:PORT``)."""
+        return f"ws://{LOOPBACK}:{self.port}"
+
     def begin(self, geometry: RunGeometry | None) -> None:
         """A new run of one scanner: forget the last one's centres and estimate."""
         self.begin_cell({DEFAULT_SCANNER_NAME: geometry})

@@ -31,7 +31,8 @@ job's end before it stores it (so that a job read as finished has all its events
 
 
 class DaemonRequestError(LasercalError):
-    """The daemon refused a request (4xx: exit 2) or could not be reached (exit 3)."""
+    """The daemon refused a request (4xx: exit 2; busy with another job: exit 5) or could not
+    be reached (exit 3)."""
 
     def __init__(
         self,
@@ -44,6 +45,8 @@ class DaemonRequestError(LasercalError):
         super().__init__(message)
         self.status, self.code, self.detail = status, code, detail or {}
         self.exit_code = ExitCode.DEVICE_ERROR if status is None or status >= 500 else ExitCode.BAD_INPUT
+        if code == "job_running":
+            self.exit_code = ExitCode.BUSY
 
 
 def check_daemon_url(url: str) -> str:

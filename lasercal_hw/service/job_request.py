@@ -112,18 +112,65 @@ def _require_readable_here(waypoints_file: Path, folders: tuple[Path, ...]) -> N
         )
 
 
+def _names_trajectory(table: Any) -> bool:
+    """Whether a job (or a cell scanner's entry) as a request gives it names its waypoints."""
+    trajectory = table.get("trajectory") if isinstance(table, dict) else None
+    return isinstance(trajectory, dict) and bool({"preset", "waypoints_file"} & set(trajectory))
+
+
+def _requested_scanners(request: dict[str, Any]) -> dict[str, Any]:
+    scanners = request.get("scanners")
+    return scanners if isinstance(scanners, dict) else {}
+
+
+def _require_used_trajectory(default: JobConfig, request: dict[str, Any]) -> None:
+    """A request's trajectory for the whole job is refused where a cell's scanners would not
+    use it: each visits its own entry's (``[scanners.NAME.trajectory]`` of the default job)."""
+    if not _names_trajectory(request):
+        return
+    asked = _requested_scanners(request)
+    own = [name for name in default.scanners_with_own_trajectory() if not _names_trajectory(asked.get(name))]
+    if own:
+        preset = request["trajectory"].get("preset") or "quick"
+        raise InvalidRequestError(
+            f"job.trajectory: this cell's scanners {', '.join(own)} visit the waypoints of their own "
+            "entries ([scanners.NAME.trajectory] of the daemon's job), so a trajectory for the whole job "
+            "(such as --preset) would not be used; leave it out to run theirs, or give a scanner its own "
+            "as job.scanners.NAME.trajectory (lasercal remote calibrate --config FILE with "
+            f'[scanners.NAME.trajectory] preset = "{preset}")',
+            "job.trajectory",
+        )
+
+
+def _without_replaced_trajectories(base: dict[str, Any], request: dict[str, Any]) -> dict[str, Any]:
+    """``base`` without the trajectories the request names (the job's, a cell scanner's): a
+    request naming its waypoints replaces the default's, not merges into them."""
+    base = dict(base)
+    if _names_trajectory(request):
+        base.pop("trajectory", None)
+    scanners = {name: dict(entry) for name, entry in (base.get("scanners") or {}).items()}
+    for name, entry in _requested_scanners(request).items():
+        if name in scanners and _names_trajectory(entry):
+            scanners[name].pop("trajectory", None)
+    if scanners:
+        base["scanners"] = scanners
+    return base
+
+
 def resolve_job(body: JobBody, default_job: Path | None, data_dir: Path) -> JobConfig:
-    """The job to run: the request's job over the default job, with the dwell override.
+    """The job to run: the request's job over the default job, with the dwell override (a
+    trajectory the request names, the job's or a cell scanner's, replaces the default's).
     An invalid job, an unknown preset, a waypoint file outside the data folder and the
-    default job's folder, more than ``MAX_WAYPOINTS`` waypoints, or a live job without a
-    scanner pose is InvalidRequestError naming the field."""
+    default job's folder, more than ``MAX_WAYPOINTS`` waypoints, a live job without a
+    scanner pose, or a trajectory for a whole cell job whose scanners visit their own is
+    InvalidRequestError naming the field."""
     folders = (data_dir,) + ((default_job.parent,) if default_job is not None else ())
     try:
-        base = load_job(default_job).model_dump(mode="json", exclude_none=True)
+        default = load_job(default_job)
+        base = default.model_dump(mode="json", exclude_none=True)
         request = body.job or {}
-        if {"preset", "waypoints_file"} & set(request.get("trajectory") or {}):
-            base.pop("trajectory", None)  # a request naming its trajectory replaces the default's
-        data = _merged(base, request)
+        _require_used_trajectory(default, request)
+        data = _merged(_without_replaced_trajectories(base, request), request)
         if body.dwell_s is not None:
             data["dwell_s"] = body.dwell_s
         job = job_from_mapping(data, "job")

@@ -117,6 +117,7 @@ class DeviceDoor(Protocol):
 @dataclass
 class _Active:
     job_id: str
+    kind: str
     cancel: CancelToken
     thread: threading.Thread
 
@@ -372,9 +373,11 @@ class JobManager:
 
     def _refuse_if_busy(self) -> None:
         if self._active is not None:
+            job_id, kind = self._active.job_id, self._active.kind
             raise ConflictError(
-                f"job {self._active.job_id} is moving the arm; wait for it or cancel it first",
-                {"job_id": self._active.job_id},
+                f"job {job_id} ({kind}) is moving the arm; wait for it to end or cancel it "
+                f"(POST /v1/jobs/{job_id}/cancel), then try again",
+                {"job_id": job_id, "kind": kind},
                 code="job_running",
             )
 
@@ -396,7 +399,7 @@ class JobManager:
         )
         # a status probe of a scanner the job uses, in progress, ends first
         self._devices.claim(record.id, self._scanners_used(record, job, devices))
-        self._active = _Active(record.id, cancel, thread)
+        self._active = _Active(record.id, record.kind, cancel, thread)
         self._last_id = record.id
         thread.start()
 

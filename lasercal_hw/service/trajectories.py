@@ -1,25 +1,32 @@
 """The trajectories the daemon can run: every named preset, and the designed waypoint file of
-its default job (``trajectory.waypoints_file``; a cell job: each scanner's own), each with
-the job fragment that selects it, so a client (the operator page) offers exactly what the
-daemon knows."""
+its default job (``trajectory.waypoints_file``; a cell job: each scanner's own, and then no
+preset, which its scanners would not visit), each with the job fragment that selects it, so a
+client (the operator page) offers exactly what the daemon knows."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
-from lasercal_hw.config import load_job
+from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.run.waypoints import job_waypoints
 from trajectories.presets import PRESETS, preset_names
 
 
-def _designed(default_job: Path) -> dict[str, Any] | None:
-    """The default job's own trajectory: its designed waypoint file, or a cell job's scanners'
-    trajectories together (each scanner's own); None when it has neither (or cannot be read:
-    the status says what is wrong with the default job)."""
+def _load(default_job: Path | None) -> JobConfig | None:
+    """The default job; None without one or when it cannot be read (the status says why)."""
     try:
-        job = load_job(default_job)
+        return None if default_job is None else load_job(default_job)
+    except ConfigError:
+        return None
+
+
+def _designed(job: JobConfig, default_job: Path) -> dict[str, Any] | None:
+    """The default job's own trajectory: its designed waypoint file, or a cell job's scanners'
+    trajectories together (each scanner's own); None when it has neither (or its waypoints
+    cannot be read)."""
+    try:
         if job.scanners:
             counts = {name: len(job_waypoints(job.for_scanner(name))) for name in job.scanner_names()}
             return {
@@ -49,9 +56,12 @@ def known_trajectories(default_job: Path | None) -> list[dict[str, Any]]:
     ``description``, ``waypoints`` (how many) and ``job`` (what to send as a job request's
     ``job`` to run it)."""
     known: list[dict[str, Any]] = []
-    designed = _designed(default_job) if default_job is not None else None
+    job = _load(default_job)
+    designed = _designed(job, default_job) if job is not None and default_job is not None else None
     if designed is not None:
         known.append(designed)
+    if job is not None and job.scanners_with_own_trajectory():
+        return known  # a request naming a preset is refused there (job_request.resolve_job)
     for name in preset_names():
         preset = PRESETS[name]
         known.append({

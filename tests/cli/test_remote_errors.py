@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.client import DaemonClient, read_token
+from lasercal_hw.service.config import load_daemon_config
+from lasercal_hw.service.daemon import Daemon
 from tests.cli_helpers import assert_one_line_error, run_cli
+from tests.daemon_helpers import FakeEngine, fake_runners, served_in_thread
 
 
 @pytest.mark.parametrize(
@@ -58,3 +62,34 @@ def test_remote_verify_refuses_a_job_option_it_could_not_honour(option: tuple[st
     dwell given to it is refused (a usage error, exit 2), not silently dropped."""
     result = run_cli("remote", "verify", *option, "--yes")
     assert result.returncode == 2 and "No such option" in result.stdout + result.stderr
+
+
+CELL_JOB = Path(__file__).resolve().parents[2] / "examples" / "cell.toml"
+
+
+def test_a_cell_daemon_refuses_a_preset_its_scanners_would_ignore(tmp_path: Path) -> None:
+    """A cell's scanners each visit the waypoints of their own entry ([scanners.NAME.trajectory]);
+    --preset sets the whole job's trajectory, which none of them would use: refused in one line
+    saying where a cell's waypoints come from and how to give them, not silently dropped. The
+    way it names (a scanner's own trajectory in the request) is taken."""
+    config = load_daemon_config(None, {"data_dir": tmp_path / "data", "default_job": CELL_JOB})
+    daemon = Daemon(config, runners=fake_runners(FakeEngine(waypoints=2)))
+    env = {"LASERCAL_TOKEN": daemon.token}
+    with served_in_thread(daemon) as url:
+        refused = run_cli(
+            "remote", "calibrate", "--dry-run", "--preset", "quick", "--yes", "--daemon", url, env=env
+        )
+        assert_one_line_error(
+            refused, 2, "job.trajectory", "scanners front, rear", "[scanners.NAME.trajectory]", "--config",
+        )
+        assert DaemonClient(url, daemon.token).jobs() == []
+        own = tmp_path / "front-quick.toml"
+        own.write_text('[scanners.front.trajectory]\npreset = "quick"\n', encoding="utf-8")
+        taken = run_cli("remote", "calibrate", "--dry-run", "--config", str(own), "--yes", "--json",
+                        "--daemon", url, env=env)
+        assert taken.returncode == 0, taken.stderr
+        resolved = json.loads(taken.stdout)["request"]["resolved_job"]["scanners"]
+        assert resolved["front"]["trajectory"]["preset"] == "quick"
+        assert resolved["front"]["trajectory"]["waypoints_file"] is None
+        assert resolved["rear"]["trajectory"]["waypoints_file"].endswith("rear-waypoints.csv")
+        DaemonClient(url, daemon.token).wait(json.loads(taken.stdout)["id"])

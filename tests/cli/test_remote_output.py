@@ -19,6 +19,7 @@ from lasercal_hw.cli.remote_text import event_line, finished_job_lines, job_line
 from lasercal_hw.service.client import DaemonClient, DaemonRequestError
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
+from tests.cli_helpers import assert_one_line_error
 from tests.daemon_helpers import FakeEngine, fake_runners, served_in_thread
 
 
@@ -215,3 +216,36 @@ def test_a_finished_cell_job_shows_every_scanners_calibration() -> None:
     assert "scanner rear: calibration cal-rear: passed" in text
     one = "\n".join(finished_job_lines(job, {"": summaries["front"]}))
     assert "calibration cal-front: passed" in one and "scanner" not in one
+
+
+def test_a_busy_daemon_refuses_with_the_busy_code_naming_the_running_job(tmp_path: Path) -> None:
+    """Not exit 2 (a usage error: the command was right, the cell is taken) but 5, with the
+    running job and the commands to watch or cancel it; calibrate and resume alike."""
+    engine = FakeEngine(waypoints=5)
+    engine.release.clear()  # the first job runs until released
+    daemon = Daemon(load_daemon_config(None, {"data_dir": tmp_path / "data"}), runners=fake_runners(engine))
+    with served_in_thread(daemon) as url:
+        client = DaemonClient(url, daemon.token)
+        stopped = client.start_job({"kind": "dry_run", "confirm_motion": True})
+        assert engine.started.wait(30.0)
+        client.cancel(stopped["id"])
+        engine.release.set()
+        assert client.wait(stopped["id"])["state"] == "cancelled"  # resumable
+        engine.release.clear()
+        engine.started.clear()
+        running = client.start_job({"kind": "dry_run", "confirm_motion": True})
+        assert engine.started.wait(30.0)
+        try:
+            for args in (("calibrate", "--dry-run"), ("resume", stopped["id"])):
+                result = subprocess.run(
+                    [sys.executable, "-m", "lasercal_hw.cli.main", "remote", *args, "--yes", "--daemon", url],
+                    capture_output=True, text=True, timeout=60.0, stdin=subprocess.DEVNULL,
+                    env=os.environ | {"LASERCAL_TOKEN": daemon.token},
+                )
+                assert_one_line_error(
+                    result, 5, f"job {running['id']} (dry_run)", f"lasercal remote status --daemon {url}",
+                    f"lasercal remote cancel {running['id']} --daemon {url}",
+                )
+        finally:
+            engine.release.set()
+            client.wait(running["id"])

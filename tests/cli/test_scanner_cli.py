@@ -8,6 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
+from drivers.hokuyo.client import HokuyoScanner
 from fakes.scip_server import FakeScannerServer
 from tests.cli_helpers import assert_one_line_error, run_cli
 
@@ -50,6 +51,30 @@ def test_capture_table(url: str) -> None:
     result = run_cli("scanner", "capture", url, "--scans", "3")
     assert result.returncode == 0, result.stderr
     assert "3 scans from" in result.stdout and "median" in result.stdout
+
+
+def test_capture_counts_the_scans_it_saved_not_the_stream_messages(url: str) -> None:
+    """The stream goes on until QT is answered, so a scan more than asked for usually arrives;
+    the count is of the scans kept (the rows, the JSON's scans), not of what came."""
+    document = json.loads(run_cli("scanner", "capture", url, "--scans", "5", "--json").stdout)
+    assert len(document["scans"]) == document["stats"]["saved"] == 5
+    assert "received" not in document["stats"]
+    table = run_cli("scanner", "capture", url, "--scans", "5")
+    assert table.returncode == 0, table.stderr
+    assert "saved 5," in table.stdout and "received" not in table.stdout
+
+
+def test_a_busy_scanner_is_named_busy_not_reset(url: str) -> None:
+    """A UTM-30LX-EW serves one TCP client; the fake closes a second connection at once,
+    which the second client sees as a reset or EOF. It is told the scanner is busy."""
+    with HokuyoScanner.open(url, sync_clock=False) as first:
+        first.start_streaming()
+        first.next_scan(2.0)
+        for command in (("scanner", "info", url), ("scanner", "capture", url, "--scans", "2")):
+            assert_one_line_error(
+                run_cli(*command), 3, url, "busy with another client", "one TCP client at a time",
+                "stop the other client",
+            )
 
 
 def free_port() -> int:

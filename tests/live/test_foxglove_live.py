@@ -7,8 +7,12 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import re
+import signal
 import socket
 import struct
+import subprocess
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -259,3 +263,30 @@ def test_run_and_serve_say_when_the_foxglove_port_is_taken(command: tuple[str, .
         port = taken.getsockname()[1]
         result = run_cli(*command, "--foxglove", "--foxglove-port", str(port), timeout_s=60)
     assert_one_line_error(result, 2, f"127.0.0.1:{port}", "--foxglove-port")
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.parametrize("command", [
+    ("run", "--dry-run", "--yes", "--out"),
+    ("serve", "--dry-run", "--listen", "127.0.0.1:0", "--data-dir"),
+])
+def test_run_and_serve_print_the_live_views_address_once(command: tuple[str, ...], tmp_path: Path) -> None:
+    """The ws:// address a user pastes into Foxglove: printed once, with the port really bound
+    (given as 0 here: only the line can tell it), on stdout like the other startup lines."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "lasercal_hw.cli.main", *command, str(tmp_path / "out"),
+         "--foxglove", "--foxglove-port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True,
+    )
+    assert process.stdout is not None
+    try:
+        seen: list[str] = []
+        while not any("ws://" in line for line in seen) and (line := process.stdout.readline()):
+            seen.append(line)
+        found = re.search(r"Foxglove live view on ws://127\.0\.0\.1:(\d+) ", "".join(seen))
+        assert found is not None, "".join(seen)
+        Client(int(found[1])).close()  # the address is the live view's
+    finally:
+        process.send_signal(signal.SIGINT)
+        out, _err = process.communicate(timeout=60)
+    assert "".join([*seen, out]).count("ws://") == 1

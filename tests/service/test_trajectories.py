@@ -54,11 +54,13 @@ def test_without_a_default_job_only_presets(tmp_path: Path) -> None:
         _start_and_finish(client, next(t for t in known if t["name"] == "quick")["job"])
 
 
-def test_a_cell_jobs_own_trajectories_are_listed_first(tmp_path: Path) -> None:
+def test_a_cell_jobs_own_trajectories_alone_are_listed(tmp_path: Path) -> None:
+    """Its scanners visit their own waypoints: a preset would be refused (the page offered
+    presets, which the cell then ignored without a word)."""
     cell_job = DRILL_JOB.parent / "cell.toml"
     config = load_daemon_config(None, {"data_dir": tmp_path / "data", "default_job": cell_job})
     daemon = Daemon(config, runners=fake_runners(FakeEngine()))
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         own, *presets = client.get("/v1/trajectories").json()["trajectories"]
-    assert (own["kind"], own["job"]) == ("cell", {}) and [p["name"] for p in presets] == preset_names()
+    assert (own["kind"], own["job"]) == ("cell", {}) and presets == []
     assert "front 16 waypoints, rear 20 waypoints" in own["description"] and own["waypoints"] == 36
