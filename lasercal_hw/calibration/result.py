@@ -54,6 +54,12 @@ class WaypointResidual(BaseModel):
         default=None,
         description="what another dwell draws anew of echo_middle_uv_mm's length across the bearing (mm^2)",
     )
+    first_pass_kept: str | None = Field(
+        default=None,
+        description="why the second pass could not fit this centre again, so that the solve took "
+        "the first pass's centre (a fit of another kind: the verify does not compare a re-fitted "
+        "centre with it). None: re-fitted, or a file written before it was recorded",
+    )
 
 
 class Outlier(BaseModel):

@@ -194,32 +194,45 @@ def solve_two_pass(
         update={"range_offset_applied_m": range_offset_m, "estimate_range_offset": estimate_offset}
     )
     result = solve(observations, rod, options=applied)
-    refinement = (
-        f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
-        "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
-    )
+    phase_note = ""
     if rod.fluted:
         # The plain fits take the offset out of the ranges as the second pass did (only a
         # centre the re-fit kept is moved back): once, not twice.
         plain_refit = SecondPassRefit(
             result.matrix(), replace(result.estimated_rod(rod), fluted=False), range_offset_m
         )
-        plain, _ = plain_refit.centres(measurements, background, PLAIN_EXTRACTION)
+        plain, plain_kept = plain_refit.centres(measurements, background, PLAIN_EXTRACTION)
         plain_observations = [m.observation() for m in plain]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)
         if phase is None:
-            refinement += (
-                "; the flute phase was not told by the turns (its centres keep the widened allowance)"
-            )
+            phase_note = "; the flute phase was not told by the turns (its centres keep the widened allowance)"
         else:
             result, observations = phase.result, phase.observations
             refit = replace(plain_refit, flutes=phase.shift)
-            refinement += f"; {phase.note}"
+            kept = plain_kept  # the solved centres are the plain fits'
+            phase_note = f"; {phase.note}"
+    refinement = (
+        f"second pass: {len(measurements) - len(kept)} of {len(measurements)} centres re-extracted with the "
+        "rod axis predicted by the first solution (elliptical cross-section) and the transform re-solved"
+        + phase_note
+    )
+    result = _with_first_pass_kept(result, kept)
     if rod.fluted:
         result = _with_echo_middles(result, observations, measurements, refit)
     settings = SolveSettings(rod, applied, job.quality)
     warnings = [(m.index, warning) for m in refitted for warning in m.centre.warnings]
     return TwoPassSolution(first, result, observations, refinement, kept, settings, warnings, refit)
+
+
+def _with_first_pass_kept(result: CalibrationResult, kept: Sequence[tuple[int, str]]) -> CalibrationResult:
+    """``result`` with the reason recorded in each residual whose centre the second pass could
+    not fit again (``WaypointResidual.first_pass_kept``): a verify leaves those poses out."""
+    reasons = dict(kept)
+    residuals = [
+        r.model_copy(update={"first_pass_kept": reasons[r.index]}) if r.index in reasons else r
+        for r in result.residuals
+    ]
+    return result.model_copy(update={"residuals": residuals})
 
 
 def _with_echo_middles(

@@ -223,14 +223,16 @@ def _same_poses(recorded_waypoints: FloatArray | None, waypoints: FloatArray) ->
 def unusable_waypoints(
     residuals: Sequence[WaypointResidual], recorded_waypoints: FloatArray | None, waypoints: FloatArray
 ) -> NDArray[np.bool_]:
-    """True at each of ``waypoints`` (N,) that the calibration visited without a centre it used:
-    the rod was not found there, or its centre was left out of the fit as an outlier. A verify
-    meets there what the calibration did (fluted drill job, seeds 100-109: every false alarm was
-    an outlier waypoint the choice took, its centre 8-12 mm off the prediction at every dwell,
+    """True at each of ``waypoints`` (N,) that the calibration visited without a re-fitted centre
+    it used: the rod was not found there, its centre was left out of the fit as an outlier, or
+    the second pass could not fit it again and the solve took the first pass's. A verify meets
+    there what the calibration did (fluted drill job, seeds 100-109: every false alarm was an
+    outlier waypoint the choice took, its centre 8-12 mm off the prediction at every dwell), or
+    compares its re-fit with a fit of another kind (seed 46: 2.4 mm apart at every dwell;
     docs/verify.md). False everywhere when the file records no waypoints or no residuals."""
     if not residuals:
         return np.zeros(len(np.asarray(waypoints).reshape(-1, 6)), dtype=bool)
-    used = {r.index for r in residuals if r.used}
+    used = {r.index for r in residuals if r.used and r.first_pass_kept is None}
     visits = _same_poses(recorded_waypoints, waypoints)
     return np.array([same.size > 0 and not used.intersection(same.tolist()) for same in visits], dtype=bool)
 

@@ -39,7 +39,8 @@ class VerifyOutcome:
     verdict: Verdict
     visited_by_calibration: list[bool]
     skipped: list[tuple[int, str]]
-    kept_first_fit: list[tuple[int, str]]
+    #: Waypoints the re-fit could not fit again, left out of the test (index, reason).
+    not_refitted: list[tuple[int, str]]
     timings: Timings
     #: The robot's own kinematics calibration during this verify (None: unknown).
     robot_calibration: RobotCalibration | None = None
@@ -150,7 +151,7 @@ def verify_document(outcome: VerifyOutcome, *, ground_truth: FloatArray | None =
         },
         "test": None if test is None else _test_document(test, outcome.visited_by_calibration),
         "skipped": [{"index": i, "reason": r} for i, r in outcome.skipped],
-        "kept_first_fit": [{"index": i, "reason": r} for i, r in outcome.kept_first_fit],
+        "not_refitted": [{"index": i, "reason": r} for i, r in outcome.not_refitted],
         "timings": {
             "wall_s": timings.wall_s,
             "motion_s": timings.motion_s,

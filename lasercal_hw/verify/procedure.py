@@ -324,9 +324,12 @@ def refit_and_test(
 ) -> tuple[DriftTest | None, list[tuple[int, str]]]:
     """The chosen waypoints' measurements (their ``index`` counts the chosen ones) fitted
     again as the calibration's second pass fitted its centres (``plan.refit``), their drift
-    test (None with fewer than MIN_MEASURED), and the waypoints (index, reason) that kept
-    their first centre."""
+    test (None with fewer than MIN_MEASURED), and the waypoints (index, reason) the re-fit could
+    not fit again, left out of the test: their first centre is a fit of another kind than the
+    calibration's centres and the model's prediction, which the second pass fitted."""
     refitted, kept = plan.refit.centres(measurements, background)
+    not_refitted = {index for index, _ in kept}
+    refitted = [m for m in refitted if m.index not in not_refitted]
     if len(refitted) < MIN_MEASURED:
         return None, kept
     job_index = [plan.selection.indices[m.index] for m in refitted]
@@ -376,12 +379,16 @@ def _evaluate(
     """Re-fit, test and verdict for what the sequencer measured (its indices count the
     chosen waypoints; the outcome speaks of the job's waypoint numbers)."""
     job, selection, reference = plan.job, plan.selection, plan.reference
-    test, kept = refit_and_test(plan, measured.measurements, measured.background)
+    test, not_refitted = refit_and_test(plan, measured.measurements, measured.background)
     missing = None
     if test is None:
-        reasons = "; ".join(f"waypoint {selection.indices[s.index]}: {s.reason}" for s in measured.skipped)
+        reasons = "; ".join(
+            [f"waypoint {selection.indices[s.index]}: {s.reason}" for s in measured.skipped]
+            + [f"waypoint {selection.indices[i]}: not fitted again ({reason})" for i, reason in not_refitted]
+        )
+        tested = len(measured.measurements) - len(not_refitted)
         missing = (
-            f"the rod was found at only {len(measured.measurements)} of {len(selection.indices)} waypoints "
+            f"the rod was found and fitted again at only {tested} of {len(selection.indices)} waypoints "
             f"where the calibration predicts it ({reasons})"
         )
     verdict = decide(identity, test, job.verify.tolerance_mm, job.verify.tolerance_deg, missing, more_data)
@@ -396,7 +403,7 @@ def _evaluate(
         if test is None
         else [bool(np.isfinite(reference[i]).all()) for i in test.indices],
         skipped=[(selection.indices[s.index], s.reason) for s in measured.skipped],
-        kept_first_fit=[(selection.indices[i], reason) for i, reason in kept],
+        not_refitted=[(selection.indices[i], reason) for i, reason in not_refitted],
         timings=measured.timings,
     )
     noted = with_time_note(verdict, outcome.time_fraction(), job.verify.max_time_fraction)

@@ -144,8 +144,8 @@ def select_waypoints(
     usable = np.flatnonzero(crossing & ~refused)
     if len(usable) < MIN_WAYPOINTS:
         unused = (
-            f" ({int(refused.sum())} more that are no candidates: no centre the calibration used "
-            "there, or a pose it visited before)"
+            f" ({int(refused.sum())} more that are no candidates: no re-fitted centre the "
+            "calibration used there, or a pose it visited before)"
             if refused.any()
             else ""
         )

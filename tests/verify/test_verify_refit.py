@@ -49,6 +49,13 @@ def calibrate(
     rng = np.random.default_rng(seed)
     world = world_with(load_scene(scene), true_rod, robot_error_seed=1000 + seed)
     measurements, background = measure_waypoints(job, job_waypoints(job), world, scans, rng)
+    return solved(job, measurements, background, folder)
+
+
+def solved(
+    job: JobConfig, measurements: list[WaypointMeasurement], background: AveragedScan, folder: Path
+) -> Calibrated:
+    """``measurements`` solved as a run does, and their result.json as ``calibrate`` writes it."""
     solution = solve_two_pass(measurements, job, background)
     document = solution.result.to_json_dict()
     document["run"] = {
@@ -104,19 +111,22 @@ def assert_verify_gives_the_calibration_back(calibration: Calibrated) -> None:
     )
     active = load_active_calibration(calibration.path)
     assert active.refit(active.job.rod.rod_line()).range_offset_m == solution.refit.range_offset_m
+    recorded_kept = {r.index: r.first_pass_kept for r in solution.result.residuals if r.first_pass_kept}
+    assert recorded_kept == dict(solution.kept_first_pass)
     plan = plan_active(active, active.job, count=len(active.waypoints()))
     chosen_indices = plan.selection.indices
+    assert not set(recorded_kept) & set(chosen_indices)
     by_index = {m.index: m for m in measurements}
     chosen = [  # the job's waypoints the calibration measured (a skipped one has no scans)
         WaypointMeasurement(k, by_index[i].tcp_pose, by_index[i].averaged, by_index[i].centre)
         for k, i in enumerate(chosen_indices)
         if i in by_index
     ]
-    assert sorted(chosen_indices[m.index] for m in chosen) == [m.index for m in measurements]
+    assert sorted(chosen_indices[m.index] for m in chosen) == [
+        m.index for m in measurements if m.index not in recorded_kept
+    ]
     refitted, kept = plan.refit.centres(chosen, background)
-    if solution.refit.flutes is None:  # the flute phase pass's plain fits keep their own
-        expected = [(i, reason) for i, reason in solution.kept_first_pass if i in chosen_indices]
-        assert [(chosen_indices[k], reason) for k, reason in kept] == expected
+    assert kept == []
     solved = {o.index: o.centre_uv_m for o in solution.observations}
     np.testing.assert_allclose(
         [m.centre.centre_uv_m for m in refitted],
@@ -340,3 +350,47 @@ def test_the_record_of_the_visited_poses_leaves_a_listed_jobs_choice_as_it_was(
     assert after.selection.expected_std_shift_mm == before.selection.expected_std_shift_mm
     assert after.selection.expected_std_turn_deg == before.selection.expected_std_turn_deg
     assert after.selection.left_out == before.selection.left_out
+
+
+def unfittable(measurement: WaypointMeasurement) -> WaypointMeasurement:
+    """``measurement`` with its first centre kept and no beam left in its scan: no fit of it again
+    can find the rod."""
+    averaged = replace(measurement.averaged, ranges_m=np.full_like(measurement.averaged.ranges_m, np.nan))
+    return replace(measurement, averaged=averaged)
+
+
+def test_a_centre_the_second_pass_could_not_fit_again_is_recorded_and_no_verify_candidate(
+    calibrated: Calibrated, tmp_path: Path
+) -> None:
+    """The solve takes such a centre as the first pass fitted it; a verify's re-fit there would be
+    compared with a fit of another kind (fluted drill, seed 46: 2.4 mm apart at every dwell)."""
+    job = load_job(None)
+    measurements = list(calibrated.measurements)
+    index = measurements[5].index
+    measurements[5] = unfittable(measurements[5])
+    calibration = solved(job, measurements, calibrated.background, tmp_path)
+    assert [i for i, _ in calibration.solution.kept_first_pass] == [index]
+    residual = next(r for r in calibration.solution.result.residuals if r.index == index)
+    assert residual.used and residual.first_pass_kept
+    active = load_active_calibration(calibration.path)
+    plan = plan_active(active, active.job, count=len(active.waypoints()))
+    assert index not in plan.selection.indices and index in plan.selection.left_out
+
+
+def test_a_waypoint_the_verify_cannot_fit_again_is_left_out_of_its_test(calibrated: Calibrated) -> None:
+    """Its first centre is not the second pass's kind of fit, which the calibration's centres and
+    the prediction are: compared, it would read as a move."""
+    active = load_active_calibration(calibrated.path)
+    plan = plan_active(active, active.job, count=len(active.waypoints()))
+    by_index = {m.index: m for m in calibrated.measurements}
+    chosen = [
+        WaypointMeasurement(k, by_index[i].tcp_pose, by_index[i].averaged, by_index[i].centre)
+        for k, i in enumerate(plan.selection.indices)
+        if i in by_index
+    ]
+    chosen[3] = unfittable(chosen[3])
+    test, not_refitted = refit_and_test(plan, chosen, calibrated.background)
+    assert [k for k, _ in not_refitted] == [chosen[3].index]
+    assert test is not None and plan.selection.indices[chosen[3].index] not in test.indices
+    assert len(test.indices) == len(chosen) - 1
+    np.testing.assert_allclose(test.residual_mm, 0.0, atol=1e-3)
