@@ -205,7 +205,9 @@ def solve_two_pass(
         plain_observations = [m.observation() for m in plain]
         phase = estimate_flute_phase(plain_observations, result, rod, applied)
         if phase is None:
-            phase_note = "; the flute phase was not told by the turns (its centres keep the widened allowance)"
+            phase_note = (
+                "; the flute phase was not told by the turns (its centres keep the widened allowance)"
+            )
         else:
             result, observations = phase.result, phase.observations
             refit = replace(plain_refit, flutes=phase.shift)
