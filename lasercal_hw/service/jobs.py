@@ -39,6 +39,7 @@ from lasercal_hw.service.job_request import (
     JobBody,
     ResumeBody,
     require_confirmation,
+    require_fields_of_kind,
     resolve_job,
     scene_file_text,
 )
@@ -212,6 +213,7 @@ class JobManager:
         """Check the request, create the job and start it (ConflictError while another runs)."""
         require_confirmation(body.confirm_motion)
         self._require_kind(body.kind)
+        require_fields_of_kind(body)
         try:
             job = resolve_job(body, self._default_job, self._jobs_dir.parent)
         except InvalidRequestError as exc:

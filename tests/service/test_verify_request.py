@@ -1,5 +1,5 @@
-"""A verify job's request (in-process daemon, fake runners): the robot it is checked to have is
-the one the verify connects to."""
+"""A verify job's request (in-process daemon, fake runners): the job and dwell it cannot honour
+are refused, and the robot it is checked to have is the one the verify connects to."""
 
 from __future__ import annotations
 
@@ -12,10 +12,12 @@ import pytest
 from fastapi.testclient import TestClient
 
 from lasercal_hw.service.app import create_app
+from lasercal_hw.service.client import DaemonClient
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
 from lasercal_hw.service.jobs import RunContext, RunResult
-from tests.daemon_helpers import FakeEngine, finish_job
+from tests.cli_helpers import run_cli
+from tests.daemon_helpers import FakeEngine, finish_job, served_in_thread
 
 DRY_RUN = {"kind": "dry_run", "confirm_motion": True, "job": {"trajectory": {"preset": "quick"}},
            "dwell_s": 0.5}
@@ -67,6 +69,40 @@ def _activate(client: TestClient, recorded_robot: dict[str, Any]) -> tuple[str, 
     document["run"]["job"] = {"robot": recorded_robot}
     result_file.write_text(json.dumps(document))
     return str(job["calibration_id"]), result_file
+
+
+@pytest.mark.parametrize(("field", "value"), [("job", {"trajectory": {"preset": "quick"}}), ("dwell_s", 3.0)])
+def test_a_verify_refuses_a_job_or_dwell_it_would_not_use(tmp_path: Path, field: str, value: Any) -> None:
+    """A verify runs the job recorded with the active calibration: a job or dwell of the request is
+    refused naming the field and what to do instead, not dropped without a word."""
+    verifier = FakeVerify()
+    daemon = _daemon(tmp_path, verifier, robot_host="127.0.0.9")
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
+        client.headers["Authorization"] = f"Bearer {daemon.token}"
+        _activate(client, {"host": "127.0.0.9"})
+        answer = client.post("/v1/jobs", json=VERIFY | {field: value})
+        assert answer.status_code == 422, answer.text
+        body = answer.json()
+        assert body["code"] == "invalid_request" and body["detail"]["field"] == field
+        message = body["message"]
+        assert message.startswith(f"{field} applies to calibrate and dry_run jobs only"), message
+        assert "the job recorded with the active calibration" in message
+        assert "calibrate again" in message and "lasercal verify" in message
+        assert not verifier.contexts
+        taken = client.post("/v1/jobs", json=VERIFY | {field: None})  # null is leaving it out
+        assert taken.status_code == 202, taken.text
+        assert finish_job(client, taken.json()["id"])["state"] == "succeeded"
+
+
+def test_the_openapi_says_job_and_dwell_are_for_calibrate_and_dry_run(
+    served: tuple[TestClient, Daemon],
+) -> None:
+    client, _daemon = served
+    schema = client.get("/v1/openapi.json").json()["components"]["schemas"]["JobBody"]["properties"]
+    for field in ("job", "dwell_s", "scene"):
+        assert "only" in schema[field]["description"], field
+    assert schema["job"]["description"].startswith("calibrate and dry_run only")
+    assert schema["dwell_s"]["description"].startswith("calibrate and dry_run only")
 
 
 def test_a_verify_reaches_the_robot_recorded_with_the_calibration_when_the_daemon_names_none(
@@ -134,3 +170,20 @@ def test_nothing_to_verify_is_said_before_no_robot(served: tuple[TestClient, Dae
     client, _daemon = served
     answer = client.post("/v1/jobs", json=VERIFY)
     assert (answer.status_code, answer.json()["code"]) == (409, "no_active_calibration")
+
+
+def test_remote_verify_sends_no_job_or_dwell(tmp_path: Path) -> None:
+    """``lasercal remote verify`` over a real socket: accepted, its request carries neither."""
+    verifier = FakeVerify()
+    daemon = _daemon(tmp_path, verifier, robot_host="127.0.0.9")
+    with served_in_thread(daemon) as url:
+        client = DaemonClient(url, daemon.token)
+        started = client.start_job(DRY_RUN | {"activate_on_pass": True})
+        client.wait(started["id"])
+        env = {"LASERCAL_TOKEN": daemon.token}
+        result = run_cli("remote", "verify", "--yes", "--json", "--daemon", url, env=env)
+        assert result.returncode == 0, result.stderr
+        job = json.loads(result.stdout)
+        client.wait(job["id"])
+    assert job["kind"] == "verify"
+    assert job["request"]["job"] is None and job["request"]["dwell_s"] is None
