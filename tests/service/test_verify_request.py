@@ -40,7 +40,8 @@ def _daemon(tmp_path: Path, verifier: FakeVerify, **settings: Any) -> Daemon:
     robot's program is noted of the host it is asked of (``daemon.snapshots``), nothing connects."""
     engine = FakeEngine(waypoints=2)
     config = load_daemon_config(None, {"data_dir": tmp_path / "data", "status_poll_s": 60.0} | settings)
-    daemon = Daemon(config, runners=lambda active: {"dry_run": engine, "verify": verifier})
+    runners = {"calibrate": engine, "dry_run": engine, "verify": verifier}
+    daemon = Daemon(config, runners=lambda active: runners)
     daemon.snapshots = []  # type: ignore[attr-defined]
     daemon.devices.program_snapshot = lambda host: daemon.snapshots.append(host)  # type: ignore[method-assign]
     return daemon
@@ -92,6 +93,16 @@ def test_a_verify_refuses_a_job_or_dwell_it_would_not_use(tmp_path: Path, field:
         taken = client.post("/v1/jobs", json=VERIFY | {field: None})  # null is leaving it out
         assert taken.status_code == 202, taken.text
         assert finish_job(client, taken.json()["id"])["state"] == "succeeded"
+
+
+@pytest.mark.parametrize("kind", ["verify", "calibrate"])
+def test_a_scene_is_for_a_dry_run_alone(served: tuple[TestClient, Daemon], kind: str) -> None:
+    """Checked with the other per-kind fields, before the job or the devices are looked at."""
+    client, _daemon = served
+    answer = client.post("/v1/jobs", json={"kind": kind, "confirm_motion": True, "scene": {}})
+    assert answer.status_code == 422, answer.text
+    assert answer.json()["detail"]["field"] == "scene"
+    assert answer.json()["message"] == "scene applies to dry_run jobs only"
 
 
 def test_the_openapi_says_job_and_dwell_are_for_calibrate_and_dry_run(
