@@ -19,6 +19,8 @@ from trajectories.semicircles import parse_semicircle_parameters
 MOTION_KINDS = ("calibrate", "verify", "dry_run")
 MAX_WAYPOINTS = 500
 """The most waypoints a request may ask for (the paper's runs use tens)."""
+DAEMON_VERIFY_JOB = "the daemon verifies with the job recorded with the active calibration"
+"""Which job a verify job runs (its waypoints, dwell and ``[verify]`` table): never the request's."""
 
 
 class JobBody(BaseModel):
@@ -29,7 +31,9 @@ class JobBody(BaseModel):
     kind: Literal["calibrate", "verify", "dry_run"]
     confirm_motion: StrictBool = Field(False, description="must be JSON true: the arm moves")
     job: dict[str, Any] | None = Field(
-        None, description="job file (TOML) as a JSON object, merged over the daemon's default job"
+        None,
+        description="calibrate and dry_run only: job file (TOML) as a JSON object, merged over the "
+        "daemon's default job (a verify runs the job recorded with the active calibration)",
     )
     activate_on_pass: StrictBool = Field(False, description="make the result active when it passes the gates")
     scanner: str | None = Field(
@@ -38,7 +42,9 @@ class JobBody(BaseModel):
         "(default: the newest activation's)",
     )
     restore_robot: StrictBool = Field(True, description="reload (and replay) the robot's program afterwards")
-    dwell_s: float | None = Field(None, gt=0.0, le=60.0, description="dwell per waypoint in s")
+    dwell_s: float | None = Field(
+        None, gt=0.0, le=60.0, description="calibrate and dry_run only: dwell per waypoint in s"
+    )
     scene: dict[str, Any] | None = Field(
         None, description="dry_run only: the fake cell's scene (TOML tables as JSON)"
     )
@@ -78,6 +84,24 @@ def require_confirmation(confirm_motion: bool) -> None:
             'this job moves the arm: send "confirm_motion": true once the cell is clear',
             {"field": "confirm_motion"},
         )
+
+
+def require_fields_of_kind(body: JobBody) -> None:
+    """A field of other kinds only is InvalidRequestError naming it: ``scene`` is a dry run's,
+    and a verify takes no ``job`` or ``dwell_s`` (it runs the job recorded with the calibration)."""
+    if body.scene is not None and body.kind != "dry_run":
+        raise InvalidRequestError("scene applies to dry_run jobs only", "scene")
+    if body.kind != "verify":
+        return
+    for field in ("job", "dwell_s"):
+        if getattr(body, field) is not None:
+            raise InvalidRequestError(
+                f"{field} applies to calibrate and dry_run jobs only: {DAEMON_VERIFY_JOB}; leave {field} "
+                "out, or, to verify with other waypoints or dwell, calibrate again with a job that has "
+                "them (lasercal remote calibrate --config FILE) or run 'lasercal verify --config FILE' "
+                "on the cell",
+                field,
+            )
 
 
 def _merged(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
@@ -199,11 +223,10 @@ def resolve_job(body: JobBody, default_job: Path | None, data_dir: Path) -> JobC
 
 def scene_file_text(body: JobBody) -> str | None:
     """The dry run's scene file for the request's ``scene`` (None without one), validated
-    by ``fakes.scene``: a bad scene, or a scene for another kind, is InvalidRequestError."""
+    by ``fakes.scene``: a bad scene is InvalidRequestError (a scene for another kind:
+    ``require_fields_of_kind``)."""
     if body.scene is None:
         return None
-    if body.kind != "dry_run":
-        raise InvalidRequestError("scene applies to dry_run jobs only", "scene")
     from fakes.scene import scene_from_mapping
 
     try:

@@ -14,12 +14,12 @@ import logging
 import shutil
 import threading
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
 from lasercal_hw.config import DEFAULT_SCANNER_NAME, JobConfig, job_from_mapping
-from lasercal_hw.errors import InterruptedRunError, LasercalError
+from lasercal_hw.errors import ConfigError, InterruptedRunError, LasercalError
 from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.cell import CELL_FILE, SCANNER_RESULT
 from lasercal_hw.run.events import RunEvent, Stage
@@ -39,6 +39,7 @@ from lasercal_hw.service.job_request import (
     JobBody,
     ResumeBody,
     require_confirmation,
+    require_fields_of_kind,
     resolve_job,
     scene_file_text,
 )
@@ -212,6 +213,7 @@ class JobManager:
         """Check the request, create the job and start it (ConflictError while another runs)."""
         require_confirmation(body.confirm_motion)
         self._require_kind(body.kind)
+        require_fields_of_kind(body)
         try:
             job = resolve_job(body, self._default_job, self._jobs_dir.parent)
         except InvalidRequestError as exc:
@@ -220,16 +222,12 @@ class JobManager:
             # the job was checked as a real cell's: say how to try it on this daemon's fake cell
             raise InvalidRequestError(f"{exc.message}; {DRY_RUN_DAEMON_HINT}", exc.detail["field"]) from None
         devices = self._addresses(body.kind)
-        if body.kind != "dry_run" and devices.applied_to(job).robot.host is None:
+        if body.kind == "verify":
+            devices = self._verify_addresses(body.scanner, devices)
+        elif body.kind != "dry_run" and devices.applied_to(job).robot.host is None:
             raise InvalidRequestError(
                 "no robot configured: set robot_host in the daemon configuration or robot.host in the job",
                 "job.robot.host",
-            )
-        if body.kind == "verify" and self._store.active_calibration_id(body.scanner) is None:
-            of = "" if body.scanner is None else f" for the scanner {body.scanner!r}"
-            raise ConflictError(
-                f"there is no active calibration{of} to verify: run a calibration and activate it first",
-                code="no_active_calibration",
             )
         scene_text = scene_file_text(body)
         if scene_text is None and body.kind == "dry_run" and self._dry_run_scene is not None:
@@ -353,6 +351,42 @@ class JobManager:
             return DeviceAddresses()
         devices = self._devices
         return DeviceAddresses(devices.robot_host, devices.scanner_url, tuple(devices.scanner_urls.items()))
+
+    def _verify_addresses(self, scanner: str | None, devices: DeviceAddresses) -> DeviceAddresses:
+        """``devices`` with the robot a verify of the active calibration (of ``scanner``)
+        connects to: the daemon's, else the one of the job recorded with the calibration
+        (``verify.procedure.recorded_robot_host``). ConflictError when there is no active
+        calibration (said first: nothing to verify) or it cannot be read; InvalidRequestError
+        when no robot is named."""
+        from lasercal_hw.run.outputs import RESULT_FILE
+        from lasercal_hw.verify.procedure import recorded_robot_host
+
+        calibration_id = self._store.active_calibration_id(scanner)
+        found = self._store.calibration(calibration_id) if calibration_id is not None else None
+        if calibration_id is None or found is None:
+            of = "" if scanner is None else f" for the scanner {scanner!r}"
+            raise ConflictError(
+                f"there is no active calibration{of} to verify: run a calibration and activate it first",
+                code="no_active_calibration",
+            )
+        if devices.robot_host is not None:
+            return devices
+        try:
+            robot_host = recorded_robot_host(found[1] / RESULT_FILE)
+        except ConfigError as exc:
+            raise ConflictError(
+                f"the active calibration {calibration_id} cannot be read ({exc}); activate another one or "
+                "calibrate again",
+                {"calibration_id": calibration_id},
+                code="calibration_unreadable",
+            ) from None
+        if robot_host is None:
+            raise InvalidRequestError(
+                f"no robot configured: set robot_host in the daemon configuration (the job recorded with "
+                f"the active calibration {calibration_id}, which a verify runs, names no robot.host)",
+                "robot_host",
+            )
+        return replace(devices, robot_host=robot_host)
 
     def _scanners_used(self, record: Job, job: JobConfig, devices: DeviceAddresses) -> Iterable[str] | None:
         """The URLs of the daemon's scanners a job talks to, held for it (None: every one): a

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
+from lasercal_hw.service.job_request import DAEMON_VERIFY_JOB
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
 from lasercal_hw.service.store import utc_now
 
@@ -81,9 +82,8 @@ def _run_cell(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None) 
 
 
 DAEMON_MORE_DATA = (
-    "the daemon verifies with the job recorded with the active calibration, so calibrate again with "
-    "a job whose verify.waypoints (up to 20) or dwell_s is larger, or run 'lasercal verify' on the "
-    "cell with more waypoints"
+    f"{DAEMON_VERIFY_JOB}, so calibrate again with a job whose verify.waypoints (up to 20) or dwell_s "
+    "is larger, or run 'lasercal verify' on the cell with more waypoints"
 )
 """What an inconclusive verify advises here: a verify job takes no waypoint count or dwell of its own."""
 

@@ -53,6 +53,7 @@ MIN_MEASURED = 2
 @dataclass(frozen=True)
 class VerifyRequest:
     """What to check and where. ``job`` None: the job recorded with the calibration;
+    ``robot_host`` None: the job's ``robot.host`` (``recorded_robot_host`` without a ``job``);
     ``waypoints`` None: the job's ``verify.waypoints``."""
 
     out_dir: Path
@@ -218,6 +219,15 @@ def plan_active(
         rod=active.result.estimated_rod(nominal),
         candidates=active.run_waypoints,
     )
+
+
+def recorded_robot_host(calibration_result_path: Path) -> str | None:
+    """The robot a verify of the calibration in ``calibration_result_path`` connects to when its
+    request names no robot and no job: the ``robot.host`` of the job recorded with the
+    calibration (None: no job recorded, or it names no robot). A missing or malformed file:
+    ConfigError."""
+    recorded = load_active_calibration(calibration_result_path).job
+    return None if recorded is None else recorded.robot.host
 
 
 def verify(

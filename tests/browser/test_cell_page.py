@@ -100,6 +100,7 @@ def test_a_cell_scanner_by_scanner(cell_daemon: DaemonProcess, browser: Any, art
     _wait(browser, lambda d: _get(cell_daemon, "/v1/jobs")["jobs"][0]["kind"] == "verify", "the verify job")
     verify = _get(cell_daemon, "/v1/jobs")["jobs"][0]
     assert verify["request"]["scanner"] == "rear"
+    assert verify["request"]["job"] is None and verify["request"]["dwell_s"] is None  # the recorded job's
     _wait(browser, lambda d: f"in use by {verify['id']}" in _card(d, "rear").text,
           "the rear held by the verify")
     assert "in use by" not in _card_text(browser, "front")

@@ -149,6 +149,8 @@ def test_dry_run_from_the_page(daemon: DaemonProcess, browser: Any, artifacts: P
     _answer_confirmation(browser, yes=True)
     _wait(browser, lambda d: _get(daemon, "/v1/jobs")["jobs"][0]["kind"] == "verify", "the verify job")
     verify_id = _get(daemon, "/v1/jobs")["jobs"][0]["id"]
+    asked = _get(daemon, f"/v1/jobs/{verify_id}")["request"]  # the recorded job's waypoints and dwell
+    assert asked["job"] is None and asked["dwell_s"] is None, asked
     _wait(browser, lambda d: verify_id in _by_id(d, "job-title").text
           and _by_id(d, "job-state").text in TERMINAL, "the verify's end", RUN_TIMEOUT_S)
     verdict = _get(daemon, f"/v1/jobs/{verify_id}")["verdict"]["status"]

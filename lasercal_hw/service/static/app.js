@@ -1029,12 +1029,15 @@ async function startJob(kind) {
   const scanner = kind === "verify" && isCell() ? state.selected : null;  // none chosen: the newest activation's
   const what = kind === "verify" ? `a verify run against the active calibration${scanner ? " of " + scanner : ""}`
     : isCell() ? "a dry-run calibration of every scanner" : "a dry-run calibration";
-  const ok = await confirmAction("Start motion?",
-    `This starts ${what} on ${where}: the ${preset} trajectory, dwelling ${dwell} s at every waypoint.`, "Move the arm");
+  // a verify runs the job recorded with the calibration it checks: the daemon refuses a job or dwell for it
+  const how = kind === "verify" ? "the waypoints and dwell of the job recorded with that calibration"
+    : `the ${preset} trajectory, dwelling ${dwell} s at every waypoint`;
+  const ok = await confirmAction("Start motion?", `This starts ${what} on ${where}: ${how}.`, "Move the arm");
   if (!ok) return;
   const chosen = state.trajectories.find((t) => t.name === preset);
-  const body = { kind, confirm_motion: true, job: chosen ? chosen.job : { trajectory: { preset } }, dwell_s: dwell,
-                 activate_on_pass: kind !== "verify" && $("activate-on-pass").checked };
+  const body = kind === "verify" ? { kind, confirm_motion: true }
+    : { kind, confirm_motion: true, job: chosen ? chosen.job : { trajectory: { preset } }, dwell_s: dwell,
+        activate_on_pass: $("activate-on-pass").checked };
   if (scanner) body.scanner = scanner;
   try {
     const job = await authorised("POST", "/v1/jobs", body);
