@@ -142,7 +142,7 @@ def _print_or_follow(client: Any, job: dict[str, Any], wait: bool, as_json: bool
     try:
         finished = client.wait(job["id"], on_event=_show_event)
     except KeyboardInterrupt:
-        typer.echo(cancel_after_interrupt(client, job["id"]), err=True)
+        typer.echo(cancel_after_interrupt(client, job["id"], job.get("kind")), err=True)
         raise typer.Exit(int(ExitCode.INTERRUPTED)) from None
     _finish(client, finished, as_json)
 
@@ -171,8 +171,9 @@ def _send_motion(client: Any, send: Callable[[], dict[str, Any]]) -> dict[str, A
         ) from None
 
 
-def cancel_after_interrupt(client: Any, job_id: str) -> str:
-    """Cancel the job a Ctrl-C'd command was following; the one line that says what became of it."""
+def cancel_after_interrupt(client: Any, job_id: str, kind: str | None = None) -> str:
+    """Cancel the job (of ``kind``) a Ctrl-C'd command was following; the one line that says what
+    became of it and how to go on (a verify is started anew, not resumed)."""
     from lasercal_hw.service.client import DaemonRequestError
 
     daemon = _daemon_option(client)
@@ -186,10 +187,12 @@ def cancel_after_interrupt(client: Any, job_id: str) -> str:
             f"interrupted: the cancel of job {job_id} failed ({why}): job {job_id} may still be running; "
             f"stop it with: lasercal remote cancel {job_id}{daemon}"
         )
-    return (
-        f"interrupted: job {job_id} cancelled, the arm is being stopped (the recording is kept; continue "
-        f"with: lasercal remote resume {job_id} --yes{daemon})"
+    go_on = (
+        f"verify again with: lasercal remote verify --yes{daemon}"
+        if kind == "verify"
+        else f"continue with: lasercal remote resume {job_id} --yes{daemon}"
     )
+    return f"interrupted: job {job_id} cancelled, the arm is being stopped (the recording is kept; {go_on})"
 
 
 def _start(

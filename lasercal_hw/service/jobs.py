@@ -289,6 +289,13 @@ class JobManager:
                 {"job_id": job_id, "state": record.state.value},
                 code="not_resumable",
             )
+        if record.kind == "verify":
+            raise ConflictError(
+                f"job {job_id} is a verify, which is not resumed from its recording: start a new verify "
+                "(POST /v1/jobs with kind verify; lasercal remote verify --yes)",
+                {"job_id": job_id, "kind": record.kind},
+                code="not_resumable",
+            )
         if not session.exists():
             raise ConflictError(
                 f"job {job_id} has no recording to resume from (it stopped "

@@ -201,6 +201,25 @@ def test_a_failed_cancel_after_ctrl_c_says_the_job_may_still_run() -> None:
     assert line.endswith("lasercal remote cancel job-1 --daemon http://127.0.0.1:9"), line
 
 
+class _Daemon:
+    url = "http://127.0.0.1:9"
+
+    def cancel(self, job_id: str) -> dict[str, str]:
+        return {"id": job_id, "state": "running"}
+
+
+def test_a_cancelled_verify_is_told_to_verify_again_not_to_resume() -> None:
+    """A daemon does not resume a verify; a calibration goes on from its recording."""
+    from lasercal_hw.cli.remote import cancel_after_interrupt
+
+    verify = cancel_after_interrupt(_Daemon(), "job-2", "verify")
+    again = "verify again with: lasercal remote verify --yes --daemon http://127.0.0.1:9)"
+    assert verify.endswith(again), verify
+    assert "resume" not in verify
+    calibrate = cancel_after_interrupt(_Daemon(), "job-3", "calibrate")
+    assert "continue with: lasercal remote resume job-3 --yes --daemon http://127.0.0.1:9" in calibrate
+
+
 def test_a_finished_cell_job_shows_every_scanners_calibration() -> None:
     """A cell job files a calibration per scanner: each is shown under its scanner's name (only
     the first was)."""

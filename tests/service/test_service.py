@@ -268,3 +268,27 @@ def test_remote_says_when_the_daemon_is_not_there(monkeypatch: pytest.MonkeyPatc
     with pytest.raises(SystemExit) as exited:
         main()
     assert exited.value.code == 3 and "cannot reach the lasercal daemon" in capsys.readouterr().err
+
+
+def test_a_cancelled_verify_is_not_resumed_but_started_anew(tmp_path: Path, engine: FakeEngine) -> None:
+    """A verify's runner measures its waypoints afresh (it takes no recording to go on from): a
+    resume would run it again into a folder with a recording. The 409 says to start a new one."""
+    settings = {"data_dir": tmp_path / "data", "robot_host": "127.0.0.1"}
+    daemon = Daemon(
+        load_daemon_config(None, settings),
+        runners=lambda active: {"calibrate": engine, "dry_run": engine, "verify": engine},
+    )
+    with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
+        client.headers["Authorization"] = f"Bearer {daemon.token}"
+        finish_job(client, client.post("/v1/jobs", json=JOB | {"activate_on_pass": True}).json()["id"])
+        engine.release.clear()
+        engine.started.clear()
+        verify = client.post("/v1/jobs", json={"kind": "verify", "confirm_motion": True})
+        assert verify.status_code == 202, verify.text
+        assert engine.started.wait(5.0)
+        client.post(f"/v1/jobs/{verify.json()['id']}/cancel")
+        engine.release.set()
+        assert finish_job(client, verify.json()["id"])["state"] == "cancelled"
+        resumed = client.post(f"/v1/jobs/{verify.json()['id']}/resume", json={"confirm_motion": True})
+    assert (resumed.status_code, resumed.json()["code"]) == (409, "not_resumable")
+    assert "start a new verify" in resumed.json()["message"]
