@@ -483,6 +483,20 @@ def load_job(path: Path | None) -> JobConfig:
     return job.model_copy(update={"trajectory": _resolved(job.trajectory, folder), "scanners": scanners})
 
 
+def read_job_file(path: Path) -> dict[str, Any]:
+    """A job file as the mapping to send elsewhere (a daemon request), its relative
+    ``waypoints_file`` (the job's and each ``scanners.NAME``'s) made absolute against the
+    file's folder, as :func:`load_job` reads them; validated where it is used."""
+    data = read_toml(path, "job file")
+    scanners = data.get("scanners") if isinstance(data.get("scanners"), dict) else {}
+    entries = [entry for entry in scanners.values() if isinstance(entry, dict)]
+    for table in [data, *entries]:
+        trajectory = table.get("trajectory")
+        if isinstance(trajectory, dict) and isinstance(trajectory.get("waypoints_file"), str):
+            trajectory["waypoints_file"] = str((Path(path).parent / trajectory["waypoints_file"]).resolve())
+    return data
+
+
 def _resolved(trajectory: TrajectoryConfig | None, folder: Path) -> TrajectoryConfig | None:
     """``trajectory`` with a relative ``waypoints_file`` taken relative to ``folder``."""
     if trajectory is None or trajectory.waypoints_file is None or trajectory.waypoints_file.is_absolute():

@@ -82,9 +82,9 @@ def _print(document: Any, as_json: bool, lines: list[str]) -> None:
 
 
 def _job_file(path: Path | None) -> dict[str, Any] | None:
-    from lasercal_hw.config import read_toml
+    from lasercal_hw.config import read_job_file
 
-    return None if path is None else read_toml(path, "job file")
+    return None if path is None else read_job_file(path)
 
 
 def _show_event(kind: str, data: dict[str, Any]) -> None:

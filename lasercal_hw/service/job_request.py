@@ -131,7 +131,8 @@ def _require_readable_here(waypoints_file: Path, folders: tuple[Path, ...]) -> N
     if not any(resolved.is_relative_to(folder.resolve()) for folder in folders):
         where = " or ".join(str(folder) for folder in folders)
         raise InvalidRequestError(
-            f"job.trajectory.waypoints_file must be a file under {where}; copy the file there and name it",
+            f"job.trajectory.waypoints_file must be a file under {where}; copy the file there and "
+            "give its full path (a relative name is not read in those folders)",
             "job.trajectory.waypoints_file",
         )
 

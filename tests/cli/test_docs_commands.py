@@ -116,3 +116,34 @@ def test_a_documented_command_parses(where: str, args: str) -> None:
     except Exception as exc:
         message = exc.format_message() if hasattr(exc, "format_message") else str(exc)
         pytest.fail(f"{where}: lasercal {args}: {message}")
+
+
+#: A python command that imports this project's code (a benchmark, the CLI, a driver).
+PROJECT_PYTHON = re.compile(
+    r"(?P<python>(?:\S*/)?python3?(?:\.\d+)?) (?:-m (?:benchmarks|lasercal_hw)\b"
+    r"|-c [\"'].*\bfrom (?:benchmarks|drivers|fakes|lasercal_hw|trajectories)\b)"
+)
+
+
+def project_python_commands() -> list[tuple[str, str]]:
+    """(file:line, interpreter) of every project-importing python command in a fenced block or
+    an inline code span of the README and docs/."""
+    found = []
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        in_block = False
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+            if line.strip().startswith("```"):
+                in_block = not in_block
+                continue
+            for text in [line] if in_block else re.findall(r"`([^`]+)`", line):
+                where = f"{path.relative_to(ROOT)}:{number}"
+                found += [(where, match["python"]) for match in PROJECT_PYTHON.finditer(text)]
+    return found
+
+
+def test_documented_python_commands_use_the_projects_venv() -> None:
+    """After the README's set-up the project's packages are in .venv alone: a bare `python` or
+    `python3` running a benchmark or importing drivers/ is another interpreter, without numpy."""
+    commands = project_python_commands()
+    assert len(commands) >= 40  # the extraction itself works
+    assert [(where, python) for where, python in commands if python != ".venv/bin/python"] == []

@@ -103,6 +103,25 @@ def test_a_waypoint_file_in_the_data_folder_is_read(served: tuple[TestClient, di
     assert answer.status_code == 422 and "not_a_number" in answer.json()["message"]
 
 
+def test_a_relative_waypoint_file_is_told_to_be_named_by_its_full_path(
+    served: tuple[TestClient, dict[str, str]],
+) -> None:
+    """A relative name is read against the daemon's working folder, not its data folder: the
+    422 said "copy the file there and name it", and a copy named as the message's folder holds
+    it ("bad.csv") was refused again. It says to give the full path, which is read."""
+    client, _names = served
+    data_dir = Path(client.get("/v1/status").json()["daemon"]["data_dir"])
+    (data_dir / "bad.csv").write_text("index,x,y,z,rx,ry,rz\n0,not_a_number,0,0,0,0,0\n")
+
+    def answer(path: str) -> httpx.Response:
+        trajectory = {"preset": None, "waypoints_file": path}
+        return client.post("/v1/jobs", json=DRY | {"job": {"trajectory": trajectory}})
+
+    refused = answer("bad.csv")
+    assert refused.status_code == 422 and "full path" in refused.json()["message"], refused.text
+    assert "not_a_number" in answer(str(data_dir / "bad.csv")).json()["message"]
+
+
 def test_a_verify_without_an_active_calibration_is_refused_at_request_time(tmp_path: Path) -> None:
     engine = FakeEngine()
     config = load_daemon_config(None, {"data_dir": tmp_path / "data", "robot_host": "127.0.0.1"})
