@@ -49,7 +49,12 @@ JsonOption = Annotated[
 ]
 ConfigOption = Annotated[Path | None, typer.Option("--config", help="Job file (TOML) to send.")]
 WaitOption = Annotated[
-    bool, typer.Option("--wait", help="Follow the job to its end; exit code as 'lasercal run'.")
+    bool,
+    typer.Option(
+        "--wait",
+        help="Follow the job to its end; exit code as 'lasercal run' (a verify: as 'lasercal verify', "
+        "0 only when ok).",
+    ),
 ]
 YesOption = Annotated[bool, typer.Option("--yes", "-y", help="Confirm that the arm may move (required).")]
 DwellOption = Annotated[float | None, typer.Option("--dwell", help="Dwell per waypoint in s.")]
@@ -94,7 +99,8 @@ def _show_event(kind: str, data: dict[str, Any]) -> None:
 
 
 def _finish(client: Any, job: dict[str, Any], as_json: bool) -> None:
-    """Print a finished job and exit with the code 'lasercal run' would give."""
+    """Print a finished job and exit with the code 'lasercal run' (a verify: 'lasercal verify')
+    would give."""
     document = job.get("document") or {}
     summary = document | {
         "job_id": job["id"],
