@@ -134,9 +134,7 @@ class Daemon:
 
     def active_calibration(self, scanner: str | None = None) -> tuple[str, Path] | None:
         """The active calibration's (of ``scanner``) id and folder, or None."""
-        calibration_id = self.store.active_calibration_id(scanner)
-        found = self.store.calibration(calibration_id) if calibration_id is not None else None
-        return (calibration_id, found[1]) if calibration_id is not None and found is not None else None
+        return self.store.active_calibration(scanner)
 
     def _on_state(self, job_id: str, state: str) -> None:
         for listener in self.state_listeners:

@@ -23,6 +23,12 @@ DAEMON_VERIFY_JOB = "the daemon verifies with the job recorded with the active c
 """Which job a verify job runs (its waypoints, dwell and ``[verify]`` table): never the request's."""
 
 
+def nothing_to_verify(scanner: str | None) -> str:
+    """What a verify says when there is no active calibration (of ``scanner``) to check."""
+    of = "" if scanner is None else f" for the scanner {scanner!r}"
+    return f"there is no active calibration{of} to verify: run a calibration and activate it first"
+
+
 class JobBody(BaseModel):
     """A request to start a job (every kind moves an arm, the dry run a fake one)."""
 

@@ -38,6 +38,7 @@ from lasercal_hw.service.job_request import (
     DeviceAddresses,
     JobBody,
     ResumeBody,
+    nothing_to_verify,
     require_confirmation,
     require_fields_of_kind,
     resolve_job,
@@ -368,18 +369,14 @@ class JobManager:
         from lasercal_hw.run.outputs import RESULT_FILE
         from lasercal_hw.verify.procedure import recorded_robot_host
 
-        calibration_id = self._store.active_calibration_id(scanner)
-        found = self._store.calibration(calibration_id) if calibration_id is not None else None
-        if calibration_id is None or found is None:
-            of = "" if scanner is None else f" for the scanner {scanner!r}"
-            raise ConflictError(
-                f"there is no active calibration{of} to verify: run a calibration and activate it first",
-                code="no_active_calibration",
-            )
+        found = self._store.active_calibration(scanner)
+        if found is None:
+            raise ConflictError(nothing_to_verify(scanner), code="no_active_calibration")
+        calibration_id, folder = found
         if devices.robot_host is not None:
             return devices
         try:
-            robot_host = recorded_robot_host(found[1] / RESULT_FILE)
+            robot_host = recorded_robot_host(folder / RESULT_FILE)
         except ConfigError as exc:
             raise ConflictError(
                 f"the active calibration {calibration_id} cannot be read ({exc}); activate another one or "

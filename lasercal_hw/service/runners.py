@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.service.job_request import DAEMON_VERIFY_JOB
+from lasercal_hw.service.job_request import DAEMON_VERIFY_JOB, nothing_to_verify
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
 from lasercal_hw.service.store import utc_now
 
@@ -97,10 +97,7 @@ def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
 
     found = active(ctx.scanner)
     if found is None:
-        of = "" if ctx.scanner is None else f" for the scanner {ctx.scanner!r}"
-        raise ConfigError(
-            f"there is no active calibration{of} to verify: run a calibration and activate it first"
-        )
+        raise ConfigError(nothing_to_verify(ctx.scanner))
     calibration_id, folder = found
     named = dict(ctx.devices.scanner_urls)
     scanner_name = read_result_file(folder / RESULT_FILE).scanner_name

@@ -362,6 +362,13 @@ class HistoryStore:
         )
         return str(rows[0]["calibration_id"]) if rows and rows[0]["bad_utc"] is None else None
 
+    def active_calibration(self, scanner: str | None = None) -> tuple[str, Path] | None:
+        """The active calibration's (of ``scanner``, as ``active_calibration_id``) id and folder,
+        or None."""
+        calibration_id = self.active_calibration_id(scanner)
+        found = self.calibration(calibration_id) if calibration_id is not None else None
+        return (calibration_id, found[1]) if calibration_id is not None and found is not None else None
+
     def activations(self) -> list[dict[str, Any]]:
         """The activation log, newest first."""
         return [dict(r) for r in self._query("SELECT * FROM activations ORDER BY id DESC")]
