@@ -54,6 +54,14 @@ class WaypointResidual(BaseModel):
         default=None,
         description="what another dwell draws anew of echo_middle_uv_mm's length across the bearing (mm^2)",
     )
+    echo_middle_move_uv_mm: list[float] | None = Field(
+        default=None,
+        description="a plain rod's: how far the middle of the rod's echo moved the fitted centre across "
+        "its bearing (u, v; mm, same frame); [0, 0] where no middle was read and the fit placed it. At "
+        "a pose where the middle is read at some dwells and not at others, the two kinds of centre lie "
+        "up to 2 mm apart, so the verify compares a centre with one placed alike. None: a fluted rod "
+        "(echo_middle_uv_mm), the first pass's centre kept, or a file written before it was recorded",
+    )
     first_pass_kept: str | None = Field(
         default=None,
         description="why the second pass could not fit this centre again, so that the solve took "

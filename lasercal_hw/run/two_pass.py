@@ -116,7 +116,11 @@ class SecondPassRefit:
                 for m, (centre, covariance) in zip(plain, moved, strict=True)
             ], kept
         refitted, kept = refit_centres(
-            measurements, self.T_base_laser, self.rod, background, range_offset_m=self.range_offset_m,
+            measurements,
+            self.T_base_laser,
+            self.rod,
+            background,
+            range_offset_m=self.range_offset_m,
             settings=settings,
         )
         if not self.range_offset_m:
@@ -221,6 +225,8 @@ def solve_two_pass(
     result = _with_first_pass_kept(result, kept)
     if rod.fluted:
         result = _with_echo_middles(result, observations, measurements, refit)
+    else:
+        result = _with_echo_middle_moves(result, refitted, kept)
     settings = SolveSettings(rod, applied, job.quality)
     warnings = [(m.index, warning) for m in refitted for warning in m.centre.warnings]
     return TwoPassSolution(first, result, observations, refinement, kept, settings, warnings, refit)
@@ -263,6 +269,27 @@ def _with_echo_middles(
                 }
             )
         residuals.append(residual)
+    return result.model_copy(update={"residuals": residuals})
+
+
+def _with_echo_middle_moves(
+    result: CalibrationResult, refitted: Sequence[WaypointMeasurement], kept: Sequence[tuple[int, str]]
+) -> CalibrationResult:
+    """``result`` with how far the middle of the rod's echo moved each re-fitted centre across its
+    bearing ([0, 0]: none was read) recorded in its residual (``WaypointResidual.
+    echo_middle_move_uv_mm``): a plain rod's verify compares centres placed alike."""
+    kept_indices = {index for index, _ in kept}
+    moves = {
+        m.index: np.zeros(2) if m.centre.echo_middle_move_uv_m is None else m.centre.echo_middle_move_uv_m
+        for m in refitted
+        if m.index not in kept_indices
+    }
+    residuals = [
+        r.model_copy(update={"echo_middle_move_uv_mm": (moves[r.index] * 1e3).tolist()})
+        if r.index in moves
+        else r
+        for r in result.residuals
+    ]
     return result.model_copy(update={"residuals": residuals})
 
 

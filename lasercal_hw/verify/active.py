@@ -271,6 +271,22 @@ def recorded_echo_middles(
     return np.array(values, dtype=float).reshape(-1, 3)
 
 
+def recorded_echo_middle_moves(
+    residuals: Sequence[WaypointResidual], recorded_waypoints: FloatArray | None, waypoints: FloatArray
+) -> FloatArray:
+    """How far the middle of a plain rod's echo moved the calibration's centre across its bearing
+    at each of ``waypoints`` in its fit (m, (N, 2); zero where the fit placed it), NaN where none
+    is recorded (``WaypointResidual.echo_middle_move_uv_mm``)."""
+    rows = _recorded_at(residuals, recorded_waypoints, waypoints, used_only=True)
+    values = [
+        (np.nan, np.nan)
+        if r is None or r.echo_middle_move_uv_mm is None
+        else (r.echo_middle_move_uv_mm[0] / 1e3, r.echo_middle_move_uv_mm[1] / 1e3)
+        for r in rows
+    ]
+    return np.array(values, dtype=float).reshape(-1, 2)
+
+
 def recorded_centre_covariances(
     residuals: Sequence[WaypointResidual], recorded_waypoints: FloatArray | None, waypoints: FloatArray
 ) -> tuple[FloatArray, FloatArray]:

@@ -31,10 +31,12 @@ from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.two_pass import SecondPassRefit
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
+from lasercal_hw.verify.across_kind import placed_alike
 from lasercal_hw.verify.active import (
     ActiveCalibration,
     load_active_calibration,
     recorded_centre_covariances,
+    recorded_echo_middle_moves,
     recorded_echo_middles,
     recorded_residuals,
     repeated_poses,
@@ -149,6 +151,9 @@ class VerifyPlan:
     refit: SecondPassRefit
     #: A twist drill's echo middle the calibration recorded at each waypoint (``recorded_echo_middles``).
     echo_middles: FloatArray
+    #: How far a plain rod's echo middle moved the calibration's centre at each waypoint
+    #: (``recorded_echo_middle_moves``).
+    echo_middle_moves: FloatArray
 
 
 def plan_verify(
@@ -196,7 +201,8 @@ def plan_verify(
         unusable=unusable_waypoints(residuals, recorded_waypoints, waypoints) | repeated_poses(waypoints),
     )
     middles = recorded_echo_middles(residuals, recorded_waypoints, waypoints)
-    return VerifyPlan(checking, model, waypoints, reference, selection, refit, middles)
+    moves = recorded_echo_middle_moves(residuals, recorded_waypoints, waypoints)
+    return VerifyPlan(checking, model, waypoints, reference, selection, refit, middles, moves)
 
 
 def plan_active(
@@ -340,6 +346,16 @@ def refit_and_test(
     refitted, kept = plan.refit.centres(measurements, background)
     not_refitted = {index for index, _ in kept}
     refitted = [m for m in refitted if m.index not in not_refitted]
+    job_index = [plan.selection.indices[m.index] for m in refitted]
+    refitted, reference, not_alike = placed_alike(
+        plan.refit,
+        measurements,
+        refitted,
+        plan.echo_middle_moves[job_index],
+        plan.reference[job_index],
+        background,
+    )
+    kept = kept + not_alike
     if len(refitted) < MIN_MEASURED:
         return None, kept
     job_index = [plan.selection.indices[m.index] for m in refitted]
@@ -347,7 +363,7 @@ def refit_and_test(
         plan.refit,
         refitted,
         plan.echo_middles[job_index],
-        plan.reference[job_index],
+        reference,
         np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted]),
     )
     test = run_drift_test(

@@ -23,9 +23,11 @@ from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.two_pass import TwoPassSolution, solve_two_pass
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
+from lasercal_hw.scan.extraction import find as extraction_find
+from lasercal_hw.verify.across_kind import FIT_ACROSS
 from lasercal_hw.verify.active import load_active_calibration
 from lasercal_hw.verify.echo_reference import at_echo_middles
-from lasercal_hw.verify.procedure import plan_active, refit_and_test
+from lasercal_hw.verify.procedure import VerifyPlan, plan_active, refit_and_test
 
 SCANS = 40
 
@@ -101,6 +103,17 @@ def fluted_calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
     return calibration
 
 
+def chosen_scans(calibration: Calibrated, plan: VerifyPlan) -> list[WaypointMeasurement]:
+    """The calibration's own measurements at every waypoint ``plan`` chose, numbered as a verify
+    numbers its dwells."""
+    by_index = {m.index: m for m in calibration.measurements}
+    return [
+        WaypointMeasurement(k, by_index[i].tcp_pose, by_index[i].averaged, by_index[i].centre)
+        for k, i in enumerate(plan.selection.indices)
+        if i in by_index
+    ]
+
+
 def assert_verify_gives_the_calibration_back(calibration: Calibrated) -> None:
     """The calibration's averaged scans through the verify's processing (the recorded second
     pass: its transform, its rod line, the range offset out of every range; the prediction
@@ -116,12 +129,7 @@ def assert_verify_gives_the_calibration_back(calibration: Calibrated) -> None:
     plan = plan_active(active, active.job, count=len(active.waypoints()))
     chosen_indices = plan.selection.indices
     assert not set(recorded_kept) & set(chosen_indices)
-    by_index = {m.index: m for m in measurements}
-    chosen = [  # the job's waypoints the calibration measured (a skipped one has no scans)
-        WaypointMeasurement(k, by_index[i].tcp_pose, by_index[i].averaged, by_index[i].centre)
-        for k, i in enumerate(chosen_indices)
-        if i in by_index
-    ]
+    chosen = chosen_scans(calibration, plan)  # a waypoint the calibration skipped has no scans
     assert sorted(chosen_indices[m.index] for m in chosen) == [
         m.index for m in measurements if m.index not in recorded_kept
     ]
@@ -263,12 +271,7 @@ def test_a_fluted_verify_compares_echo_middles_not_where_the_fit_jumped(
     active = load_active_calibration(calibration.path)
     plan = plan_active(active, active.job, count=len(active.waypoints()))
     chosen_indices = plan.selection.indices
-    by_index = {m.index: m for m in calibration.measurements}
-    chosen = [
-        WaypointMeasurement(k, by_index[i].tcp_pose, by_index[i].averaged, by_index[i].centre)
-        for k, i in enumerate(chosen_indices)
-        if i in by_index
-    ]
+    chosen = chosen_scans(calibration, plan)
     refitted, _ = plan.refit.centres(chosen, calibration.background)
     job_index = [chosen_indices[m.index] for m in refitted]
     noise = np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted])
@@ -382,15 +385,71 @@ def test_a_waypoint_the_verify_cannot_fit_again_is_left_out_of_its_test(calibrat
     the prediction are: compared, it would read as a move."""
     active = load_active_calibration(calibrated.path)
     plan = plan_active(active, active.job, count=len(active.waypoints()))
-    by_index = {m.index: m for m in calibrated.measurements}
-    chosen = [
-        WaypointMeasurement(k, by_index[i].tcp_pose, by_index[i].averaged, by_index[i].centre)
-        for k, i in enumerate(plan.selection.indices)
-        if i in by_index
-    ]
+    chosen = chosen_scans(calibrated, plan)
     chosen[3] = unfittable(chosen[3])
     test, not_refitted = refit_and_test(plan, chosen, calibrated.background)
     assert [k for k, _ in not_refitted] == [chosen[3].index]
     assert test is not None and plan.selection.indices[chosen[3].index] not in test.indices
     assert len(test.indices) == len(chosen) - 1
+    np.testing.assert_allclose(test.residual_mm, 0.0, atol=1e-3)
+
+
+def test_a_plain_rod_calibration_records_how_far_the_echo_middle_moved_each_centre(
+    calibrated: Calibrated, fluted_calibrated: Calibrated
+) -> None:
+    """Each re-fitted centre of a plain rod records the move across its bearing from the fit (the
+    same scan fitted without the middle) to the middle of its echo; a twist drill's record none."""
+    solution = calibrated.solution
+    fitted, _ = solution.refit.centres(calibrated.measurements, calibrated.background, FIT_ACROSS)
+    fits = {m.index: m.centre.centre_uv_m for m in fitted}
+    solved = {o.index: o.centre_uv_m for o in solution.observations}
+    recorded = [r for r in solution.result.residuals if r.echo_middle_move_uv_mm is not None]
+    assert len(recorded) == len(solution.observations)
+    moved = 0
+    for r in recorded:
+        move_mm = np.asarray(r.echo_middle_move_uv_mm)
+        np.testing.assert_allclose(move_mm, (solved[r.index] - fits[r.index]) * 1e3, atol=1e-9)
+        bearing = solved[r.index] / np.linalg.norm(solved[r.index])
+        assert abs(float(move_mm @ bearing)) <= 1e-9 + 0.01 * float(np.linalg.norm(move_mm))
+        moved += bool(np.any(move_mm != 0.0))
+    assert moved >= 0.5 * len(recorded)
+    assert all(r.echo_middle_move_uv_mm is None for r in fluted_calibrated.solution.result.residuals)
+
+
+def test_a_plain_rod_verify_compares_the_fits_where_this_dwell_reads_no_middle(
+    calibrated: Calibrated, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The calibration's own scans, their echo middles not read this time: every centre is the
+    fit's; compared with the calibration's residuals less their recorded moves, the residual is
+    zero (compared with the middles' centres, it was the moves: up to 2 mm)."""
+    active = load_active_calibration(calibrated.path)
+    plan = plan_active(active, active.job, count=len(active.waypoints()))
+    moves_mm = np.linalg.norm(plan.echo_middle_moves[plan.selection.indices], axis=1) * 1e3
+    assert np.nanmax(moves_mm) > 0.3
+    monkeypatch.setattr(extraction_find, "_across_from_echo_middle", lambda scan, fit, section, settings: fit)
+    test, not_refitted = refit_and_test(plan, chosen_scans(calibrated, plan), calibrated.background)
+    assert not_refitted == [] and test is not None
+    np.testing.assert_allclose(test.residual_mm, 0.0, atol=1e-3)
+
+
+def test_a_plain_rod_verify_fits_again_without_the_middle_where_the_calibration_read_none(
+    calibrated: Calibrated, tmp_path: Path
+) -> None:
+    """A calibration whose dwells read no middle (its residuals the fits', its moves zero), checked
+    with dwells that read one: each is fitted again without it and the residual is zero (the
+    default job's waypoint 11, seeds 228, 273 and 300: the middle read at the verify's dwell and
+    not at the calibration's, 1.94 mm across, chi-square 51-535 on an unmoved scanner)."""
+    document = json.loads(calibrated.path.read_text(encoding="utf-8"))
+    for residual in document["residuals"]:
+        move_mm = residual["echo_middle_move_uv_mm"]
+        if move_mm is not None:
+            residual["du_mm"] -= move_mm[0]
+            residual["dv_mm"] -= move_mm[1]
+            residual["echo_middle_move_uv_mm"] = [0.0, 0.0]
+    unread = tmp_path / "result.json"
+    unread.write_text(json.dumps(document), encoding="utf-8")
+    active = load_active_calibration(unread)
+    plan = plan_active(active, active.job, count=len(active.waypoints()))
+    test, not_refitted = refit_and_test(plan, chosen_scans(calibrated, plan), calibrated.background)
+    assert not_refitted == [] and test is not None
     np.testing.assert_allclose(test.residual_mm, 0.0, atol=1e-3)

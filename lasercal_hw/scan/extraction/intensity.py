@@ -124,6 +124,7 @@ def _across_from_echo_middle(
     return replace(
         fit,
         centre_uv_m=fit.centre_uv_m + middle.shift_m * across,
+        echo_middle_move_uv_m=middle.shift_m * across,
         covariance_uv_m2=across_replaced(fit.covariance_uv_m2, middle.noise_m2 + middle.step_m**2 / 24.0),
         noise_covariance_uv_m2=None if noise is None else across_replaced(noise, middle.noise_m2),
     )

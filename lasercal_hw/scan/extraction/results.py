@@ -41,6 +41,10 @@ class RodCentre:
     #: noise through the fit. The rest (the rod's shape, edges, blends, the range error across
     #: the arc) repeats at the same pose and view. None: unknown, take the whole covariance.
     noise_covariance_uv_m2: FloatArray | None = None
+    #: How far the middle of the rod's echo moved the fitted centre across its bearing (m, (2,)):
+    #: None where no middle was read and the fit placed it (``_across_from_echo_middle``). A
+    #: plain rod's verify compares centres placed alike (``verify/across_kind``).
+    echo_middle_move_uv_m: FloatArray | None = None
 
     def dwell_noise_covariance_uv_m2(self) -> FloatArray:
         """The part of the covariance another dwell at this pose draws anew: all of it where
