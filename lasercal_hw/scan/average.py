@@ -41,7 +41,8 @@ class AveragedScan:
     ``reading_std_m`` that of a single reading; both are NaN where fewer than two
     readings were kept.  ``ranges_m`` is NaN where the beam was valid in too few scans.
     ``valid_count`` is how many scans gave the beam any reading (``count`` of them agreed);
-    ``intensities`` the mean intensity of the kept readings, None when the scanner sent none.
+    ``intensities`` the mean intensity of the kept readings, None when the scanner sent none;
+    ``intensity_std`` that mean's standard deviation (NaN where fewer than two readings were kept).
     """
 
     ranges_m: FloatArray
@@ -52,6 +53,7 @@ class AveragedScan:
     scan_count: int
     valid_count: NDArray[np.int64] | None = None
     intensities: FloatArray | None = None
+    intensity_std: FloatArray | None = None
 
     @property
     def valid(self) -> NDArray[np.bool_]:
@@ -139,7 +141,7 @@ def average_scans(
         angles_rad=geometry.angles_rad(),
         scan_count=scan_count,
         valid_count=valid_count.astype(np.int64),
-        intensities=_mean_intensities(scans, inlier, safe_count, usable),
+        **_mean_intensities(scans, inlier, safe_count, usable),
     )
 
 
@@ -159,13 +161,16 @@ def _repeated_steps(scans: Sequence[LaserScan], ranges: FloatArray) -> NDArray[n
 
 def _mean_intensities(
     scans: Sequence[LaserScan], inlier: NDArray[np.bool_], count: NDArray[np.int64], usable: NDArray[np.bool_]
-) -> FloatArray | None:
-    """Mean intensity of each beam's inlier readings (NaN where the beam is unusable); None
-    unless every scan carries intensities."""
+) -> dict[str, FloatArray]:
+    """``intensities``, the mean intensity of each beam's inlier readings, and ``intensity_std``,
+    that mean's standard deviation (NaN where the beam is unusable; the std also where fewer
+    than two readings were kept); empty unless every scan carries intensities."""
     if any(s.intensities is None for s in scans):
-        return None
+        return {}
     values = np.stack([np.asarray(s.intensities, dtype=float) for s in scans])
     if values.shape != inlier.shape:
-        return None
+        return {}
     mean = np.where(inlier, values, 0.0).sum(axis=0) / count
-    return np.where(usable, mean, np.nan)
+    squares = np.where(inlier, (values - mean) ** 2, 0.0).sum(axis=0)
+    std = np.where(count >= 2, np.sqrt(squares / np.maximum(count - 1, 1)), np.nan) / np.sqrt(count)
+    return {"intensities": np.where(usable, mean, np.nan), "intensity_std": np.where(usable, std, np.nan)}

@@ -103,8 +103,13 @@ def test_intensities_and_valid_counts_are_averaged_over_the_kept_readings() -> N
     result = average_scans(dwell)
     assert result.intensities is not None
     assert result.intensities[7] == pytest.approx((19 * 1007 + 20 * 1107) / 39)
+    # The mean's std: of the kept readings, over the square root of their count.
+    assert result.intensity_std is not None
+    assert result.intensity_std[7] == pytest.approx(np.std([1007] * 19 + [1107] * 20, ddof=1) / np.sqrt(39))
+    assert result.intensity_std[3] == pytest.approx(50.0 * np.sqrt(40 / 39) / np.sqrt(40))
     assert result.valid_count[9] == 39 and result.valid_count[7] == 40 and result.count[7] == 39
-    assert average_scans([_replace(s, intensities=None) for s in dwell]).intensities is None
+    without = average_scans([_replace(s, intensities=None) for s in dwell])
+    assert without.intensities is None and without.intensity_std is None
 
 
 def test_a_step_repeating_its_neighbours_reading_and_intensity_is_left_out() -> None:
