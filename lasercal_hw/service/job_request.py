@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
@@ -15,6 +15,10 @@ from lasercal_hw.run.waypoints import ScannerPoseMissingError, job_waypoints
 from lasercal_hw.service.errors import ConfirmationRequiredError, InvalidRequestError
 from trajectories.presets import get_preset
 from trajectories.semicircles import parse_semicircle_parameters
+
+if TYPE_CHECKING:
+    from drivers.access import DeviceAccess
+    from lasercal_hw.service.store import HistoryStore
 
 MOTION_KINDS = ("calibrate", "verify", "dry_run")
 MAX_WAYPOINTS = 500
@@ -27,6 +31,22 @@ def nothing_to_verify(scanner: str | None) -> str:
     """What a verify says when there is no active calibration (of ``scanner``) to check."""
     of = "" if scanner is None else f" for the scanner {scanner!r}"
     return f"there is no active calibration{of} to verify: run a calibration and activate it first"
+
+
+def unknown_scanner(scanner: str | None, devices: DeviceAccess, store: HistoryStore) -> str | None:
+    """Why ``scanner`` names no scanner of the daemon (its ``devices``) with no calibration on
+    record in ``store`` either; None where it names one, or none is named. Said instead of "no
+    calibration is active for it", which would send the caller to calibrate a scanner that is
+    not there."""
+    if scanner is None or store.calibrations(scanner):
+        return None
+    names = [name for name, _ in devices.scanners()]
+    if scanner in names:
+        return None
+    return (
+        f"this daemon has no scanner {scanner!r} (its scanners: {', '.join(names)}) and no calibration "
+        "of one by that name; name one of them, or leave the scanner out"
+    )
 
 
 class JobBody(BaseModel):

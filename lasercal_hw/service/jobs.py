@@ -43,6 +43,7 @@ from lasercal_hw.service.job_request import (
     require_fields_of_kind,
     resolve_job,
     scene_file_text,
+    unknown_scanner,
 )
 from lasercal_hw.service.storage import StorageGuard, storage_full_cause
 from lasercal_hw.service.store import HistoryStore, new_id, utc_now
@@ -371,6 +372,9 @@ class JobManager:
 
         found = self._store.active_calibration(scanner)
         if found is None:
+            unknown = unknown_scanner(scanner, self._devices, self._store)
+            if unknown is not None:
+                raise InvalidRequestError(unknown, "scanner")
             raise ConflictError(nothing_to_verify(scanner), code="no_active_calibration")
         calibration_id, folder = found
         if devices.robot_host is not None:

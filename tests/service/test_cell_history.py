@@ -145,8 +145,8 @@ def test_daemon_toml_scanners_point_a_cell_jobs_scanners_and_leave_one_scanner_j
 def test_a_verify_job_names_the_scanner_whose_calibration_it_checks(client: TestClient) -> None:
     _run(client, {**CELL_JOB, "job": {"scanners": {"front": {}}}, "activate_on_pass": True})
     verify = {"kind": "verify", "confirm_motion": True}  # no robot anywhere: nothing to verify is said first
-    refused = client.post("/v1/jobs", json=verify | {"scanner": "rear"})
-    assert refused.status_code == 409 and "for the scanner 'rear'" in refused.json()["message"]
+    refused = client.post("/v1/jobs", json=verify | {"scanner": "rear"})  # never run, not configured
+    assert refused.status_code == 422 and "no scanner 'rear'" in refused.json()["message"]
     bad = client.post("/v1/jobs", json=verify | {"scanner": "Rear!"})
     assert bad.status_code == 422
 

@@ -198,3 +198,20 @@ def test_remote_verify_sends_no_job_or_dwell(tmp_path: Path) -> None:
         client.wait(job["id"])
     assert job["kind"] == "verify"
     assert job["request"]["job"] is None and job["request"]["dwell_s"] is None
+
+
+def test_a_scanner_the_daemon_does_not_have_is_named_as_such(served: tuple[TestClient, Daemon]) -> None:
+    """A one-scanner daemon asked of the scanner 'rear': the answer says it has no such scanner
+    and names the one it has, not that nothing is active for it (which sends the caller to
+    calibrate a scanner that is not there); its own scanner, with nothing active, is told so."""
+    client, _daemon = served
+    answer = client.post("/v1/jobs", json=VERIFY | {"scanner": "rear"})
+    assert answer.status_code == 422, answer.text
+    assert answer.json()["detail"]["field"] == "scanner"
+    assert "no scanner 'rear'" in answer.json()["message"] and "default" in answer.json()["message"]
+    answer = client.get("/v1/calibration", params={"scanner": "rear"})
+    assert (answer.status_code, answer.json()["code"]) == (404, "unknown_scanner"), answer.text
+    answer = client.get("/v1/calibration", params={"scanner": "default"})
+    assert (answer.status_code, answer.json()["code"]) == (404, "no_active_calibration"), answer.text
+    _activate(client, {"host": "127.0.0.7"})
+    assert client.get("/v1/calibration", params={"scanner": "default"}).status_code == 200

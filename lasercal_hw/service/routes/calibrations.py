@@ -10,6 +10,8 @@ from fastapi.responses import FileResponse
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, field_validator
 
 from lasercal_hw.config import SCANNER_NAME_PATTERN
+from lasercal_hw.service.errors import NotFoundError
+from lasercal_hw.service.job_request import unknown_scanner
 from lasercal_hw.service.routes.deps import Authorized, DaemonDep
 
 router = APIRouter()
@@ -65,7 +67,11 @@ ScannerQuery = Annotated[
 @router.get("/v1/calibration")
 def active_calibration(daemon: DaemonDep, scanner: ScannerQuery = None) -> dict[str, Any]:
     """The active calibration (of ``scanner``; without it the newest activation, a one-scanner
-    daemon's one) with its exports."""
+    daemon's one) with its exports; 404 ``unknown_scanner`` for a scanner the daemon does not
+    have and has no calibration of."""
+    unknown = unknown_scanner(scanner, daemon.devices, daemon.store)
+    if unknown is not None:
+        raise NotFoundError(unknown, code="unknown_scanner")
     return daemon.history.active(scanner)
 
 
