@@ -21,6 +21,7 @@ from typing import Any
 import httpx
 import uvicorn
 
+from lasercal_hw.config import load_job
 from lasercal_hw.errors import DeviceError, InterruptedRunError
 from lasercal_hw.run.events import EventSink, Stage
 from lasercal_hw.service.app import create_app
@@ -49,8 +50,11 @@ def _solved_result() -> dict[str, Any]:
     return calibration_document(fast_job())
 
 
-def fake_result(translation_m: list[float], std_mm: float = 0.5, passed: bool = True) -> dict[str, Any]:
-    """A result.json as the engine writes it, of a scanner at ``translation_m`` unturned."""
+def fake_result(
+    translation_m: list[float], std_mm: float = 0.5, passed: bool = True, job: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """A result.json as the engine writes it, of a scanner at ``translation_m`` unturned, made
+    with ``job`` (None: the default job), which it records as a run does."""
     T = [
         [1.0, 0.0, 0.0, translation_m[0]],
         [0.0, 1.0, 0.0, translation_m[1]],
@@ -68,7 +72,10 @@ def fake_result(translation_m: list[float], std_mm: float = 0.5, passed: bool = 
         "rms_residual_mm": 0.3,
         "verdict": {"passed": passed, "checks": []},
         "run": {
-            "robot": {"model": "UR5"}, "scanner": {}, "robot_calibration": fake_robot_calibration().as_dict()
+            "robot": {"model": "UR5"},
+            "scanner": {},
+            "robot_calibration": fake_robot_calibration().as_dict(),
+            "job": load_job(None).model_dump(mode="json") if job is None else job,
         },
     }
 
@@ -112,7 +119,8 @@ class FakeEngine:
         if self.fail:
             raise DeviceError("the scanner went away")
         events.emit("progress", "solving", stage=Stage.SOLVE, completed=self.waypoints)
-        result = fake_result(self.translation_m) | {"range_offset": self.range_offset}
+        job = ctx.job.model_dump(mode="json")
+        result = fake_result(self.translation_m, job=job) | {"range_offset": self.range_offset}
         (ctx.out_dir / "result.json").write_text(json.dumps(result))
         return RunResult(
             document={"passed": True, "verdict": result["verdict"]},

@@ -224,8 +224,8 @@ class JobManager:
             # the job was checked as a real cell's: say how to try it on this daemon's fake cell
             raise InvalidRequestError(f"{exc.message}; {DRY_RUN_DAEMON_HINT}", exc.detail["field"]) from None
         devices = self._addresses(body.kind)
-        if body.kind == "verify":
-            devices = self._verify_addresses(body.scanner, devices)
+        if body.kind == "verify":  # the job recorded with the calibration, not the daemon's default
+            devices, job = self._verify_job(body.scanner, devices)
         elif body.kind != "dry_run" and devices.applied_to(job).robot.host is None:
             raise InvalidRequestError(
                 "no robot configured: set robot_host in the daemon configuration or robot.host in the job",
@@ -361,14 +361,15 @@ class JobManager:
         devices = self._devices
         return DeviceAddresses(devices.robot_host, devices.scanner_url, tuple(devices.scanner_urls.items()))
 
-    def _verify_addresses(self, scanner: str | None, devices: DeviceAddresses) -> DeviceAddresses:
-        """``devices`` with the robot a verify of the active calibration (of ``scanner``)
-        connects to: the daemon's, else the one of the job recorded with the calibration
-        (``verify.procedure.recorded_robot_host``). ConflictError when there is no active
-        calibration (said first: nothing to verify) or it cannot be read; InvalidRequestError
-        when no robot is named."""
+    def _verify_job(self, scanner: str | None, devices: DeviceAddresses) -> tuple[DeviceAddresses, JobConfig]:
+        """What a verify of the active calibration (of ``scanner``) runs: ``devices`` with the
+        robot it connects to (the daemon's, else the one of the job recorded with the
+        calibration), and that recorded job (``verify.procedure.recorded_job``). ConflictError
+        when there is no active calibration (said first: nothing to verify) or it cannot be read
+        or records no job; InvalidRequestError when the scanner is not the daemon's or no robot
+        is named."""
         from lasercal_hw.run.outputs import RESULT_FILE
-        from lasercal_hw.verify.procedure import recorded_robot_host
+        from lasercal_hw.verify.procedure import recorded_job
 
         found = self._store.active_calibration(scanner)
         if found is None:
@@ -377,10 +378,8 @@ class JobManager:
                 raise InvalidRequestError(unknown, "scanner")
             raise ConflictError(nothing_to_verify(scanner), code="no_active_calibration")
         calibration_id, folder = found
-        if devices.robot_host is not None:
-            return devices
         try:
-            robot_host = recorded_robot_host(folder / RESULT_FILE)
+            job = recorded_job(folder / RESULT_FILE)
         except ConfigError as exc:
             raise ConflictError(
                 f"the active calibration {calibration_id} cannot be read ({exc}); activate another one or "
@@ -388,13 +387,15 @@ class JobManager:
                 {"calibration_id": calibration_id},
                 code="calibration_unreadable",
             ) from None
-        if robot_host is None:
+        if devices.robot_host is not None:
+            return devices, job
+        if job.robot.host is None:
             raise InvalidRequestError(
                 f"no robot configured: set robot_host in the daemon configuration (the job recorded with "
                 f"the active calibration {calibration_id}, which a verify runs, names no robot.host)",
                 "robot_host",
             )
-        return replace(devices, robot_host=robot_host)
+        return replace(devices, robot_host=job.robot.host), job
 
     def _scanners_used(self, record: Job, job: JobConfig, devices: DeviceAddresses) -> Iterable[str] | None:
         """The URLs of the daemon's scanners a job talks to, held for it (None: every one): a

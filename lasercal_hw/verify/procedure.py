@@ -55,7 +55,7 @@ MIN_MEASURED = 2
 @dataclass(frozen=True)
 class VerifyRequest:
     """What to check and where. ``job`` None: the job recorded with the calibration;
-    ``robot_host`` None: the job's ``robot.host`` (``recorded_robot_host`` without a ``job``);
+    ``robot_host`` None: the job's ``robot.host`` (``recorded_job``'s without a ``job``);
     ``waypoints`` None: the job's ``verify.waypoints``."""
 
     out_dir: Path
@@ -227,13 +227,14 @@ def plan_active(
     )
 
 
-def recorded_robot_host(calibration_result_path: Path) -> str | None:
-    """The robot a verify of the calibration in ``calibration_result_path`` connects to when its
-    request names no robot and no job: the ``robot.host`` of the job recorded with the
-    calibration (None: no job recorded, or it names no robot). A missing or malformed file:
-    ConfigError."""
-    recorded = load_active_calibration(calibration_result_path).job
-    return None if recorded is None else recorded.robot.host
+def recorded_job(calibration_result_path: Path) -> JobConfig:
+    """The job recorded with the calibration in ``calibration_result_path``: what a verify whose
+    request gives no job runs, its ``robot.host`` the robot it connects to when the request
+    names none. A missing or malformed file, or one that records no job: ConfigError."""
+    active = load_active_calibration(calibration_result_path)
+    if active.job is None:
+        raise ConfigError(f"{active.path} does not record the job it was made with, which a verify runs")
+    return active.job
 
 
 def verify(

@@ -215,3 +215,16 @@ def test_a_scanner_the_daemon_does_not_have_is_named_as_such(served: tuple[TestC
     assert (answer.status_code, answer.json()["code"]) == (404, "no_active_calibration"), answer.text
     _activate(client, {"host": "127.0.0.7"})
     assert client.get("/v1/calibration", params={"scanner": "default"}).status_code == 200
+
+
+def test_a_verify_jobs_record_holds_the_job_it_runs(served: tuple[TestClient, Daemon]) -> None:
+    """The job recorded with the calibration, which the verify runs, is the job's
+    ``resolved_job`` (pointed at the robot it connects to), not the daemon's default job."""
+    client, _daemon = served
+    _, result_file = _activate(client, {"host": "127.0.0.7"})
+    document = json.loads(result_file.read_text())
+    document["run"]["job"]["verify"] = {"waypoints": 3}
+    result_file.write_text(json.dumps(document))
+    job = finish_job(client, client.post("/v1/jobs", json=VERIFY).json()["id"])
+    resolved = job["request"]["resolved_job"]
+    assert resolved["verify"]["waypoints"] == 3 and resolved["robot"]["host"] == "127.0.0.7"
