@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -75,7 +76,7 @@ _EXIT_BY_ERROR = {
 def _client(daemon: str, token_file: Path | None) -> Any:
     from lasercal_hw.service.client import DaemonClient, read_token
 
-    return DaemonClient(daemon, read_token(token_file))
+    return DaemonClient(daemon, read_token(token_file), token_file=token_file)
 
 
 def _print(document: Any, as_json: bool, lines: list[str]) -> None:
@@ -143,7 +144,8 @@ def _print_or_follow(client: Any, job: dict[str, Any], wait: bool, as_json: bool
     with the code 'lasercal run' would give; Ctrl-C while following cancels the job (the
     arm stops) and exits 130, as Ctrl-C on 'lasercal run' does."""
     if not wait:
-        _print(job, as_json, [remote_text.job_line(job), "see how it goes with: lasercal remote jobs"])
+        follow = f"see how it goes with: lasercal remote jobs{_daemon_option(client)}"
+        _print(job, as_json, [remote_text.job_line(job), follow])
         return
     try:
         finished = client.wait(job["id"], on_event=_show_event)
@@ -155,7 +157,14 @@ def _print_or_follow(client: Any, job: dict[str, Any], wait: bool, as_json: bool
 
 def _daemon_option(client: Any) -> str:
     """`` --daemon URL`` for a command shown to the user, or nothing for the default daemon."""
-    return "" if client.url == DEFAULT_DAEMON else f" --daemon {client.url}"
+    return "" if client.url == DEFAULT_DAEMON else f" --daemon {shlex.quote(client.url)}"
+
+
+def _token_options(client: Any) -> str:
+    """``_daemon_option`` and `` --token-file PATH`` where the token was read from a named file:
+    for a command shown to the user that needs the token."""
+    named = "" if client.token_file is None else f" --token-file {shlex.quote(str(client.token_file))}"
+    return _daemon_option(client) + named
 
 
 def _send_motion(client: Any, send: Callable[[], dict[str, Any]]) -> dict[str, Any]:
@@ -169,10 +178,10 @@ def _send_motion(client: Any, send: Callable[[], dict[str, Any]]) -> dict[str, A
         if exc.code != "job_running":
             raise
         running, kind = exc.detail.get("job_id", "?"), exc.detail.get("kind", "a job")
-        daemon = _daemon_option(client)
+        daemon, token = _daemon_option(client), _token_options(client)
         raise DaemonRequestError(
             f"the daemon is busy: job {running} ({kind}) is moving the arm; watch it with: lasercal remote "
-            f"status{daemon}, or cancel it with: lasercal remote cancel {running}{daemon}; then try again",
+            f"status{daemon}, or cancel it with: lasercal remote cancel {running}{token}; then try again",
             status=exc.status, code=exc.code, detail=exc.detail,
         ) from None
 
@@ -182,7 +191,7 @@ def cancel_after_interrupt(client: Any, job_id: str, kind: str | None = None) ->
     became of it and how to go on (a verify is started anew, not resumed)."""
     from lasercal_hw.service.client import DaemonRequestError
 
-    daemon = _daemon_option(client)
+    daemon, token = _daemon_option(client), _token_options(client)
     try:
         client.cancel(job_id)
     except (DaemonRequestError, KeyboardInterrupt) as exc:
@@ -191,12 +200,12 @@ def cancel_after_interrupt(client: Any, job_id: str, kind: str | None = None) ->
         why = str(exc) or "interrupted again"
         return (
             f"interrupted: the cancel of job {job_id} failed ({why}): job {job_id} may still be running; "
-            f"stop it with: lasercal remote cancel {job_id}{daemon}"
+            f"stop it with: lasercal remote cancel {job_id}{token}"
         )
     go_on = (
-        f"verify again with: lasercal remote verify --yes{daemon}"
+        f"verify again with: lasercal remote verify --yes{token}"
         if kind == "verify"
-        else f"continue with: lasercal remote resume {job_id} --yes{daemon}"
+        else f"continue with: lasercal remote resume {job_id} --yes{token}"
     )
     return f"interrupted: job {job_id} cancelled, the arm is being stopped (the recording is kept; {go_on})"
 

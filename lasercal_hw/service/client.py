@@ -91,10 +91,18 @@ def read_token(token_file: Path | None = None) -> str | None:
 class DaemonClient:
     """Calls the daemon's ``/v1`` API; every failure is a ``DaemonRequestError``."""
 
-    def __init__(self, url: str = DEFAULT_URL, token: str | None = None, timeout_s: float = 30.0) -> None:
+    def __init__(
+        self,
+        url: str = DEFAULT_URL,
+        token: str | None = None,
+        timeout_s: float = 30.0,
+        token_file: Path | None = None,
+    ) -> None:
         self.url = check_daemon_url(url).rstrip("/")
         self.token = token
         self.timeout_s = timeout_s
+        #: The file the token was read from when one was named (commands shown to the user name it).
+        self.token_file = token_file
 
     def _open(
         self,

@@ -188,6 +188,7 @@ def test_ctrl_c_while_waiting_cancels_the_job_the_command_started(tmp_path: Path
 
 class _UnreachableDaemon:
     url = "http://127.0.0.1:9"
+    token_file = None
 
     def cancel(self, job_id: str) -> dict[str, str]:
         raise DaemonRequestError(f"cannot reach the lasercal daemon at {self.url}: connection refused")
@@ -203,6 +204,7 @@ def test_a_failed_cancel_after_ctrl_c_says_the_job_may_still_run() -> None:
 
 class _Daemon:
     url = "http://127.0.0.1:9"
+    token_file: Path | None = None
 
     def cancel(self, job_id: str) -> dict[str, str]:
         return {"id": job_id, "state": "running"}
@@ -218,6 +220,11 @@ def test_a_cancelled_verify_is_told_to_verify_again_not_to_resume() -> None:
     assert "resume" not in verify
     calibrate = cancel_after_interrupt(_Daemon(), "job-3", "calibrate")
     assert "continue with: lasercal remote resume job-3 --yes --daemon http://127.0.0.1:9" in calibrate
+    named = _Daemon()
+    named.token_file = Path("/srv/lasercal/token")
+    verify = cancel_after_interrupt(named, "job-4", "verify")
+    again = "lasercal remote verify --yes --daemon http://127.0.0.1:9 --token-file /srv/lasercal/token)"
+    assert verify.endswith(again), verify
 
 
 def test_a_finished_cell_job_shows_every_scanners_calibration() -> None:
@@ -254,16 +261,25 @@ def test_a_busy_daemon_refuses_with_the_busy_code_naming_the_running_job(tmp_pat
         engine.started.clear()
         running = client.start_job({"kind": "dry_run", "confirm_motion": True})
         assert engine.started.wait(30.0)
+        token_file = tmp_path / "my token"
+        token_file.write_text(daemon.token, encoding="utf-8")
+        without_token = {k: v for k, v in os.environ.items() if k != "LASERCAL_TOKEN"}
+        # the token from the environment, then from a named file: the cancel shown names that file
+        tries = (
+            (("calibrate", "--dry-run"), (), os.environ | {"LASERCAL_TOKEN": daemon.token}, ""),
+            (("resume", stopped["id"]), ("--token-file", str(token_file)), without_token,
+             f" --token-file '{token_file}'"),
+        )
         try:
-            for args in (("calibrate", "--dry-run"), ("resume", stopped["id"])):
+            for args, token_args, env, named in tries:
                 result = subprocess.run(
-                    [sys.executable, "-m", "lasercal_hw.cli.main", "remote", *args, "--yes", "--daemon", url],
-                    capture_output=True, text=True, timeout=60.0, stdin=subprocess.DEVNULL,
-                    env=os.environ | {"LASERCAL_TOKEN": daemon.token},
+                    [sys.executable, "-m", "lasercal_hw.cli.main", "remote", *args, "--yes", "--daemon", url,
+                     *token_args],
+                    capture_output=True, text=True, timeout=60.0, stdin=subprocess.DEVNULL, env=env,
                 )
                 assert_one_line_error(
                     result, 5, f"job {running['id']} (dry_run)", f"lasercal remote status --daemon {url}",
-                    f"lasercal remote cancel {running['id']} --daemon {url}",
+                    f"lasercal remote cancel {running['id']} --daemon {url}{named};",
                 )
         finally:
             engine.release.set()
