@@ -143,7 +143,7 @@ def finish_job(client: httpx.Client, job_id: str, timeout_s: float = 10.0) -> di
 
 def fake_runners(engine: FakeEngine) -> Callable[[Any], dict[str, Runner]]:
     """``Daemon(runners=...)`` giving every calibration kind to ``engine`` (verify stays out)."""
-    return lambda active: {"calibrate": engine, "dry_run": engine}
+    return lambda folder_of: {"calibrate": engine, "dry_run": engine}
 
 
 @contextlib.contextmanager

@@ -88,7 +88,7 @@ def serve_command(
         print(rebuild(settings.data_dir).line(settings.data_dir / DB_FILE))
         return
     live = FoxgloveLiveView(port=foxglove_port) if foxglove else None  # lives as long as the process
-    daemon = Daemon(settings, runners=lambda active: build_runners(active, live=live))
+    daemon = Daemon(settings, runners=lambda folder_of: build_runners(folder_of, live=live))
     host, port = listen_address(settings.listen)
 
     class Server(uvicorn.Server):

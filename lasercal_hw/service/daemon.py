@@ -29,7 +29,7 @@ from lasercal_hw.service.store import DB_FILE, REBUILD_HINT, HistoryStore, utc_n
 if TYPE_CHECKING:
     from drivers.access import DeviceAccess
     from fakes.cell_process import FakeCellProcess
-    from lasercal_hw.service.runners import ActiveCalibration
+    from lasercal_hw.service.runners import CalibrationFolder
 
 logger = logging.getLogger(__name__)
 
@@ -58,7 +58,7 @@ class Daemon:
     def __init__(
         self,
         config: DaemonConfig,
-        runners: Callable[[ActiveCalibration], dict[str, Runner]] | None = None,
+        runners: Callable[[CalibrationFolder], dict[str, Runner]] | None = None,
     ) -> None:
         if not config.loopback_only and config.token_file is None:
             raise ConfigError(
@@ -87,7 +87,7 @@ class Daemon:
             raise
 
     def _open(
-        self, config: DaemonConfig, runners: Callable[[ActiveCalibration], dict[str, Runner]] | None
+        self, config: DaemonConfig, runners: Callable[[CalibrationFolder], dict[str, Runner]] | None
     ) -> None:
         """Everything in the data folder, once its lock is held: token, history, jobs (those a
         crash left running marked interrupted)."""
@@ -117,7 +117,7 @@ class Daemon:
             self.store,
             self.bus,
             self.data_dir,
-            runners(self.active_calibration),
+            runners(self.calibration_folder),
             self.history,
             self.devices,
             default_job=config.default_job,
@@ -132,9 +132,10 @@ class Daemon:
         self.monitor: DeviceMonitor | None = None
         self.state_listeners: list[Callable[[str, str], None]] = []
 
-    def active_calibration(self, scanner: str | None = None) -> tuple[str, Path] | None:
-        """The active calibration's (of ``scanner``) id and folder, or None."""
-        return self.store.active_calibration(scanner)
+    def calibration_folder(self, calibration_id: str) -> Path | None:
+        """The folder of the calibration ``calibration_id`` in the history, or None."""
+        found = self.store.calibration(calibration_id)
+        return None if found is None else found[1]
 
     def _on_state(self, job_id: str, state: str) -> None:
         for listener in self.state_listeners:

@@ -76,6 +76,8 @@ class RunContext:
     confirm: Callable[[Any], None]  # called once preflight passed
     #: A verify job's scanner of the cell (None: the newest activation's).
     scanner: str | None = None
+    #: A verify job's calibration: the one active (of ``scanner``) when the verify was requested.
+    calibration_id: str | None = None
 
 
 @dataclass(frozen=True)
@@ -224,8 +226,10 @@ class JobManager:
             # the job was checked as a real cell's: say how to try it on this daemon's fake cell
             raise InvalidRequestError(f"{exc.message}; {DRY_RUN_DAEMON_HINT}", exc.detail["field"]) from None
         devices = self._addresses(body.kind)
+        checks: dict[str, str] = {}
         if body.kind == "verify":  # the job recorded with the calibration, not the daemon's default
-            devices, job = self._verify_job(body.scanner, devices)
+            devices, job, calibration_id = self._verify_job(body.scanner, devices)
+            checks = {"active_calibration_id": calibration_id}  # what it checks, whatever is activated next
         elif body.kind != "dry_run" and devices.applied_to(job).robot.host is None:
             raise InvalidRequestError(
                 "no robot configured: set robot_host in the daemon configuration or robot.host in the job",
@@ -246,7 +250,8 @@ class JobManager:
                 "activate_on_pass": body.activate_on_pass,
                 "restore_robot": body.restore_robot,
                 "resolved_job": devices.applied_to(job).model_dump(mode="json"),
-            },
+            }
+            | checks,
             progress=JobProgress(message="queued"),
             out_dir=str(out_dir),
         )
@@ -361,10 +366,13 @@ class JobManager:
         devices = self._devices
         return DeviceAddresses(devices.robot_host, devices.scanner_url, tuple(devices.scanner_urls.items()))
 
-    def _verify_job(self, scanner: str | None, devices: DeviceAddresses) -> tuple[DeviceAddresses, JobConfig]:
+    def _verify_job(
+        self, scanner: str | None, devices: DeviceAddresses
+    ) -> tuple[DeviceAddresses, JobConfig, str]:
         """What a verify of the active calibration (of ``scanner``) runs: ``devices`` with the
         robot it connects to (the daemon's, else the one of the job recorded with the
-        calibration), and that recorded job (``verify.procedure.recorded_job``). ConflictError
+        calibration), that recorded job (``verify.procedure.recorded_job``) and the
+        calibration's id. ConflictError
         when there is no active calibration (said first: nothing to verify) or it cannot be read
         or records no job; InvalidRequestError when the scanner is not the daemon's or no robot
         is named."""
@@ -388,14 +396,14 @@ class JobManager:
                 code="calibration_unreadable",
             ) from None
         if devices.robot_host is not None:
-            return devices, job
+            return devices, job, calibration_id
         if job.robot.host is None:
             raise InvalidRequestError(
                 f"no robot configured: set robot_host in the daemon configuration (the job recorded with "
                 f"the active calibration {calibration_id}, which a verify runs, names no robot.host)",
                 "robot_host",
             )
-        return replace(devices, robot_host=job.robot.host), job
+        return replace(devices, robot_host=job.robot.host), job, calibration_id
 
     def _scanners_used(self, record: Job, job: JobConfig, devices: DeviceAddresses) -> Iterable[str] | None:
         """The URLs of the daemon's scanners a job talks to, held for it (None: every one): a
@@ -510,6 +518,7 @@ class JobManager:
             context = RunContext(
                 job_id, kind, job, devices, out_dir, resume_from, scene_file, on_event, cancel, confirm,
                 scanner=record.request.get("scanner"),
+                calibration_id=record.request.get("active_calibration_id"),
             )
             final, fields = JobState.SUCCEEDED, self._file_result(record, self._runners[kind](context))
         except Exception as exc:

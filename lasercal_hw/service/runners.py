@@ -17,9 +17,8 @@ from lasercal_hw.service.store import utc_now
 if TYPE_CHECKING:
     from lasercal_hw.live.foxglove import FoxgloveLiveView
 
-#: ``active(scanner)`` -> (id, folder) of the active calibration (of that scanner; None: the
-#: newest activation's), or None.
-ActiveCalibration = Callable[[str | None], tuple[str, Path] | None]
+#: ``folder(calibration_id)`` -> the folder of that calibration in the history, or None.
+CalibrationFolder = Callable[[str], Path | None]
 
 
 def run_engine(ctx: RunContext, *, dry_run: bool, live: FoxgloveLiveView | None = None) -> RunResult:
@@ -88,17 +87,18 @@ DAEMON_MORE_DATA = (
 """What an inconclusive verify advises here: a verify job takes no waypoint count or dwell of its own."""
 
 
-def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
-    """Check the active calibration (``lasercal_hw.verify``) with the job recorded with it;
-    the result is filed in the verify history with the calibration it checked."""
+def run_verify(ctx: RunContext, *, folder_of: CalibrationFolder) -> RunResult:
+    """Check the calibration that was active when the verify was requested
+    (``ctx.calibration_id``; ``lasercal_hw.verify``) with the job recorded with it; the result is
+    filed in the verify history with the calibration it checked."""
     from lasercal_hw.run.cell import events_of_scanner
     from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
     from lasercal_hw.verify.procedure import VerifyRequest, verify
 
-    found = active(ctx.scanner)
-    if found is None:
+    calibration_id = ctx.calibration_id
+    folder = None if calibration_id is None else folder_of(calibration_id)
+    if calibration_id is None or folder is None:
         raise ConfigError(nothing_to_verify(ctx.scanner))
-    calibration_id, folder = found
     named = dict(ctx.devices.scanner_urls)
     scanner_name = read_result_file(folder / RESULT_FILE).scanner_name
     # a cell scanner at daemon.toml's [scanners.NAME] url, else the recorded job's; one scanner at scanner_url
@@ -136,11 +136,11 @@ def run_verify(ctx: RunContext, *, active: ActiveCalibration) -> RunResult:
     return RunResult(document=document, passed=verdict["passed"], verdict=verdict, verify=summary)
 
 
-def build_runners(active: ActiveCalibration, live: FoxgloveLiveView | None = None) -> dict[str, Runner]:
-    """The runners by kind; ``active()`` gives the active calibration, ``live`` is the
+def build_runners(folder_of: CalibrationFolder, live: FoxgloveLiveView | None = None) -> dict[str, Runner]:
+    """The runners by kind; ``folder_of(id)`` gives a calibration's folder, ``live`` is the
     Foxglove view."""
     return {
         "calibrate": lambda ctx: run_engine(ctx, dry_run=False, live=live),
         "dry_run": lambda ctx: run_engine(ctx, dry_run=True, live=live),
-        "verify": lambda ctx: run_verify(ctx, active=active),
+        "verify": lambda ctx: run_verify(ctx, folder_of=folder_of),
     }

@@ -59,7 +59,7 @@ class FakeCellEngine:
 @pytest.fixture
 def client(tmp_path: Path) -> Iterator[TestClient]:
     engine = FakeCellEngine()
-    runners = lambda active: {"calibrate": engine, "dry_run": engine, "verify": engine}  # noqa: E731
+    runners = lambda folder_of: {"calibrate": engine, "dry_run": engine, "verify": engine}  # noqa: E731
     daemon = Daemon(load_daemon_config(None, {"data_dir": tmp_path / "data"}), runners=runners)
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as test_client:
         test_client.headers["Authorization"] = f"Bearer {daemon.token}"
@@ -188,7 +188,7 @@ def test_a_job_holds_the_urls_of_the_scanners_it_uses_and_no_other(tmp_path: Pat
 
     settings = {"data_dir": tmp_path / "data", "robot_host": "127.0.0.9", "status_poll_s": 60.0,
                 "scanners": {name: {"url": url} for name, url in urls.items()}}
-    daemon = Daemon(load_daemon_config(None, settings), runners=lambda active: {
+    daemon = Daemon(load_daemon_config(None, settings), runners=lambda folder_of: {
         "calibrate": holding, "dry_run": holding, "verify": holding})
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         client.headers["Authorization"] = f"Bearer {daemon.token}"

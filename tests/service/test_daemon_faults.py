@@ -125,7 +125,7 @@ def test_a_relative_waypoint_file_is_told_to_be_named_by_its_full_path(
 def test_a_verify_without_an_active_calibration_is_refused_at_request_time(tmp_path: Path) -> None:
     engine = FakeEngine()
     config = load_daemon_config(None, {"data_dir": tmp_path / "data", "robot_host": "127.0.0.1"})
-    daemon = Daemon(config, runners=lambda active: {"verify": engine})
+    daemon = Daemon(config, runners=lambda folder_of: {"verify": engine})
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         client.headers["Authorization"] = f"Bearer {daemon.token}"
         answer = client.post("/v1/jobs", json={"kind": "verify", "confirm_motion": True})

@@ -276,7 +276,7 @@ def test_a_cancelled_verify_is_not_resumed_but_started_anew(tmp_path: Path, engi
     settings = {"data_dir": tmp_path / "data", "robot_host": "127.0.0.1"}
     daemon = Daemon(
         load_daemon_config(None, settings),
-        runners=lambda active: {"calibrate": engine, "dry_run": engine, "verify": engine},
+        runners=lambda folder_of: {"calibrate": engine, "dry_run": engine, "verify": engine},
     )
     with TestClient(create_app(daemon), base_url="http://127.0.0.1") as client:
         client.headers["Authorization"] = f"Bearer {daemon.token}"

@@ -41,7 +41,7 @@ def _daemon(tmp_path: Path, verifier: FakeVerify, **settings: Any) -> Daemon:
     engine = FakeEngine(waypoints=2)
     config = load_daemon_config(None, {"data_dir": tmp_path / "data", "status_poll_s": 60.0} | settings)
     runners = {"calibrate": engine, "dry_run": engine, "verify": verifier}
-    daemon = Daemon(config, runners=lambda active: runners)
+    daemon = Daemon(config, runners=lambda folder_of: runners)
     daemon.snapshots = []  # type: ignore[attr-defined]
     daemon.devices.program_snapshot = lambda host: daemon.snapshots.append(host)  # type: ignore[method-assign]
     return daemon
@@ -228,3 +228,18 @@ def test_a_verify_jobs_record_holds_the_job_it_runs(served: tuple[TestClient, Da
     job = finish_job(client, client.post("/v1/jobs", json=VERIFY).json()["id"])
     resolved = job["request"]["resolved_job"]
     assert resolved["verify"]["waypoints"] == 3 and resolved["robot"]["host"] == "127.0.0.7"
+
+
+def test_a_verify_checks_the_calibration_active_when_it_was_requested(
+    served: tuple[TestClient, Daemon], verifier: FakeVerify
+) -> None:
+    """The runner is handed the id of the calibration active at the request (recorded with the
+    job), not whatever is active when it starts."""
+    client, _daemon = served
+    first, _ = _activate(client, {"host": "127.0.0.7"})
+    job = finish_job(client, client.post("/v1/jobs", json=VERIFY).json()["id"])
+    assert job["request"]["active_calibration_id"] == first
+    assert verifier.contexts[-1].calibration_id == first
+    second, _ = _activate(client, {"host": "127.0.0.7"})
+    finish_job(client, client.post("/v1/jobs", json=VERIFY).json()["id"])
+    assert second != first and verifier.contexts[-1].calibration_id == second
