@@ -64,5 +64,6 @@ def placed_alike(
                 continue
             m = fitted[0]
         alike.append(m)
-    kept = [k for k, m in enumerate(refitted) if m.index not in {index for index, _ in failed}]
+    failed_indices = {index for index, _ in failed}
+    kept = [k for k, m in enumerate(refitted) if m.index not in failed_indices]
     return alike, reference[kept], failed
