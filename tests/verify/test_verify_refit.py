@@ -20,7 +20,7 @@ from lasercal_hw.errors import ConfigError
 from lasercal_hw.models import RodLine
 from lasercal_hw.run.outputs import first_pass_record
 from lasercal_hw.run.records import WaypointMeasurement
-from lasercal_hw.run.two_pass import TwoPassSolution, solve_two_pass
+from lasercal_hw.run.two_pass import SecondPassRefit, TwoPassSolution, solve_two_pass
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import find as extraction_find
@@ -453,6 +453,37 @@ def test_a_plain_rod_verify_fits_again_without_the_middle_where_the_calibration_
     test, not_refitted = refit_and_test(plan, chosen_scans(calibrated, plan), calibrated.background)
     assert not_refitted == [] and test is not None
     np.testing.assert_allclose(test.residual_mm, 0.0, atol=1e-3)
+
+
+def test_a_dwell_whose_fit_without_the_middle_fails_is_left_out_with_its_reason(
+    calibrated: Calibrated, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A calibration that read no middle, a dwell that read one and whose fit without it fails:
+    the waypoint is left out of the test and listed as not fitted again with that reason, as a
+    centre the re-fit cannot fit is, not compared middle with fit."""
+    document = json.loads(calibrated.path.read_text(encoding="utf-8"))
+    for residual in document["residuals"]:
+        if residual["echo_middle_move_uv_mm"] is not None:
+            residual["echo_middle_move_uv_mm"] = [0.0, 0.0]
+    unread = tmp_path / "result.json"
+    unread.write_text(json.dumps(document), encoding="utf-8")
+    active = load_active_calibration(unread)
+    plan = plan_active(active, active.job, count=len(active.waypoints()))
+    chosen = chosen_scans(calibrated, plan)
+    moves = {r.index: r.echo_middle_move_uv_mm for r in calibrated.solution.result.residuals}
+    failing = next(m.index for m in chosen if np.any(np.array(moves[plan.selection.indices[m.index]]) != 0.0))
+    refit_centres = SecondPassRefit.centres
+
+    def without_the_middle_fails(self, measurements, background, settings=None):  # type: ignore[no-untyped-def]
+        if settings is FIT_ACROSS and measurements[0].index == failing:
+            return list(measurements), [(failing, "no segment matching a rod")]
+        return refit_centres(self, measurements, background, settings)
+
+    monkeypatch.setattr(SecondPassRefit, "centres", without_the_middle_fails)
+    test, not_refitted = refit_and_test(plan, chosen, calibrated.background)
+    assert not_refitted == [(failing, "no segment matching a rod")]
+    assert test is not None and plan.selection.indices[failing] not in test.indices
+    assert len(test.indices) == len(chosen) - 1
 
 
 def test_a_plain_rods_dwell_noise_across_is_its_echo_middles_scatter(calibrated: Calibrated) -> None:
