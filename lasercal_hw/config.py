@@ -474,34 +474,23 @@ def load_job(path: Path | None) -> JobConfig:
     """
     if path is None:
         return JobConfig()
-    job = job_from_mapping(read_toml(path, "job file"), str(path))
-    folder = Path(path).parent
-    scanners = {
-        name: entry.model_copy(update={"trajectory": _resolved(entry.trajectory, folder)})
-        for name, entry in job.scanners.items()
-    }
-    return job.model_copy(update={"trajectory": _resolved(job.trajectory, folder), "scanners": scanners})
+    return job_from_mapping(read_job_file(path), str(path))
 
 
 def read_job_file(path: Path) -> dict[str, Any]:
-    """A job file as the mapping to send elsewhere (a daemon request), its relative
-    ``waypoints_file`` (the job's and each ``scanners.NAME``'s) made absolute against the
-    file's folder, as :func:`load_job` reads them; validated where it is used."""
+    """A job file as a mapping, its relative ``waypoints_file`` (the job's and each
+    ``scanners.NAME``'s) made absolute against the file's folder: what :func:`load_job`
+    validates, and what a daemon request sends (validated there)."""
     data = read_toml(path, "job file")
     scanners = data.get("scanners") if isinstance(data.get("scanners"), dict) else {}
     entries = [entry for entry in scanners.values() if isinstance(entry, dict)]
     for table in [data, *entries]:
         trajectory = table.get("trajectory")
-        if isinstance(trajectory, dict) and isinstance(trajectory.get("waypoints_file"), str):
+        if not (isinstance(trajectory, dict) and isinstance(trajectory.get("waypoints_file"), str)):
+            continue
+        if not Path(trajectory["waypoints_file"]).is_absolute():
             trajectory["waypoints_file"] = str((Path(path).parent / trajectory["waypoints_file"]).resolve())
     return data
-
-
-def _resolved(trajectory: TrajectoryConfig | None, folder: Path) -> TrajectoryConfig | None:
-    """``trajectory`` with a relative ``waypoints_file`` taken relative to ``folder``."""
-    if trajectory is None or trajectory.waypoints_file is None or trajectory.waypoints_file.is_absolute():
-        return trajectory
-    return trajectory.model_copy(update={"waypoints_file": (folder / trajectory.waypoints_file).resolve()})
 
 
 def with_overrides(job: JobConfig, overrides: dict[str, Any], source: str = "command line") -> JobConfig:
