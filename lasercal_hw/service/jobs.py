@@ -372,10 +372,9 @@ class JobManager:
         """What a verify of the active calibration (of ``scanner``) runs: ``devices`` with the
         robot it connects to (the daemon's, else the one of the job recorded with the
         calibration), that recorded job (``verify.procedure.recorded_job``) and the
-        calibration's id. ConflictError
-        when there is no active calibration (said first: nothing to verify) or it cannot be read
-        or records no job; InvalidRequestError when the scanner is not the daemon's or no robot
-        is named."""
+        calibration's id. ConflictError when there is no active calibration (said first: nothing
+        to verify) or it cannot be read or records no job; InvalidRequestError when the scanner
+        is not the daemon's or no robot is named."""
         from lasercal_hw.run.outputs import RESULT_FILE
         from lasercal_hw.verify.procedure import recorded_job
 
@@ -413,10 +412,9 @@ class JobManager:
         if record.kind == "calibrate":
             resolved = devices.applied_to(job)
             return [scanner.url for scanner in resolved.scanners.values()] or [resolved.scanner.url]
-        name = record.request.get("scanner")
-        if name is None and (active := self._store.active_calibration_id(None)) is not None:
-            found = self._store.calibration(active)
-            name = found[0]["scanner"] if found is not None else None
+        checked = record.request.get("active_calibration_id")  # the calibration the verify checks
+        found = None if checked is None else self._store.calibration(checked)
+        name = found[0]["scanner"] if found is not None else record.request.get("scanner")
         url = self._devices.scanner_urls.get(name or "", None)
         if url is None and name == DEFAULT_SCANNER_NAME:
             url = self._devices.scanner_url
