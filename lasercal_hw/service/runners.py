@@ -96,9 +96,14 @@ def run_verify(ctx: RunContext, *, folder_of: CalibrationFolder) -> RunResult:
     from lasercal_hw.verify.procedure import VerifyRequest, verify
 
     calibration_id = ctx.calibration_id
-    folder = None if calibration_id is None else folder_of(calibration_id)
-    if calibration_id is None or folder is None:
+    if calibration_id is None:
         raise ConfigError(nothing_to_verify(ctx.scanner))
+    folder = folder_of(calibration_id)
+    if folder is None:
+        raise ConfigError(
+            f"the calibration {calibration_id} this verify was asked to check is no longer in the "
+            "history: request the verify again to check the calibration active now"
+        )
     named = dict(ctx.devices.scanner_urls)
     scanner_name = read_result_file(folder / RESULT_FILE).scanner_name
     # a cell scanner at daemon.toml's [scanners.NAME] url, else the recorded job's; one scanner at scanner_url

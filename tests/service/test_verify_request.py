@@ -11,11 +11,16 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from lasercal_hw.config import JobConfig
+from lasercal_hw.errors import ConfigError
+from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.service.app import create_app
 from lasercal_hw.service.client import DaemonClient
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
+from lasercal_hw.service.job_request import DeviceAddresses
 from lasercal_hw.service.jobs import RunContext, RunResult
+from lasercal_hw.service.runners import run_verify
 from tests.cli_helpers import run_cli
 from tests.daemon_helpers import FakeEngine, finish_job, served_in_thread
 
@@ -181,6 +186,16 @@ def test_nothing_to_verify_is_said_before_no_robot(served: tuple[TestClient, Dae
     client, _daemon = served
     answer = client.post("/v1/jobs", json=VERIFY)
     assert (answer.status_code, answer.json()["code"]) == (409, "no_active_calibration")
+
+
+def test_a_verify_whose_calibration_left_the_history_names_it(tmp_path: Path) -> None:
+    """The runner of a verify whose calibration is no longer on record says which one is gone,
+    not that no calibration is active (one may well be)."""
+    gone = "20261129-093000-ab12"
+    ctx = RunContext("job-1", "verify", JobConfig(), DeviceAddresses(), tmp_path, None, None,
+                     lambda event: None, CancelToken(), lambda plan: None, calibration_id=gone)
+    with pytest.raises(ConfigError, match=rf"calibration {gone} .* no longer in the history"):
+        run_verify(ctx, folder_of=lambda calibration_id: None)
 
 
 def test_remote_verify_sends_no_job_or_dwell(tmp_path: Path) -> None:
