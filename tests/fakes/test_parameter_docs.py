@@ -1,9 +1,12 @@
-"""The scanner model's parameters and the scene file's keys as the docs state them (issue 18:
-every parameter in docs/ with its value and source): docs/scanner-model.md's table of
-``[physics]`` and docs/extraction.md's scene listing are held to ``fakes/scene.py``."""
+"""The scanner model's and the extraction's parameters and the scene file's keys as the docs
+state them (issue 18: every parameter in docs/ with its value and source): docs/scanner-model.md's
+table of ``[physics]`` and docs/extraction.md's scene listing are held to ``fakes/scene.py``,
+docs/extraction.md's settings table to ``ExtractionSettings``."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import re
 import tomllib
 from pathlib import Path
@@ -13,10 +16,12 @@ import pytest
 from pydantic import BaseModel
 
 from fakes.scene import PhysicsSettings, Scene, scene_from_mapping
+from lasercal_hw.scan.extraction import ExtractionSettings
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
-#: The units a table writes a default in, and the factor to the code's unit (m, rad, s, a fraction).
-_UNIT_SCALE = {"": 1.0, "m": 1.0, "mm": 1e-3, "rad": 1.0, "s": 1.0, "deg": 1.0, "°": 1.0, "%": 0.01}
+#: The units a table writes a default in, and the factor to the code's unit (m, rad, s, a
+#: fraction); degrees stay degrees unless the parameter's name says radians.
+_UNIT_SCALE = {"": 1.0, "m": 1.0, "mm": 1e-3, "rad": 1.0, "s": 1.0, "°": 1.0, "%": 0.01}
 
 
 def _section(text: str, heading: str) -> str:
@@ -24,6 +29,7 @@ def _section(text: str, heading: str) -> str:
     level (a ``#`` in a fenced block is a comment, not a heading)."""
     level = len(heading.split(" ")[0])
     lines = text.splitlines()
+    assert heading in lines, f"no heading {heading!r}"
     start = lines.index(heading)
     fenced = False
     for end in range(start + 1, len(lines)):
@@ -54,20 +60,22 @@ def documented_defaults(path: Path, heading: str) -> dict[str, str]:
     return found
 
 
-def matches(written: str, default: Any) -> bool:
+def matches(written: str, default: Any, in_radians: bool = False) -> bool:
     """Whether a table's ``written`` default (a number with an optional unit, a word, a
-    tuple) is the code's ``default``."""
+    tuple) is the code's ``default`` (``in_radians``: a value in degrees is converted)."""
+    if isinstance(default, tuple):
+        return [float(v) for v in re.findall(r"[-+\d.e]+", written)] == pytest.approx(list(default))
     written = re.sub(r"\s*\(.*\)$", "", written)  # a remark after the value: "true (false until ...)"
     if isinstance(default, bool):
         return written == str(default).lower()
     if isinstance(default, str):
         return written == default
-    if isinstance(default, tuple):
-        return [float(v) for v in re.findall(r"[-+\d.e]+", written)] == pytest.approx(list(default))
-    match = re.fullmatch(r"([-+]?[\d.]+(?:e[-+]?\d+)?)\s*(mm|m|rad|s|°|deg|%)?", written)
+    match = re.fullmatch(r"([-+]?[\d.]+(?:e[-+]?\d+)?)\s*(mm|m|rad|s|°|%)?", written)
     if match is None:
         return False
     value = float(match[1]) * _UNIT_SCALE[match[2] or ""]
+    if match[2] == "°" and in_radians:
+        value = math.radians(value)
     return value == pytest.approx(float(default), rel=1e-9, abs=1e-12)
 
 
@@ -134,3 +142,18 @@ def test_the_documented_scene_listing_gives_the_defaults() -> None:
                 wrong[f"{table}.{key}"] = (value, getattr(expected, key))
     assert data["model"] == default.model
     assert not wrong, f"docs/extraction.md's scene listing (defaults, it says) differs from Scene(): {wrong}"
+
+
+def test_every_extraction_setting_is_documented_with_its_default() -> None:
+    table = documented_defaults(DOCS / "extraction.md", "### Settings (`ExtractionSettings`)")
+    defaults = {field.name: field.default for field in dataclasses.fields(ExtractionSettings)}
+    missing = sorted(set(defaults) - set(table))
+    assert not missing, f"docs/extraction.md's settings table lacks {missing}"
+    unknown = sorted(set(table) - set(defaults))
+    assert not unknown, f"docs/extraction.md's settings table names {unknown}, not in ExtractionSettings"
+    wrong = {
+        name: (written, defaults[name])
+        for name, written in table.items()
+        if not matches(written, defaults[name], in_radians=name.endswith("_rad"))
+    }
+    assert not wrong, f"docs/extraction.md states settings the code does not have: {wrong}"
