@@ -10,12 +10,13 @@ import math
 import re
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import pytest
 from pydantic import BaseModel
 
-from fakes.scene import PhysicsSettings, Scene, scene_from_mapping
+from fakes.scanner_model.materials import MATERIALS
+from fakes.scene import Material, PhysicsSettings, Scene, scene_from_mapping
 from lasercal_hw.scan.extraction import ExtractionSettings
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
@@ -157,3 +158,24 @@ def test_every_extraction_setting_is_documented_with_its_default() -> None:
         if not matches(written, defaults[name], in_radians=name.endswith("_rad"))
     }
     assert not wrong, f"docs/extraction.md states settings the code does not have: {wrong}"
+
+
+def test_every_material_is_documented_with_its_optics() -> None:
+    section = _section((DOCS / "scanner-model.md").read_text(encoding="utf-8"), "## What a beam does")
+    rows = {row[0].strip("`"): row[1:4] for row in _table_rows(section) if re.fullmatch(r"`[a-z_]+`", row[0])}
+    assert sorted(rows) == sorted(MATERIALS) == sorted(get_args(Material))
+    for name, optics in MATERIALS.items():
+        diffuse, specular, retro = rows[name]
+        written = [float(diffuse)]
+        written += [0.0, optics.specular_width_rad] if specular == "-" else _lobe(specular)
+        written += [0.0, optics.retro_width_rad] if retro == "-" else _lobe(retro)
+        expected = [optics.diffuse, optics.specular, optics.specular_width_rad]
+        expected += [optics.retro, optics.retro_width_rad]
+        assert written == pytest.approx(expected), f"docs/scanner-model.md's row for {name}"
+
+
+def _lobe(cell: str) -> list[float]:
+    """A lobe as the materials table writes it, ``weight (width rad)``."""
+    match = re.fullmatch(r"([\d.]+) \(([\d.]+) rad\)", cell)
+    assert match, f"not a lobe: {cell!r}"
+    return [float(match[1]), float(match[2])]
