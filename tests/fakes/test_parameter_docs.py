@@ -16,7 +16,7 @@ import pytest
 from pydantic import BaseModel
 
 from fakes.scanner_model.materials import MATERIALS
-from fakes.scene import Material, PhysicsSettings, Scene, scene_from_mapping
+from fakes.scene import Material, NoiseSettings, PhysicsSettings, Scene, scene_from_mapping
 from lasercal_hw.scan.extraction import ExtractionSettings
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
@@ -179,3 +179,12 @@ def _lobe(cell: str) -> list[float]:
     match = re.fullmatch(r"([\d.]+) \(([\d.]+) rad\)", cell)
     assert match, f"not a lobe: {cell!r}"
     return [float(match[1]), float(match[2])]
+
+
+def test_every_noise_setting_of_the_ideal_model_is_documented_with_its_default() -> None:
+    table = documented_defaults(DOCS / "extraction.md", "## The simulated world (`fakes/world.py`)")
+    assert sorted(table) == sorted(NoiseSettings.model_fields), "docs/extraction.md's [noise] table"
+    defaults = NoiseSettings()
+    wrong = {name: (written, getattr(defaults, name)) for name, written in table.items()}
+    wrong = {name: pair for name, pair in wrong.items() if not matches(*pair)}
+    assert not wrong, f"docs/extraction.md states [noise] defaults the code does not have: {wrong}"
