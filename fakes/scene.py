@@ -77,7 +77,7 @@ class RodSettings(_Strict):
     web_fraction: float = Field(0.16, gt=0.0, lt=0.5)
     """Twist drill: web thickness over the diameter."""
     helix_lead_m: float = Field(0.0, ge=0.0)
-    """Twist drill: axial length of one flute turn (0 = 6 diameters, a 30 deg helix)."""
+    """Twist drill: axial length of one flute turn (0: a 30 deg helix, pi D / tan 30 deg, 5.4 diameters)."""
     chuck_turn_deg: float = 0.0
     """Twist drill: how far the bit sits turned in its chuck about its own axis (right-handed
     about ``direction``); at 0 the flutes' middles lie 90 deg from the TCP's x axis."""

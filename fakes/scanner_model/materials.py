@@ -5,8 +5,8 @@ specular part only near normal incidence (a lobe ``exp(-(angle / width)^2)``: fo
 scanner whose emitter and receiver look the same way the half-angle vector is the beam
 itself, so the lobe is the surface's microfacet slope distribution, Beckmann's
 ``exp(-tan^2 angle / m^2)`` with ``m`` the RMS slope, at small angles) and a
-retro-reflector's return over a wide cone.  ``matte`` with diffuse 1.0 is the data
-sheet's white Kent sheet; docs/scanner-model.md gives every figure's source.
+retro-reflector's return over a wide cone.  Diffuse 1.0 is the data sheet's white Kent
+sheet (``matte``, white paper, 0.9 of it); docs/scanner-model.md gives every figure's source.
 
 On a curved surface one sub-ray stands for a strip of the beam's spot, across which the
 incidence angle turns; a polished surface's lobe can be narrower than that turn (a 10 mm
