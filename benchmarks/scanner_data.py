@@ -5,7 +5,8 @@
 ``--ubh``: an UrgBenri log (``[scan]`` lines of ``range;range;...`` or, in ME mode,
 ``range|intensity;...``; the public UTM-30LX-EW logs of ``finalobject/HumanDetectingOnLidar``
 under ``flies/data/June_1/``).  Static beams (reading spread under 30 mm over the log) give
-the per-reading noise by range and by intensity, and the intensity by range; the median
+the per-reading noise by range and by intensity, the intensity by range and (steadier
+beams) the intensity's own reading-to-reading scatter; the median
 scan's depth edges give the mixed-pixel ramps; adjacent steps that repeat the same reading
 are counted.  ``--flat-csv``: ``actual_distance_m,sample_1,...`` rows of a flat target
 (``jackfruittt/Hokuyo_Calibration``, ``lidar_calibration_raw.csv``): bias and spread by
@@ -28,6 +29,7 @@ from fakes.scene import PhysicsSettings
 from lasercal_hw.models import FloatArray
 
 STATIC_SPREAD_M = 0.030
+STEADY_SPREAD_M = 0.005
 EDGE_JUMP_M = 0.15
 PLATEAU_M = 0.015
 MIN_VALID_MM = 23
@@ -87,6 +89,37 @@ def noise_and_intensity(ranges: FloatArray, intensities: FloatArray | None, phys
             f"  {low:5d}-{high:<5d}  {beams.sum():6d}  {1000 * np.median(spread[beams]):9.1f} mm"
             f"  {1000 * model:8.1f} mm"
         )
+
+
+def model_intensity_scatter(physics: PhysicsSettings) -> float:
+    """The physical model's reading-to-reading intensity scatter (std over mean) on a steady
+    surface: each scan's speckle (lognormal on the power, the intensity its square root) and
+    ``intensity_noise``; closed form of ``fakes/scanner_model/physical.py``'s draws."""
+    speckle_var = physics.speckle_sigma**2
+    return float(np.sqrt((1.0 + physics.intensity_noise**2) * np.exp(speckle_var / 4.0) - 1.0))
+
+
+def intensity_scatter(ranges: FloatArray, intensities: FloatArray, physics: PhysicsSettings) -> None:
+    """Reading-to-reading intensity scatter (std over mean across scans) of steady beams (range
+    spread under ``STEADY_SPREAD_M``, valid in nearly every scan), by intensity, beside the model's."""
+    with np.errstate(invalid="ignore"):
+        spread = np.nanstd(ranges, axis=0)
+    steady = (spread < STEADY_SPREAD_M) & (np.isfinite(ranges).mean(axis=0) > 0.98)
+    readings = np.where(np.isfinite(ranges), intensities, np.nan)
+    with np.errstate(invalid="ignore"):
+        mean = np.nanmean(readings, axis=0)
+        scatter = np.nanstd(readings, axis=0, ddof=1) / mean
+    print(
+        f"  intensity scatter of {steady.sum()} steady beams (range std < {1000 * STEADY_SPREAD_M:.0f} mm): "
+        f"median {100 * np.median(scatter[steady]):.2f} %, 10-90 % "
+        f"{100 * np.percentile(scatter[steady], 10):.2f}-{100 * np.percentile(scatter[steady], 90):.2f} %; "
+        f"model {100 * model_intensity_scatter(physics):.2f} % at every intensity"
+    )
+    for low, high in ((0, 2000), (2000, 3000), (3000, 5000), (5000, 13000)):
+        beams = steady & (mean >= low) & (mean < high)
+        if beams.sum() >= 5:
+            median = 100 * np.median(scatter[beams])
+            print(f"    intensity {low:5d}-{high:<5d}  {beams.sum():4d} beams  median {median:.2f} %")
 
 
 def edges_and_repeats(ranges: FloatArray, intensities: FloatArray | None) -> None:
@@ -169,6 +202,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{path.name}:")
         ranges, intensities = read_ubh(path)
         noise_and_intensity(ranges, intensities, physics)
+        if intensities is not None:
+            intensity_scatter(ranges, intensities, physics)
         edges_and_repeats(ranges, intensities)
     if args.flat_csv is not None:
         if not args.flat_csv.is_file():
