@@ -386,7 +386,7 @@ def test_a_centre_placed_by_its_echo_middle_is_uncertain_along_its_own_bearing()
     found, truth = _benchmark_dwell(0.1, float(np.degrees(-0.060)), 0.045, "steel_drill", 0.3)
     assert isinstance(found, RodCentre)
     assert found.echo_middle_move_uv_m is not None and np.linalg.norm(found.echo_middle_move_uv_m) > 0.005
-    eigenvalues, eigenvectors = np.linalg.eigh(found.covariance_uv_m2)
+    _, eigenvectors = np.linalg.eigh(found.covariance_uv_m2)
     bearing = found.centre_uv_m / np.linalg.norm(found.centre_uv_m)
     assert abs(float(eigenvectors[:, 1] @ bearing)) > np.cos(np.radians(0.5))
     assert _mahalanobis2(found, truth) <= THREE_STD_M2 or found.warnings
