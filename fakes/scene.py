@@ -184,7 +184,7 @@ class PhysicsSettings(_Strict):
     detection_threshold: float = Field(100.0, ge=0.0)
     intensity_max: float = Field(40000.0, gt=0.0)
     speckle_sigma: float = Field(0.10, ge=0.0)
-    intensity_noise: float = Field(0.03, ge=0.0)
+    intensity_noise: float = Field(0.008, ge=0.0)
     noise_floor_m: float = Field(0.0020, ge=0.0)
     noise_at_reference_m: float = Field(0.0028, ge=0.0)
     reference_intensity: float = Field(4000.0, gt=0.0)

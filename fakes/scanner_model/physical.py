@@ -27,6 +27,10 @@ from lasercal_hw.models import FloatArray
 MovingShape = tuple[Shape, FloatArray, float]
 """A shape that moves with the robot, the centre and radius of a sphere bounding it."""
 
+#: A beam whose sub-rays (by weight) meet one surface at least this much is wholly on it: no
+#: speckle from scan to scan (a real unit's steady beams: docs/scanner-model.md).
+WHOLE_BEAM_SHARE = 0.99
+
 
 class PhysicalScanner:
     """Beams of a UTM-30LX-EW with a real footprint, looking at a static scene."""
@@ -44,15 +48,8 @@ class PhysicalScanner:
         self._static_count = len(static)
         every_beam = np.arange(self.angles_rad.size)
         self._static_t, self._static_power, self._static_id = self._cast(list(static), every_beam)
-        # The static scene's echoes are found once: from scan to scan only the speckle of
-        # the surface a beam's echo comes from scales its power (static depth edges keep
-        # their mixed value; flips are modelled where the moving shapes are).
-        ids = np.where(np.isfinite(self._static_t), self._static_id, -1)
-        power_by_surface = [
-            np.where(ids == k, self._static_power, 0.0).sum(axis=1) for k in range(len(static))
-        ]
-        power_by_surface.append(np.zeros(self.angles_rad.size))  # a scene without static shapes
-        self._static_surface = np.argmax(np.stack(power_by_surface, -1), axis=1)
+        # The static scene's echoes are found once: static depth edges keep their mixed
+        # value (flips are modelled where the moving shapes are).
         static_echo = detect_echo(
             self._static_t, self._static_power, physics.pulse_fwhm_m, 0.0, physics.echo_choice
         )
@@ -93,7 +90,8 @@ class PhysicalScanner:
 
     def _pose_cache(self, moving: Sequence[MovingShape], threshold: float) -> _PoseCache:
         """Cast the moving shapes once per pose (a dwell scans one pose many times) and find
-        their echoes without speckle; rows whose two strongest lobes are close are marked."""
+        their echoes without speckle; rows whose two strongest lobes are close, or whose spot
+        is split at an edge, are marked."""
         key = b"".join(np.asarray(v).tobytes() for shape, _, _ in moving for v in shape.params)
         if self._pose is not None and self._pose.key == key:
             return self._pose
@@ -117,7 +115,9 @@ class PhysicalScanner:
         surface = np.argmax(power_by_surface, axis=1)
         contest = np.exp(-3.0 * np.sqrt(2.0) * p.speckle_sigma)
         contested = np.flatnonzero((echo.rival > 0.0) & (echo.rival >= contest * echo.peak))
-        self._pose = _PoseCache(key, beams, t, power, ids, echo, surface, contested)
+        on_surface = np.isfinite(t) & (ids == surface[:, None])
+        split = (on_surface * self._weights).sum(axis=1) < WHOLE_BEAM_SHARE * self._weights.sum()
+        self._pose = _PoseCache(key, beams, t, power, ids, echo, surface, contested, split)
         return self._pose
 
     def beams_near(self, centre_m: FloatArray, radius_m: float) -> NDArray[np.int64]:
@@ -140,20 +140,25 @@ class PhysicalScanner:
         """
         p = self.physics
         threshold = (p.detection_threshold / p.intensity_at_1m) ** 2
-        count = self.angles_rad.size
-        speckle = np.ones((count, self._static_count + len(moving) + 1))
-        if rng is not None and p.speckle_sigma > 0.0:
-            speckle = np.exp(rng.normal(-0.5 * p.speckle_sigma**2, p.speckle_sigma, speckle.shape))
         ranges = self._static_range.copy()
-        peak = self._static_peak * speckle[np.arange(count), self._static_surface]
+        peak = self._static_peak.copy()
         pose = self._pose_cache(moving, threshold)
         if pose.beams.size:
             ranges[pose.beams] = pose.echo.range_m
-            peak[pose.beams] = pose.echo.peak * speckle[pose.beams, pose.surface]
-            # Where two lobes compete, the speckle of this scan picks the winner: re-detect.
+            peak[pose.beams] = pose.echo.peak
+        if pose.beams.size and rng is not None and p.speckle_sigma > 0.0:
+            # This scan's speckle on each surface's power reaches a beam at an edge (its spot
+            # split between surfaces, or partly on none: its power moves, near the threshold it
+            # comes and goes) and, where two lobes compete, picks the winner (re-detected). A
+            # beam wholly on one surface keeps its power: a real unit's intensity there
+            # scatters 0.8 % from reading to reading (``intensity_noise``).
+            shape = (pose.beams.size, self._static_count + len(moving) + 1)
+            speckle = np.exp(rng.normal(-0.5 * p.speckle_sigma**2, p.speckle_sigma, shape))
+            own = speckle[np.arange(pose.beams.size), pose.surface]
+            peak[pose.beams] *= np.where(pose.split, own, 1.0)
             rows = pose.contested
-            if rows.size and rng is not None:
-                scale = np.take_along_axis(speckle[pose.beams[rows]], pose.ids[rows], axis=1)
+            if rows.size:
+                scale = np.take_along_axis(speckle[rows], pose.ids[rows], axis=1)
                 power = pose.power[rows] * scale
                 echo = detect_echo(pose.t[rows], power, p.pulse_fwhm_m, threshold, p.echo_choice)
                 ranges[pose.beams[rows]], peak[pose.beams[rows]] = echo.range_m, echo.peak
@@ -199,7 +204,8 @@ def beam_profile(physics: PhysicsSettings) -> tuple[FloatArray, FloatArray, Floa
 @dataclass(frozen=True)
 class _PoseCache:
     """The moving shapes' beams at one pose: sub-ray ranges, powers, surface ids, the
-    speckle-free echo, each beam's brightest surface and the contested rows."""
+    speckle-free echo, each beam's brightest surface, the rows whose two strongest lobes are
+    close and the rows whose spot is split at an edge."""
 
     key: bytes
     beams: NDArray[np.int64]
@@ -209,6 +215,7 @@ class _PoseCache:
     echo: Echoes
     surface: NDArray[np.int64]
     contested: NDArray[np.int64]
+    split: NDArray[np.bool_]
 
 
 def _duplicate_steps(

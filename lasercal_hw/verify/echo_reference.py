@@ -19,12 +19,13 @@ import numpy as np
 
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.records import WaypointMeasurement
-from lasercal_hw.run.two_pass import SecondPassRefit, predict_rod
+from lasercal_hw.run.two_pass import SecondPassRefit
 
 
 def at_echo_middles(
     refit: SecondPassRefit,
     measured: Sequence[WaypointMeasurement],
+    predicted: FloatArray,
     recorded: FloatArray,
     reference: FloatArray,
     noise: FloatArray,
@@ -33,19 +34,20 @@ def at_echo_middles(
     noise (N, 2, 2) with, at each waypoint whose echo middle both the calibration recorded
     (``recorded``: N rows of ``recorded_echo_middles``) and this dwell shows, both turned about
     the scanner onto their middle's bearing, and the noise across the bearing the middle's.
-    Elsewhere as they were. This dwell's middle is looked for where the calibration's was (its
-    crossing as ``refit`` predicts it, its residual and its middle's offset), not about this
-    dwell's centre: a fit that kept another part of the segment (fluted drill job, seed 105:
-    8.5 mm aside) would look beside the bit's echo."""
+    Elsewhere as they were. This dwell's middle is looked for from where the calibration looked
+    for its own, the calibration's centre: ``predicted`` (N, 2, the crossings as the drift test
+    predicts them, ``verify.drift.predictions``) plus its residual. Not about this dwell's
+    centre: a fit that kept another part of the segment (fluted drill job, seed 105: 8.5 mm
+    aside) would look beside the bit's echo. Nor about the calibration's middle, or a crossing
+    predicted otherwise (``predict_rod``, without the range curve): the search's window and
+    brightest beam move with where it starts, and the calibration's own scans then read another
+    middle, or none (seed 100, waypoint 30: 1.4 mm; seed 105, waypoint 37: none, 5.5 mm off)."""
     centres = np.array([m.centre.centre_uv_m for m in measured], dtype=float)
     reference, noise = np.array(reference, dtype=float), np.array(noise, dtype=float)
     for k, m in enumerate(measured):
         if not (np.isfinite(recorded[k]).all() and np.isfinite(reference[k]).all()):
             continue  # no middle recorded here: a plain rod, no intensities, or none found
-        predicted = predict_rod(refit.T_base_laser, m.tcp_pose, refit.rod).expected_uv_m
-        if predicted is None:
-            continue
-        middle = refit.echo_middle(m.averaged, m.tcp_pose, predicted + reference[k] + recorded[k, :2])
+        middle = refit.echo_middle(m.averaged, m.tcp_pose, predicted[k] + reference[k])
         if middle is None:
             continue
         along = np.outer(centres[k], centres[k]) / float(centres[k] @ centres[k])

@@ -42,7 +42,7 @@ from lasercal_hw.verify.active import (
     repeated_poses,
     unusable_waypoints,
 )
-from lasercal_hw.verify.drift import DriftModel, DriftTest, run_drift_test
+from lasercal_hw.verify.drift import DriftModel, DriftTest, predictions, run_drift_test
 from lasercal_hw.verify.echo_reference import at_echo_middles
 from lasercal_hw.verify.identity import IdentityCheck, check_identity, robot_calibration_check
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
@@ -360,9 +360,11 @@ def refit_and_test(
     if len(refitted) < MIN_MEASURED:
         return None, kept
     job_index = [plan.selection.indices[m.index] for m in refitted]
+    poses = np.array([m.tcp_pose for m in refitted])
     centres, reference, noise = at_echo_middles(
         plan.refit,
         refitted,
+        predictions(plan.model, poses)[0],
         plan.echo_middles[job_index],
         reference,
         np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted]),
@@ -370,7 +372,7 @@ def refit_and_test(
     test = run_drift_test(
         plan.model,
         job_index,
-        np.array([m.tcp_pose for m in refitted]),
+        poses,
         centres,
         np.array([m.centre.covariance_uv_m2 for m in refitted]),
         reference,

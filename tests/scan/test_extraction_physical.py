@@ -379,6 +379,19 @@ def test_a_thick_rods_centre_the_benchmark_found_silently_off_is_covered(
     assert _mahalanobis2(found, truth) <= THREE_STD_M2 or found.warnings
 
 
+def test_a_centre_placed_by_its_echo_middle_is_uncertain_along_its_own_bearing() -> None:
+    # The benchmark's polished 45 mm rod at 0.1 m before the near wall (seed 0, 2026-11-29): the
+    # fit lay 9 mm aside, the echo middle placed the centre on its true bearing and 12 mm long,
+    # and the covariance kept the fit's bearing for its 10 mm along: an ellipse 5 deg off, 8 std.
+    found, truth = _benchmark_dwell(0.1, float(np.degrees(-0.060)), 0.045, "steel_drill", 0.3)
+    assert isinstance(found, RodCentre)
+    assert found.echo_middle_move_uv_m is not None and np.linalg.norm(found.echo_middle_move_uv_m) > 0.005
+    _, eigenvectors = np.linalg.eigh(found.covariance_uv_m2)
+    bearing = found.centre_uv_m / np.linalg.norm(found.centre_uv_m)
+    assert abs(float(eigenvectors[:, 1] @ bearing)) > np.cos(np.radians(0.5))
+    assert _mahalanobis2(found, truth) <= THREE_STD_M2 or found.warnings
+
+
 @pytest.mark.parametrize(("range_m", "bearing_deg"), [(0.55, 10.0), (0.45, 40.0)])
 def test_a_thin_rods_centre_moves_from_dwell_to_dwell_only_as_its_noise_covariance_says(
     range_m: float, bearing_deg: float
@@ -387,11 +400,12 @@ def test_a_thin_rods_centre_moves_from_dwell_to_dwell_only_as_its_noise_covarian
     # against the spot wandered sideways in some dwells and was refused, and the fits chose
     # between the spot's range and the rays' (about 1 mm apart) anew at every dwell, while the
     # noise covariance said 0.15-0.5 mm: verify flagged unmoved scanners. Pairs of dwells at one
-    # pose differ by what the two noise covariances say (2 on average; 3.25 and 3.45 before).
+    # pose differ by what the two noise covariances say: 2 on average (3.25 and 3.45 before, on 8
+    # pairs); over 32 pairs the mean's std is 0.35, so 2.8 is 2.3 std above it.
     bearing = np.radians(bearing_deg)
     centre = range_m * np.array([np.cos(bearing), np.sin(bearing)])
     found = []
-    for seed in range(16):
+    for seed in range(64):
         dwell = simulate_dwell(centre, 0.005, background_m=None, scan_count=40, seed=seed)
         scan = average_scans(dwell.scans)
         found.append(find_rod_centre(scan, radius_m=0.005, axis_in_scanner=Z_AXIS, expected_uv_m=centre))
@@ -401,7 +415,7 @@ def test_a_thin_rods_centre_moves_from_dwell_to_dwell_only_as_its_noise_covarian
         difference = first.centre_uv_m - second.centre_uv_m
         noise = first.noise_covariance_uv_m2 + second.noise_covariance_uv_m2
         squared.append(float(difference @ np.linalg.solve(noise, difference)))
-    assert float(np.mean(squared)) < 2.5, squared
+    assert float(np.mean(squared)) < 2.8, squared
 
 
 @pytest.mark.parametrize(

@@ -136,11 +136,15 @@ def _across_from_echo_middle(
     middle = echo_middle(scan, fit.centre_uv_m, section.semi_major_m, settings.echo_middle_levels)
     if middle is None:
         return fit
-    distance_m = float(np.linalg.norm(fit.centre_uv_m))
-    across = _across_bearing(fit.centre_uv_m)
+    # The centre at the fit's range on the middle's bearing: its along and across are the
+    # middle's. (The fit's bearing for them tilted a near rod's long along std off the centre's
+    # own: 45 mm polished rod at 0.1 m, a fit 9 mm aside, its ellipse 5 deg off, 12 mm along
+    # read as 8 std.)
+    centre_uv_m = middle.turned_onto(fit.centre_uv_m)
+    across = _across_bearing(centre_uv_m)
     # A flat-topped lobe (every level crossed between the same two beams) fixes its middle only
     # to a beam step: each side anywhere within one, the middle their mean.
-    along = np.outer(fit.centre_uv_m, fit.centre_uv_m) / distance_m**2
+    along = np.outer(centre_uv_m, centre_uv_m) / float(centre_uv_m @ centre_uv_m)
     noise = fit.noise_covariance_uv_m2
     dwell_m2 = middle.noise_m2 if middle.intensity_noise_m2 is None else middle.intensity_noise_m2
 
@@ -150,8 +154,8 @@ def _across_from_echo_middle(
 
     return replace(
         fit,
-        centre_uv_m=fit.centre_uv_m + middle.shift_m * across,
-        echo_middle_move_uv_m=middle.shift_m * across,
+        centre_uv_m=centre_uv_m,
+        echo_middle_move_uv_m=centre_uv_m - fit.centre_uv_m,
         covariance_uv_m2=across_replaced(fit.covariance_uv_m2, middle.noise_m2 + middle.step_m**2 / 24.0),
         noise_covariance_uv_m2=None if noise is None else across_replaced(noise, dwell_m2),
     )
