@@ -40,7 +40,8 @@ def at_echo_middles(
     """The verify's centres (N, 2), references (the calibration's residuals, N, 2) and dwell
     noise (N, 2, 2) with, at each waypoint whose echo middle both the calibration recorded
     (``recorded``: N rows of ``recorded_echo_middles``) and this dwell shows, both turned about
-    the scanner onto their middle's bearing, and the noise across the bearing the middle's.
+    the scanner onto their middle's bearing, and the noise across the bearing the middle's (its
+    levels' scatter or, where wider, how far draws of the dwell's intensities move it: ``_jump_m2``).
     Elsewhere as they were. This dwell's middle is looked for from where the calibration looked
     for its own, the calibration's centre: ``predicted`` (N, 2, the crossings as the drift test
     predicts them, ``verify.drift.predictions``) plus its residual. Not about this dwell's
