@@ -81,7 +81,9 @@ def _print_summary(report: VerifyReport) -> None:
         console.print(
             f"smallest move it detects ({seen['detection_probability']:.0%} of the time): shift "
             f"{_triple(seen['shift_mm'], 2)} mm along base x, y, z; turn {_triple(seen['turn_deg'], 3)} deg "
-            f"about them (tolerance {document['tolerance']['mm']:g} mm, {document['tolerance']['deg']:g} deg)"
+            f"about them; in its weakest direction shift {seen['weakest_shift_mm']:.2f} mm, turn "
+            f"{seen['weakest_turn_deg']:.3f} deg (tolerance {document['tolerance']['mm']:g} mm, "
+            f"{document['tolerance']['deg']:g} deg)"
         )
     timings = document["timings"]
     fraction = timings["fraction_of_calibration"]

@@ -41,8 +41,12 @@ every waypoint), which makes ``d^T S^-1 d`` non-central chi-square with non-cent
 ``delta^2 J_k^T S^-1 J_k``. The smallest move the test flags with probability
 ``detection_probability`` at its false-alarm rate is ``sqrt(lambda* / J_k^T S^-1 J_k)``,
 ``lambda*`` the non-centrality at which that probability is reached (``J`` with the helix's
-change where flutes are modelled, the weaker of a positive and a negative move). Where this is above
-the tolerance, a test that flags nothing cannot say the scanner is within it.
+change where flutes are modelled, the weaker of a positive and a negative move). Those are per
+base axis; a move about another direction can be seen less: a pure shift ``delta n`` (``n`` a unit
+direction) has non-centrality ``delta^2 n^T F_tt n`` with ``F = J^T S^-1 J`` and ``F_tt`` its shift
+block, least along the eigenvector of ``F_tt``'s smallest eigenvalue, and a pure turn likewise with
+the turn block (``WeakestMoves``). Where the weakest shift or turn is above the tolerance, a test
+that flags nothing cannot say the scanner is within it.
 """
 
 from __future__ import annotations
@@ -120,6 +124,28 @@ class RangeChange:
 
 
 @dataclass(frozen=True)
+class WeakestMoves:
+    """The smallest pure shift and pure turn the test flags with its detection probability in the
+    direction where it sees each least (module docstring): what a verdict of ``ok`` promises for a
+    move in any direction."""
+
+    shift_m: float
+    shift_direction: FloatArray
+    turn_rad: float
+    turn_axis: FloatArray
+
+    @property
+    def shift_mm(self) -> float:
+        """The weakest shift (mm)."""
+        return self.shift_m * 1e3
+
+    @property
+    def turn_deg(self) -> float:
+        """The weakest turn (deg)."""
+        return float(np.degrees(self.turn_rad))
+
+
+@dataclass(frozen=True)
 class DriftTest:
     """The outcome of the test for N measured waypoints (arrays in waypoint order)."""
 
@@ -141,6 +167,7 @@ class DriftTest:
     detectable_shift_mm: FloatArray
     detectable_turn_deg: FloatArray
     detection_probability: float
+    weakest: WeakestMoves
     range_change: RangeChange | None = None
 
     @property
@@ -211,6 +238,36 @@ def detectable_moves(
     factored residual covariance (module docstring)."""
     j = np.asarray(jac, dtype=float).reshape(-1, 6)
     information = np.einsum("ik,ik->k", j, cho_solve(noise, j))
+    with np.errstate(divide="ignore"):
+        return np.sqrt(_flagging_noncentrality(threshold, dof, probability) / information)
+
+
+def weakest_moves(
+    jacs: list[FloatArray], noise: tuple[FloatArray, bool], threshold: float, dof: int, probability: float
+) -> WeakestMoves:
+    """``WeakestMoves`` of the test with this ``threshold``: for each Jacobian (N, 2, 6) in
+    ``jacs`` (with a twist drill's helix: a positive and a negative move's), the information's
+    shift and turn blocks' smallest eigenvalues; the least of them over ``jacs``."""
+    noncentrality = _flagging_noncentrality(threshold, dof, probability)
+    weakest: dict[str, tuple[float, FloatArray]] = {}
+    for jac in jacs:
+        j = np.asarray(jac, dtype=float).reshape(-1, 6)
+        information = j.T @ cho_solve(noise, j)
+        for name, block in (("shift", slice(0, 3)), ("turn", slice(3, 6))):
+            values, vectors = np.linalg.eigh(information[block, block])
+            if name not in weakest or values[0] < weakest[name][0]:
+                weakest[name] = (float(values[0]), vectors[:, 0])
+
+    def smallest(name: str) -> float:
+        value = weakest[name][0]
+        return float(np.sqrt(noncentrality / value)) if value > 0 else float("inf")
+
+    return WeakestMoves(smallest("shift"), weakest["shift"][1], smallest("turn"), weakest["turn"][1])
+
+
+def _flagging_noncentrality(threshold: float, dof: int, probability: float) -> float:
+    """The non-centrality at which a chi-square with ``dof`` exceeds ``threshold`` with
+    ``probability``."""
 
     def shortfall(noncentrality: float) -> float:
         return float(ncx2.sf(threshold, dof, noncentrality)) - probability
@@ -218,9 +275,7 @@ def detectable_moves(
     upper = 1.0
     while shortfall(upper) < 0.0:
         upper *= 2.0
-    noncentrality = brentq(shortfall, 1e-9, upper, xtol=1e-6)
-    with np.errstate(divide="ignore"):
-        return np.sqrt(noncentrality / information)
+    return float(brentq(shortfall, 1e-9, upper, xtol=1e-6))
 
 
 def predictions(
@@ -317,10 +372,9 @@ def run_drift_test(
     post_dof = dof - _RIGID_PARAMETERS
     alpha = model.false_alarm_rate
     threshold = float(chi2.ppf(1.0 - alpha, dof))
-    detectable = np.maximum(
-        detectable_moves(jac + helix.forward, factor, threshold, dof, model.detection_probability),
-        detectable_moves(jac + helix.backward, factor, threshold, dof, model.detection_probability),
-    )
+    moved = [jac + helix.forward, jac + helix.backward]
+    probability = model.detection_probability
+    detectable = np.maximum(*(detectable_moves(j, factor, threshold, dof, probability) for j in moved))
     return DriftTest(
         indices=list(indices),
         tcp_poses=poses,
@@ -339,7 +393,8 @@ def run_drift_test(
         post_fit_threshold=float(chi2.ppf(1.0 - alpha, post_dof)) if post_dof > 0 else float("inf"),
         detectable_shift_mm=detectable[:3] * 1e3,
         detectable_turn_deg=np.degrees(detectable[3:]),
-        detection_probability=model.detection_probability,
+        detection_probability=probability,
+        weakest=weakest_moves(moved, factor, threshold, dof, probability),
         range_change=_range_change(crossing, d, factor, alpha),
     )
 

@@ -88,9 +88,15 @@ def _test_document(test: DriftTest, visited: list[bool]) -> dict[str, Any]:
         "detectable": {
             "shift_mm": _floats(test.detectable_shift_mm),
             "turn_deg": _floats(test.detectable_turn_deg),
+            "weakest_shift_mm": test.weakest.shift_mm,
+            "weakest_shift_direction": _floats(test.weakest.shift_direction),
+            "weakest_turn_deg": test.weakest.turn_deg,
+            "weakest_turn_axis": _floats(test.weakest.turn_axis),
             "detection_probability": test.detection_probability,
-            "meaning": "the smallest shift along / turn about each base axis the test flags with "
-            "this probability at its false-alarm rate",
+            "meaning": "shift_mm / turn_deg: the smallest shift along / turn about each base axis the "
+            "test flags with this probability at its false-alarm rate; weakest_*: the smallest shift / "
+            "turn it flags so in the direction it sees least (a unit vector in base axes), which the "
+            "verdict weighs against the tolerance",
         },
         "correction": {
             "shift_mm": _floats(test.shift_mm),

@@ -5,6 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+
+from lasercal_hw.models import FloatArray
 from lasercal_hw.verify.drift import DriftTest
 from lasercal_hw.verify.identity import IdentityCheck
 
@@ -31,21 +34,34 @@ CLI_MORE_DATA = (
 
 
 def _blind_spot(test: DriftTest, tolerance_mm: float, tolerance_deg: float, more_data: str) -> str | None:
-    """What the test cannot see of the tolerance, naming only the directions (shift, turn) whose
-    smallest detectable move exceeds its tolerance (None: it sees a move of the tolerance in both)."""
-    shift_mm = float(max(test.detectable_shift_mm))
-    turn_deg = float(max(test.detectable_turn_deg))
+    """What the test cannot see of the tolerance, naming only the kinds of move (shift, turn)
+    whose smallest detectable move in its weakest direction (``DriftTest.weakest``, any direction,
+    not only the base axes) exceeds its tolerance (None: it sees a move of the tolerance in both)."""
+    weakest = test.weakest
     blind = []
-    if shift_mm > tolerance_mm:
-        blind.append(f"a shift of {shift_mm:.2f} mm (tolerance {tolerance_mm:g} mm)")
-    if turn_deg > tolerance_deg:
-        blind.append(f"a turn of {turn_deg:.3f} deg (tolerance {tolerance_deg:g} deg)")
+    if weakest.shift_mm > tolerance_mm:
+        blind.append(
+            f"a shift of {weakest.shift_mm:.2f} mm (tolerance {tolerance_mm:g} mm) along base "
+            f"{_direction(weakest.shift_direction)}"
+        )
+    if weakest.turn_deg > tolerance_deg:
+        blind.append(
+            f"a turn of {weakest.turn_deg:.3f} deg (tolerance {tolerance_deg:g} deg) about base "
+            f"{_direction(weakest.turn_axis)}"
+        )
     if not blind:
         return None
     return (
-        f"it detects ({test.detection_probability:.0%} of the time) only {' or '.join(blind)} along "
-        f"its weakest direction, more than the tolerance: {more_data}"
+        f"it detects ({test.detection_probability:.0%} of the time) only {' or '.join(blind)}, its "
+        f"weakest direction, more than the tolerance: {more_data}"
     )
+
+
+def _direction(unit: FloatArray) -> str:
+    """A unit direction as ``(x, y, z)`` with two decimals, its largest component positive (a
+    direction and its opposite are seen alike)."""
+    signed = unit if unit[np.argmax(np.abs(unit))] > 0 else -unit
+    return "(" + ", ".join(f"{value:+.2f}" for value in signed) + ")"
 
 
 def with_time_note(verdict: Verdict, fraction: float | None, promised: float) -> Verdict:

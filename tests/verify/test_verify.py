@@ -289,9 +289,22 @@ def test_a_cell_job_file_needs_the_calibrations_scanner(tmp_path: Path) -> None:
         verify(VerifyRequest(out_dir=tmp_path / "v2", job=cell), rear)
 
 
-def test_the_stated_power_is_the_power(setup: tuple[DriftModel, np.ndarray, Path]) -> None:
-    """A shift along base x of the size the test says it detects 90 % of the time is flagged
-    about 90 % of the time (noise drawn from the test's own covariance)."""
+def _stated_moves(test: DriftTest) -> dict[str, np.ndarray]:
+    """The moves the test says it flags 90 % of the time: along base x, and its weakest shift
+    and turn (in their directions)."""
+    weakest = test.weakest
+    return {
+        "shift along base x": np.array([test.detectable_shift_mm[0] / 1e3, 0, 0, 0, 0, 0]),
+        "weakest shift": np.concatenate([weakest.shift_m * weakest.shift_direction, np.zeros(3)]),
+        "weakest turn": np.concatenate([np.zeros(3), weakest.turn_rad * weakest.turn_axis]),
+    }
+
+
+@pytest.mark.parametrize("kind", ["shift along base x", "weakest shift", "weakest turn"])
+def test_the_stated_power_is_the_power(setup: tuple[DriftModel, np.ndarray, Path], kind: str) -> None:
+    """A move of the size the test says it detects 90 % of the time (along base x, or in the
+    direction it sees least) is flagged about 90 % of the time (noise drawn from the test's own
+    covariance)."""
     model, poses, _ = setup
     chosen = poses[:5]
     cov = np.broadcast_to(np.eye(2) * SIGMA_UV_M**2, (5, 2, 2))
@@ -301,12 +314,35 @@ def test_the_stated_power_is_the_power(setup: tuple[DriftModel, np.ndarray, Path
     assert np.all(power.detectable_shift_mm > 0) and np.all(power.detectable_turn_deg > 0)
     _, jac, slope = predictions(model, chosen)
     noise = residual_covariance(model, jac, slope, cov, np.zeros(5, dtype=bool))
-    move = np.array([power.detectable_shift_mm[0] / 1e3, 0, 0, 0, 0, 0])
+    move = _stated_moves(power)[kind]
     rng = np.random.default_rng(7)
     draws = rng.multivariate_normal(np.zeros(10), noise, size=400).reshape(-1, 5, 2)
     moved_centres = centres(model, chosen, move)
     flagged = [run_drift_test(model, list(range(5)), chosen, moved_centres + e, cov).changed for e in draws]
     assert np.mean(flagged) == pytest.approx(0.9, abs=0.05)
+
+
+def test_a_direction_between_the_base_axes_can_be_seen_least(
+    setup: tuple[DriftModel, np.ndarray, Path],
+) -> None:
+    """On three waypoints of one semicircle the weakest turn is about no base axis and is half
+    as large again as the turn about the weakest one (2.2 against 1.5 deg): a verdict weighing the
+    base axes alone would promise what the test cannot see (a fluted drill's verify called a
+    0.3 deg turn ``ok``)."""
+    model, poses, _ = setup
+    chosen = poses[:3]
+    cov = np.broadcast_to(np.eye(2) * SIGMA_UV_M**2, (3, 2, 2))
+    test = run_drift_test(model, list(range(3)), chosen, centres(model, chosen, np.zeros(6)), cov)
+    weakest = test.weakest
+    assert weakest.turn_deg > 1.4 * max(test.detectable_turn_deg)
+    assert np.max(np.abs(weakest.turn_axis)) < 0.97  # not a base axis
+    assert weakest.shift_mm >= max(test.detectable_shift_mm) - 1e-9
+    assert np.linalg.norm(weakest.turn_axis) == pytest.approx(1.0)
+    weaker = dataclasses.replace(weakest, turn_rad=np.radians(0.25))
+    between = dataclasses.replace(test, detectable_turn_deg=np.full(3, 0.15), weakest=weaker)
+    verdict = decide([], between, tolerance_mm=100.0, tolerance_deg=0.2)
+    assert verdict.status == "inconclusive"
+    assert "only a turn of 0.250 deg (tolerance 0.2 deg) about base (" in verdict.reason
 
 
 def test_a_verify_that_cannot_see_its_tolerance_is_inconclusive(
@@ -323,7 +359,7 @@ def test_a_verify_that_cannot_see_its_tolerance_is_inconclusive(
     blind = run_drift_test(tight, list(range(6)), chosen, still, blurred)
     verdict = decide([], blind, tolerance_mm=2.0, tolerance_deg=0.2)
     assert verdict.status == "inconclusive" and not blind.changed
-    assert f"only a shift of {max(blind.detectable_shift_mm):.2f} mm" in verdict.reason
+    assert f"only a shift of {blind.weakest.shift_mm:.2f} mm" in verdict.reason
     assert "more waypoints" in verdict.reason and "dwell longer" in verdict.reason
 
 
@@ -519,10 +555,8 @@ def test_an_inconclusive_verify_names_only_the_directions_beyond_their_tolerance
     not_named: tuple[str, ...],
 ) -> None:
     test = _still_test(setup)
-    blind = dataclasses.replace(
-        test, chi_square=0.0, detectable_shift_mm=np.array([shift_mm, 0.1, 0.2]),
-        detectable_turn_deg=np.array([turn_deg, 0.01, 0.02]),
-    )
+    weakest = dataclasses.replace(test.weakest, shift_m=shift_mm / 1e3, turn_rad=np.radians(turn_deg))
+    blind = dataclasses.replace(test, chi_square=0.0, weakest=weakest)
     verdict = decide([], blind, tolerance_mm=2.0, tolerance_deg=0.2)
     assert verdict.status == "inconclusive"
     blind_part = verdict.reason.split(" but ")[1].split(":")[0]
@@ -537,7 +571,9 @@ def test_an_inconclusive_verify_gives_the_advice_of_its_front_end(
     from lasercal_hw.service.runners import DAEMON_MORE_DATA
 
     test = _still_test(setup)
-    blind = dataclasses.replace(test, chi_square=0.0, detectable_turn_deg=np.array([1.0, 0.0, 0.0]))
+    blind = dataclasses.replace(
+        test, chi_square=0.0, weakest=dataclasses.replace(test.weakest, turn_rad=np.radians(1.0))
+    )
     assert "--waypoints" in decide([], blind, 2.0, 0.2).reason
     remote = decide([], blind, 2.0, 0.2, more_data=DAEMON_MORE_DATA).reason
     assert "--waypoints" not in remote
