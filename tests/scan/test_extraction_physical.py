@@ -496,3 +496,23 @@ def test_a_diffuse_rod_on_few_beams_keeps_its_fit_along_the_bearing() -> None:
     assert centres[0].quality.beams_used <= ExtractionSettings().glint_max_beams
     np.testing.assert_array_equal(centres[0].centre_uv_m, centres[1].centre_uv_m)
     np.testing.assert_array_equal(centres[0].covariance_uv_m2, centres[1].covariance_uv_m2)
+
+
+@pytest.mark.parametrize(("range_m", "bearing_rad"), [(0.15, -0.683), (0.3, 1.028)])
+def test_a_twist_drill_whose_flutes_split_its_echo_is_one_rod_not_two(
+    range_m: float, bearing_rad: float
+) -> None:
+    """The extraction benchmark's seed 100: a 4 mm bit's flutes split its echo into two segments
+    whose fits lie 5-6 mm apart, more than a radius; two rods of that radius cannot lie closer
+    than a diameter, so they are one rod, not "2 rod-like objects in view"."""
+    centre = range_m * np.array([np.cos(bearing_rad), np.sin(bearing_rad)])
+    dwell = simulate_dwell(
+        centre, 0.004, material="steel_drill", shape="twist_drill", background_m=2.5, scan_count=40,
+        background_count=40, seed=100, spindle_deg=float(np.degrees(bearing_rad) * 7.0),
+    )
+    seen = centre * (1.0 + front_range_error_m(dwell) / range_m)
+    found = find_rod_centre(
+        average_scans(dwell.scans), radius_m=0.004, background=average_scans(dwell.background),
+        axis_in_scanner=Z_AXIS, fluted=True,
+    )
+    assert _mahalanobis2(found, seen) <= THREE_STD_M2 or found.warnings

@@ -101,11 +101,12 @@ def find_rod_centre(
 
 
 def _distinct(found: list[RodCentre], section: _Section) -> list[RodCentre]:
-    """The fits with one per object: fits of parts of one rod (a segment split by a lost
-    beam) have centres within a radius of each other; the one with most beams is kept."""
+    """The fits with one per object: two rods of this radius cannot overlap, so fits whose
+    centres lie within a diameter of each other are parts of one (a segment split by a lost
+    beam, a twist drill's flutes); the one with most beams is kept."""
     kept: list[RodCentre] = []
     for fit in sorted(found, key=lambda f: -f.quality.beams_used):
-        if all(np.linalg.norm(fit.centre_uv_m - k.centre_uv_m) > section.radius_m for k in kept):
+        if all(np.linalg.norm(fit.centre_uv_m - k.centre_uv_m) > 2.0 * section.radius_m for k in kept):
             kept.append(fit)
     return kept
 
