@@ -69,7 +69,7 @@ from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.verify.active import recorded_centre_covariances
 from lasercal_hw.verify.drift import (
     DriftModel,
-    detectable_moves,
+    flagging_noncentrality,
     noise_blocks,
     predictions,
     residual_covariance,
@@ -90,12 +90,9 @@ TABLE_WAYPOINTS = 4
 
 def needed_noncentrality(dof: int, model: DriftModel) -> float:
     """The non-centrality at which the test on ``dof`` values flags with its detection
-    probability (``detectable_moves`` for a unit information on every parameter)."""
+    probability."""
     threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
-    unit = np.eye(6).reshape(1, 6, 6)
-    return float(
-        detectable_moves(unit, cho_factor(np.eye(6)), threshold, dof, model.detection_probability)[0] ** 2
-    )
+    return flagging_noncentrality(threshold, dof, model.detection_probability)
 
 
 def unit_directions(count: int, seed: int) -> FloatArray:

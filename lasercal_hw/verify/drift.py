@@ -231,41 +231,27 @@ def _norm_and_std(vector: FloatArray, covariance: FloatArray, unit: float) -> tu
 
 
 def detectable_moves(
-    jac: FloatArray, noise: tuple[FloatArray, bool], threshold: float, dof: int, probability: float
-) -> FloatArray:
-    """The smallest move along each parameter (6,: m, rad) that the test with this
-    ``threshold`` flags with ``probability``, from the crossings' Jacobian (N, 2, 6) and the
-    factored residual covariance (module docstring)."""
-    j = np.asarray(jac, dtype=float).reshape(-1, 6)
-    information = np.einsum("ik,ik->k", j, cho_solve(noise, j))
-    with np.errstate(divide="ignore"):
-        return np.sqrt(_flagging_noncentrality(threshold, dof, probability) / information)
-
-
-def weakest_moves(
     jacs: list[FloatArray], noise: tuple[FloatArray, bool], threshold: float, dof: int, probability: float
-) -> WeakestMoves:
-    """``WeakestMoves`` of the test with this ``threshold``: for each Jacobian (N, 2, 6) in
-    ``jacs`` (with a twist drill's helix: a positive and a negative move's), the information's
-    shift and turn blocks' smallest eigenvalues; the least of them over ``jacs``."""
-    noncentrality = _flagging_noncentrality(threshold, dof, probability)
-    weakest: dict[str, tuple[float, FloatArray]] = {}
-    for jac in jacs:
-        j = np.asarray(jac, dtype=float).reshape(-1, 6)
-        information = j.T @ cho_solve(noise, j)
-        for name, block in (("shift", slice(0, 3)), ("turn", slice(3, 6))):
-            values, vectors = np.linalg.eigh(information[block, block])
-            if name not in weakest or values[0] < weakest[name][0]:
-                weakest[name] = (float(values[0]), vectors[:, 0])
+) -> tuple[FloatArray, WeakestMoves]:
+    """The smallest move along each parameter (6,: m, rad) and the weakest shift and turn
+    (``WeakestMoves``) that the test with this ``threshold`` flags with ``probability``, from the
+    crossings' Jacobians (N, 2, 6 each; with a twist drill's helix a positive and a negative
+    move's, the weaker counted) and the factored residual covariance (module docstring)."""
+    needed = flagging_noncentrality(threshold, dof, probability)
+    rows = [np.asarray(jac, dtype=float).reshape(-1, 6) for jac in jacs]
+    informations = [j.T @ cho_solve(noise, j) for j in rows]
+    with np.errstate(divide="ignore"):
+        per_parameter = np.sqrt(needed / np.min([np.diag(f) for f in informations], axis=0))
 
-    def smallest(name: str) -> float:
-        value = weakest[name][0]
-        return float(np.sqrt(noncentrality / value)) if value > 0 else float("inf")
+    def weakest(block: slice) -> tuple[float, FloatArray]:
+        values, vectors = min((np.linalg.eigh(f[block, block]) for f in informations), key=lambda e: e[0][0])
+        size = float(np.sqrt(needed / values[0])) if values[0] > 0 else float("inf")
+        return size, vectors[:, 0]
 
-    return WeakestMoves(smallest("shift"), weakest["shift"][1], smallest("turn"), weakest["turn"][1])
+    return per_parameter, WeakestMoves(*weakest(slice(0, 3)), *weakest(slice(3, 6)))
 
 
-def _flagging_noncentrality(threshold: float, dof: int, probability: float) -> float:
+def flagging_noncentrality(threshold: float, dof: int, probability: float) -> float:
     """The non-centrality at which a chi-square with ``dof`` exceeds ``threshold`` with
     ``probability``."""
 
@@ -372,9 +358,9 @@ def run_drift_test(
     post_dof = dof - _RIGID_PARAMETERS
     alpha = model.false_alarm_rate
     threshold = float(chi2.ppf(1.0 - alpha, dof))
-    moved = [jac + helix.forward, jac + helix.backward]
-    probability = model.detection_probability
-    detectable = np.maximum(*(detectable_moves(j, factor, threshold, dof, probability) for j in moved))
+    detectable, weakest = detectable_moves(
+        [jac + helix.forward, jac + helix.backward], factor, threshold, dof, model.detection_probability
+    )
     return DriftTest(
         indices=list(indices),
         tcp_poses=poses,
@@ -393,8 +379,8 @@ def run_drift_test(
         post_fit_threshold=float(chi2.ppf(1.0 - alpha, post_dof)) if post_dof > 0 else float("inf"),
         detectable_shift_mm=detectable[:3] * 1e3,
         detectable_turn_deg=np.degrees(detectable[3:]),
-        detection_probability=probability,
-        weakest=weakest_moves(moved, factor, threshold, dof, probability),
+        detection_probability=model.detection_probability,
+        weakest=weakest,
         range_change=_range_change(crossing, d, factor, alpha),
     )
 
