@@ -251,6 +251,13 @@ def detectable_moves(
     return per_parameter, WeakestMoves(*weakest(slice(0, 3)), *weakest(slice(3, 6)))
 
 
+def needed_noncentrality(model: DriftModel, dof: int) -> float:
+    """The non-centrality at which the model's test on ``dof`` values flags with its detection
+    probability at its false-alarm rate."""
+    threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
+    return flagging_noncentrality(threshold, dof, model.detection_probability)
+
+
 def flagging_noncentrality(threshold: float, dof: int, probability: float) -> float:
     """The non-centrality at which a chi-square with ``dof`` exceeds ``threshold`` with
     ``probability``."""

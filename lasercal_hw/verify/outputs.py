@@ -153,6 +153,7 @@ def verify_document(outcome: VerifyOutcome, *, ground_truth: FloatArray | None =
             "expected_std_shift_mm": selection.expected_std_shift_mm,
             "expected_std_turn_deg": selection.expected_std_turn_deg,
             "centre_noise": selection.centre_noise,
+            "choice": selection.choice,
             "left_out": selection.left_out,
         },
         "test": None if test is None else _test_document(test, outcome.visited_by_calibration),

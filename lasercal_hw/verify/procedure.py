@@ -46,7 +46,7 @@ from lasercal_hw.verify.drift import DriftModel, DriftTest, predictions, run_dri
 from lasercal_hw.verify.echo_reference import at_echo_middles
 from lasercal_hw.verify.identity import IdentityCheck, check_identity, robot_calibration_check
 from lasercal_hw.verify.outputs import VerifyOutcome, verify_document, write_verify_outputs
-from lasercal_hw.verify.selection import Selection, select_waypoints
+from lasercal_hw.verify.selection import Selection, VerdictAim, select_waypoints
 from lasercal_hw.verify.verdict import CLI_MORE_DATA, Verdict, decide, with_time_note
 
 MIN_MEASURED = 2
@@ -199,6 +199,7 @@ def plan_verify(
         centre_covariance_uv_m2=centre_covariance,
         noise_covariance_uv_m2=noise_covariance,
         unusable=unusable_waypoints(residuals, recorded_waypoints, waypoints) | repeated_poses(waypoints),
+        aim=VerdictAim(checking.verify.tolerance_mm * 1e-3, float(np.radians(checking.verify.tolerance_deg))),
     )
     middles = recorded_echo_middles(residuals, recorded_waypoints, waypoints)
     moves = recorded_echo_middle_moves(residuals, recorded_waypoints, waypoints)
@@ -270,6 +271,7 @@ def verify(
         expected_std_shift_mm=selection.expected_std_shift_mm,
         expected_std_turn_deg=selection.expected_std_turn_deg,
         estimated_time_s=selection.estimated_time_s,
+        choice=selection.choice,
     )
     run_request = RunRequest(
         job=job,

@@ -17,6 +17,16 @@ that left one direction of the transform untested would have a near-zero factor 
 Greedy selection, then exchanges until no swap improves the determinant; with a time
 budget (``verify.max_time_fraction`` of the calibration's own motion and dwell, estimated
 by ``run.timing``), the exchanges keep the subset inside it.
+
+The verify passes the verdict's tolerances (``VerdictAim``), and then the exchanges first raise
+what the verdict weighs (``tolerance_noncentrality``: how well the test sees a move of the
+tolerance in its weakest direction) up to a little past what the test needs, and only then the
+determinant: a large determinant can hide one direction seen poorly (on the default job a turn
+about an axis near base y), and the verdict says ``ok`` only where that direction too is seen
+at the tolerance; past that, the determinant keeps the move's estimate good. Where no subset
+found reaches what the test needs, the verdict cannot vouch anyway and the choice is the D-optimal
+one: raising the weakest direction alone can leave a shift as weak as the turn it cannot see
+(docs/verify.md, "The choice weighs what the verdict weighs").
 """
 
 from __future__ import annotations
@@ -30,13 +40,27 @@ from numpy.typing import NDArray
 from lasercal_hw.calibration.model import plane_crossing, rod_lines_in_base, whitening
 from lasercal_hw.errors import CalibrationError
 from lasercal_hw.models import FloatArray
-from lasercal_hw.verify.drift import DriftModel, noise_blocks, predictions
+from lasercal_hw.verify.drift import DriftModel, needed_noncentrality, noise_blocks, predictions
 
+#: How far past the non-centrality the test needs (``drift.needed_noncentrality``) the choice aims
+#: a move of the verdict's tolerance in its weakest direction, since the calibration's record only
+#: estimates the verify dwell's noise; past that aim the determinant decides.
+VERDICT_MARGIN = 1.2
 #: Centre noise the design assumes where the calibration recorded none (a 20 mm rod over a
 #: 3 s dwell: about 0.5 mm per axis).
 DESIGN_SIGMA_UV_M = 0.0005
 MIN_INCIDENCE_DEG = 10.0
 MIN_WAYPOINTS = 2
+
+
+@dataclass(frozen=True)
+class VerdictAim:
+    """The verdict's tolerances the choice weighs (shift, m; turn, rad) and how far past the
+    test's needed non-centrality it aims (``VERDICT_MARGIN``)."""
+
+    shift_m: float
+    turn_rad: float
+    margin: float = VERDICT_MARGIN
 
 
 @dataclass(frozen=True)
@@ -54,6 +78,8 @@ class Selection:
     #: Waypoints through the plane that were no candidates: the calibration visited them without
     #: a centre it used (no rod found, or an outlier), or visited their pose before.
     left_out: list[int] = field(default_factory=list)
+    #: How the subset was chosen (``aim_note``): for the verdict's aim, or D-optimal and why.
+    choice: str = ""
 
 
 def _crosses_plane(model: DriftModel, waypoints: FloatArray) -> np.ndarray:
@@ -110,9 +136,38 @@ def centre_noise_note(known: NDArray[np.bool_], noise_known: NDArray[np.bool_] |
     )
 
 
+def aim_note(aim: VerdictAim | None, seen: float, needed: float) -> str:
+    """How the subset was chosen, for ``verify.json``: ``seen``, the chosen subset's
+    ``tolerance_noncentrality``, against the ``needed`` one (both by the noise the choice weighed)."""
+    if aim is None:
+        return "D-optimal (no tolerance weighed)"
+    move = f"a {aim.shift_m * 1e3:g} mm shift and a {np.degrees(aim.turn_rad):.3g} deg turn"
+    if seen >= needed:
+        return (
+            f"sees {move} in its weakest direction with non-centrality {seen:.1f} (the test needs "
+            f"{needed:.1f} to flag them 9 times in 10; aimed at {aim.margin:g} times that), then the largest "
+            "determinant"
+        )
+    return (
+        f"D-optimal: no subset found sees {move} in every direction as the test needs (at best "
+        f"non-centrality {seen:.1f} of {needed:.1f}), so an unmoved scanner's verdict is likely inconclusive"
+    )
+
+
 def _log_det(matrix: FloatArray) -> float:
     sign, value = np.linalg.slogdet(matrix)
     return float(value) if sign > 0 else -np.inf
+
+
+def tolerance_noncentrality(information: FloatArray, tolerance_m: float, tolerance_rad: float) -> FloatArray:
+    """The test's non-centrality for a move of the tolerance in its weakest direction: the
+    smaller of a ``tolerance_m`` shift's and a ``tolerance_rad`` turn's where the ``information``
+    (..., 6, 6) is least (the smallest eigenvalue of its shift and turn blocks). The verdict says
+    ``ok`` only where this reaches the non-centrality the test flags 9 times in 10
+    (``drift.detectable_moves``), so the larger, the likelier an unmoved scanner's ``ok``."""
+    shift = np.linalg.eigvalsh(information[..., :3, :3])[..., 0] * tolerance_m**2
+    turn = np.linalg.eigvalsh(information[..., 3:, 3:])[..., 0] * tolerance_rad**2
+    return np.minimum(shift, turn)
 
 
 def select_waypoints(
@@ -126,8 +181,9 @@ def select_waypoints(
     centre_covariance_uv_m2: FloatArray | None = None,
     noise_covariance_uv_m2: FloatArray | None = None,
     unusable: NDArray[np.bool_] | None = None,
+    aim: VerdictAim | None = None,
 ) -> Selection:
-    """The D-optimal subset of ``count`` waypoints (all usable ones if fewer), visited in
+    """The subset of ``count`` waypoints to visit (all usable ones if fewer), in
     trajectory order; ``visited`` (N,) marks the waypoints the calibration measured (None:
     none), ``centre_covariance_uv_m2`` (N, 2, 2; m^2) the centre covariance the calibration
     weighed each with (NaN or None: unknown, ``DESIGN_SIGMA_UV_M`` assumed),
@@ -136,7 +192,11 @@ def select_waypoints(
     the waypoints that are no candidates (``active.unusable_waypoints``; None: none). With ``time_of``
     (waypoint indices -> seconds, None if unknown) and ``budget_s``, exchanges first bring the
     subset within the budget (a subset of unknown time is not within it), then improve it inside
-    the budget only."""
+    the budget only. With an ``aim`` the exchanges first raise ``tolerance_noncentrality`` (how well
+    the test sees a move of the verdict's tolerance in its weakest direction) up to the aim, then
+    the determinant: of the subsets with which an unmoved verify can say ``ok``, the one that
+    estimates the move best. Where the subset found that way still falls short of what the test
+    needs, no ``ok`` is in reach and the choice is the D-optimal one after all."""
     poses = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     seen = np.zeros(len(poses), dtype=bool) if visited is None else np.asarray(visited, dtype=bool)
     crossing = _crosses_plane(model, poses)
@@ -169,6 +229,14 @@ def select_waypoints(
     def score(subset: list[int]) -> float:
         return _log_det(base + information[subset].sum(axis=0))
 
+    size = min(count, len(usable))
+    needed = 0.0 if aim is None else needed_noncentrality(model, 2 * size)
+
+    def sees(subset: list[int]) -> float:
+        """How well ``subset`` sees a move of the aim's tolerance in its weakest direction."""
+        summed = information[subset].sum(axis=0)
+        return 0.0 if aim is None else float(tolerance_noncentrality(summed, aim.shift_m, aim.turn_rad))
+
     def seconds(subset: list[int]) -> float:
         """The subset's motion and dwell; a subset whose time is unknown (a pose the UR5 model
         cannot reach) counts as over any budget, never as free."""
@@ -177,25 +245,40 @@ def select_waypoints(
         value = time_of(sorted(int(usable[k]) for k in subset))
         return np.inf if value is None else value
 
-    def better(trial: list[int], current: list[int]) -> bool:
-        limit = np.inf if budget_s is None else budget_s
-        trial_s, current_s = seconds(trial), seconds(current)
-        if current_s > limit:  # over budget: any faster subset is better
-            return trial_s < current_s - 1e-9
-        return trial_s <= limit and score(trial) > score(current) + 1e-9
+    def exchanged(start: list[int], target: float) -> list[int]:
+        """``start`` improved by single swaps: into the budget first, then ``sees`` up to
+        ``target`` (0: not weighed), then the determinant."""
 
-    chosen: list[int] = []
-    for _ in range(min(count, len(usable))):
-        scores = [-np.inf if k in chosen else score([*chosen, k]) for k in range(len(usable))]
-        chosen.append(int(np.argmax(scores)))
-    improved = True
-    while improved:
-        improved = False
-        for slot in range(len(chosen)):
-            for k in sorted(set(range(len(usable))) - set(chosen)):
-                trial = [*chosen[:slot], k, *chosen[slot + 1:]]
-                if better(trial, chosen):
-                    chosen, improved = trial, True
+        def better(trial: list[int], current: list[int]) -> bool:
+            limit = np.inf if budget_s is None else budget_s
+            trial_s, current_s = seconds(trial), seconds(current)
+            if current_s > limit:  # over budget: any faster subset is better
+                return trial_s < current_s - 1e-9
+            if trial_s > limit:
+                return False
+            trial_seen, current_seen = min(sees(trial), target), min(sees(current), target)
+            if abs(trial_seen - current_seen) > 1e-9 * max(current_seen, 1.0):
+                return trial_seen > current_seen
+            return score(trial) > score(current) + 1e-9
+
+        chosen, improved = start, True
+        while improved:
+            improved = False
+            for slot in range(len(chosen)):
+                for k in sorted(set(range(len(usable))) - set(chosen)):
+                    trial = [*chosen[:slot], k, *chosen[slot + 1:]]
+                    if better(trial, chosen):
+                        chosen, improved = trial, True
+        return chosen
+
+    greedy: list[int] = []
+    for _ in range(size):
+        scores = [-np.inf if k in greedy else score([*greedy, k]) for k in range(len(usable))]
+        greedy.append(int(np.argmax(scores)))
+    chosen = exchanged(greedy, 0.0 if aim is None else aim.margin * needed)
+    sharpest = sees(chosen)
+    if sharpest < needed:  # the verdict cannot vouch with any subset found: the most informative
+        chosen = exchanged(greedy, 0.0)
     covariance = np.linalg.inv(base + information[chosen].sum(axis=0))
     std = np.sqrt(np.diag(covariance))
     return Selection(
@@ -206,4 +289,5 @@ def select_waypoints(
         estimated_time_s=time_of(sorted(int(usable[k]) for k in chosen)) if time_of is not None else None,
         centre_noise=centre_noise_note(known, noise_known),
         left_out=[int(i) for i in np.flatnonzero(refused)],
+        choice=aim_note(aim, sharpest, needed),
     )
