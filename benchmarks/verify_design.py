@@ -18,18 +18,25 @@ then carries that change, for a positive and for a negative move apart (the weak
 ``test.detectable`` does), and the share of random moves flagged takes each move's exact change
 (``helix.offset_change_m``: the non-centrality ``|J x + h(x)|^2`` over ``S``). Printed per rule,
 each inside the time budget: the smallest shift
-/ turn flagged 90 % of the time along the weakest base axis (``test.detectable``), the turn about
-each base axis, and the predicted share of random 3 mm shifts and 0.3 deg turns flagged (the
+/ turn flagged 90 % of the time in the direction the test sees least (``test.detectable``'s
+``weakest_*``, what the verdict weighs) and how many seeds' unmoved verify would say ``ok`` there
+(both under the job's tolerances), the same along the weakest base axis, the turn about each base
+axis, and the predicted share of random 3 mm shifts and 0.3 deg turns flagged (the
 non-central chi-square averaged over directions; what ``verify_rates`` measures) and that share
 again if the noise is as large as the unmoved dwells at those waypoints show (their chi-square's
 mean over its dof ``k``: the statistic is then ``k`` times a non-central chi-square of ``lambda /
-k``; a noise stated too large costs power). Rules: the verify's choice (D-optimal with the centre
-covariance the calibration's solver weighed each waypoint with, as ``result.json`` records it),
-the same with one assumed 0.5 mm centre noise at every waypoint (the choice before 2026-11-27, and
-that of an older ``result.json``), and, over every subset of the verify's size (the verify's own
-noise), the one with the smallest weakest-axis turn and the one that flags the most random 0.3 deg
-turns, and that last search again on the centre covariance the calibration recorded (what the
-verify knows when it chooses; the verify dwell's own noise is known only after it).
+k``; a noise stated too large costs power). Also printed per rule: the estimated move's largest
+std of a shift and of a turn component at the verify dwell's noise. Rules: the verify's choice
+(``plan_verify``: with the centre covariance the calibration's solver weighed each waypoint with,
+as ``result.json`` records it, exchanges that raise what the verdict weighs,
+``selection.tolerance_noncentrality``, up to its aim, ``VERDICT_MARGIN`` times what the test
+needs, then the determinant), the same with the other aims of ``AIM_MARGINS`` (``inf``: the
+verdict's figure alone), the D-optimal choice on that record (the verify's before 2026-11-29) and
+with one assumed 0.5 mm centre noise at every waypoint (before 2026-11-27, and that of an older
+``result.json``), and, over every subset of the verify's size, the verify's aim (what its
+exchanges should find), the one best for the verdict and the one that flags the most random 0.3
+deg turns, on the centre covariance the calibration recorded (what the verify knows when it
+chooses) and on the verify dwell's own noise (known only after it).
 ``--slack-dwell``: also the verify's choice with its dwell lengthened until the verify takes its
 whole time budget, measured at that dwell: the test then counts that dwell's noise and the
 calibration's recorded one (``noise_covariance_uv_mm2``) where it counts the verify's twice, and
@@ -69,14 +76,20 @@ from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.verify.active import recorded_centre_covariances
 from lasercal_hw.verify.drift import (
     DriftModel,
-    flagging_noncentrality,
+    needed_noncentrality,
     noise_blocks,
     predictions,
     residual_covariance,
 )
 from lasercal_hw.verify.helix import HelixChange, offset_change_m
 from lasercal_hw.verify.procedure import VerifyPlan
-from lasercal_hw.verify.selection import select_waypoints, waypoint_information
+from lasercal_hw.verify.selection import (
+    VERDICT_MARGIN,
+    VerdictAim,
+    select_waypoints,
+    tolerance_noncentrality,
+    waypoint_information,
+)
 
 SHIFT_M = 0.003
 TURN_RAD = float(np.radians(0.3))
@@ -84,15 +97,11 @@ DIRECTIONS = 2000
 #: Random turn axes the subset search scores with (the printed share takes ``DIRECTIONS``).
 SEARCH_DIRECTIONS = 200
 SEARCH_CHUNK = 20000
+SHIFTS, TURNS = slice(0, 3), slice(3, 6)
+#: The choice's aims compared (``selection.VerdictAim.margin``; the verify's own is printed as its choice).
+AIM_MARGINS = (1.0, 1.2, 1.5, np.inf)
 #: The per-waypoint table's turns are those a test of this many waypoints would see.
 TABLE_WAYPOINTS = 4
-
-
-def needed_noncentrality(dof: int, model: DriftModel) -> float:
-    """The non-centrality at which the test on ``dof`` values flags with its detection
-    probability."""
-    threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
-    return flagging_noncentrality(threshold, dof, model.detection_probability)
 
 
 def unit_directions(count: int, seed: int) -> FloatArray:
@@ -116,6 +125,14 @@ class Judged:
     waypoints: list[int]
     weakest_shift_mm: float
     turn_deg: FloatArray
+    #: The smallest shift / turn flagged 90 % in the direction the test sees least (the verdict's).
+    direction_shift_mm: float
+    direction_turn_deg: float
+    #: Both under the job's tolerances: an unmoved verify there says ``ok``.
+    ok: bool
+    #: The estimated move's largest std of a shift component (mm) and of a turn one (deg).
+    estimate_std_mm: float
+    estimate_std_deg: float
     flagged_shift: float
     flagged_turn: float
     time_share: float
@@ -142,9 +159,14 @@ def judge(
     (``unmoved_chi_square``: of the unmoved verify dwell at those waypoints)."""
     model, dof = candidates.plan.model, 2 * len(waypoints)
     threshold = float(chi2.ppf(1.0 - model.false_alarm_rate, dof))
-    needed = needed_noncentrality(dof, model)
-    diagonal = np.min([np.diag(side) for side in candidates.information_of(waypoints, noise)], axis=0)
+    needed = needed_noncentrality(model, dof)
+    sides = candidates.information_of(waypoints, noise)
+    diagonal = np.min([np.diag(side) for side in sides], axis=0)
     weakest = np.sqrt(needed / diagonal)
+    least = np.min([[np.linalg.eigvalsh(side[b, b])[0] for b in (SHIFTS, TURNS)] for side in sides], axis=0)
+    direction_shift_mm, direction_turn_deg = np.sqrt(needed / least) * [1e3, np.degrees(1.0)]
+    tolerance = candidates.plan.job.verify
+    estimate = np.sqrt(np.diag(np.linalg.inv(sides[0] + np.linalg.inv(model.prior()))))
     shift, turn = (candidates.noncentrality(waypoints, move, noise) for move in moves)
     bound = np.sqrt(needed / (diagonal[3:] + np.diag(np.linalg.inv(model.covariance))[3:]))
     return Judged(
@@ -152,6 +174,11 @@ def judge(
         sorted(waypoints),
         float(weakest[:3].max() * 1e3),
         np.degrees(weakest[3:]),
+        float(direction_shift_mm),
+        float(direction_turn_deg),
+        bool(direction_shift_mm <= tolerance.tolerance_mm and direction_turn_deg <= tolerance.tolerance_deg),
+        float(estimate[:3].max() * 1e3),
+        float(np.degrees(estimate[3:].max())),
         float(ncx2.sf(threshold, dof, shift).mean()),
         float(ncx2.sf(threshold, dof, turn).mean()),
         time_share,
@@ -214,7 +241,7 @@ def main() -> None:
             unmoved = float(candidates.whitened_squares()[[found.index(i) for i in subset]].sum())
             outcome = judge(name, candidates, subset, moves, share, unmoved)
             judged.setdefault(name, []).append(outcome)
-            line.append(f"{name}: {outcome.waypoints} {outcome.turn_deg.max():.3f} deg")
+            line.append(f"{name}: {outcome.waypoints} {outcome.direction_turn_deg:.3f} deg")
         if args.slack_dwell:
             slack = slack_dwell(bench, plan, trial.result.residuals, world, rng, candidates, moves)
             if slack is not None:
@@ -230,7 +257,7 @@ def main() -> None:
         per_waypoint[found] = candidates.whitened_squares()
         whitened.append(per_waypoint)
         turns = np.full((len(plan.waypoints), 3), np.nan)
-        needed = needed_noncentrality(2 * TABLE_WAYPOINTS, plan.model)
+        needed = needed_noncentrality(plan.model, 2 * TABLE_WAYPOINTS)
         turns[found] = np.degrees(np.sqrt(needed / np.einsum("nkk->nk", candidates.alone)[:, 3:]))
         alone_turns.append(turns)
 
@@ -242,8 +269,16 @@ def main() -> None:
         shares = np.array([o.time_share for o in outcomes])
         axis = np.median(turn, axis=0)
         k, scaled = scaled_turn_share(outcomes)
+        direction = np.array([[o.direction_shift_mm, o.direction_turn_deg] for o in outcomes])
         print(
-            f"  {name}: weakest shift median {np.median(shift):.2f} mm, weakest turn median "
+            f"  {name}: weakest direction: shift median {np.median(direction[:, 0]):.2f} mm, turn median "
+            f"{np.median(direction[:, 1]):.3f} deg (max {direction[:, 1].max():.3f}); an unmoved verify "
+            f"says ok at {sum(o.ok for o in outcomes)} / {len(outcomes)} seeds; the move's estimate: largest "
+            f"std median {np.median([o.estimate_std_mm for o in outcomes]):.2f} mm, "
+            f"{np.median([o.estimate_std_deg for o in outcomes]):.3f} deg"
+        )
+        print(
+            f"    weakest base axis: shift median {np.median(shift):.2f} mm, turn median "
             f"{np.median(weakest):.3f} deg (max {weakest.max():.3f}; about base x / y / z median "
             f"{axis[0]:.3f} / {axis[1]:.3f} / {axis[2]:.3f}); predicted flagged: 3 mm shift "
             f"{np.mean([o.flagged_shift for o in outcomes]):.1%}, 0.3 deg turn "
@@ -396,31 +431,74 @@ def rules(
         count=math.comb(len(usable), count) * count,
     ).reshape(-1, count)
 
-    def first_in_budget(score: FloatArray) -> list[int]:
-        for k in np.argsort(score, kind="stable"):
+    def first_in_budget(order: FloatArray) -> list[int]:
+        for k in order:
             chosen = [found[i] for i in subsets[k]]
             seconds = visit_time_s(plan.job, plan.waypoints[chosen])
             if seconds is not None and (budget_s is None or seconds <= budget_s):
                 return chosen
         raise LasercalError("no subset of the job's waypoints fits the verify's time budget")
 
-    turn_information = np.einsum("nkk->nk", candidates.alone)[:, 3:]
-    weakest_turn = over_subsets(turn_information, subsets, lambda summed: np.max(1.0 / summed, axis=1))
-    assumed = select_waypoints(
-        model,
-        plan.waypoints,
-        count,
-        np.isfinite(plan.reference).all(axis=1),
-        time_of=lambda indices: visit_time_s(plan.job, plan.waypoints[indices]),
-        budget_s=budget_s,
-    )
-    named = [("verify's choice", plan.selection.indices), ("D-optimal, 0.5 mm assumed", assumed.indices)]
+    tolerance = plan.job.verify.tolerance_mm * 1e-3, float(np.radians(plan.job.verify.tolerance_deg))
+
+    def chosen_by(aim: VerdictAim | None, recorded_noise: bool = True) -> list[int]:
+        return select_waypoints(
+            model,
+            plan.waypoints,
+            count,
+            np.isfinite(plan.reference).all(axis=1),
+            time_of=lambda indices: visit_time_s(plan.job, plan.waypoints[indices]),
+            budget_s=budget_s,
+            centre_covariance_uv_m2=whole if recorded_noise else None,
+            noise_covariance_uv_m2=drawn if recorded_noise else None,
+            unusable=~np.isin(np.arange(len(plan.waypoints)), found),
+            aim=aim,
+        ).indices
+
+    named = [
+        ("verify's choice", plan.selection.indices),
+        *(
+            (f"aim {margin:g} by the record", chosen_by(VerdictAim(*tolerance, margin)))
+            for margin in AIM_MARGINS
+            if margin != VERDICT_MARGIN
+        ),
+        ("D-optimal by the record", chosen_by(None)),
+        ("D-optimal, 0.5 mm assumed", chosen_by(None, recorded_noise=False)),
+    ]
+    aim = VERDICT_MARGIN * needed_noncentrality(model, 2 * count)
+    aim_of = tolerance, model.prior()
+    seen, determinant = aimed(recorded, subsets, *aim_of)
     return [
         *((name, list(chosen)) for name, chosen in named if set(chosen) <= set(found)),
-        ("smallest weakest turn", first_in_budget(weakest_turn)),
-        ("most 0.3 deg turns", first_in_budget(-turns_flagged(candidates, subsets, model))),
-        ("most 0.3 deg turns by the record", first_in_budget(-turns_flagged(recorded, subsets, model))),
+        (
+            f"aim {VERDICT_MARGIN:g} by the record, every subset",
+            first_in_budget(np.lexsort((-determinant, -np.minimum(seen, aim)))),
+        ),
+        ("the verdict's best by the record", first_in_budget(np.argsort(-seen, kind="stable"))),
+        ("the verdict's best", first_in_budget(np.argsort(-aimed(candidates, subsets, *aim_of)[0]))),
+        ("most 0.3 deg turns", first_in_budget(np.argsort(-turns_flagged(candidates, subsets, model)))),
+        (
+            "most 0.3 deg turns by the record",
+            first_in_budget(np.argsort(-turns_flagged(recorded, subsets, model), kind="stable")),
+        ),
     ]
+
+
+def aimed(
+    candidates: Candidates, subsets: FloatArray, tolerance: tuple[float, float], prior: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Each subset's (m, count) non-centrality of a move of the ``tolerance`` (m, rad) in its
+    weakest direction (``selection.tolerance_noncentrality``: what the verdict weighs) and its
+    ``log det(F + prior^-1)`` (the D-optimal choice's)."""
+    per_waypoint = candidates.alone.reshape(len(candidates.alone), 36)
+    base = np.linalg.inv(prior)
+    seen = over_subsets(
+        per_waypoint, subsets, lambda summed: tolerance_noncentrality(summed.reshape(-1, 6, 6), *tolerance)
+    )
+    determinant = over_subsets(
+        per_waypoint, subsets, lambda summed: np.linalg.slogdet(base + summed.reshape(-1, 6, 6))[1]
+    )
+    return seen, determinant
 
 
 def turns_flagged(candidates: Candidates, subsets: FloatArray, model: DriftModel) -> FloatArray:
