@@ -80,6 +80,9 @@ class Selection:
     left_out: list[int] = field(default_factory=list)
     #: How the subset was chosen (``aim_note``): for the verdict's aim, or D-optimal and why.
     choice: str = ""
+    #: Whether the subset sees a move of the verdict's tolerance as the test needs, by the noise
+    #: the choice weighed (False: an unmoved verify is likely ``inconclusive``; None: not weighed).
+    vouches: bool | None = None
 
 
 def _crosses_plane(model: DriftModel, waypoints: FloatArray) -> np.ndarray:
@@ -290,4 +293,5 @@ def select_waypoints(
         centre_noise=centre_noise_note(known, noise_known),
         left_out=[int(i) for i in np.flatnonzero(refused)],
         choice=aim_note(aim, sharpest, needed),
+        vouches=None if aim is None else sharpest >= needed,
     )

@@ -161,6 +161,7 @@ def test_the_choice_aims_at_what_the_verdict_weighs(setup: tuple[DriftModel, np.
     selection = select_waypoints(model, poses, 4, visited, aim=within_reach)
     chosen = selection.indices
     assert selection.choice.startswith("sees a 7.6 mm shift and a 0.76 deg turn in its weakest direction")
+    assert selection.vouches is True
     assert seen(chosen, within_reach) >= target
     assert det(chosen) == pytest.approx(max(det(subset) for subset in reaching), abs=1e-9)
     assert seen(determinant, within_reach) < target
@@ -171,7 +172,7 @@ def test_the_choice_aims_at_what_the_verdict_weighs(setup: tuple[DriftModel, np.
     sharpest = max(subsets, key=lambda subset: seen(subset, out_of_reach))
     assert seen(sharpest, out_of_reach) < needed_noncentrality(model, 8) and sharpest != determinant
     selection = select_waypoints(model, poses, 4, visited, aim=out_of_reach)
-    assert selection.indices == determinant
+    assert selection.indices == determinant and selection.vouches is False
     assert "(at best non-centrality 2.4 of 25.2)" in selection.choice
     assert selection.choice.endswith("an unmoved scanner's verdict is likely inconclusive")
 
