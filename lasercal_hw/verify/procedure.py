@@ -263,11 +263,7 @@ def verify(
     budget_s = time_budget_s(active, chosen_job)
     plan = plan_active(active, chosen_job, count=request.waypoints, budget_s=budget_s)
     job, waypoints, selection = plan.job, plan.waypoints, plan.selection
-    blind = (
-        ": no subset of them can vouch for the tolerance, an unmoved scanner's verdict is likely inconclusive"
-        if selection.vouches is False
-        else ""
-    )
+    blind = f" ({selection.choice})" if selection.vouches is False else ""
     sink.emit(
         "stage",
         f"verifying {active.path} at waypoints {selection.indices} of {len(waypoints)}{blind}",

@@ -57,7 +57,7 @@ def test_cli_unmoved_scanner_is_not_flagged_and_a_blind_verify_says_so(tmp_path:
     assert document["verdict"] == "inconclusive", document["reason"]
     assert "more waypoints" in document["reason"] and "dwell longer" in document["reason"]
     assert document["selection"]["choice"].endswith("an unmoved scanner's verdict is likely inconclusive")
-    assert "no subset of them can vouch for the tolerance" in completed.stderr + completed.stdout
+    assert "of 10 (D-optimal: no subset found sees a 2 mm shift" in completed.stderr + completed.stdout
     assert all(w["visited_by_calibration"] for w in test["waypoints"])
     assert all(check["matches"] for check in document["identity"])
     assert {"session", "verify", "report"} <= set(document["outputs"])
