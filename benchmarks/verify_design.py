@@ -80,6 +80,7 @@ from lasercal_hw.verify.drift import (
     noise_blocks,
     predictions,
     residual_covariance,
+    weakest_moves,
 )
 from lasercal_hw.verify.helix import HelixChange, offset_change_m
 from lasercal_hw.verify.procedure import VerifyPlan
@@ -97,7 +98,6 @@ DIRECTIONS = 2000
 #: Random turn axes the subset search scores with (the printed share takes ``DIRECTIONS``).
 SEARCH_DIRECTIONS = 200
 SEARCH_CHUNK = 20000
-SHIFTS, TURNS = slice(0, 3), slice(3, 6)
 #: The choice's aims compared (``selection.VerdictAim.margin``; the verify's own is printed as its choice).
 AIM_MARGINS = (1.0, 1.2, 1.5, np.inf)
 #: The per-waypoint table's turns are those a test of this many waypoints would see.
@@ -163,8 +163,8 @@ def judge(
     sides = candidates.information_of(waypoints, noise)
     diagonal = np.min([np.diag(side) for side in sides], axis=0)
     weakest = np.sqrt(needed / diagonal)
-    least = np.min([[np.linalg.eigvalsh(side[b, b])[0] for b in (SHIFTS, TURNS)] for side in sides], axis=0)
-    direction_shift_mm, direction_turn_deg = np.sqrt(needed / least) * [1e3, np.degrees(1.0)]
+    least = weakest_moves(sides, needed)
+    direction_shift_mm, direction_turn_deg = least.shift_mm, least.turn_deg
     tolerance = candidates.plan.job.verify
     estimate = np.sqrt(np.diag(np.linalg.inv(sides[0] + np.linalg.inv(model.prior()))))
     shift, turn = (candidates.noncentrality(waypoints, move, noise) for move in moves)

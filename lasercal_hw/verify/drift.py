@@ -242,13 +242,20 @@ def detectable_moves(
     informations = [j.T @ cho_solve(noise, j) for j in rows]
     with np.errstate(divide="ignore"):
         per_parameter = np.sqrt(needed / np.min([np.diag(f) for f in informations], axis=0))
+    return per_parameter, weakest_moves(informations, needed)
+
+
+def weakest_moves(informations: list[FloatArray], needed: float) -> WeakestMoves:
+    """The weakest shift and turn flagged at the non-centrality ``needed``, from the test's
+    information (6, 6) for each way the centres move (with a twist drill's helix a positive and a
+    negative move's, the weaker counted)."""
 
     def weakest(block: slice) -> tuple[float, FloatArray]:
         values, vectors = min((np.linalg.eigh(f[block, block]) for f in informations), key=lambda e: e[0][0])
         size = float(np.sqrt(needed / values[0])) if values[0] > 0 else float("inf")
         return size, vectors[:, 0]
 
-    return per_parameter, WeakestMoves(*weakest(slice(0, 3)), *weakest(slice(3, 6)))
+    return WeakestMoves(*weakest(slice(0, 3)), *weakest(slice(3, 6)))
 
 
 def needed_noncentrality(model: DriftModel, dof: int) -> float:
