@@ -95,3 +95,9 @@ class Job(BaseModel):
     def as_json(self) -> dict[str, Any]:
         """The job as JSON."""
         return self.model_dump(mode="json")
+
+
+def verify_verdict(document: dict[str, Any]) -> dict[str, Any]:
+    """A verify job's verdict from its ``verify.json`` document: passed only when ``ok``."""
+    status = document["verdict"]
+    return {"passed": status == "ok", "status": status, "reason": document["reason"]}

@@ -2,7 +2,8 @@
 
 Each ``jobs/<id>/`` folder holds what its job left: ``result.json`` (a finished
 calibration: filed again, the job ``succeeded``) or a recording (``session.mcap``: the job
-``interrupted``, resumable from it), or neither (``failed``). What lived only in the
+``interrupted``, resumable from it), or neither (``failed``); a verify's, ``verify.json`` (the
+job ``succeeded`` with its verdict; the verify history itself is not rebuilt). What lived only in the
 database is lost: the request as sent, the events, the activation log (no calibration is
 active afterwards), verifies, the calibrations' ids (each is filed under a new one) and who
 marked one bad (none is bad afterwards; the report line says so). A database found in the way
@@ -24,10 +25,11 @@ from lasercal_hw.run.resume import recorded_job
 from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.events import EventBus
 from lasercal_hw.service.folder_lock import DataFolderLock
-from lasercal_hw.service.job_record import Job, JobError, JobProgress, JobState
+from lasercal_hw.service.job_record import Job, JobError, JobProgress, JobState, verify_verdict
 from lasercal_hw.service.jobs import SESSION_FILE
 from lasercal_hw.service.store import DB_FILE, HistoryStore
 from lasercal_hw.session.reader import read_session
+from lasercal_hw.verify.outputs import VERIFY_FILE
 
 DRY_RUN_FILES = ("dry_run_scene.toml", "request_scene.toml")
 
@@ -109,6 +111,17 @@ def _rebuilt_cell(
     return JobState.INTERRUPTED
 
 
+def _rebuilt_verify(verify_file: Path, fields: dict[str, Any]) -> JobState:
+    """A finished verify's job (its recording beside is the verify's, not a calibration to resume):
+    ``succeeded`` with the verdict its ``verify.json`` gives, ``failed`` where that is unreadable."""
+    try:
+        fields["verdict"] = verify_verdict(json.loads(verify_file.read_text(encoding="utf-8")))
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        fields["error"] = JobError(code="rebuilt", message=f"{VERIFY_FILE} unreadable: {exc}")
+        return JobState.FAILED
+    return JobState.SUCCEEDED
+
+
 def _rebuilt_job(folder: Path, history: CalibrationHistory, report: RebuildReport) -> Job:
     """The job row a folder tells of (filing its calibration, if it has one)."""
     dry_run = any((folder / name).exists() for name in DRY_RUN_FILES)
@@ -126,6 +139,9 @@ def _rebuilt_job(folder: Path, history: CalibrationHistory, report: RebuildRepor
             report.calibrations += 1
         except LasercalError as exc:
             state, fields["error"] = JobState.FAILED, JobError(code="rebuilt", message=str(exc))
+    elif (folder / VERIFY_FILE).exists():
+        request["kind"] = "verify"
+        state = _rebuilt_verify(folder / VERIFY_FILE, fields)
     elif session.exists():
         try:
             job, _waypoints = recorded_job(read_session(session, include_scans=False))

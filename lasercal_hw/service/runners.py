@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
+from lasercal_hw.service.job_record import verify_verdict
 from lasercal_hw.service.job_request import DAEMON_VERIFY_JOB, nothing_to_verify
 from lasercal_hw.service.jobs import RunContext, Runner, RunResult
 from lasercal_hw.service.store import utc_now
@@ -136,8 +137,7 @@ def run_verify(ctx: RunContext, *, folder_of: CalibrationFolder) -> RunResult:
         "out_dir": str(report.out_dir),
         "document": document,
     }
-    status = document["verdict"]
-    verdict = {"passed": status == "ok", "status": status, "reason": document["reason"]}
+    verdict = verify_verdict(document)
     return RunResult(document=document, passed=verdict["passed"], verdict=verdict, verify=summary)
 
 

@@ -27,6 +27,7 @@ from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.app import create_app
 from lasercal_hw.service.config import load_daemon_config
 from lasercal_hw.service.daemon import Daemon
+from lasercal_hw.service.rebuild import rebuild_history
 from lasercal_hw.service.store import DB_FILE, SCHEMA_VERSION, HistoryStore
 from lasercal_hw.session.reader import read_session
 from tests.daemon_helpers import QUICK_DRY_RUN, DaemonProcess, FakeEngine, fake_runners, read_sse, wait_for
@@ -210,6 +211,28 @@ def test_rebuild_history_from_the_job_folders(history_dir: Path, tmp_path: Path)
     finally:
         daemon.store.close()
     assert list(data_dir.glob(f"{DB_FILE}.before-rebuild-*"))  # the emptied file is kept
+
+
+def test_a_rebuild_files_a_finished_verify_as_a_verify_not_a_calibration_to_resume(tmp_path: Path) -> None:
+    """A verify's folder holds its recording too: it is the verify's, with ``verify.json``
+    beside it, and must not come back as an interrupted calibration that resume would re-run."""
+    for job_id, verify in (("job-verify", '{"verdict": "inconclusive", "reason": "too little data"}'),
+                           ("job-torn", '{"verdict": ')):
+        folder = tmp_path / "jobs" / job_id
+        folder.mkdir(parents=True)
+        (folder / "session.mcap").write_bytes(b"not read: the verify.json decides")
+        (folder / "verify.json").write_text(verify, encoding="utf-8")
+    report = rebuild_history(tmp_path)
+    assert report.jobs == {"failed": 1, "succeeded": 1} and report.calibrations == 0
+    store = HistoryStore(tmp_path / DB_FILE)
+    try:
+        done, torn = store.job("job-verify"), store.job("job-torn")
+    finally:
+        store.close()
+    assert (done["kind"], done["state"]) == ("verify", "succeeded")
+    assert done["verdict"] == {"passed": False, "status": "inconclusive", "reason": "too little data"}
+    assert (torn["kind"], torn["state"]) == ("verify", "failed")
+    assert "verify.json unreadable" in torn["error"]["message"]
 
 
 def test_a_migration_backs_the_database_up_first(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
