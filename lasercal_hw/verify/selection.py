@@ -237,8 +237,9 @@ def select_waypoints(
 
     def sees(subset: list[int]) -> float:
         """How well ``subset`` sees a move of the aim's tolerance in its weakest direction."""
-        summed = information[subset].sum(axis=0)
-        return 0.0 if aim is None else float(tolerance_noncentrality(summed, aim.shift_m, aim.turn_rad))
+        if aim is None:
+            return 0.0
+        return float(tolerance_noncentrality(information[subset].sum(axis=0), aim.shift_m, aim.turn_rad))
 
     def seconds(subset: list[int]) -> float:
         """The subset's motion and dwell; a subset whose time is unknown (a pose the UR5 model
