@@ -38,7 +38,7 @@ def _blocks_and_prose(text: str) -> tuple[str, str]:
 def documented_commands() -> list[tuple[str, str]]:
     """(file:line, the command from ``python`` on) of every benchmark command: a line of a
     fenced block or of a docstring (with its continuation lines), or a span in backticks."""
-    paths = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    paths = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
     found = set()
     for path in [*paths, *sorted((ROOT / "benchmarks").glob("*.py"))]:
         text = path.read_text(encoding="utf-8").replace("\\\n", "  ")  # a continued line, same offsets

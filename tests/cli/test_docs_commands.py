@@ -28,7 +28,7 @@ COMMENTED = re.compile(r"#\s*(?:[A-Z][a-z ]*:)?\s*(?P<command>lasercal .*--.*)$"
 def documented_commands() -> list[tuple[str, str]]:
     """(file:line, the arguments after ``lasercal``) of every command in a fenced block."""
     found = []
-    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
         in_block, pending = False, ""
         for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
             if line.strip().startswith("```"):
@@ -129,7 +129,7 @@ def project_python_commands() -> list[tuple[str, str]]:
     """(file:line, interpreter) of every project-importing python command in a fenced block or
     an inline code span of the README and docs/."""
     found = []
-    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
         in_block = False
         for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
             if line.strip().startswith("```"):
