@@ -34,7 +34,15 @@ from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
 from lasercal_hw.run.preflight import PreflightReport
 from lasercal_hw.run.records import ProgressCallback, ResumeState, RunOutcome, RunRecorder
-from lasercal_hw.run.resume import META_JOB, META_WAYPOINTS, recorded_job, resume_state
+from lasercal_hw.run.resume import (
+    META_JOB,
+    META_PROCEDURE,
+    META_WAYPOINTS,
+    Procedure,
+    recorded_job,
+    recorded_procedure,
+    resume_state,
+)
 from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.watchers import Watcher
 from lasercal_hw.run.waypoints import job_waypoints
@@ -90,6 +98,8 @@ class RunRequest:
     #: The number each waypoint goes by in messages (default: its position in ``waypoints``).
     waypoint_names: tuple[int, ...] | None = None
     title: str = "lasercal run"
+    #: What the run is for, recorded with it: only a calibration's recording is resumed.
+    procedure: Procedure = Procedure.CALIBRATION
     #: Which of the cell's scanners this run calibrates (a dry run picks it from the scene's
     #: ``[scanners.NAME]``); None: the one scanner.
     scanner_name: str | None = None
@@ -293,13 +303,11 @@ def open_sequencer(
     sink: EventSink,
     cancel: CancelToken,
     confirm: Callable[[MotionPlan], None] | None = None,
-    *,
-    resumable: bool = True,
 ) -> Iterator[SequencerSession]:
     """Everything a run does around its sequencer, for ``calibrate`` and for other
     procedures on the same machinery (``lasercal verify`` measures without solving):
     output folder, fake cell, devices, recording, and on failure where the recording is
-    (and that the run can be resumed from it, when ``resumable``)."""
+    (and that the run can be resumed from it, for a calibration: ``request.procedure``)."""
     request, job, waypoints, out_dir, state, created = _prepare(request)
     session_path = _recording_path(request)
     try:
@@ -348,7 +356,8 @@ def open_sequencer(
             )
     except (LasercalError, KeyboardInterrupt, OSError) as exc:  # OSError: a full disk, say
         _after_failure(
-            out_dir, session_path, created, sink, exc, resumable=resumable, dry_run=request.dry_run
+            out_dir, session_path, created, sink, exc,
+            resumable=request.procedure is Procedure.CALIBRATION, dry_run=request.dry_run
         )
         raise
 
@@ -409,6 +418,11 @@ def _earlier_run(request: RunRequest) -> SessionRecording | None:
             raise ConfigError(
                 f"{request.resume} is a cell job's recording of scanners {names}: it is continued by "
                 f"resuming the job, its folder {request.resume.parent}, not one scanner's run"
+            )
+        if recorded_procedure(recording) is Procedure.VERIFY:
+            raise ConfigError(
+                f"{request.resume} is a verify's recording, which is not resumed: start a new verify "
+                "(lasercal verify)"
             )
         return recording
     if request.recording is not None and request.scanner_name is not None:
@@ -524,6 +538,7 @@ def _open_recorder(
     meta = {
         META_JOB: job.model_dump(mode="json"),
         META_WAYPOINTS: np.asarray(waypoints).tolist(),
+        META_PROCEDURE: request.procedure.value,
         "software_version": __version__,
         META_DRY_RUN: request.dry_run,
         "started_utc": datetime.now(UTC).isoformat(),

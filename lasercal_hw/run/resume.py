@@ -10,6 +10,7 @@ rebuilt from its window. A waypoint whose scans are missing is simply measured a
 from __future__ import annotations
 
 import logging
+from enum import StrEnum
 from typing import Any
 
 import numpy as np
@@ -26,9 +27,31 @@ logger = logging.getLogger(__name__)
 
 META_JOB = "job"
 META_WAYPOINTS = "waypoints"
+#: Recording meta: the procedure that wrote it (``Procedure``).
+META_PROCEDURE = "procedure"
 #: Event of an adaptive run's design (``lasercal_hw.run.adaptive``): its waypoints extend
 #: the recorded ones from ``first_index`` on.
 DESIGN_EVENT = "trajectory_design"
+
+
+class Procedure(StrEnum):
+    """What wrote a recording: only a calibration's is resumed; a verify is started anew."""
+
+    CALIBRATION = "calibration"
+    VERIFY = "verify"
+
+
+def recorded_procedure(recording: SessionRecording) -> Procedure:
+    """The procedure that wrote ``recording``; one made before the meta said (2026-11-29) is a
+    calibration's (a verify's then was not told apart)."""
+    value = recording.meta.get(META_PROCEDURE, Procedure.CALIBRATION.value)
+    try:
+        return Procedure(value)
+    except ValueError:
+        raise ConfigError(
+            f"{recording.path} was written by a procedure this lasercal does not know ({value!r}): "
+            "read it with the lasercal that wrote it"
+        ) from None
 
 
 def recorded_job(recording: SessionRecording) -> tuple[JobConfig, FloatArray]:

@@ -41,6 +41,11 @@ class JobState(StrEnum):
 
 FINISHED_STATES = (JobState.SUCCEEDED, JobState.FAILED, JobState.CANCELLED, JobState.INTERRUPTED)
 UNFINISHED_STATES = (JobState.QUEUED, JobState.PREFLIGHT, JobState.RUNNING, JobState.SOLVING)
+#: What a stopped verify job says to do: it is never resumed, a new one is started.
+VERIFY_ANEW = (
+    "a verify is not resumed from its recording: start a new verify (POST /v1/jobs with kind verify; "
+    "lasercal remote verify --yes)"
+)
 
 
 class JobProgress(BaseModel):

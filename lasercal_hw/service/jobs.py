@@ -33,7 +33,7 @@ from lasercal_hw.service.errors import (
     not_found,
 )
 from lasercal_hw.service.events import EventBus
-from lasercal_hw.service.job_record import Job, JobError, JobProgress, JobState
+from lasercal_hw.service.job_record import VERIFY_ANEW, Job, JobError, JobProgress, JobState
 from lasercal_hw.service.job_request import (
     DeviceAddresses,
     JobBody,
@@ -298,8 +298,7 @@ class JobManager:
             )
         if record.kind == "verify":
             raise ConflictError(
-                f"job {job_id} is a verify, which is not resumed from its recording: start a new verify "
-                "(POST /v1/jobs with kind verify; lasercal remote verify --yes)",
+                f"job {job_id} is a verify; {VERIFY_ANEW}",
                 {"job_id": job_id, "kind": record.kind},
                 code="not_resumable",
             )

@@ -3,11 +3,12 @@
 Each ``jobs/<id>/`` folder holds what its job left: ``result.json`` (a finished
 calibration: filed again, the job ``succeeded``) or a recording (``session.mcap``: the job
 ``interrupted``, resumable from it), or neither (``failed``); a verify's, ``verify.json`` (the
-job ``succeeded`` with its verdict; the verify history itself is not rebuilt). What lived only in the
-database is lost: the request as sent, the events, the activation log (no calibration is
-active afterwards), verifies, the calibrations' ids (each is filed under a new one) and who
-marked one bad (none is bad afterwards; the report line says so). A database found in the way
-is kept beside it, renamed.
+job ``succeeded`` with its verdict; the verify history itself is not rebuilt), or only the
+recording its meta names a verify's (``interrupted``, not resumable: a verify starts anew).
+What lived only in the database is lost: the request as sent, the events, the activation log
+(no calibration is active afterwards), verifies, the calibrations' ids (each is filed under a
+new one) and who marked one bad (none is bad afterwards; the report line says so). A database
+found in the way is kept beside it, renamed.
 """
 
 from __future__ import annotations
@@ -21,17 +22,18 @@ from typing import Any
 from lasercal_hw.errors import ConfigError, LasercalError
 from lasercal_hw.run.cell import CELL_FILE
 from lasercal_hw.run.outputs import RESULT_FILE, read_result_file
-from lasercal_hw.run.resume import recorded_job
+from lasercal_hw.run.resume import Procedure, recorded_job, recorded_procedure
 from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.events import EventBus
 from lasercal_hw.service.folder_lock import DataFolderLock
-from lasercal_hw.service.job_record import Job, JobError, JobProgress, JobState, verify_verdict
+from lasercal_hw.service.job_record import VERIFY_ANEW, Job, JobError, JobProgress, JobState, verify_verdict
 from lasercal_hw.service.jobs import SESSION_FILE
 from lasercal_hw.service.store import DB_FILE, HistoryStore
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.verify.outputs import VERIFY_FILE
 
 DRY_RUN_FILES = ("dry_run_scene.toml", "request_scene.toml")
+RESUME_HINT = "rebuilt from its recording; resume it with POST /v1/jobs/{id}/resume"
 
 
 @dataclass
@@ -144,13 +146,16 @@ def _rebuilt_job(folder: Path, history: CalibrationHistory, report: RebuildRepor
         state = _rebuilt_verify(folder / VERIFY_FILE, fields)
     elif session.exists():
         try:
-            job, _waypoints = recorded_job(read_session(session, include_scans=False))
+            recording = read_session(session, include_scans=False)
+            job, _waypoints = recorded_job(recording)
             request["resolved_job"] = job.model_dump(mode="json")
             state = JobState.INTERRUPTED
-            fields["error"] = JobError(
-                code="interrupted",
-                message="rebuilt from its recording; resume it with POST /v1/jobs/{id}/resume",
-            )
+            fields["error"] = JobError(code="interrupted", message=RESUME_HINT)
+            if recorded_procedure(recording) is Procedure.VERIFY:
+                request["kind"] = "verify"
+                fields["error"] = JobError(
+                    code="interrupted", message=f"rebuilt from its recording; {VERIFY_ANEW}"
+                )
         except LasercalError as exc:
             state, fields["error"] = (
                 JobState.FAILED,

@@ -19,7 +19,7 @@ from typing import Any
 from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.errors import HistoryUnavailableError, StorageFullError
-from lasercal_hw.service.job_record import UNFINISHED_STATES
+from lasercal_hw.service.job_record import UNFINISHED_STATES, VERIFY_ANEW
 
 SCHEMA_VERSION = 3
 DB_FILE = "lasercal.sqlite3"
@@ -215,22 +215,18 @@ class HistoryStore:
     def mark_unfinished_interrupted(self) -> list[str]:
         """After a crash: every job left in a running state becomes ``interrupted``."""
         placeholders = ", ".join("?" * len(UNFINISHED_STATES))
-        ids = [
-            row["id"]
-            for row in self._query(f"SELECT id FROM jobs WHERE state IN ({placeholders})", UNFINISHED_STATES)
-        ]
-        error = json.dumps(
-            {
-                "code": "interrupted",
-                "message": "the daemon stopped during this job; resume it with POST /v1/jobs/{id}/resume",
-            }
-        )
-        for job_id in ids:
+        query = f"SELECT id, kind FROM jobs WHERE state IN ({placeholders})"
+        ids = [(row["id"], row["kind"]) for row in self._query(query, UNFINISHED_STATES)]
+        for job_id, kind in ids:
+            next_step = VERIFY_ANEW if kind == "verify" else "resume it with POST /v1/jobs/{id}/resume"
+            error = json.dumps(
+                {"code": "interrupted", "message": f"the daemon stopped during this job; {next_step}"}
+            )
             self._execute(
                 "UPDATE jobs SET state = 'interrupted', finished_utc = ?, error = ? WHERE id = ?",
                 (utc_now(), error, job_id),
             )
-        return ids
+        return [job_id for job_id, _kind in ids]
 
     # -- events ----------------------------------------------------------------------------------
 

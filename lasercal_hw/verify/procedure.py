@@ -27,6 +27,7 @@ from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.engine import MotionPlan, ProcedureReport, RunRequest, open_sequencer
 from lasercal_hw.run.events import EventSink, RunEvent, Stage
 from lasercal_hw.run.records import Measured, Timings, WaypointMeasurement
+from lasercal_hw.run.resume import Procedure
 from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.two_pass import SecondPassRefit
 from lasercal_hw.run.waypoints import job_waypoints
@@ -284,6 +285,7 @@ def verify(
         waypoints=waypoints[selection.indices],
         waypoint_names=tuple(selection.indices),
         title="lasercal verify",
+        procedure=Procedure.VERIFY,  # recorded: a verify's recording is not resumed
         scanner_name=active.scanner_name,  # a dry run checks that scanner of the scene
     )
     started_s = time.monotonic()
@@ -304,7 +306,7 @@ def verify(
 
     try:
         with open_sequencer(
-            run_request, sink, cancel or CancelToken(), before_motion, resumable=False
+            run_request, sink, cancel or CancelToken(), before_motion
         ) as session:
             found["session"] = session
             session.recorder.write_event(

@@ -78,3 +78,18 @@ def test_a_cell_jobs_one_recording_resumes_only_as_the_job(tmp_path: Path) -> No
                                           rf"resuming the job, its folder {tmp_path}, not one scanner's run"):
         calibrate(RunRequest(job=JobConfig(), out_dir=tmp_path, resume=path))
     assert read_session(path).scanner_names == ["front"]  # untouched
+
+
+def test_a_verifys_recording_is_not_resumed_as_a_calibration(tmp_path: Path) -> None:
+    """A verify records what wrote it (meta ``procedure``): resuming its recording would run the
+    verify's few waypoints as a calibration, so it is refused, the file untouched."""
+    from lasercal_hw.run.resume import META_PROCEDURE, Procedure
+    from lasercal_hw.session.recorder import SessionRecorder
+
+    path = tmp_path / "session.mcap"
+    with SessionRecorder(path, {"job": {}, "waypoints": [], META_PROCEDURE: Procedure.VERIFY.value}):
+        pass
+    size = path.stat().st_size
+    with pytest.raises(ConfigError, match="a verify's recording, which is not resumed: start a new verify"):
+        calibrate(RunRequest(job=JobConfig(), out_dir=tmp_path, resume=path))
+    assert path.stat().st_size == size

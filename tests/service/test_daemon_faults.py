@@ -235,6 +235,30 @@ def test_a_rebuild_files_a_finished_verify_as_a_verify_not_a_calibration_to_resu
     assert "verify.json unreadable" in torn["error"]["message"]
 
 
+def test_a_rebuild_tells_an_interrupted_verify_from_an_interrupted_calibration(tmp_path: Path) -> None:
+    """Two recordings without an answer beside them: the one whose meta says a verify wrote it
+    comes back as an interrupted verify that says to start a new one (a verify is not
+    resumed); the other, written before the meta said, as a calibration to resume."""
+    from lasercal_hw.run.resume import META_PROCEDURE, Procedure
+    from lasercal_hw.session.recorder import SessionRecorder
+
+    for job_id, said in (("job-calibration", {}), ("job-verify", {META_PROCEDURE: Procedure.VERIFY.value})):
+        folder = tmp_path / "jobs" / job_id
+        folder.mkdir(parents=True)
+        with SessionRecorder(folder / "session.mcap", {"job": {}, "waypoints": []} | said):
+            pass
+    report = rebuild_history(tmp_path)
+    assert report.jobs == {"interrupted": 2}
+    store = HistoryStore(tmp_path / DB_FILE)
+    try:
+        calibration, verify = store.job("job-calibration"), store.job("job-verify")
+    finally:
+        store.close()
+    assert calibration["kind"] == "calibrate"
+    assert "POST /v1/jobs/{id}/resume" in calibration["error"]["message"]
+    assert verify["kind"] == "verify" and "start a new verify" in verify["error"]["message"]
+
+
 def test_a_migration_backs_the_database_up_first(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from lasercal_hw.service import store as store_module
 

@@ -193,22 +193,28 @@ def test_history_activate_rollback_and_diff(client: TestClient, engine: FakeEngi
 
 def test_store_survives_reopen_and_marks_running_jobs_interrupted(tmp_path: Path) -> None:
     store = HistoryStore(tmp_path / "h.sqlite3")
-    store.insert_job(
-        {
-            "id": "job-1",
-            "kind": "dry_run",
-            "state": "running",
-            "created_utc": "t",
-            "request": {},
-            "progress": {},
-            "out_dir": "x",
-        }
-    )
+    for job_id, kind in (("job-1", "dry_run"), ("job-2", "verify")):
+        store.insert_job(
+            {
+                "id": job_id,
+                "kind": kind,
+                "state": "running",
+                "created_utc": "t",
+                "request": {},
+                "progress": {},
+                "out_dir": "x",
+            }
+        )
     store.add_event("job-1", "progress", {"completed": 1}, "t")
     # no close: as after SIGKILL
     reopened = HistoryStore(tmp_path / "h.sqlite3")
-    assert reopened.mark_unfinished_interrupted() == ["job-1"]
-    assert reopened.job("job-1")["state"] == "interrupted"
+    assert sorted(reopened.mark_unfinished_interrupted()) == ["job-1", "job-2"]
+    dry_run, verify = reopened.job("job-1"), reopened.job("job-2")
+    assert dry_run["state"] == verify["state"] == "interrupted"
+    assert "resume it with POST /v1/jobs/{id}/resume" in dry_run["error"]["message"]
+    # a verify is never resumed (POST .../resume refuses it): its message says to start a new one
+    assert "resume it" not in verify["error"]["message"]
+    assert "start a new verify" in verify["error"]["message"]
     assert reopened.events_after(0, "job-1")[0][1] == "progress"
     with sqlite3.connect(tmp_path / "h.sqlite3") as db:
         assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION

@@ -63,6 +63,7 @@ def test_cli_unmoved_scanner_is_not_flagged_and_a_blind_verify_says_so(tmp_path:
     assert {"session", "verify", "report"} <= set(document["outputs"])
     assert (out / "verify.png").stat().st_size > 10_000
     recording = read_session(out / "session.mcap")
+    assert recording.meta["procedure"] == "verify"  # so no resume or rebuild takes it for a calibration
     assert [e["verdict"] for e in recording.events_of("verify_verdict")] == ["inconclusive"]
     assert len(recording.events_of("observation")) == 4
 
