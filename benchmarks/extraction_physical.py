@@ -84,7 +84,7 @@ PULSE_ROD = ("rod 5 mm", 0.005, "cylinder", "steel_drill")
 PULSE_BEARINGS = 3
 MIN_OWN_TOLERANCE_M = 0.005
 #: A background not square to the bearing, so different beside the rod's two edges (the dry
-#: run's waypoint 18: docs/extraction.md, "Why the dry run got worse"): the dry run's 20 mm
+#: run's waypoint 18: docs/lab/extraction-log.md, "Why the dry run got worse"): the dry run's 20 mm
 #: painted rod and a 10 mm steel rod at 0.3-0.6 m before a wall seen 20-35 deg from its normal
 #: 1.5-2.5 m behind ("oblique"), or before a step ("step"): a near wall 0.5-1 m behind, its edge
 #: on the ray past one edge of the rod, running away from the rod, and a far wall 2 m behind.

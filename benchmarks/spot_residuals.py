@@ -10,7 +10,8 @@ is the rod's: the reading minus the ray's hit (its middle beam, its two edge bea
 ``sigma^2 / 2r`` (the spot's sagitta: sigma a quarter of the spot's 1/e^2 width), and the
 reading minus the extraction's spot model at the true centre (``_spot_readings_m``: a gaussian
 spot and its halo, each part of it returning by Lambert's cosine), RMS and worst. Figures in
-mm; docs/extraction.md quotes them.
+mm; docs/extraction.md quotes their ranges, docs/lab/extraction-log.md ("The fit against the
+spot") their table.
 """
 
 from __future__ import annotations

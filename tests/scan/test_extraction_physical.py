@@ -425,8 +425,8 @@ def test_a_thin_rods_centre_moves_from_dwell_to_dwell_only_as_its_noise_covarian
 def test_a_rod_before_a_step_behind_one_edge_is_never_silently_sideways(
     range_m: float, bearing_deg: float, side: int, near_behind_m: float
 ) -> None:
-    # The extraction benchmark's uneven background (docs/extraction.md, "Backgrounds not square
-    # to the bearing"): a 10 mm steel rod before a wall 0.5-1 m behind that ends behind one of
+    # The extraction benchmark's uneven background (docs/lab/extraction-log.md, "Backgrounds not
+    # square to the bearing"): a 10 mm steel rod before a wall 0.5-1 m behind that ends behind one of
     # its edges, a wall 2 m behind on the other side. The spot blends the edge beams with the
     # two unequally and the centre moved 2.5-5 mm away from the near side against 0.6-1.3 mm
     # of reported std (3.4-6.7 std), without a warning.
@@ -448,7 +448,7 @@ def test_a_rod_before_a_step_behind_one_edge_is_never_silently_sideways(
 def test_a_rod_with_a_wall_behind_one_edge_and_open_space_beside_the_other_is_not_moved_sideways(
     radius_m: float, bearing_deg: float, side: int
 ) -> None:
-    # The dry run's waypoint 18 (docs/extraction.md, `edgek` and `intmid2`): behind one edge a
+    # The dry run's waypoint 18 (docs/lab/extraction-log.md, `edgek` and `intmid2`): behind one edge a
     # surface whose echo outshines the rod's spot sooner than what lies behind the other (there:
     # a wall's foot and the floor at grazing incidence; here a wall 1.5 m behind and nothing),
     # so the rod's echo wins further out on the dark side, the segment reaches further there, and

@@ -88,7 +88,7 @@ def _residual_sigma(
     # The first and last beam's spots straddle the silhouette: the return comes from anywhere
     # across the covered part of one beam step. (Not the whole spot: that sigma, 5-8 mm, took
     # the silhouette's bearing out of the fit and, in the residuals' mean sigma, cancelled the
-    # covariance's systematic term; docs/extraction.md.)
+    # covariance's systematic term; docs/lab/extraction-log.md, "The beam's spot".)
     edge_rad = float(np.hypot(settings.beam_angle_sigma_rad, settings.beam_footprint_rad / np.sqrt(12.0)))
     lateral[[0, -1]] = ranges[[0, -1]] * edge_rad
     curvature = sigma**2 / (np.sqrt(2.0) * radius_m)

@@ -82,7 +82,7 @@ class ExtractionSettings:
     #: Where the backgrounds just outside the rod's two edges differ (a step behind one edge),
     #: the spot blends or pulls the edge beams unequally and the fit's centre moves sideways,
     #: the same at every dwell of the pose (a step 0.5-1 m / 2 m behind: 2-5 mm against
-    #: 0.6-1.6 mm std, docs/extraction.md "Backgrounds not square to the bearing"). Each side's
+    #: 0.6-1.6 mm std, docs/lab/extraction-log.md "Backgrounds not square to the bearing"). Each side's
     #: reach into the rod's echo is its depth behind the rod times the pulse's overlap there
     #: (``exp(-depth^2 / 2 sigma_pulse^2)``: nothing from 2 m); the covariance across the bearing
     #: gets this many spot sigmas of std per pulse sigma between the two sides' reaches

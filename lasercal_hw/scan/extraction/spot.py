@@ -33,7 +33,7 @@ def _spot_readings_m(
     sagitta of ``x^2 / 2r``): a beam across the middle reads long, by about ``sigma^2 / 2r``
     (0.9 mm for a 45 mm rod at 1.5 m), and one at the silhouette short (the spot's part on
     the rod is nearer than the grazing ray's hit: 10-20 mm for that rod); a ray fit's centre
-    was off by more than its std (docs/extraction.md).
+    was off by more than its std (docs/lab/extraction-log.md, "The fit against the spot").
 
     The integral runs over the visible half of the section by the angle ``phi`` about its
     centre (in the squeezed frame, where it is a circle and the rays stay parallel): the ray

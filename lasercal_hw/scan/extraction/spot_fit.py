@@ -31,7 +31,8 @@ def _along_the_spot(
     Along the bearing the spot's blur is one-sided: on a rod's curved front the spot's sides
     meet the surface deeper than its middle, so the middle beams read long and the silhouette's
     edge beams short, and a ray fit's centre lay long by more than its std (a 45 mm matte rod at
-    1.5 m: 1.3 mm against 0.29 mm; docs/extraction.md). Across the bearing the blur is
+    1.5 m: 1.3 mm against 0.29 mm; docs/lab/extraction-log.md, "The fit against the spot"). Across
+    the bearing the blur is
     symmetric about the rod and the ray fit's edges pin the centre well; the spot model's own
     sideways hold, the ranges' curvature under the blur, is weak where the rod is not much
     wider than the spot (a 10 mm rod at 0.3 m wandered 16 mm sideways), so the ray fit keeps it.
