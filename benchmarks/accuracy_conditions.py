@@ -45,7 +45,7 @@ absolute-accuracy error field. Cases:
 Printed per case: waypoints found, the translation (mm) and rotation (deg) error against
 the truth (median, 95th percentile, max), the share of error components within 2.5
 reported std, and the estimated axis / range offset against the truth in reported std.
-The default (5 seeds) is a quick look; the figures in docs/solver.md use ``--seeds 20``.
+The default (5 seeds) is a quick look; the figures in docs/solver.md use ``--seeds 50``.
 ``--model``: the scene's scanner model (``physical``, its default: a real UTM-30LX-EW's
 footprint, echoes and range error; or ``ideal``, the reference). ``--design-seed``,
 ``--design-range-terms`` and ``--design-waypoints``: another design of the ``designed-*``

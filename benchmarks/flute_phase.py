@@ -20,7 +20,8 @@ intensity and the fake's range bias at both (what to take out of the along colum
 it with the model when the bias is on), then the RMS of the offsets and of what the model
 leaves, along and across, and the same binned by the turn (10 deg bins from a flute's middle:
 the model's error is not the same at every turn; ``run/flute_phase.py`` still widens every
-centre by one flat allowance, and a table-shaped one did not pay off: docs/solver.md).
+centre by one flat allowance, and a table-shaped one did not pay off: docs/lab/solver-log.md,
+"A facing-dependent allowance").
 ``--bins-only``: the summary and the bins without the per-centre rows.
 """
 

@@ -44,10 +44,11 @@ MIN_GAIN = 4.0
 #: How the pass re-extracts its plain centres: along the bearing as the ray fit puts them,
 #: the frame its section model's offsets were measured in (``benchmarks.flute_phase``). With
 #: the spot fit's centres the pass no longer helped: drill job, seeds 0-9, p95 4.52 mm /
-#: 1.122 deg against 1.66 mm / 0.551 deg with these (docs/solver.md). Across it, too, as the ray
-#: fit puts them, not from the intensity's middle (a fluted section's glint is no symmetric lobe:
-#: with it, drill job, 20 seeds, p95 1.168 -> 1.496 mm, docs/lab/extraction-log.md, `intmid2`).
-#: Nor moved along by a polished rod's glint (``glint_gloss_ratio``): the offsets are the ray fit's.
+#: 1.122 deg against 1.66 mm / 0.551 deg with these (docs/lab/solver-log.md, "Mended in
+#: part"). Across it, too, as the ray fit puts them, not from the intensity's middle (a fluted
+#: section's glint is no symmetric lobe: with it, drill job, 20 seeds, p95 1.168 -> 1.496 mm,
+#: docs/lab/extraction-log.md, `intmid2`). Nor moved along by a polished rod's glint
+#: (``glint_gloss_ratio``): the offsets are the ray fit's.
 PLAIN_EXTRACTION = replace(
     ExtractionSettings(), fit_along_the_spot=False, echo_middle_levels=(), glint_gloss_ratio=0.0
 )

@@ -4,7 +4,7 @@ Beyond ``echo_merge_m`` the surface behind returns a lobe of its own, but the la
 long (about 1 m of range, docs/scanner-model.md), and the flank of that lobe still lifts the
 far side of the rod's: the peak the scanner reports lies a little behind the rod.  A polished
 10 mm drill bit at 0.54 m, the floor 0.99 m behind it with 11-20 % of each beam's power, read
-8.6-18.7 mm long (docs/solver.md, "The drill job's outliers").
+8.6-18.7 mm long (docs/lab/solver-log.md, "The drill job's outliers").
 
 The surface's power in a beam is its share of the spot (the part passing beside the rod)
 times what it returns over the whole spot (its intensity in the background scan, squared:

@@ -69,7 +69,7 @@ class ExtractionSettings:
     #: Whether the centre along the bearing may come from a fit against the spot
     #: (``_along_the_spot``); False keeps the ray fit's. A twist drill's fits (``fluted``) and
     #: the flute phase's plain ones keep it: their offsets were measured against ray fits
-    #: (docs/solver.md).
+    #: (docs/lab/solver-log.md, "Mended").
     fit_along_the_spot: bool = True
     #: The spot's faint skirt: this share of the power over ``spot_halo_scale`` times its
     #: width (docs/scanner-model.md: chosen there to reproduce issue 18's real retro-reflective
