@@ -7,7 +7,7 @@ where it reads one (``scan.extraction.echo_middle``), at the fit's otherwise. At
 middle is read at some dwells and not at others the two kinds of centre lie apart: the default
 job's waypoint 11 (the rod at 1.03 m on 7 beams), 1.94 mm across, three of four false alarms in
 seeds 0-369, each where the calibration's dwell read no middle and the verify's did
-(docs/verify.md). The calibration records how far the middle moved each of its centres
+(docs/lab/verify-log.md). The calibration records how far the middle moved each of its centres
 (``WaypointResidual.echo_middle_move_uv_mm``), so the verify can take the fit on both sides.
 """
 

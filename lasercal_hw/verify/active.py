@@ -229,7 +229,7 @@ def unusable_waypoints(
     there what the calibration did (fluted drill job, seeds 100-109: every false alarm was an
     outlier waypoint the choice took, its centre 8-12 mm off the prediction at every dwell), or
     compares its re-fit with a fit of another kind (seed 46: 2.4 mm apart at every dwell;
-    docs/verify.md). False everywhere when the file records no waypoints or no residuals."""
+    docs/lab/verify-log.md). False everywhere when the file records no waypoints or no residuals."""
     if not residuals:
         return np.zeros(len(np.asarray(waypoints).reshape(-1, 6)), dtype=bool)
     used = {r.index for r in residuals if r.used and r.first_pass_kept is None}

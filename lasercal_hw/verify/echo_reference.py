@@ -3,7 +3,7 @@ the bearing.
 
 A twist drill is narrower than the scanner's spot: its segment's flanks are the spot's blur,
 and which of them the fit keeps changes from dwell to dwell, moving the fitted centre across the
-bearing by 1-2 mm in whole-beam jumps (docs/verify.md, ``dwellnoise``). The middle of its echo
+bearing by 1-2 mm in whole-beam jumps (docs/lab/verify-log.md, ``dwellnoise``). The middle of its echo
 strength (``scan.extraction.echo_middle``) moves continuously: fluted drill job, seed 100, 33
 waypoints, 6 dwells each, across scatter median 0.03 mm against 0.55 mm for the fitted centres.
 It lies off the axis by the section's glint, by the same at every dwell of a pose (the bit's turn

@@ -26,7 +26,7 @@ about an axis near base y), and the verdict says ``ok`` only where that directio
 at the tolerance; past that, the determinant keeps the move's estimate good. Where no subset
 found reaches what the test needs, the verdict cannot vouch anyway and the choice is the D-optimal
 one: raising the weakest direction alone can leave a shift as weak as the turn it cannot see
-(docs/verify.md, "The choice weighs what the verdict weighs").
+(docs/lab/verify-log.md, "The choice weighs what the verdict weighs").
 """
 
 from __future__ import annotations

@@ -396,7 +396,7 @@ def test_a_centre_placed_by_its_echo_middle_is_uncertain_along_its_own_bearing()
 def test_a_thin_rods_centre_moves_from_dwell_to_dwell_only_as_its_noise_covariance_says(
     range_m: float, bearing_deg: float
 ) -> None:
-    # The drill job's 10 mm rod at 0.3-0.6 m (docs/verify.md, 2026-11-27, drillverify): the fit
+    # The drill job's 10 mm rod at 0.3-0.6 m (docs/lab/verify-log.md, 2026-11-27, drillverify): the fit
     # against the spot wandered sideways in some dwells and was refused, and the fits chose
     # between the spot's range and the rays' (about 1 mm apart) anew at every dwell, while the
     # noise covariance said 0.15-0.5 mm: verify flagged unmoved scanners. Pairs of dwells at one

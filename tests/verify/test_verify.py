@@ -533,7 +533,8 @@ def test_the_choice_weighs_a_measured_waypoint_with_what_a_dwell_draws_anew(tmp_
     the pose (the rod's shape, a surface's pull) cancels; the choice weighs it so too. A centre
     vague by what repeats (100 mm) but with 0.5 mm drawn anew by a dwell is as good a test as
     before (fluted drill job, seeds 100-109: turns of 0.3 deg flagged 5 / 10 -> 9 / 10 when the
-    choice stopped avoiding the centres whose floor pull it had taken out, docs/verify.md)."""
+    choice stopped avoiding the centres whose floor pull it had taken out,
+    docs/lab/verify-log.md, branch ``verifypick``)."""
     job = fast_job()
     plain = plan_active(load_active_calibration(_calibration_with(tmp_path / "plain", {})), job)
     vague = plain.selection.indices[0]

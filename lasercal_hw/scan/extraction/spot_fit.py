@@ -127,7 +127,8 @@ def _choice_variance_m2(ray_whitened: FloatArray, spot_whitened: FloatArray, alo
     ``p = Phi(-gap / (2 |w_spot - w_ray|))``, and the centre along the bearing is a two-point
     draw ``along_m`` apart: variance ``p (1 - p) along_m^2``. A 10 mm rod at 0.3-0.6 m (the
     drill job): the fits 0.9-1.5 mm apart, the choice changing from dwell to dwell at one
-    pose, while each fit's own noise said 0.15-0.5 mm (docs/verify.md, 2026-11-27)."""
+    pose, while each fit's own noise said 0.15-0.5 mm (docs/lab/verify-log.md, 2026-11-27,
+    ``drillverify``)."""
     gap = float(spot_whitened @ spot_whitened) - float(ray_whitened @ ray_whitened)
     spread = 2.0 * float(np.linalg.norm(spot_whitened - ray_whitened))
     if not spread > 0.0:
