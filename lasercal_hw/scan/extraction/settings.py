@@ -158,7 +158,7 @@ class ExtractionSettings:
     #: shows, a fit of ``few_beams_push_max_beams`` or fewer also takes its beams' blend bounds
     #: into its covariance (``_with_shared_push``): its edge beams' spots reach the surface
     #: behind and read long, which its one or two spare beams cannot show (a 45 mm rod at 2-3
-    #: m before a wall 0.3 m behind, 3-5 beams: 1.6-3.1 mm long against 0.45-0.7 mm std).
+    #: m before a wall 0.3 m behind, 3-5 beams: 1.6-3.1 mm long against 0.45-0.9 mm std).
     doubtful_blend_share_spot_shown: float = 0.01
     spot_shown_ramp_beams: int = 3
     #: A centre whose blend allowance (std) exceeds this carries a warning.
