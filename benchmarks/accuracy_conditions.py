@@ -49,7 +49,7 @@ The default (5 seeds) is a quick look; the figures in docs/solver.md use ``--see
 ``--model``: the scene's scanner model (``physical``, its default: a real UTM-30LX-EW's
 footprint, echoes and range error; or ``ideal``, the reference). ``--design-seed``,
 ``--design-range-terms`` and ``--design-waypoints``: another design of the ``designed-*``
-cases (one design is one draw: docs/trajectory-design.md compares several).
+cases (one design is one draw: docs/lab/trajectory-design-log.md compares several).
 ``--noise-stream K``: the scanner noise of every seed drawn from stream K (0, the default: the
 figures published so far, to the digit; the worlds, robot error fields and chuck turns unchanged),
 so that a 95th percentile can be given over several streams of the same seeds.

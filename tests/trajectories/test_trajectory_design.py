@@ -178,7 +178,8 @@ def test_the_objective_counts_every_axis_not_only_the_largest() -> None:
 
 def test_no_crossing_right_before_the_robots_base() -> None:
     # A surface close behind the rod blends into its edge beams (the physical scanner's centre
-    # moved 5.9 mm sideways at 0.39 m with the base 0.19 m behind, docs/trajectory-design.md):
+    # moved 5.9 mm sideways at 0.39 m with the base 0.19 m behind, docs/lab/trajectory-design-log.md,
+    # branch design4):
     # the beam must pass the base with the line-of-sight clearance BACKDROP_M beyond every
     # crossing, for a painted rod as for a polished bit.
     request = request_for_job(JobConfig(), T_BASE_LASER, UR5)
