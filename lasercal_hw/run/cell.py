@@ -461,7 +461,8 @@ def pair_document(
     """``cell.json``'s pair ``a``, ``b``: ``T_a_b`` with its covariance from the two poses, the
     agreement at the shared waypoints and, when they agree there, ``joint``: ``T_a_b`` with the
     shared centres used jointly (``calibration/pairs.joint_relative_pose``; not yet the pair's
-    transform: on the physical scanner model its std are not honest, docs/cell.md); each
+    transform, docs/cell.md "Not done yet"; its std were not honest on the physical scanner model
+    before the not-the-rod rule, docs/lab/cell-log.md); each
     against the truth when both scanners have one (a dry run)."""
     first, second = outcomes[a], outcomes[b]
     poses = (np.asarray(first.T_base_laser), np.asarray(first.covariance),
