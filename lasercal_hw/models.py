@@ -1,4 +1,4 @@
-"""Plain value types that cross module boundaries (see design.md, "Data flow").
+"""Plain value types that cross module boundaries (see docs/architecture.md, "The data flow").
 
 Arrays travel in dataclasses; documents that are written to disk or validated from
 user input are pydantic models next to the code that owns them.

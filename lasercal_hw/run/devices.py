@@ -1,7 +1,7 @@
 """The interfaces the sequencer talks to; drivers and test doubles implement them.
 
 The sequencer never imports a driver or a fake: it receives objects that satisfy these
-protocols (design.md, "Data flow").
+protocols (docs/architecture.md, "The data flow").
 """
 
 from __future__ import annotations
