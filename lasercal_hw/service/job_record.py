@@ -48,6 +48,11 @@ VERIFY_ANEW = (
 )
 
 
+def next_step_after_stop(kind: str) -> str:
+    """What an interrupted job of ``kind`` says to do next: resume it, or for a verify start anew."""
+    return VERIFY_ANEW if kind == "verify" else "resume it with POST /v1/jobs/{id}/resume"
+
+
 class JobProgress(BaseModel):
     """How far a job is: the waypoint it is at, how many are done of how many, the time
     left and the latest progress message."""

@@ -26,14 +26,20 @@ from lasercal_hw.run.resume import Procedure, recorded_job, recorded_procedure
 from lasercal_hw.service.calibrations import CalibrationHistory
 from lasercal_hw.service.events import EventBus
 from lasercal_hw.service.folder_lock import DataFolderLock
-from lasercal_hw.service.job_record import VERIFY_ANEW, Job, JobError, JobProgress, JobState, verify_verdict
+from lasercal_hw.service.job_record import (
+    Job,
+    JobError,
+    JobProgress,
+    JobState,
+    next_step_after_stop,
+    verify_verdict,
+)
 from lasercal_hw.service.jobs import SESSION_FILE
 from lasercal_hw.service.store import DB_FILE, HistoryStore
 from lasercal_hw.session.reader import read_session
 from lasercal_hw.verify.outputs import VERIFY_FILE
 
 DRY_RUN_FILES = ("dry_run_scene.toml", "request_scene.toml")
-RESUME_HINT = "rebuilt from its recording; resume it with POST /v1/jobs/{id}/resume"
 
 
 @dataclass
@@ -150,12 +156,10 @@ def _rebuilt_job(folder: Path, history: CalibrationHistory, report: RebuildRepor
             job, _waypoints = recorded_job(recording)
             request["resolved_job"] = job.model_dump(mode="json")
             state = JobState.INTERRUPTED
-            fields["error"] = JobError(code="interrupted", message=RESUME_HINT)
             if recorded_procedure(recording) is Procedure.VERIFY:
                 request["kind"] = "verify"
-                fields["error"] = JobError(
-                    code="interrupted", message=f"rebuilt from its recording; {VERIFY_ANEW}"
-                )
+            next_step = next_step_after_stop(request["kind"])
+            fields["error"] = JobError(code="interrupted", message=f"rebuilt from its recording; {next_step}")
         except LasercalError as exc:
             state, fields["error"] = (
                 JobState.FAILED,

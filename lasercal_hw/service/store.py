@@ -19,7 +19,7 @@ from typing import Any
 from lasercal_hw.config import DEFAULT_SCANNER_NAME
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.service.errors import HistoryUnavailableError, StorageFullError
-from lasercal_hw.service.job_record import UNFINISHED_STATES, VERIFY_ANEW
+from lasercal_hw.service.job_record import UNFINISHED_STATES, next_step_after_stop
 
 SCHEMA_VERSION = 3
 DB_FILE = "lasercal.sqlite3"
@@ -218,7 +218,7 @@ class HistoryStore:
         query = f"SELECT id, kind FROM jobs WHERE state IN ({placeholders})"
         ids = [(row["id"], row["kind"]) for row in self._query(query, UNFINISHED_STATES)]
         for job_id, kind in ids:
-            next_step = VERIFY_ANEW if kind == "verify" else "resume it with POST /v1/jobs/{id}/resume"
+            next_step = next_step_after_stop(kind)
             error = json.dumps(
                 {"code": "interrupted", "message": f"the daemon stopped during this job; {next_step}"}
             )
