@@ -114,7 +114,7 @@ def _rebuilt_cell(
     if len(filed) == len(names):
         return JobState.SUCCEEDED
     fields["error"] = JobError(
-        code="interrupted", message="rebuilt from its folder; resume it with POST /v1/jobs/{id}/resume"
+        code="interrupted", message=f"rebuilt from its folder; {next_step_after_stop(request['kind'])}"
     )
     return JobState.INTERRUPTED
 
