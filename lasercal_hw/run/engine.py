@@ -357,7 +357,7 @@ def open_sequencer(
     except (LasercalError, KeyboardInterrupt, OSError) as exc:  # OSError: a full disk, say
         _after_failure(
             out_dir, session_path, created, sink, exc,
-            resumable=request.procedure is Procedure.CALIBRATION, dry_run=request.dry_run
+            resumable=request.procedure.resumable, dry_run=request.dry_run
         )
         raise
 
@@ -419,10 +419,11 @@ def _earlier_run(request: RunRequest) -> SessionRecording | None:
                 f"{request.resume} is a cell job's recording of scanners {names}: it is continued by "
                 f"resuming the job, its folder {request.resume.parent}, not one scanner's run"
             )
-        if recorded_procedure(recording) is Procedure.VERIFY:
+        procedure = recorded_procedure(recording)
+        if not procedure.resumable:
             raise ConfigError(
-                f"{request.resume} is a verify's recording, which is not resumed: start a new verify "
-                "(lasercal verify)"
+                f"{request.resume} is a {procedure.value}'s recording, which is not resumed: start a "
+                f"new {procedure.value} (lasercal {procedure.value})"
             )
         return recording
     if request.recording is not None and request.scanner_name is not None:

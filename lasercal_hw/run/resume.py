@@ -40,6 +40,11 @@ class Procedure(StrEnum):
     CALIBRATION = "calibration"
     VERIFY = "verify"
 
+    @property
+    def resumable(self) -> bool:
+        """Whether a run of this procedure continues from its recording."""
+        return self is Procedure.CALIBRATION
+
 
 def recorded_procedure(recording: SessionRecording) -> Procedure:
     """The procedure that wrote ``recording``; one made before the meta said (2026-11-29) is a
