@@ -208,8 +208,12 @@ def noise_rng(seed: int, stream: int = 0) -> np.random.Generator:
 def seeded_scene(scene: Scene, case: Case, seed: int) -> Scene:
     """The scene of ``seed``: with the bit turned in its chuck by a drawn angle where the case
     asks for it, else ``scene`` itself."""
-    if not case.chuck_turn_drawn:
-        return scene
+    return chuck_turned(scene, seed) if case.chuck_turn_drawn else scene
+
+
+def chuck_turned(scene: Scene, seed: int) -> Scene:
+    """``scene`` with its bit turned in its chuck by an angle drawn for ``seed`` (uniform over
+    0-180 deg, a two-fluted bit's period)."""
     turn_deg = float(np.random.default_rng(CHUCK_TURN_SEED_BASE + seed).uniform(0.0, 180.0))
     return scene.model_copy(update={"rod": scene.rod.model_copy(update={"chuck_turn_deg": turn_deg})})
 

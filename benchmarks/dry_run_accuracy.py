@@ -60,7 +60,10 @@ class Trial:
     #: How its second pass fitted the centres (a verify of it fits its own so).
     refit: SecondPassRefit
     #: The centres the final solve took (``benchmarks.waypoint_errors`` judges them one by one).
-    observations: tuple[Observation, ...] = ()
+    observations: tuple[Observation, ...]
+    #: Every waypoint the run visited (UR poses (N, 6), by the residuals' index: a spun job's
+    #: spin, then its turned waypoints), as ``result.json``'s ``run.waypoints`` records them.
+    waypoints: np.ndarray
 
 
 def world_for(job: JobConfig, scene_path: Path | None, robot_error_seed: int) -> World:
@@ -166,14 +169,15 @@ def simulate(
     ``flute_phase_deg`` job's ``waypoints`` are its spin, then its waypoints are turned to the
     phase the spin tells (``run/flute_spin``) and measured, as the run does."""
     measurements, background = measure_waypoints(job, waypoints, world, scans, rng)
+    visited = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     if job.trajectory.flute_phase_deg is not None:
         rest = turn_waypoints(job, measurements, background).waypoints
         measurements += measure(job, rest, world, scans, rng, background, first_index=len(waypoints))
+        visited = np.vstack([visited, rest])
     solution = solve_two_pass(measurements, job, background)
     dt_mm, de_deg = errors(solution.result, world.ground_truth_T_base_laser)
-    return Trial(
-        solution.result, dt_mm, de_deg, len(measurements), solution.refit, tuple(solution.observations)
-    )
+    observations = tuple(solution.observations)
+    return Trial(solution.result, dt_mm, de_deg, len(measurements), solution.refit, observations, visited)
 
 
 def job_robot_sigma_m(job: JobConfig) -> float:

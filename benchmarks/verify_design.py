@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    .venv/bin/python -m benchmarks.verify_design [--config FILE] [--scene FILE] [--bit-off]
+    .venv/bin/python -m benchmarks.verify_design [--config FILE] [--scene FILE] [--bit-off] [--any-turn]
         [--seeds 20] [--first-seed 100] [--waypoints 4] [--slack-dwell]
 
 Per seed, as ``benchmarks.verify_rates`` does (``benchmarks.verify_trials``, the same job, scene
@@ -59,7 +59,7 @@ import argparse
 import itertools
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,9 +67,8 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.stats import chi2, ncx2
 
 from benchmarks.dry_run_accuracy import measure_waypoints
-from benchmarks.verify_trials import VerifyBench, add_job_arguments
+from benchmarks.verify_trials import CalibratedSeed, VerifyBench, add_job_arguments
 from fakes.world import World
-from lasercal_hw.calibration.result import WaypointResidual
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.models import FloatArray
 from lasercal_hw.run.timing import visit_time_s
@@ -220,10 +219,11 @@ def main() -> None:
         rng = np.random.default_rng(seed)
         world = bench.world(seed)
         try:
-            trial, plan = bench.calibrate_and_plan(world, rng)
+            calibrated = bench.calibrate_and_plan(world, rng)
         except LasercalError as exc:
             print(f"seed {seed}: calibration failed: {exc}")
             continue
+        plan = calibrated.plan
         seen, background = measure_waypoints(plan.job, plan.waypoints, world, bench.scans, rng)
         refitted, _ = plan.refit.centres(seen, background)
         found = [m.index for m in refitted]
@@ -235,15 +235,16 @@ def main() -> None:
         noise = np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted])
         candidates = Candidates.of(plan, found, centres, stated, noise)
         line = [f"seed {seed:3d}"]
-        whole, drawn = recorded_centre_covariances(trial.result.residuals, bench.poses, plan.waypoints)
-        for name, subset in rules(plan, candidates, (whole, drawn), bench.count, bench.budget_s):
-            share = (visit_time_s(plan.job, plan.waypoints[subset]) or np.nan) / bench.calibration_s
+        residuals, visited = calibrated.trial.result.residuals, calibrated.trial.waypoints
+        whole, drawn = recorded_centre_covariances(residuals, visited, plan.waypoints)
+        for name, subset in rules(plan, candidates, (whole, drawn), bench.count, calibrated.budget_s):
+            share = (visit_time_s(plan.job, plan.waypoints[subset]) or np.nan) / calibrated.calibration_s
             unmoved = float(candidates.whitened_squares()[[found.index(i) for i in subset]].sum())
             outcome = judge(name, candidates, subset, moves, share, unmoved)
             judged.setdefault(name, []).append(outcome)
             line.append(f"{name}: {outcome.waypoints} {outcome.direction_turn_deg:.3f} deg")
         if args.slack_dwell:
-            slack = slack_dwell(bench, plan, trial.result.residuals, world, rng, candidates, moves)
+            slack = slack_dwell(calibrated, world, rng, candidates, moves)
             if slack is not None:
                 outcome, dwell_s, white_3s, white_slack, ratio = slack
                 judged.setdefault(outcome.name, []).append(outcome)
@@ -526,9 +527,7 @@ def over_subsets(
 
 
 def slack_dwell(
-    bench: VerifyBench,
-    plan: VerifyPlan,
-    residuals: Sequence[WaypointResidual],
+    calibrated: CalibratedSeed,
     world: World,
     rng: np.random.Generator,
     candidates: Candidates,
@@ -538,13 +537,14 @@ def slack_dwell(
     dwell's noise plus the calibration's recorded one at each waypoint, that dwell (s), and the
     unmoved residuals' squares (the job's dwell's, the long one's) whitened by the noise each is
     tested with, and each waypoint's noise variance at the long dwell over the job's (trace)."""
+    plan, budget_s = calibrated.plan, calibrated.budget_s
     chosen = plan.selection.indices
     poses = plan.waypoints[chosen]
     base_s = visit_time_s(plan.job, poses)
-    if base_s is None or bench.budget_s is None:
+    if base_s is None or budget_s is None:
         return None
     period_s = world.geometry.scan_period_s
-    scans = int((plan.job.dwell_s + (bench.budget_s - base_s) / len(chosen)) / period_s)
+    scans = int((plan.job.dwell_s + (budget_s - base_s) / len(chosen)) / period_s)
     job = plan.job.model_copy(update={"dwell_s": scans * period_s})
     measured, background = measure_waypoints(job, poses, world, scans, rng)
     refitted, _ = plan.refit.centres(measured, background)
@@ -552,10 +552,11 @@ def slack_dwell(
         return None
     stated = np.array([m.centre.covariance_uv_m2 for m in refitted])
     noise = np.array([m.centre.dwell_noise_covariance_uv_m2() for m in refitted])
-    _, calibration_noise = recorded_centre_covariances(residuals, bench.poses, plan.waypoints)
+    residuals, visited = calibrated.trial.result.residuals, calibrated.trial.waypoints
+    _, calibration_noise = recorded_centre_covariances(residuals, visited, plan.waypoints)
     # noise_blocks counts a revisited waypoint's drawn noise twice: half of the two dwells' sum.
     both = 0.5 * (noise + calibration_noise[chosen])
-    share = (visit_time_s(job, poses) or np.nan) / bench.calibration_s
+    share = (visit_time_s(job, poses) or np.nan) / calibrated.calibration_s
     centres = np.array([m.centre.centre_uv_m for m in refitted])
     at = [candidates.found.index(i) for i in chosen]
     squares = squared_residuals(plan, chosen, centres, stated, both)

@@ -3,16 +3,17 @@ calibration's (offline; not collected by pytest).
 
 Run from the repository root::
 
-    .venv/bin/python -m benchmarks.verify_rates [--config FILE] [--scene FILE] [--bit-off] [--seeds 50]
-        [--waypoints 5]
+    .venv/bin/python -m benchmarks.verify_rates [--config FILE] [--scene FILE] [--bit-off] [--any-turn]
+        [--seeds 50] [--waypoints 5]
 
 Per seed, no devices and no sockets, all through the product's own code: a calibration is
 simulated in the fake world (``benchmarks.dry_run_accuracy.simulate``: the job's
 trajectory, averaged noisy scans, ``find_rod_centre``, the two-pass solve; a new robot
 error field per seed; ``--bit-off``: the world's rod 2 mm off and 1 deg tilted from the job's
-axis, ``benchmarks.accuracy_conditions.real_bit``, for a job that estimates it), then the
-verify's waypoints are chosen from the job's trajectory
-(``verify.procedure.plan_verify``, as ``lasercal verify`` does) and visited three times in
+axis, ``benchmarks.accuracy_conditions.real_bit``, for a job that estimates it; ``--any-turn``:
+the scene's bit turned in its chuck by an angle drawn per seed), then the verify's waypoints
+are chosen among those the calibration visited (a spun drill job's spin and turned waypoints
+too) as ``lasercal verify`` does (``verify.procedure.plan_verify``) and visited three times in
 the same robot's world: scanner unmoved, scanner shifted 3 mm in a random direction, scanner
 turned 0.3 deg about a random axis through its origin.  Each visit: a background at the
 retract pose, new noisy scans, ``find_rod_centre``, the re-fit as the calibration's second
@@ -47,6 +48,7 @@ from benchmarks.verify_trials import VerifyBench, add_job_arguments
 from fakes.world import World
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_to_matrix
+from lasercal_hw.run.waypoints import listed_waypoints
 from lasercal_hw.verify.drift import DriftTest
 from lasercal_hw.verify.procedure import VerifyPlan, refit_and_test
 from lasercal_hw.verify.verdict import decide
@@ -108,8 +110,11 @@ def main() -> None:
     bench = VerifyBench.from_args(args)
     job, poses, count, scans = bench.job, bench.poses, bench.count, bench.scans
     settings = job.verify
+    visited = f"{len(poses)} calibration waypoints"
+    if job.trajectory.flute_phase_deg is not None:
+        visited = f"a spin of {len(poses)} waypoints, then the job's {len(listed_waypoints(job))} turned"
     print(
-        f"{len(poses)} calibration waypoints, verify with {count}, {scans} scans per waypoint, "
+        f"{visited}, verify with {count}, {scans} scans per waypoint, "
         f"false-alarm rate {settings.false_alarm_rate:.0%}, tolerance {settings.tolerance_mm:g} mm "
         f"{settings.tolerance_deg:g} deg, robot sigma {job.robot.position_accuracy_mm:g} mm"
     )
@@ -123,10 +128,11 @@ def main() -> None:
         rng = np.random.default_rng(seed)
         world = bench.world(seed)
         try:
-            _, plan = bench.calibrate_and_plan(world, rng, reference=not args.no_reference)
+            calibrated = bench.calibrate_and_plan(world, rng, reference=not args.no_reference)
         except LasercalError as exc:
             print(f"seed {seed}: calibration failed: {exc}")
             continue
+        plan = calibrated.plan
         selection = plan.selection
         shifted = moved_world(world, rng, SHIFT_M, 0.0)
         turned = moved_world(world, rng, 0.0, TURN_DEG)
@@ -145,7 +151,7 @@ def main() -> None:
             line.append(f"{name} chi2 {test.chi_square:6.1f}" if test else f"{name} not measured")
             if name != "unmoved" and verdict.status == "ok":
                 missed_ok.append(f"{seed} ({name})")
-        ratios.append((selection.estimated_time_s or np.nan) / bench.calibration_s)
+        ratios.append((selection.estimated_time_s or np.nan) / calibrated.calibration_s)
         print(" | ".join(line), f"| time ratio {ratios[-1]:.3f}")
 
     print(f"\n{len(outcomes['unmoved'])} seeds in {time.perf_counter() - started:.0f} s")
