@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +45,8 @@ from lasercal_hw.run.two_pass import SecondPassRefit, predict_rod, solve_two_pas
 from lasercal_hw.run.waypoints import job_waypoints
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
+from lasercal_hw.ur_kinematics import inverse_kinematics_pose
+from trajectories.checks import check_pose
 
 #: Centre noise assumed by the quick CRB (a 20 mm rod, 120 scans: about 0.5 mm per axis).
 CRB_SIGMA_UV_M = 0.0005
@@ -171,13 +174,22 @@ def simulate(
     measurements, background = measure_waypoints(job, waypoints, world, scans, rng)
     visited = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     if job.trajectory.flute_phase_deg is not None:
-        rest = turn_waypoints(job, measurements, background).waypoints
+        rest = turn_waypoints(job, measurements, background, reachable_on_ur5(job)).waypoints
         measurements += measure(job, rest, world, scans, rng, background, first_index=len(waypoints))
         visited = np.vstack([visited, rest])
     solution = solve_two_pass(measurements, job, background)
     dt_mm, de_deg = errors(solution.result, world.ground_truth_T_base_laser)
     observations = tuple(solution.observations)
     return Trial(solution.result, dt_mm, de_deg, len(measurements), solution.refit, observations, visited)
+
+
+def reachable_on_ur5(job: JobConfig) -> Callable[[np.ndarray], bool]:
+    """Whether a pose passes the preflight's pose checks (``trajectories.checks.check_pose``),
+    the UR5 model standing in for the controller."""
+    rod = job.rod.rod_line()
+    return lambda pose: not check_pose(
+        pose, inverse_kinematics=inverse_kinematics_pose, workspace=job.workspace, rod=rod
+    )[0]
 
 
 def job_robot_sigma_m(job: JobConfig) -> float:

@@ -36,6 +36,7 @@ from lasercal_hw.run.flute_phase import (
     profile_spread_rad,
 )
 from lasercal_hw.run.outcome import solve_run
+from lasercal_hw.run.preflight import is_clear
 from lasercal_hw.run.records import (
     Measured,
     Progress,
@@ -62,6 +63,10 @@ from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 SPIN_TURNS_DEG = tuple(float(t) for t in (*range(0, 180, 30), *range(195, 360, 30)))
 #: Trial phases over the half turn (deg).
 PHASE_STEP_DEG = 2.0
+#: Where a waypoint turned to the phase is out of reach (the turn about the bit brings the wrist
+#: where the arm cannot go: the 12th of examples/drill-waypoints.csv from a turn of +80 deg on a
+#: UR5), the steps (deg) by which the turns tried instead come back to the waypoint's turn as listed.
+REACH_STEP_DEG = 10.0
 
 
 @dataclass(frozen=True)
@@ -112,6 +117,36 @@ def tool_shift_deg(phase_deg: float, checked_phase_deg: float) -> float:
     """The tool turn that brings a bit at ``phase_deg`` to ``checked_phase_deg``, the shortest
     way round the half turn (-90 to 90 deg)."""
     return float((checked_phase_deg - phase_deg + 90.0) % 180.0 - 90.0)
+
+
+def turns_to_try_deg(shift_deg: float) -> list[float]:
+    """The tool turns (deg) tried at a waypoint, nearest the checked facing first: ``shift_deg``,
+    the same facing the other way round (a two-fluted section repeats every half turn), then
+    steps of ``REACH_STEP_DEG`` back to the turn as listed (0)."""
+    other_way_deg = shift_deg - float(np.copysign(180.0, shift_deg))
+    steps = int(np.ceil(abs(shift_deg) / REACH_STEP_DEG))
+    return [shift_deg, other_way_deg, *(shift_deg * (1.0 - j / steps) for j in range(1, steps + 1))]
+
+
+def turned_within_reach(
+    listed: FloatArray, rod: RodLine, shift_deg: float, reachable: Callable[[FloatArray], bool]
+) -> tuple[FloatArray, dict[int, float]]:
+    """``listed`` (UR poses, N x 6) with the tool turned about the bit by ``shift_deg``, each
+    waypoint whose turned pose is not ``reachable`` by the first of ``turns_to_try_deg`` that is
+    (as listed where none is: the preflight names it); and the turn (deg) taken at each of those."""
+    turned = turned_about_bit(listed, rod, shift_deg)
+    instead: dict[int, float] = {}
+    for k, pose in enumerate(np.asarray(listed, dtype=float)):
+        if reachable(turned[k]):
+            continue
+        instead[k] = 0.0
+        turned[k] = pose
+        for turn_deg in turns_to_try_deg(shift_deg)[1:]:
+            candidate = turned_about_bit(pose, rod, turn_deg)[0]
+            if reachable(candidate):
+                instead[k], turned[k] = turn_deg, candidate
+                break
+    return turned, instead
 
 
 def _square_to_bit(rod: RodLine) -> FloatArray:
@@ -225,9 +260,13 @@ class TurnedWaypoints:
 
 
 def turn_waypoints(
-    job: JobConfig, spin: Sequence[WaypointMeasurement], background: AveragedScan | None
+    job: JobConfig,
+    spin: Sequence[WaypointMeasurement],
+    background: AveragedScan | None,
+    reachable: Callable[[FloatArray], bool],
 ) -> TurnedWaypoints:
-    """The job's waypoints turned by what the spin's measurements tell of the flute phase."""
+    """The job's waypoints turned by what the spin's measurements tell of the flute phase, each
+    within reach (``turned_within_reach``; ``reachable``: a pose passes the preflight's checks)."""
     assert job.scanner.nominal is not None and job.trajectory.flute_phase_deg is not None
     rod, T_nominal = job.rod.rod_line(), job.scanner.nominal.matrix()
     poses, centres, covariances = plain_spin_centres(spin, T_nominal, rod, background)
@@ -239,7 +278,12 @@ def turn_waypoints(
             "found): the waypoints keep their tool turns"
         )
         return TurnedWaypoints(None, listed, note)
-    return TurnedWaypoints(phase, turned_about_bit(listed, rod, phase.shift_deg), phase.note)
+    turned, instead = turned_within_reach(listed, rod, phase.shift_deg, reachable)
+    if not instead:
+        return TurnedWaypoints(phase, turned, phase.note)
+    first = len(SPIN_TURNS_DEG)
+    taken = ", ".join(f"waypoint {first + k} (listed {k}) by {turn:+.0f} deg" for k, turn in instead.items())
+    return TurnedWaypoints(phase, turned, f"{phase.note}; out of reach so, turned otherwise: {taken}")
 
 
 def run_turned_waypoints(
@@ -262,7 +306,10 @@ def run_turned_waypoints(
     if len(waypoints) > spin_count:
         return solve_run(spun, job, recorder, on_progress=on_progress,
                          cancel=cancel, clock=clock)
-    turned = turn_waypoints(job, spun.measurements, spun.background)
+    rod = job.rod.rod_line()
+    turned = turn_waypoints(
+        job, spun.measurements, spun.background, lambda pose: is_clear(robot, pose, rod, job.workspace)
+    )
     phase = turned.phase
     recorder.write_event(
         clock(), DESIGN_EVENT,

@@ -84,15 +84,17 @@ def check_poses(
     return problems, solutions
 
 
+def is_clear(robot: Robot, pose: FloatArray, rod: RodLine, workspace: WorkspaceConfig) -> bool:
+    """Whether ``pose`` passes every pose check (``check_poses``)."""
+    problems, _ = check_poses(robot, {"candidate": pose}, rod, workspace)
+    return not problems
+
+
 def first_clear_pose(
     robot: Robot, candidates: list[FloatArray], rod: RodLine, workspace: WorkspaceConfig
 ) -> FloatArray | None:
     """The first candidate pose that passes every pose check, or None."""
-    for pose in candidates:
-        problems, _ = check_poses(robot, {"candidate": pose}, rod, workspace)
-        if not problems:
-            return pose
-    return None
+    return next((pose for pose in candidates if is_clear(robot, pose, rod, workspace)), None)
 
 
 def run_preflight(

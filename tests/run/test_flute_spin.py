@@ -21,6 +21,8 @@ from lasercal_hw.run.flute_spin import (
     spin_poses,
     tool_shift_deg,
     turned_about_bit,
+    turned_within_reach,
+    turns_to_try_deg,
 )
 from lasercal_hw.run.replay import solve_recording
 from lasercal_hw.run.resume import recorded_job
@@ -105,6 +107,31 @@ def test_tool_shift_takes_the_short_way_round_the_half_turn():
     assert tool_shift_deg(179.0, 0.0) == pytest.approx(1.0)
 
 
+def test_the_turns_tried_come_nearest_the_checked_facing_first():
+    assert turns_to_try_deg(30.0) == pytest.approx([30.0, -150.0, 20.0, 10.0, 0.0])
+    assert turns_to_try_deg(-85.0) == pytest.approx([-85.0, 95.0, *np.linspace(-85.0, 0.0, 10)[1:]])
+    assert turns_to_try_deg(0.0) == [0.0, -180.0]
+
+
+def test_a_waypoint_out_of_reach_at_the_shift_takes_the_nearest_turn_within_reach(drill):
+    _, rod, listed, _ = drill
+    first_three = listed[:3]
+    out_of_reach = {1: [30.0, -150.0], 2: turns_to_try_deg(30.0)}  # listed 2: no turn within reach
+
+    def reachable(pose):
+        return not any(
+            np.allclose(pose, turned_about_bit(first_three[k], rod, turn)[0])
+            for k, turns in out_of_reach.items()
+            for turn in turns
+        )
+
+    turned, instead = turned_within_reach(first_three, rod, 30.0, reachable)
+    assert instead == {1: pytest.approx(20.0), 2: 0.0}
+    assert np.allclose(turned[0], turned_about_bit(first_three[0], rod, 30.0)[0])
+    assert np.allclose(turned[1], turned_about_bit(first_three[1], rod, 20.0)[0])
+    assert np.array_equal(turned[2], first_three[2])  # as listed: the preflight names it
+
+
 SPUN = {
     **FAST_JOB,
     # The doubles' rod is round, which the fluted extraction moves by a flute's mean offset (about
@@ -155,6 +182,33 @@ def test_a_spun_run_records_the_turn_it_made_and_resume_and_replay_read_it(tmp_p
     replayed = solve_recording(path).solution
     assert np.array_equal(replayed.result.matrix(), outcome.result.matrix())
     assert replayed.refinement == f"as the live run recorded it, not fitted again: {outcome.refinement}"
+
+
+def test_a_spun_run_turns_a_waypoint_out_of_reach_the_other_way_round(tmp_path, monkeypatch):
+    """A waypoint turned to the phase can fall out of the arm's reach (the 12th of the drill's file
+    from +80 deg on a UR5); the preflight of the turned waypoints refused the whole rest of the
+    run. The run takes the same facing the other way round, and says so."""
+    job = _spun_job(tmp_path)
+    spin = job_waypoints(job)
+    told = SpinPhase(phase_deg=60.0, phase_std_deg=3.0, gain=20.0, shift_deg=30.0, centres=9)
+    monkeypatch.setattr(flute_spin, "phase_from_spin", lambda *args: told)
+    listed, rod = listed_waypoints(job), job.rod.rod_line()
+    clock, robot, scanner = make_cell(job, forbidden_poses=[turned_about_bit(listed[4], rod, 30.0)[0]])
+    recorder = SessionRecorder(tmp_path / "session.mcap", {"job": job.model_dump(mode="json"),
+                                                           "waypoints": spin.tolist()})
+    try:
+        spun = Sequencer(robot, scanner, recorder, job, spin, clock=clock).measure()
+        outcome = run_turned_waypoints(robot, scanner, recorder, job, spin, spun, clock=clock)
+    finally:
+        recorder.close()
+
+    visited = {m.index: m.tcp_pose for m in outcome.measurements}
+    first = len(spin)
+    assert sorted(visited) == list(range(first + len(listed)))
+    assert np.allclose(visited[first + 4], turned_about_bit(listed[4], rod, -150.0)[0])
+    assert np.allclose(visited[first + 3], turned_about_bit(listed[3], rod, 30.0)[0])
+    taken = f"out of reach so, turned otherwise: waypoint {first + 4} (listed 4) by -150 deg"
+    assert taken in outcome.refinement
 
 
 def test_flute_phase_needs_a_fluted_rod_and_a_rough_scanner_pose(tmp_path):
