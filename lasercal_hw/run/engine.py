@@ -29,7 +29,7 @@ from lasercal_hw.run.cancel import CancelToken
 from lasercal_hw.run.devices import Robot, Scanner
 from lasercal_hw.run.dry_run_cell import DryRunCell, start_fake_cell
 from lasercal_hw.run.events import EventSink, RunEvent, Stage
-from lasercal_hw.run.flute_spin import run_turned_waypoints
+from lasercal_hw.run.flute_spin import SPIN_TURNS_DEG, run_turned_waypoints
 from lasercal_hw.run.outcome import solve_run
 from lasercal_hw.run.outputs import SESSION_FILE, transform_error, write_outputs
 from lasercal_hw.run.preflight import PreflightReport
@@ -45,7 +45,7 @@ from lasercal_hw.run.resume import (
 )
 from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.watchers import Watcher
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 from lasercal_hw.session.format import META_SCANNER_NAME
 from lasercal_hw.session.reader import SessionRecording, read_session
 from lasercal_hw.session.recorder import SessionRecorder
@@ -209,9 +209,17 @@ class MotionPlan:
         robot, motion = self.preflight.robot, self.job.motion
         return (
             f"About to move the {robot.model} at {self.job.robot.host} (serial {robot.serial_number}) to its "
-            f"retract pose and through {self.waypoint_count} waypoints, {motion.move} moves capped at "
-            f"{motion.speed_m_s} m/s and {motion.accel_m_s2} m/s^2, dwelling {self.job.dwell_s:g} s each."
+            f"retract pose and through {self.waypoint_count} waypoints{self._then()}, {motion.move} "
+            f"moves capped at {motion.speed_m_s} m/s and {motion.accel_m_s2} m/s^2, dwelling "
+            f"{self.job.dwell_s:g} s each."
         )
+
+    def _then(self) -> str:
+        """What a spun drill's run visits after the spin (the plan's waypoints), where they are it."""
+        if self.job.trajectory.flute_phase_deg is None or self.waypoint_count != len(SPIN_TURNS_DEG):
+            return ""
+        listed = len(listed_waypoints(self.job))
+        return f" (the bit's spin), then the job's {listed} with the tool turned about the bit to its phase"
 
 
 def default_out_dir() -> Path:

@@ -12,7 +12,9 @@ from lasercal_hw.calibration.flutes import facing_angles_rad, flute_offsets_m
 from lasercal_hw.calibration.model import moved_rod, plane_crossing, rod_lines_in_base
 from lasercal_hw.config import job_from_mapping, load_job
 from lasercal_hw.errors import ConfigError
+from lasercal_hw.models import RobotIdentity, ScannerIdentity
 from lasercal_hw.run import flute_spin
+from lasercal_hw.run.engine import MotionPlan
 from lasercal_hw.run.flute_spin import (
     SPIN_TURNS_DEG,
     SpinPhase,
@@ -24,6 +26,7 @@ from lasercal_hw.run.flute_spin import (
     turned_within_reach,
     turns_to_try_deg,
 )
+from lasercal_hw.run.preflight import PreflightReport
 from lasercal_hw.run.replay import solve_recording
 from lasercal_hw.run.resume import recorded_job
 from lasercal_hw.run.sequencer import Sequencer
@@ -220,3 +223,19 @@ def test_flute_phase_needs_a_fluted_rod_and_a_rough_scanner_pose(tmp_path):
     with pytest.raises(ConfigError, match="an adaptive run designs its own"):
         job_from_mapping({"trajectory": {"adaptive": True, "flute_phase_deg": 90.0}})
 
+
+
+def test_the_question_before_motion_says_a_spun_run_goes_on_after_its_spin(tmp_path):
+    """The operator confirms the whole run: a spun job's first part is its 12 spin dwells, and
+    the question said only "through 12 waypoints" though the arm then visits the rest."""
+    job = _spun_job(tmp_path)
+    report = PreflightReport(
+        RobotIdentity("UR5", "sim-0001", "5.11.0", (5, 11, 0, 0)),
+        ScannerIdentity("Hokuyo", "UTM-30LX-EW", "1.0", "SCIP 2.0", "H0000", "UTM"),
+        [],
+    )
+    first = MotionPlan(report, job, len(SPIN_TURNS_DEG)).summary()
+    assert "through 12 waypoints (the bit's spin), then the job's 12 with the tool turned" in first
+    resumed = MotionPlan(report, job, len(SPIN_TURNS_DEG) + 12).summary()  # the turned ones recorded
+    assert "through 24 waypoints, " in resumed
+    assert "spin" not in resumed
