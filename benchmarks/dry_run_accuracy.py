@@ -42,7 +42,7 @@ from lasercal_hw.run.flute_spin import turn_waypoints
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.retract import retract_candidates
 from lasercal_hw.run.two_pass import SecondPassRefit, predict_rod, solve_two_pass
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 from lasercal_hw.ur_kinematics import inverse_kinematics_pose
@@ -183,6 +183,15 @@ def simulate(
     return Trial(solution.result, dt_mm, de_deg, len(measurements), solution.refit, observations, visited)
 
 
+def planned_waypoints(job: JobConfig) -> np.ndarray:
+    """Every waypoint a run of ``job`` visits with the bit at the phase its file was checked at
+    (a bound counts them all): a spun job's spin, then its waypoints as listed; else
+    ``job_waypoints``."""
+    if job.trajectory.flute_phase_deg is None:
+        return job_waypoints(job)
+    return np.vstack([job_waypoints(job), listed_waypoints(job)])
+
+
 def reachable_on_ur5(job: JobConfig) -> Callable[[np.ndarray], bool]:
     """Whether a pose passes the preflight's pose checks (``trajectories.checks.check_pose``),
     the UR5 model standing in for the controller."""
@@ -240,9 +249,10 @@ def main() -> None:
     rod = job.rod.rod_line()
     truth = World.from_scene(args.scene).ground_truth_T_base_laser
     sigma_robot_m = job_robot_sigma_m(job)
-    crb_t, crb_r = crb_std(waypoints, rod, truth, robot_sigma_m=sigma_robot_m)
+    planned = planned_waypoints(job)
+    crb_t, crb_r = crb_std(planned, rod, truth, robot_sigma_m=sigma_robot_m)
     print(
-        f"{len(waypoints)} waypoints, rod r {rod.radius_m * 1e3:.0f} mm, "
+        f"{len(planned)} waypoints, rod r {rod.radius_m * 1e3:.0f} mm, "
         f"robot sigma {sigma_robot_m * 1e3:.2f} mm"
     )
     print(

@@ -58,7 +58,7 @@ from benchmarks.accuracy_conditions import (
     designed_waypoints,
     with_waypoints_file,
 )
-from benchmarks.dry_run_accuracy import Trial, simulate, world_with
+from benchmarks.dry_run_accuracy import Trial, planned_waypoints, simulate, world_with
 from fakes.scene import Scene, load_scene
 from lasercal_hw.calibration.model import extended_fisher_information
 from lasercal_hw.config import JobConfig, with_overrides
@@ -220,7 +220,7 @@ def bound_rows(job: JobConfig) -> list[tuple[str, float, float]]:
 def print_bound(case: Case) -> None:
     """The trajectory's Cramér-Rao limit (the module docstring) as a table."""
     scene = load_scene(case.scene_path)
-    waypoints = designed_waypoints(case.job, scene) if case.designed else job_waypoints(case.job)
+    waypoints = designed_waypoints(case.job, scene) if case.designed else planned_waypoints(case.job)
     truth = world_with(scene, case.true_rod, 0).ground_truth_T_base_laser
     unknowns = "the pose and the rod's axis" if estimates_axis(case.job) else "the pose"
     source = case.job.trajectory.waypoints_file or ("designed" if case.designed else "the preset")

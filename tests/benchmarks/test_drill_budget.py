@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from benchmarks.accuracy_conditions import cases, noise_rng, with_waypoints_file
-from benchmarks.dry_run_accuracy import world_with
+from benchmarks.dry_run_accuracy import planned_waypoints, world_with
 from benchmarks.error_budget import VARIANTS, bound_p95, bound_rows, case_job
 from fakes.scene import load_scene
 from lasercal_hw.config import with_overrides
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import listed_waypoints
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -45,7 +45,7 @@ def test_the_drill_bound_counts_the_axis_its_job_estimates() -> None:
     fluted = _case("drill-fluted")
     assert fluted.job.rod.estimate_axis
     told = dataclasses.replace(fluted, job=with_overrides(fluted.job, {"rod.estimate_axis": False}))
-    waypoints = job_waypoints(fluted.job)
+    waypoints = planned_waypoints(fluted.job)
     truth = world_with(load_scene(fluted.scene_path), fluted.true_rod, 0).ground_truth_T_base_laser
     with_axis = bound_p95(fluted, waypoints, truth, 0.0005, 0.00058, 2)
     without = bound_p95(told, waypoints, truth, 0.0005, 0.00058, 2)
@@ -63,7 +63,7 @@ def test_the_waypoints_file_replaces_a_drill_cases_file_only(tmp_path: Path) -> 
     short = tmp_path / "short.csv"
     short.write_text("\n".join(listed[:7]) + "\n")
     drill = with_waypoints_file(_case("drill-fluted"), short)
-    assert len(job_waypoints(drill.job)) == 6
+    assert len(listed_waypoints(drill.job)) == 6
     default = _case("default-3s")
     assert with_waypoints_file(default, short) is default  # a preset's case keeps its preset
     with pytest.raises(FileNotFoundError, match=r"missing\.csv"):
