@@ -21,7 +21,7 @@ from lasercal_hw.run.flute_phase import (
     estimate_flute_phase,
     profile_spread_rad,
 )
-from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
+from lasercal_hw.run.waypoints import listed_waypoints
 
 DRILL_JOB = Path(__file__).resolve().parents[2] / "examples" / "drill.toml"
 SIGMA_M = 0.0003
@@ -108,7 +108,7 @@ def test_the_phase_pass_gets_plain_centres_with_the_range_offset_out_once(
     job = load_job(DRILL_JOB)
     rng = np.random.default_rng(100)
     world = world_for(job, None, robot_error_seed=1100)
-    measurements, background = measure_waypoints(job, job_waypoints(job), world, 10, rng)
+    measurements, background = measure_waypoints(job, listed_waypoints(job), world, 10, rng)
     seen: dict[str, object] = {}
 
     def capture(plain, widened, rod, options):

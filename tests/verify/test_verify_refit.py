@@ -81,11 +81,18 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
     return calibration
 
 
+def unspun_drill_job() -> JobConfig:
+    """The drill job visiting its waypoints as listed, without the spin before them (a spun
+    calibration's verify: tests/verify/test_verify_visited.py)."""
+    job = load_job(DRILL_JOB)
+    return job.model_copy(update={"trajectory": job.trajectory.model_copy(update={"flute_phase_deg": None})})
+
+
 @pytest.fixture(scope="module")
 def drill_calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
     """The drill job with a plain 10 mm rod whose axis it estimates, the true rod 2 mm off its
     nominal axis and tilted 1 deg (``benchmarks.accuracy_conditions.real_bit``)."""
-    job = with_overrides(load_job(DRILL_JOB), {"rod.fluted": False}, source="test")
+    job = with_overrides(unspun_drill_job(), {"rod.fluted": False}, source="test")
     assert job.rod.estimate_axis
     true_rod = real_bit(job.rod.rod_line())
     return calibrate(job, true_rod, 100, tmp_path_factory.mktemp("drill"))
@@ -93,12 +100,12 @@ def drill_calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
 
 @pytest.fixture(scope="module")
 def fluted_calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
-    """The drill job as shipped: the drill scene's fluted 10 mm bit, 2 mm off its nominal axis and
-    tilted 1 deg, axis estimated; seed 106 at 10 scans a waypoint keeps its flute phase pass (37 of
-    the 40 waypoints measured). Seed 103 did on the model before 2026-11-29 and does not since;
-    of seeds 100 and 105-107 (all kept), 11, 11, 12 and 12 of the 12 turns below are rigid since
-    (the model before, seeds 103, 100, 105, 106: 12, 12, 12 and 4)."""
-    job = load_job(DRILL_JOB)
+    """The drill job without its spin (its waypoints as listed): the drill scene's fluted 10 mm bit,
+    2 mm off its nominal axis and tilted 1 deg, axis estimated; seed 106 at 10 scans a waypoint
+    keeps its flute phase pass (37 of the 40 waypoints measured). Seed 103 did on the model before
+    2026-11-29 and does not since; of seeds 100 and 105-107 (all kept), 11, 11, 12 and 12 of the
+    12 turns below are rigid since (the model before, seeds 103, 100, 105, 106: 12, 12, 12 and 4)."""
+    job = unspun_drill_job()
     assert job.rod.fluted and job.rod.estimate_axis
     true_rod = real_bit(job.rod.rod_line())
     calibration = calibrate(job, true_rod, 106, tmp_path_factory.mktemp("fluted"), DRILL_SCENE, scans=10)
