@@ -215,11 +215,11 @@ class MotionPlan:
         )
 
     def _then(self) -> str:
-        """What a spun drill's run visits after the spin (the plan's waypoints), where they are it."""
+        """What a spun drill's run visits after its spin, when the plan's waypoints are the spin's."""
         if self.job.trajectory.flute_phase_deg is None or self.waypoint_count != len(SPIN_TURNS_DEG):
             return ""
         listed = len(listed_waypoints(self.job))
-        return f" (the bit's spin), then the job's {listed} with the tool turned about the bit to its phase"
+        return f" (the bit's spin), then the job's {listed} turned about the bit to its phase if told"
 
 
 def default_out_dir() -> Path:
@@ -250,7 +250,7 @@ def calibrate(
         if session.job.trajectory.flute_phase_deg is not None:  # the rest turned to the spin's phase
             outcome = run_turned_waypoints(
                 session.robot, session.scanner, session.recorder, session.job, session.waypoints, measured,
-                on_progress=session.on_progress, cancel=cancel,
+                on_progress=session.on_progress, cancel=cancel, resumed_turn_note=session.resumed_turn_note,
             )
         else:
             outcome = solve_run(
@@ -303,6 +303,8 @@ class SequencerSession:
     on_progress: ProgressCallback
     #: The robot's own kinematics calibration (None: unknown, and a warning said so).
     robot_calibration: RobotCalibration | None = None
+    #: What a resumed spun run had said of its turn (``ResumeState.turn_note``).
+    resumed_turn_note: str | None = None
 
 
 @contextlib.contextmanager
@@ -360,7 +362,7 @@ def open_sequencer(
             )
             yield SequencerSession(
                 job, waypoints, out_dir, session_path, sequencer, robot, scanner, recorder, ground_truth,
-                fake_cell, on_progress, robot_calibration,
+                fake_cell, on_progress, robot_calibration, None if state is None else state.turn_note,
             )
     except (LasercalError, KeyboardInterrupt, OSError) as exc:  # OSError: a full disk, say
         _after_failure(

@@ -122,7 +122,7 @@ def tool_shift_deg(phase_deg: float, checked_phase_deg: float) -> float:
 def turns_to_try_deg(shift_deg: float) -> list[float]:
     """The tool turns (deg) tried at a waypoint, nearest the checked facing first: ``shift_deg``,
     the same facing the other way round (a two-fluted section repeats every half turn), then
-    steps of ``REACH_STEP_DEG`` back to the turn as listed (0)."""
+    even steps of at most ``REACH_STEP_DEG`` back to the turn as listed (0)."""
     other_way_deg = shift_deg - float(np.copysign(180.0, shift_deg))
     steps = int(np.ceil(abs(shift_deg) / REACH_STEP_DEG))
     return [shift_deg, other_way_deg, *(shift_deg * (1.0 - j / steps) for j in range(1, steps + 1))]
@@ -130,16 +130,17 @@ def turns_to_try_deg(shift_deg: float) -> list[float]:
 
 def turned_within_reach(
     listed: FloatArray, rod: RodLine, shift_deg: float, reachable: Callable[[FloatArray], bool]
-) -> tuple[FloatArray, dict[int, float]]:
+) -> tuple[FloatArray, dict[int, float | None]]:
     """``listed`` (UR poses, N x 6) with the tool turned about the bit by ``shift_deg``, each
-    waypoint whose turned pose is not ``reachable`` by the first of ``turns_to_try_deg`` that is
-    (as listed where none is: the preflight names it); and the turn (deg) taken at each of those."""
+    waypoint whose turned pose is not ``reachable`` by the first of ``turns_to_try_deg`` that is;
+    and the turn (deg) taken at each of those, None where none is (kept as listed: the preflight
+    names it)."""
     turned = turned_about_bit(listed, rod, shift_deg)
-    instead: dict[int, float] = {}
+    instead: dict[int, float | None] = {}
     for k, pose in enumerate(np.asarray(listed, dtype=float)):
         if reachable(turned[k]):
             continue
-        instead[k] = 0.0
+        instead[k] = None
         turned[k] = pose
         for turn_deg in turns_to_try_deg(shift_deg)[1:]:
             candidate = turned_about_bit(pose, rod, turn_deg)[0]
@@ -282,7 +283,11 @@ def turn_waypoints(
     if not instead:
         return TurnedWaypoints(phase, turned, phase.note)
     first = len(SPIN_TURNS_DEG)
-    taken = ", ".join(f"waypoint {first + k} (listed {k}) by {turn:+.0f} deg" for k, turn in instead.items())
+    taken = ", ".join(
+        f"waypoint {first + k} (listed {k}) "
+        + ("kept as listed, no turn within reach" if turn is None else f"by {turn + 0.0:+.0f} deg")
+        for k, turn in instead.items()
+    )
     return TurnedWaypoints(phase, turned, f"{phase.note}; out of reach so, turned otherwise: {taken}")
 
 
@@ -297,15 +302,19 @@ def run_turned_waypoints(
     on_progress: ProgressCallback | None = None,
     cancel: CancelToken | None = None,
     clock: Callable[[], float] = time.time,
+    resumed_turn_note: str | None = None,
 ) -> RunOutcome:
     """After the spin (``waypoints``, as measured in ``spun``): tell the phase, record the turned
     waypoints (a ``trajectory_design`` event that ``--resume`` reads, with the phase and the
     shift), measure them and solve over every centre. A run resumed after the turn already
-    holds every waypoint and is solved as it is."""
+    holds every waypoint and is solved as it is, its note on the turn (``resumed_turn_note``,
+    as recorded) leading the refinement as a run's own does."""
     spin_count = len(SPIN_TURNS_DEG)
     if len(waypoints) > spin_count:
-        return solve_run(spun, job, recorder, on_progress=on_progress,
-                         cancel=cancel, clock=clock)
+        outcome = solve_run(spun, job, recorder, on_progress=on_progress, cancel=cancel, clock=clock)
+        if resumed_turn_note is None:
+            return outcome
+        return dataclasses.replace(outcome, refinement=f"{resumed_turn_note}; {outcome.refinement}")
     rod = job.rod.rod_line()
     turned = turn_waypoints(
         job, spun.measurements, spun.background, lambda pose: is_clear(robot, pose, rod, job.workspace)

@@ -115,6 +115,8 @@ class ResumeState:
     measurements: list[WaypointMeasurement] = field(default_factory=list)
     skipped: list[SkippedWaypoint] = field(default_factory=list)
     background: AveragedScan | None = None
+    #: What a spun run said of its flute phase and its waypoints' turn, where it got that far.
+    turn_note: str | None = None
 
     @property
     def finished_indices(self) -> set[int]:

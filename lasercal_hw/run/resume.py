@@ -180,7 +180,8 @@ def _background(recording: SessionRecording) -> AveragedScan | None:
 
 
 def resume_state(recording: SessionRecording) -> ResumeState:
-    """The measured and skipped waypoints of an interrupted run, and its background."""
+    """The measured and skipped waypoints of an interrupted run, its background and, a spun
+    run's, what it said of its turn (``recorded_turn_note``)."""
     observed: dict[int, WaypointMeasurement] = {}
     for event in check_observation_events(recording) if recording.events_of("observation") else []:
         measurement = _measurement(event, recording.scans)
@@ -196,4 +197,5 @@ def resume_state(recording: SessionRecording) -> ResumeState:
         measurements=[observed[i] for i in sorted(observed)],
         skipped=[skipped[i] for i in sorted(skipped)],
         background=_background(recording),
+        turn_note=recorded_turn_note(recording),
     )

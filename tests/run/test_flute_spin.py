@@ -28,7 +28,7 @@ from lasercal_hw.run.flute_spin import (
 )
 from lasercal_hw.run.preflight import PreflightReport
 from lasercal_hw.run.replay import solve_recording
-from lasercal_hw.run.resume import recorded_job
+from lasercal_hw.run.resume import recorded_job, resume_state
 from lasercal_hw.run.sequencer import Sequencer
 from lasercal_hw.run.two_pass import predict_rod
 from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
@@ -129,7 +129,7 @@ def test_a_waypoint_out_of_reach_at_the_shift_takes_the_nearest_turn_within_reac
         )
 
     turned, instead = turned_within_reach(first_three, rod, 30.0, reachable)
-    assert instead == {1: pytest.approx(20.0), 2: 0.0}
+    assert instead == {1: pytest.approx(20.0), 2: None}
     assert np.allclose(turned[0], turned_about_bit(first_three[0], rod, 30.0)[0])
     assert np.allclose(turned[1], turned_about_bit(first_three[1], rod, 20.0)[0])
     assert np.array_equal(turned[2], first_three[2])  # as listed: the preflight names it
@@ -186,6 +186,20 @@ def test_a_spun_run_records_the_turn_it_made_and_resume_and_replay_read_it(tmp_p
     assert np.array_equal(replayed.result.matrix(), outcome.result.matrix())
     assert replayed.refinement == f"as the live run recorded it, not fitted again: {outcome.refinement}"
 
+    # Resumed after the turn, the run is solved as it is and says what its turn was, as it did.
+    state = resume_state(recording)
+    assert state.turn_note == design["notes"][0]
+    every = np.vstack([spin, turned])
+    meta = {"job": job.model_dump(mode="json"), "waypoints": every.tolist()}
+    again = SessionRecorder(tmp_path / "again.mcap", meta)
+    try:
+        measured = Sequencer(robot, scanner, again, job, every, clock=clock, resume=state).measure()
+        resumed = run_turned_waypoints(robot, scanner, again, job, every, measured, clock=clock,
+                                       resumed_turn_note=state.turn_note)
+    finally:
+        again.close()
+    assert resumed.refinement.startswith(f"{design['notes'][0]}; ")
+
 
 def test_a_spun_run_turns_a_waypoint_out_of_reach_the_other_way_round(tmp_path, monkeypatch):
     """A waypoint turned to the phase can fall out of the arm's reach (the 12th of the drill's file
@@ -235,7 +249,7 @@ def test_the_question_before_motion_says_a_spun_run_goes_on_after_its_spin(tmp_p
         [],
     )
     first = MotionPlan(report, job, len(SPIN_TURNS_DEG)).summary()
-    assert "through 12 waypoints (the bit's spin), then the job's 12 with the tool turned" in first
+    assert "through 12 waypoints (the bit's spin), then the job's 12 turned about the bit" in first
     resumed = MotionPlan(report, job, len(SPIN_TURNS_DEG) + 12).summary()  # the turned ones recorded
     assert "through 24 waypoints, " in resumed
     assert "spin" not in resumed
