@@ -35,14 +35,14 @@ from fakes.world import World
 from lasercal_hw.calibration.model import fisher_information, rod_lines_in_base
 from lasercal_hw.calibration.result import CalibrationResult
 from lasercal_hw.config import JobConfig, load_job
-from lasercal_hw.errors import LasercalError
+from lasercal_hw.errors import ConfigError, LasercalError
 from lasercal_hw.geometry import matrix_to_rotvec, pose_to_matrix
 from lasercal_hw.models import LaserScan, Observation, RodLine
 from lasercal_hw.run.flute_spin import turn_waypoints
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.retract import retract_candidates
 from lasercal_hw.run.two_pass import SecondPassRefit, predict_rod, solve_two_pass
-from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, planned_waypoints
 from lasercal_hw.scan.average import AveragedScan, average_scans
 from lasercal_hw.scan.extraction import RodNotFoundError, find_rod_centre
 from lasercal_hw.ur_kinematics import inverse_kinematics_pose
@@ -174,22 +174,16 @@ def simulate(
     measurements, background = measure_waypoints(job, waypoints, world, scans, rng)
     visited = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     if job.trajectory.flute_phase_deg is not None:
-        rest = turn_waypoints(job, measurements, background, reachable_on_ur5(job)).waypoints
+        reachable = reachable_on_ur5(job)
+        rest = turn_waypoints(job, measurements, background, reachable).waypoints
+        if refused := [len(waypoints) + k for k, pose in enumerate(rest) if not reachable(pose)]:
+            raise ConfigError(f"the preflight would refuse turned waypoints {refused}: out of reach")
         measurements += measure(job, rest, world, scans, rng, background, first_index=len(waypoints))
         visited = np.vstack([visited, rest])
     solution = solve_two_pass(measurements, job, background)
     dt_mm, de_deg = errors(solution.result, world.ground_truth_T_base_laser)
     observations = tuple(solution.observations)
     return Trial(solution.result, dt_mm, de_deg, len(measurements), solution.refit, observations, visited)
-
-
-def planned_waypoints(job: JobConfig) -> np.ndarray:
-    """Every waypoint a run of ``job`` visits with the bit at the phase its file was checked at
-    (a bound counts them all): a spun job's spin, then its waypoints as listed; else
-    ``job_waypoints``."""
-    if job.trajectory.flute_phase_deg is None:
-        return job_waypoints(job)
-    return np.vstack([job_waypoints(job), listed_waypoints(job)])
 
 
 def reachable_on_ur5(job: JobConfig) -> Callable[[np.ndarray], bool]:

@@ -58,7 +58,7 @@ from benchmarks.accuracy_conditions import (
     designed_waypoints,
     with_waypoints_file,
 )
-from benchmarks.dry_run_accuracy import Trial, planned_waypoints, simulate, world_with
+from benchmarks.dry_run_accuracy import Trial, simulate, world_with
 from fakes.scene import Scene, load_scene
 from lasercal_hw.calibration.model import extended_fisher_information
 from lasercal_hw.config import JobConfig, with_overrides
@@ -66,7 +66,7 @@ from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import pose_to_matrix
 from lasercal_hw.models import RodLine
 from lasercal_hw.run.flute_phase import MODEL_ALLOWANCE_RADIUS_FRACTION
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, planned_waypoints
 
 #: The dry run's robot error field per axis (``NoiseSettings.robot_position_error_m``), in mm.
 FIELD_PER_AXIS_MM = 0.58

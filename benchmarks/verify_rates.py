@@ -48,7 +48,7 @@ from benchmarks.verify_trials import VerifyBench, add_job_arguments
 from fakes.world import World
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import matrix_to_euler_zyx, matrix_to_rotvec, rotvec_to_matrix
-from lasercal_hw.run.waypoints import listed_waypoints
+from lasercal_hw.run.waypoints import planned_waypoints
 from lasercal_hw.verify.drift import DriftTest
 from lasercal_hw.verify.procedure import VerifyPlan, refit_and_test
 from lasercal_hw.verify.verdict import decide
@@ -110,9 +110,9 @@ def main() -> None:
     bench = VerifyBench.from_args(args)
     job, poses, count, scans = bench.job, bench.poses, bench.count, bench.scans
     settings = job.verify
-    visited = f"{len(poses)} calibration waypoints"
+    visited = f"{len(planned_waypoints(job))} calibration waypoints"
     if job.trajectory.flute_phase_deg is not None:
-        visited = f"a spin of {len(poses)} waypoints, then the job's {len(listed_waypoints(job))} turned"
+        visited += f" (a spin of {len(poses)}, then the job's turned)"
     print(
         f"{visited}, verify with {count}, {scans} scans per waypoint, "
         f"false-alarm rate {settings.false_alarm_rate:.0%}, tolerance {settings.tolerance_mm:g} mm "

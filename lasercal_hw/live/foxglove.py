@@ -41,7 +41,7 @@ from lasercal_hw.outputs.exports import scanner_frame
 from lasercal_hw.run.cell import CellRunRequest, cell_scanners
 from lasercal_hw.run.engine import RunRequest
 from lasercal_hw.run.resume import recorded_job
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import planned_waypoints
 from lasercal_hw.session.reader import read_session
 
 LOOPBACK = "127.0.0.1"
@@ -86,7 +86,7 @@ class RunGeometry:
         if request.resume is not None:
             job, tcp_poses = recorded_job(read_session(request.resume))
             return cls.of_job(job, tcp_poses)
-        tcp_poses = request.waypoints if request.waypoints is not None else job_waypoints(request.job)
+        tcp_poses = request.waypoints if request.waypoints is not None else planned_waypoints(request.job)
         return cls.of_job(request.job, tcp_poses)
 
 
@@ -250,7 +250,7 @@ class FoxgloveLiveView:
         geometries = {}
         for name in names:
             scanner_job = job.for_scanner(name)
-            geometries[name] = RunGeometry.of_job(scanner_job, job_waypoints(scanner_job))
+            geometries[name] = RunGeometry.of_job(scanner_job, planned_waypoints(scanner_job))
         self.begin_cell(geometries)
 
         def both(event: Any) -> None:

@@ -3,6 +3,8 @@ parameter overrides, or a waypoint file (``trajectories.waypoint_file``: CSV or 
 
 from __future__ import annotations
 
+import numpy as np
+
 from lasercal_hw.config import JobConfig
 from lasercal_hw.errors import ConfigError
 from lasercal_hw.geometry import matrix_to_pose
@@ -71,3 +73,14 @@ def job_waypoints(job: JobConfig, *, live: bool = False) -> FloatArray:
 
         return job_spin(job)
     return listed_waypoints(job)
+
+
+def planned_waypoints(job: JobConfig, *, live: bool = False) -> FloatArray:
+    """Every waypoint a run of ``job`` plans to visit, as far as known before it moves (what a
+    count, a bound or a picture of the run takes): a spun job's spin, then its waypoints as listed
+    (the spin turns them about the bit, which keeps each crossing where it is); else
+    ``job_waypoints``."""
+    first = job_waypoints(job, live=live)
+    if job.trajectory.flute_phase_deg is None:
+        return first
+    return np.vstack([first, listed_waypoints(job)])

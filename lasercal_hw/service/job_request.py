@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from lasercal_hw.config import SCANNER_NAME_PATTERN, JobConfig, job_from_mapping, load_job, with_overrides
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.run.waypoints import ScannerPoseMissingError, job_waypoints
+from lasercal_hw.run.waypoints import ScannerPoseMissingError, planned_waypoints
 from lasercal_hw.service.errors import ConfirmationRequiredError, InvalidRequestError
 from trajectories.presets import get_preset
 from trajectories.semicircles import parse_semicircle_parameters
@@ -236,7 +236,7 @@ def resolve_job(body: JobBody, default_job: Path | None, data_dir: Path) -> JobC
                     f"{MAX_WAYPOINTS} are taken (raise step_deg or use fewer arcs)",
                     "job.trajectory.parameters",
                 )
-            count += len(job_waypoints(scanner_job, live=body.kind == "calibrate"))
+            count += len(planned_waypoints(scanner_job, live=body.kind == "calibrate"))
     except ScannerPoseMissingError as exc:
         raise InvalidRequestError(str(exc), "job.scanner.nominal") from None
     except ConfigError as exc:

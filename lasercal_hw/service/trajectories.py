@@ -10,7 +10,7 @@ from typing import Any
 
 from lasercal_hw.config import JobConfig, load_job
 from lasercal_hw.errors import ConfigError
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import planned_waypoints
 from trajectories.presets import PRESETS, preset_names
 
 
@@ -28,7 +28,7 @@ def _designed(job: JobConfig, default_job: Path) -> dict[str, Any] | None:
     cannot be read)."""
     try:
         if job.scanners:
-            counts = {name: len(job_waypoints(job.for_scanner(name))) for name in job.scanner_names()}
+            counts = {name: len(planned_waypoints(job.for_scanner(name))) for name in job.scanner_names()}
             return {
                 "name": "each scanner's own",
                 "kind": "cell",
@@ -44,7 +44,7 @@ def _designed(job: JobConfig, default_job: Path) -> dict[str, Any] | None:
             "name": designed.name,
             "kind": "waypoints_file",
             "description": f"designed waypoints of the daemon's job {default_job.name} ({designed})",
-            "waypoints": len(job_waypoints(job)),
+            "waypoints": len(planned_waypoints(job)),
             "job": {},
         }
     except ConfigError:

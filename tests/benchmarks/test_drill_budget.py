@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from benchmarks.accuracy_conditions import cases, noise_rng, with_waypoints_file
-from benchmarks.dry_run_accuracy import planned_waypoints, world_with
+from benchmarks.dry_run_accuracy import world_with
 from benchmarks.error_budget import VARIANTS, bound_p95, bound_rows, case_job
 from fakes.scene import load_scene
 from lasercal_hw.config import with_overrides
-from lasercal_hw.run.waypoints import listed_waypoints
+from lasercal_hw.run.waypoints import listed_waypoints, planned_waypoints
 
 ROOT = Path(__file__).resolve().parents[2]
 

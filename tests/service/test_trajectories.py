@@ -25,7 +25,8 @@ def test_the_daemon_lists_its_presets_and_designed_waypoints(tmp_path: Path) -> 
         designed, *presets = known
         assert (designed["name"], designed["kind"]) == ("drill-waypoints.csv", "waypoints_file")
         assert designed["job"] == {}
-        assert designed["waypoints"] > 0 and "drill.toml" in designed["description"]
+        # The drill job spins its bit first: 12 spin dwells, then the file's 40 (said 12 before).
+        assert designed["waypoints"] == 12 + 40 and "drill.toml" in designed["description"]
         assert [p["name"] for p in presets] == preset_names() and all(p["kind"] == "preset" for p in presets)
         _start_and_finish(client, designed["job"])
         # A preset replaces the job's waypoint file (not "give either preset or waypoints_file");
