@@ -23,10 +23,10 @@ absolute-accuracy error field. Cases:
 * ``drill-fixed``, ``drill-estimated``: the same job whose real bit is 2 mm off and tilted
   1 degree from the job file's axis, solved with the job's axis (the bias it causes) and
   with ``rod.estimate_axis = true``; the bit is the default scene's rod of the bit's radius
-  (a painted cylinder);
-* ``drill-fluted``: the drill job as shipped: ``drill-estimated`` on the scene that holds
-  the bit as it is (``fakes/scenes/drill.toml``: a fluted 10 mm twist drill of ground steel
-  in a collet chuck, turned with the tool);
+  (a painted cylinder), so these cases visit the waypoints as listed, without the job's spin;
+* ``drill-fluted``: the drill job as shipped (its spin, then its waypoints turned to the bit's
+  flute phase) on the scene that holds the bit as it is (``fakes/scenes/drill.toml``: a fluted
+  10 mm twist drill of ground steel in a collet chuck, turned with the tool);
 * ``drill-fluted-any-turn``: the same, the bit turned in its chuck by an angle drawn per seed
   (uniform over 0-180 deg, a two-fluted bit's period): a real bit sits in its chuck at any
   turn, and ``drill-fluted``'s one turn may suit the shipped waypoints' tool turns by chance;
@@ -79,7 +79,7 @@ from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
 from lasercal_hw.models import RodLine
-from lasercal_hw.run.waypoints import job_waypoints, listed_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, planned_waypoints
 from lasercal_hw.ur_kinematics import UR5
 from trajectories.design import design, request_for_job
 
@@ -129,9 +129,12 @@ def cases() -> list[Case]:
     """Every case of the module docstring."""
     default = load_job(None)
     drill = load_job(DRILL_JOB)
-    drill_fixed = with_overrides(drill, {"rod.estimate_axis": False})
-    preset = drill.trajectory.model_copy(update={"preset": "drill", "waypoints_file": None})
-    drill_preset = drill.model_copy(update={"trajectory": preset})
+    listed = drill.model_copy(  # a painted cylinder's cases: no flutes for a spin to tell
+        update={"trajectory": drill.trajectory.model_copy(update={"flute_phase_deg": None})}
+    )
+    drill_fixed = with_overrides(listed, {"rod.estimate_axis": False})
+    preset = listed.trajectory.model_copy(update={"preset": "drill", "waypoints_file": None})
+    drill_preset = listed.model_copy(update={"trajectory": preset})
     bit = real_bit(drill.rod.rod_line())
     offset_off = with_overrides(default, {"scanner.estimate_range_offset": False})
     offset_only = with_overrides(default, {"scanner.range_error_terms": 1})
@@ -143,7 +146,7 @@ def cases() -> list[Case]:
         Case("designed-0.5s", default, default.rod.rod_line(), 0.5, designed=True),
         Case("drill-known", drill_fixed, drill.rod.rod_line(), drill.dwell_s),
         Case("drill-fixed", drill_fixed, bit, drill.dwell_s),
-        Case("drill-estimated", drill, bit, drill.dwell_s),
+        Case("drill-estimated", listed, bit, drill.dwell_s),
         Case("drill-fluted", drill, bit, drill.dwell_s, scene_path=DRILL_SCENE),
         Case(
             "drill-fluted-any-turn", drill, bit, drill.dwell_s, scene_path=DRILL_SCENE, chuck_turn_drawn=True
@@ -238,9 +241,7 @@ def run_case(
     ``per_waypoint``, each waypoint's centres against the truth)."""
     scene = load_scene(case.scene_path).model_copy(update={"model": model})
     waypoints = designed_waypoints(case.job, scene, choice) if case.designed else job_waypoints(case.job)
-    visited = len(waypoints)
-    if case.job.trajectory.flute_phase_deg is not None:  # the spin, then the job's waypoints turned
-        visited += len(listed_waypoints(case.job))
+    visited = len(waypoints) if case.designed else len(planned_waypoints(case.job))
     scans = round(case.dwell_s / scene.scanner.scan_period_s)
     trials: list[Trial] = []
     centres: list[list[WaypointError]] = []
