@@ -79,7 +79,7 @@ from lasercal_hw.config import JobConfig, load_job, with_overrides
 from lasercal_hw.errors import LasercalError
 from lasercal_hw.geometry import euler_zyx_to_matrix, make_transform
 from lasercal_hw.models import RodLine
-from lasercal_hw.run.waypoints import job_waypoints, planned_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, planned_waypoints, without_spin
 from lasercal_hw.ur_kinematics import UR5
 from trajectories.design import design, request_for_job
 
@@ -129,9 +129,7 @@ def cases() -> list[Case]:
     """Every case of the module docstring."""
     default = load_job(None)
     drill = load_job(DRILL_JOB)
-    listed = drill.model_copy(  # a painted cylinder's cases: no flutes for a spin to tell
-        update={"trajectory": drill.trajectory.model_copy(update={"flute_phase_deg": None})}
-    )
+    listed = without_spin(drill)  # a painted cylinder's cases: no flutes for a spin to tell
     drill_fixed = with_overrides(listed, {"rod.estimate_axis": False})
     preset = listed.trajectory.model_copy(update={"preset": "drill", "waypoints_file": None})
     drill_preset = listed.model_copy(update={"trajectory": preset})

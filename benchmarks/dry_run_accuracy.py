@@ -174,10 +174,11 @@ def simulate(
     measurements, background = measure_waypoints(job, waypoints, world, scans, rng)
     visited = np.asarray(waypoints, dtype=float).reshape(-1, 6)
     if job.trajectory.flute_phase_deg is not None:
-        reachable = reachable_on_ur5(job)
-        rest = turn_waypoints(job, measurements, background, reachable).waypoints
-        if refused := [len(waypoints) + k for k, pose in enumerate(rest) if not reachable(pose)]:
+        turned = turn_waypoints(job, measurements, background, reachable_on_ur5(job))
+        if turned.out_of_reach:
+            refused = [len(waypoints) + k for k in turned.out_of_reach]
             raise ConfigError(f"the preflight would refuse turned waypoints {refused}: out of reach")
+        rest = turned.waypoints
         measurements += measure(job, rest, world, scans, rng, background, first_index=len(waypoints))
         visited = np.vstack([visited, rest])
     solution = solve_two_pass(measurements, job, background)

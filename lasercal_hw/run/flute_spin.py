@@ -258,6 +258,8 @@ class TurnedWaypoints:
     phase: SpinPhase | None
     waypoints: FloatArray
     note: str
+    #: Listed indices kept as listed because no turn of them is within reach (the preflight names them).
+    out_of_reach: tuple[int, ...] = ()
 
 
 def turn_waypoints(
@@ -288,7 +290,8 @@ def turn_waypoints(
         + ("kept as listed, no turn within reach" if turn is None else f"by {turn + 0.0:+.0f} deg")
         for k, turn in instead.items()
     )
-    return TurnedWaypoints(phase, turned, f"{phase.note}; out of reach so, turned otherwise: {taken}")
+    note = f"{phase.note}; out of reach so, turned otherwise: {taken}"
+    return TurnedWaypoints(phase, turned, note, tuple(k for k, turn in instead.items() if turn is None))
 
 
 def run_turned_waypoints(

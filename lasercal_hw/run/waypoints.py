@@ -32,6 +32,12 @@ def job_waypoint_list(job: JobConfig) -> list[Waypoint]:
     return semicircle_waypoints(parameters, job.rod.rod_line())
 
 
+def without_spin(job: JobConfig) -> JobConfig:
+    """``job`` visiting its waypoints as listed, without a twist drill's spin before them
+    (``trajectory.flute_phase_deg``)."""
+    return job.model_copy(update={"trajectory": job.trajectory.model_copy(update={"flute_phase_deg": None})})
+
+
 def listed_waypoints(job: JobConfig) -> FloatArray:
     """The job's own waypoints (its file or preset) as UR pose vectors, as listed: without an
     adaptive design or a twist drill's spin and turn (``job_waypoints`` gives what a run visits first)."""

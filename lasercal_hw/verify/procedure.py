@@ -30,7 +30,7 @@ from lasercal_hw.run.records import Measured, Timings, WaypointMeasurement
 from lasercal_hw.run.resume import Procedure
 from lasercal_hw.run.timing import visit_time_s
 from lasercal_hw.run.two_pass import SecondPassRefit
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, without_spin
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.verify.across_kind import placed_alike
 from lasercal_hw.verify.active import (
@@ -93,9 +93,7 @@ def verify_job(job: JobConfig, T_base_laser: FloatArray) -> JobConfig:
     T = np.asarray(T_base_laser, dtype=float)
     euler_deg = np.degrees(matrix_to_euler_zyx(T[:3, :3]))
     nominal = {"translation_m": T[:3, 3].tolist(), "euler_zyx_deg": euler_deg.tolist()}
-    checking = with_overrides(job, {"scanner.nominal": nominal}, source="verify job")
-    listed = checking.trajectory.model_copy(update={"flute_phase_deg": None})
-    return checking.model_copy(update={"trajectory": listed})
+    return without_spin(with_overrides(job, {"scanner.nominal": nominal}, source="verify job"))
 
 
 def drift_model(

@@ -21,7 +21,7 @@ from lasercal_hw.models import RodLine
 from lasercal_hw.run.outputs import first_pass_record
 from lasercal_hw.run.records import WaypointMeasurement
 from lasercal_hw.run.two_pass import SecondPassRefit, TwoPassSolution, solve_two_pass
-from lasercal_hw.run.waypoints import job_waypoints
+from lasercal_hw.run.waypoints import job_waypoints, without_spin
 from lasercal_hw.scan.average import AveragedScan
 from lasercal_hw.scan.extraction import find as extraction_find
 from lasercal_hw.verify.across_kind import FIT_ACROSS
@@ -84,8 +84,7 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> Calibrated:
 def unspun_drill_job() -> JobConfig:
     """The drill job visiting its waypoints as listed, without the spin before them (a spun
     calibration's verify: tests/verify/test_verify_visited.py)."""
-    job = load_job(DRILL_JOB)
-    return job.model_copy(update={"trajectory": job.trajectory.model_copy(update={"flute_phase_deg": None})})
+    return without_spin(load_job(DRILL_JOB))
 
 
 @pytest.fixture(scope="module")
